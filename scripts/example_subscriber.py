@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""Subscribe to a skelfuse rig's fused skeletons and print each person's pelvis, without skelfuse.
+
+This is the reference for writing a decoder in another language (C#, C++, Unity...): it uses only zenoh and
+the Python standard library (``struct``), no skelfuse and no numpy, and follows docs/wire-format.md
+section by section. ``decode_fused`` is the part to port.
+
+Usage::
+
+    pip install eclipse-zenoh
+    python scripts/example_subscriber.py --rig lab --max-messages 100
+    python scripts/example_subscriber.py --rig lab --connect tcp/192.168.1.10:7447 --no-scouting
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import struct
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+MAGIC = b"SKLF"
+SUPPORTED_MAJOR = 1
+KNOWN_MINOR = 0
+KIND_FUSED_FRAME = 2
+N_JOINTS = 32
+PELVIS = 0
+
+# Fused-frame header, 32 bytes little-endian: magic, major, minor, kind, flags, header_size, n_joints,
+# n_persons, n_sensors, time_us, sensor_table_size, reserved.
+FUSED_HEADER = struct.Struct("<4sBBBBHHHHqII")
+
+
+class PayloadError(ValueError):
+    """The payload is not a fused frame this decoder understands."""
+
+
+def decode_fused(payload: bytes) -> dict[str, Any]:
+    """Decode a fused-frame payload (docs/wire-format.md, message kind 2) into plain Python values.
+
+    Returns
+    -------
+    dict
+        ``version`` (major, minor), ``time_us`` int, ``sensor_ids`` list of str, and ``persons``: one dict
+        per person with ``track_id`` int, ``positions`` (32 [x, y, z] lists, mm, world frame, NaN = no
+        estimate), ``n_agree`` (32 ints), ``confidence`` (32 ints 0..3), ``contributors`` (list of the
+        sensor ids that contributed).
+    """
+    if len(payload) < FUSED_HEADER.size:
+        raise PayloadError(f"{len(payload)} bytes, shorter than the {FUSED_HEADER.size}-byte header")
+    (magic, major, minor, kind, _flags, header_size, n_joints, n_persons, n_sensors, time_us, table_size,
+     _reserved) = FUSED_HEADER.unpack_from(payload, 0)
+    if magic != MAGIC:
+        raise PayloadError(f"magic {magic!r}, expected {MAGIC!r}")
+    if major != SUPPORTED_MAJOR:
+        raise PayloadError(f"schema version {major}.{minor}; this decoder reads major {SUPPORTED_MAJOR}")
+    if kind != KIND_FUSED_FRAME:
+        raise PayloadError(f"message kind {kind}, expected {KIND_FUSED_FRAME} (fused frame)")
+    if header_size < FUSED_HEADER.size or n_joints != N_JOINTS:
+        raise PayloadError(f"header size {header_size} / joint count {n_joints} not as documented")
+
+    # Sections follow the header in this order; a newer minor may add bytes after them (ignored here).
+    per_person = n_joints
+    offset = header_size  # a newer minor may grow the header: always start at header_size
+    track_ids_at = offset
+    positions_at = track_ids_at + 8 * n_persons
+    n_agree_at = positions_at + 8 * 3 * per_person * n_persons
+    confidence_at = n_agree_at + 2 * per_person * n_persons
+    contributors_at = confidence_at + per_person * n_persons
+    table_at = contributors_at + n_sensors * n_persons
+    end = table_at + table_size
+    if len(payload) < end or (minor <= KNOWN_MINOR and len(payload) != end):
+        raise PayloadError(f"{len(payload)} bytes, the header's counts need {end}")
+
+    sensor_ids = []
+    at = table_at
+    for _ in range(n_sensors):
+        (size,) = struct.unpack_from("<H", payload, at)
+        sensor_ids.append(payload[at + 2: at + 2 + size].decode("utf-8"))
+        at += 2 + size
+    if at != end:
+        raise PayloadError("sensor id table does not match its declared size")
+
+    track_ids = struct.unpack_from(f"<{n_persons}q", payload, track_ids_at)
+    coords = struct.unpack_from(f"<{3 * per_person * n_persons}d", payload, positions_at)
+    n_agree = struct.unpack_from(f"<{per_person * n_persons}h", payload, n_agree_at)
+    confidence = payload[confidence_at:contributors_at]
+    contributors = payload[contributors_at:table_at]
+
+    persons = []
+    for p in range(n_persons):
+        first = p * per_person
+        persons.append({
+            "track_id": track_ids[p],
+            "positions": [list(coords[3 * (first + j): 3 * (first + j) + 3]) for j in range(per_person)],
+            "n_agree": list(n_agree[first: first + per_person]),
+            "confidence": list(confidence[first: first + per_person]),
+            "contributors": [sensor_ids[s] for s in range(n_sensors) if contributors[p * n_sensors + s]],
+        })
+    return {"version": (major, minor), "time_us": time_us, "sensor_ids": sensor_ids, "persons": persons}
+
+
+def describe(frame: dict[str, Any]) -> str:
+    """One line per frame: time, then each person's track id and pelvis position (mm)."""
+    parts = [f"t={frame['time_us'] / 1e6:.3f}s persons={len(frame['persons'])}"]
+    for person in frame["persons"]:
+        x, y, z = person["positions"][PELVIS]
+        pelvis = "no estimate" if math.isnan(x) else f"({x:.0f}, {y:.0f}, {z:.0f}) mm"
+        parts.append(f"track {person['track_id']}: pelvis {pelvis}")
+    return " | ".join(parts)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rig", default="default", help="subscribes to skelfuse/<rig>/fused/skeletons")
+    parser.add_argument("--mode", choices=("peer", "client"), default="peer", help="zenoh session mode")
+    parser.add_argument("--connect", action="append", default=[], help="zenoh endpoint to connect to")
+    parser.add_argument("--listen", action="append", default=[], help="zenoh endpoint to listen on")
+    parser.add_argument("--no-scouting", action="store_true", help="disable multicast scouting")
+    parser.add_argument("--max-messages", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    import zenoh  # lazy: decode_fused must be importable (and testable) without zenoh installed
+
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(args.mode))
+    if args.connect:
+        config.insert_json5("connect/endpoints", json.dumps(args.connect))
+    if args.listen:
+        config.insert_json5("listen/endpoints", json.dumps(args.listen))
+    if args.no_scouting:
+        config.insert_json5("scouting/multicast/enabled", "false")
+
+    key = f"skelfuse/{args.rig}/fused/skeletons"
+    received = 0
+    done = threading.Event()
+
+    def on_sample(sample: Any) -> None:
+        nonlocal received
+        try:
+            frame = decode_fused(sample.payload.to_bytes())
+        except (PayloadError, struct.error, UnicodeDecodeError, IndexError) as exc:
+            print(f"rejected payload on {sample.key_expr}: {exc}", file=sys.stderr)
+            return
+        print(describe(frame), flush=True)
+        received += 1
+        if args.max_messages is not None and received >= args.max_messages:
+            done.set()
+
+    with zenoh.open(config) as session:
+        session.declare_subscriber(key, on_sample)
+        print(f"subscribed to {key}", file=sys.stderr)
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        try:
+            while not done.is_set():
+                timeout = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
+                if timeout <= 0:
+                    break
+                done.wait(timeout)
+        except KeyboardInterrupt:
+            pass
+    print(f"received {received} fused frames", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
