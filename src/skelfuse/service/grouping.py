@@ -1,0 +1,414 @@
+"""Grouping sensor frames of one instant: pure logic, no clocks, no threads (time is passed in).
+
+The fusion node receives the sensors' frames one by one, in whatever order the network delivers them, and
+must hand the fusion core one set of frames per instant. :class:`FrameGrouper` does that. Cycle::
+
+    for each received frame:   groups = grouper.push(frame, now_ns)      # may emit groups
+    on a timer (e.g. 5 ms):    groups = grouper.poll(now_ns)             # emits groups whose deadline passed
+    at shutdown:               groups = grouper.flush()                  # emits everything still open
+
+Which clock groups frames (``by``):
+
+* ``"device"``: the device timestamp ``device_time_us``. Only meaningful with wired hardware sync: synced
+  Azure Kinects share the master's clock, and a subordinate's timestamp sits its configured depth delay
+  (160 µs to ~1 ms) after the master's. Independent devices' clocks do not share an epoch.
+* ``"host"``: the host receive time ``host_time_ns`` (rigs without sync cables). It carries USB and
+  body-tracking latency jitter of a few ms, so the tolerance must cover that.
+
+Rules
+-----
+Membership
+    A frame joins the open group whose *anchor* (the time of the group's first frame) is nearest to the
+    frame's time, if it lies within ``tolerance_us``; otherwise it opens a new group. With the tolerance
+    below half a frame period (checked) consecutive instants never share a group.
+Emission
+    A group is *ready* when every expected sensor either has a frame in it or has already delivered a frame
+    of a later instant (time beyond the group's window): frames of one sensor arrive in time order, so the
+    missing frame can no longer come. A complete group is therefore emitted on its last frame, and a group
+    whose sensor dropped that one frame is emitted as soon as the sensor's next frame arrives. Otherwise the
+    group is emitted when its deadline passes: ``deadline_us`` after the arrival (``now_ns``) of its first
+    frame, so a dead or slow sensor never stalls the output. Groups are emitted in time order, each once:
+    when a later group is due, every older open group is emitted before it, as it is.
+``FrameGroup.time_us``
+    The earliest frame time in the group (in device mode the master's timestamp when the master is in it).
+    Emitted ``time_us`` strictly increase within one clock epoch (see below).
+Late frames
+    A frame whose time is not after the last emitted group's window belongs to an instant already emitted:
+    it is counted as ``late`` and dropped; it never re-opens an emitted instant.
+Duplicates
+    A second frame of one sensor for one group: the first is kept, the second counted as ``duplicate``.
+Drops
+    Sequence gaps per sensor (``sequence`` jumping by more than one) are counted as ``dropped``; a sequence
+    going backwards (a restarted sensor or a looped replay) restarts the count for that sensor.
+Unknown sensors
+    Frames of a sensor not in ``expected_sensor_ids`` are counted in ``unknown`` and ignored.
+Clock resets (resync rule)
+    A frame whose time lies more than ``resync_horizon_us`` (default 1 s) from the newest frame time seen is
+    *out of window*: a sensor restarted with a new clock epoch, a replay looped, a clock jumped. It is held
+    back. If an in-window frame arrives next, the held-back frames are counted as ``out_of_window`` and
+    dropped: one sensor on a foreign clock is ignored while the others go on (it shows as missing). If
+    ``resync_after`` consecutive frames are out of window, the whole rig has moved to a new epoch: the
+    grouper emits every open group, forgets its time state (a new epoch begins, ``resyncs`` counts it) and
+    replays the held-back frames into the new epoch, so none is lost. ``time_us`` may jump backwards across
+    a resync, never within an epoch.
+
+Accounting: every pushed frame of an expected sensor ends up in exactly one emitted group or in one of
+``late``, ``duplicate``, ``out_of_window`` (after :meth:`FrameGrouper.flush`; before it, frames may still be
+held in open groups or held back, see :attr:`FrameGrouper.n_held`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+from skelfuse.frames import SensorFrame
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from skelfuse.config import RigConfig
+
+GroupBy = Literal["device", "host"]
+
+DEFAULT_RESYNC_AFTER = 8
+"""Consecutive out-of-window frames that make the grouper start a new clock epoch (two frames of four sensors)."""
+DEFAULT_RESYNC_HORIZON_US = 1_000_000
+"""How far (µs) from the newest frame time a frame may lie before it counts as out of window."""
+_MAX_UNKNOWN_IDS = 16
+
+
+@dataclass(frozen=True)
+class FrameGroup:
+    """The frames of one instant.
+
+    Attributes
+    ----------
+    time_us : int
+        Earliest frame time in the group, µs, on the grouping clock (device time, or host time / 1000).
+    frames : dict[str, SensorFrame]
+        One frame per sensor that delivered one, in the order of the grouper's expected sensor ids.
+    missing : tuple[str, ...]
+        Expected sensors without a frame in this group, in expected order.
+    complete : bool
+        True when ``missing`` is empty.
+    """
+
+    time_us: int
+    frames: dict[str, SensorFrame]
+    missing: tuple[str, ...]
+    complete: bool
+
+
+@dataclass
+class SensorCounters:
+    """Frame counters of one sensor (or the sum over sensors).
+
+    Attributes
+    ----------
+    received : int
+        Frames pushed.
+    grouped : int
+        Frames handed out in an emitted group.
+    late : int
+        Frames for an instant already emitted (dropped).
+    dropped : int
+        Frames the sensor never delivered, from gaps in its sequence numbers.
+    duplicate : int
+        Second frames of the sensor for one group (dropped).
+    out_of_window : int
+        Frames far outside the current time window that did not lead to a resync (dropped).
+    """
+
+    received: int = 0
+    grouped: int = 0
+    late: int = 0
+    dropped: int = 0
+    duplicate: int = 0
+    out_of_window: int = 0
+
+
+@dataclass
+class GrouperStats:
+    """Counters of a :class:`FrameGrouper` (a snapshot when read through :attr:`FrameGrouper.stats`).
+
+    Attributes
+    ----------
+    sensors : dict[str, SensorCounters]
+        Per expected sensor.
+    unknown : int
+        Frames of sensors that are not expected (ignored).
+    unknown_ids : list[str]
+        The first few unknown sensor ids seen (at most 16), for a status message.
+    groups, complete_groups : int
+        Groups emitted, and how many of them were complete.
+    resyncs : int
+        Clock epochs started after out-of-window frames (see the module's resync rule).
+    """
+
+    sensors: dict[str, SensorCounters]
+    unknown: int = 0
+    unknown_ids: list[str] = field(default_factory=list)
+    groups: int = 0
+    complete_groups: int = 0
+    resyncs: int = 0
+
+    @property
+    def totals(self) -> SensorCounters:
+        """Counters summed over the expected sensors."""
+        total = SensorCounters()
+        for counters in self.sensors.values():
+            for f in dataclasses.fields(SensorCounters):
+                setattr(total, f.name, getattr(total, f.name) + getattr(counters, f.name))
+        return total
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain dict (JSON-ready) for a status document."""
+        return {
+            "sensors": {sid: dataclasses.asdict(c) for sid, c in self.sensors.items()},
+            "totals": dataclasses.asdict(self.totals),
+            "unknown": self.unknown,
+            "unknown_ids": list(self.unknown_ids),
+            "groups": self.groups,
+            "complete_groups": self.complete_groups,
+            "resyncs": self.resyncs,
+        }
+
+
+@dataclass
+class _OpenGroup:
+    anchor_us: int
+    deadline_ns: int
+    frames: dict[str, SensorFrame] = field(default_factory=dict)
+    min_time_us: int = 0
+
+
+class FrameGrouper:
+    """Groups :class:`SensorFrame` objects of one instant (rules in the module docstring).
+
+    Parameters
+    ----------
+    expected_sensor_ids : iterable of str
+        The rig's sensors; groups are complete when all of them delivered.
+    by : {"device", "host"}
+        Grouping clock: ``device_time_us`` (wired sync) or ``host_time_ns`` (no sync cables).
+    tolerance_us : int
+        Maximum distance of a frame's time from its group's anchor, µs; below half a frame period.
+    deadline_us : int
+        A group is emitted at the latest this long after its first frame arrived (``now_ns``), µs.
+    fps : float
+        Nominal frame rate, Hz (bounds the tolerance).
+    resync_after : int
+        Consecutive out-of-window frames that start a new clock epoch.
+    resync_horizon_us : int
+        Distance from the newest frame time beyond which a frame is out of window, µs.
+
+    Not thread-safe: call it from one thread (the fusion node's loop).
+    """
+
+    def __init__(
+        self,
+        expected_sensor_ids: Iterable[str],
+        *,
+        by: GroupBy = "device",
+        tolerance_us: int,
+        deadline_us: int,
+        fps: float = 30.0,
+        resync_after: int = DEFAULT_RESYNC_AFTER,
+        resync_horizon_us: int = DEFAULT_RESYNC_HORIZON_US,
+    ) -> None:
+        ids = tuple(expected_sensor_ids)
+        if not ids or not all(isinstance(s, str) and s for s in ids):
+            raise ValueError(f"FrameGrouper needs at least one sensor id (non-empty str), got {ids!r}")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"FrameGrouper expected_sensor_ids holds duplicates: {ids!r}")
+        if by not in ("device", "host"):
+            raise ValueError(f"FrameGrouper by must be 'device' or 'host', got {by!r}")
+        if not fps > 0:
+            raise ValueError(f"FrameGrouper fps must be > 0, got {fps!r}")
+        half_period_us = 0.5e6 / fps
+        if not 0 < tolerance_us < half_period_us:
+            raise ValueError(f"FrameGrouper tolerance_us must be in (0, {half_period_us:.0f}) (half a frame period "
+                             f"at {fps:g} fps), got {tolerance_us!r}")
+        if not deadline_us > 0:
+            raise ValueError(f"FrameGrouper deadline_us must be > 0, got {deadline_us!r}")
+        if int(resync_after) < 1:
+            raise ValueError(f"FrameGrouper resync_after must be >= 1, got {resync_after!r}")
+        if not resync_horizon_us > tolerance_us:
+            raise ValueError(f"FrameGrouper resync_horizon_us must exceed tolerance_us ({tolerance_us}), "
+                             f"got {resync_horizon_us!r}")
+        self.expected_sensor_ids = ids
+        self.by: GroupBy = by
+        self.tolerance_us = int(tolerance_us)
+        self.deadline_us = int(deadline_us)
+        self.fps = float(fps)
+        self.resync_after = int(resync_after)
+        self.resync_horizon_us = int(resync_horizon_us)
+        self._expected = frozenset(ids)
+        self._stats = GrouperStats(sensors={sid: SensorCounters() for sid in ids})
+        self._last_sequence: dict[str, int] = {}
+        self._held_back: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns), out of window
+        self._reset_epoch()
+
+    @classmethod
+    def for_rig(cls, cfg: RigConfig) -> FrameGrouper:
+        """A grouper for a rig: its sensors, and the ``[sync]`` section of its config."""
+        sync = cfg.sync
+        return cls(cfg.sensor_ids, by=sync.by, tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
+                   deadline_us=sync.deadline_us, fps=sync.fps, resync_after=sync.resync_after_frames,
+                   resync_horizon_us=sync.resync_horizon_us)
+
+    # -- public -------------------------------------------------------------------------------------------
+
+    def push(self, frame: SensorFrame, now_ns: int) -> list[FrameGroup]:
+        """Add one received frame (``now_ns``: its arrival, on the caller's monotonic clock).
+
+        Returns the groups that became due, oldest first (possibly none).
+        """
+        sensor_id = frame.sensor_id
+        if sensor_id not in self._expected:
+            self._stats.unknown += 1
+            if sensor_id not in self._stats.unknown_ids and len(self._stats.unknown_ids) < _MAX_UNKNOWN_IDS:
+                self._stats.unknown_ids.append(str(sensor_id))
+            return self._emit_due(now_ns)
+        self._stats.sensors[sensor_id].received += 1
+        self._count_sequence(sensor_id, int(frame.sequence))
+        time_us = self._time_of(frame)
+        emitted: list[FrameGroup] = []
+        if self._in_window(time_us):
+            self._drop_held_back()
+            self._place(frame, time_us, now_ns)
+        else:
+            self._held_back.append((frame, time_us, now_ns))
+            if len(self._held_back) >= self.resync_after:
+                emitted.extend(self._resync())
+        emitted.extend(self._emit_due(now_ns))
+        return emitted
+
+    def poll(self, now_ns: int) -> list[FrameGroup]:
+        """Emit the groups whose deadline passed by ``now_ns`` (or that became ready), oldest first."""
+        return self._emit_due(now_ns)
+
+    def flush(self) -> list[FrameGroup]:
+        """Emit every open group (end of stream, shutdown); held-back frames are counted out of window."""
+        self._drop_held_back()
+        emitted = [self._emit(group) for group in self._open]
+        self._open.clear()
+        return emitted
+
+    @property
+    def stats(self) -> GrouperStats:
+        """A snapshot of the counters (safe to keep or serialize)."""
+        return dataclasses.replace(
+            self._stats,
+            sensors={sid: dataclasses.replace(c) for sid, c in self._stats.sensors.items()},
+            unknown_ids=list(self._stats.unknown_ids),
+        )
+
+    @property
+    def n_open(self) -> int:
+        """Groups waiting for frames or their deadline."""
+        return len(self._open)
+
+    @property
+    def n_held(self) -> int:
+        """Frames not yet accounted for: in open groups, or held back as out of window."""
+        return sum(len(g.frames) for g in self._open) + len(self._held_back)
+
+    # -- internals ----------------------------------------------------------------------------------------
+
+    def _reset_epoch(self) -> None:
+        self._open: list[_OpenGroup] = []  # sorted by anchor
+        self._emitted_until_us: int | None = None  # anchor of the newest emitted group
+        self._newest_us: int | None = None  # newest in-window frame time
+        self._latest_by_sensor: dict[str, int] = {}
+
+    def _time_of(self, frame: SensorFrame) -> int:
+        return int(frame.device_time_us) if self.by == "device" else int(frame.host_time_ns) // 1000
+
+    def _count_sequence(self, sensor_id: str, sequence: int) -> None:
+        last = self._last_sequence.get(sensor_id)
+        if last is not None and sequence > last + 1:
+            self._stats.sensors[sensor_id].dropped += sequence - last - 1
+        if last is None or sequence != last:
+            # Forward: the new last. Backwards: a restarted sensor or looped replay, count from here.
+            self._last_sequence[sensor_id] = sequence
+
+    def _in_window(self, time_us: int) -> bool:
+        return self._newest_us is None or abs(time_us - self._newest_us) <= self.resync_horizon_us
+
+    def _drop_held_back(self) -> None:
+        for frame, _, _ in self._held_back:
+            self._stats.sensors[frame.sensor_id].out_of_window += 1
+        self._held_back.clear()
+
+    def _resync(self) -> list[FrameGroup]:
+        """Start a new clock epoch: emit what is open, forget the time state, replay the held-back frames."""
+        emitted = [self._emit(group) for group in self._open]
+        held, self._held_back = self._held_back, []
+        self._reset_epoch()
+        self._stats.resyncs += 1
+        for frame, time_us, arrival_ns in held:
+            if self._in_window(time_us):
+                self._place(frame, time_us, arrival_ns)
+            else:  # the held-back frames do not even agree with each other
+                self._stats.sensors[frame.sensor_id].out_of_window += 1
+        return emitted
+
+    def _place(self, frame: SensorFrame, time_us: int, arrival_ns: int) -> None:
+        sensor_id = frame.sensor_id
+        counters = self._stats.sensors[sensor_id]
+        self._newest_us = time_us if self._newest_us is None else max(self._newest_us, time_us)
+        self._latest_by_sensor[sensor_id] = max(self._latest_by_sensor.get(sensor_id, time_us), time_us)
+        if self._emitted_until_us is not None and time_us <= self._emitted_until_us + self.tolerance_us:
+            counters.late += 1
+            return
+        group = self._nearest_open(time_us)
+        if group is None:
+            group = _OpenGroup(anchor_us=time_us, deadline_ns=int(arrival_ns) + self.deadline_us * 1000,
+                               min_time_us=time_us)
+            anchors = [g.anchor_us for g in self._open]
+            self._open.insert(bisect.bisect_right(anchors, time_us), group)
+        elif sensor_id in group.frames:
+            counters.duplicate += 1
+            return
+        group.frames[sensor_id] = frame
+        group.min_time_us = min(group.min_time_us, time_us)
+
+    def _nearest_open(self, time_us: int) -> _OpenGroup | None:
+        best, best_distance = None, None
+        for group in self._open:
+            distance = abs(time_us - group.anchor_us)
+            if distance <= self.tolerance_us and (best_distance is None or distance < best_distance):
+                best, best_distance = group, distance
+        return best
+
+    def _ready(self, group: _OpenGroup) -> bool:
+        window_end = group.anchor_us + self.tolerance_us
+        return all(
+            sid in group.frames or self._latest_by_sensor.get(sid, window_end) > window_end
+            for sid in self.expected_sensor_ids
+        )
+
+    def _emit_due(self, now_ns: int) -> list[FrameGroup]:
+        last_due = -1
+        for idx, group in enumerate(self._open):
+            if now_ns >= group.deadline_ns or self._ready(group):
+                last_due = idx
+        if last_due < 0:
+            return []
+        due, self._open = self._open[: last_due + 1], self._open[last_due + 1 :]
+        return [self._emit(group) for group in due]
+
+    def _emit(self, group: _OpenGroup) -> FrameGroup:
+        frames = {sid: group.frames[sid] for sid in self.expected_sensor_ids if sid in group.frames}
+        missing = tuple(sid for sid in self.expected_sensor_ids if sid not in group.frames)
+        for sid in frames:
+            self._stats.sensors[sid].grouped += 1
+        self._stats.groups += 1
+        if not missing:
+            self._stats.complete_groups += 1
+        if self._emitted_until_us is None or group.anchor_us > self._emitted_until_us:
+            self._emitted_until_us = group.anchor_us
+        return FrameGroup(time_us=group.min_time_us, frames=frames, missing=missing, complete=not missing)

@@ -1,0 +1,344 @@
+"""FrameGrouper: grouping sensor frames of one instant (pure, time passed in)."""
+
+from __future__ import annotations
+
+from itertools import pairwise
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from skelfuse.frames import SensorFrame
+from skelfuse.service.grouping import FrameGroup, FrameGrouper
+
+SEED = 20240611
+PERIOD_US = 33_333
+SENSORS = ("s0", "s1", "s2", "s3")
+OFFSETS_US = (0, 160, 320, 480)  # master, then subordinates' depth delays
+TOL_US = 10_000
+DEADLINE_US = 17_000
+
+
+def frame(sensor_id: str, sequence: int, device_time_us: int, host_time_ns: int = 0) -> SensorFrame:
+    return SensorFrame(
+        sensor_id=sensor_id,
+        sequence=sequence,
+        device_time_us=int(device_time_us),
+        host_time_ns=int(host_time_ns),
+        body_ids=np.zeros(0, np.uint32),
+        positions=np.zeros((0, 32, 3), np.float32),
+        orientations=np.zeros((0, 32, 4), np.float32),
+        confidence=np.zeros((0, 32), np.uint8),
+    )
+
+
+def grouper(by: str = "device", sensors: tuple[str, ...] = SENSORS, **kwargs: int) -> FrameGrouper:
+    return FrameGrouper(sensors, by=by, tolerance_us=kwargs.pop("tolerance_us", TOL_US),  # type: ignore[arg-type]
+                        deadline_us=kwargs.pop("deadline_us", DEADLINE_US), **kwargs)
+
+
+def synced_stream(n_frames: int, rng: np.random.Generator, *, start_us: int = 5_000_000,
+                  skip: set[tuple[str, int]] = frozenset()) -> list[tuple[int, SensorFrame]]:
+    """(arrival_ns, frame) of a hardware-synced rig, sorted by arrival.
+
+    Device time: master period with ~12 µs jitter plus each subordinate's delay. Arrival: device time plus
+    a latency of 30 ms +- 3 ms per frame (body tracking + network), so sensors interleave.
+    """
+    events = []
+    master_us = start_us
+    for k in range(n_frames):
+        master_us += PERIOD_US + int(rng.normal(0.0, 12.0))
+        for sid, offset in zip(SENSORS, OFFSETS_US, strict=True):
+            if (sid, k) in skip:
+                continue
+            device_us = master_us + offset + int(rng.normal(0.0, 12.0))
+            arrival_ns = (device_us + 30_000 + int(rng.normal(0.0, 3_000.0))) * 1000
+            events.append((arrival_ns, frame(sid, k, device_us, arrival_ns)))
+    # Frames of one sensor keep their order (one pipeline per sensor): sort by arrival, ties by sequence.
+    events.sort(key=lambda e: (e[0], e[1].sequence))
+    return fix_per_sensor_order(events)
+
+
+def fix_per_sensor_order(events: list[tuple[int, SensorFrame]]) -> list[tuple[int, SensorFrame]]:
+    """Make arrival times monotonic per sensor (a sensor's pipeline never reorders its own frames)."""
+    last: dict[str, int] = {}
+    fixed = []
+    for arrival_ns, f in sorted(events, key=lambda e: (e[1].sensor_id, e[1].sequence)):
+        arrival_ns = max(arrival_ns, last.get(f.sensor_id, arrival_ns) + 1)
+        last[f.sensor_id] = arrival_ns
+        fixed.append((arrival_ns, f))
+    fixed.sort(key=lambda e: e[0])
+    return fixed
+
+
+def run(g: FrameGrouper, events: list[tuple[int, SensorFrame]], *, flush: bool = True) -> list[FrameGroup]:
+    out: list[FrameGroup] = []
+    for arrival_ns, f in events:
+        out.extend(g.poll(arrival_ns))
+        out.extend(g.push(f, arrival_ns))
+    if flush:
+        out.extend(g.flush())
+    return out
+
+
+def test_synced_offsets_and_jitter_group_exactly() -> None:
+    rng = np.random.default_rng(SEED)
+    g = grouper()
+    groups = run(g, synced_stream(300, rng), flush=False)
+    assert g.n_open <= 1  # the newest instant may wait for its last frame only if it arrived last
+    groups += g.flush()
+    assert len(groups) == 300
+    for k, group in enumerate(groups):
+        assert group.complete and group.missing == ()
+        assert list(group.frames) == list(SENSORS)
+        assert {f.sequence for f in group.frames.values()} == {k}
+        assert group.time_us == group.frames["s0"].device_time_us  # the master's timestamp
+    times = [grp.time_us for grp in groups]
+    assert all(b > a for a, b in pairwise(times))
+    stats = g.stats
+    assert stats.groups == stats.complete_groups == 300
+    assert stats.totals.received == stats.totals.grouped == 1200
+    assert stats.totals.late == stats.totals.dropped == stats.totals.duplicate == 0
+
+
+def test_complete_group_is_emitted_on_its_last_frame_without_waiting() -> None:
+    g = grouper()
+    t0 = 1_000_000
+    for sid, offset in zip(SENSORS[:3], OFFSETS_US[:3], strict=True):
+        assert g.push(frame(sid, 0, t0 + offset), now_ns=10) == []
+    [group] = g.push(frame("s3", 0, t0 + 480), now_ns=11)
+    assert group.complete and group.time_us == t0
+
+
+def test_silent_sensor_groups_are_emitted_at_the_deadline() -> None:
+    g = grouper()
+    first_arrival_ns = 7_000_000_000
+    for k in range(3):
+        t = 2_000_000 + k * PERIOD_US
+        arrival = first_arrival_ns + k * PERIOD_US * 1000
+        for i, sid in enumerate(SENSORS[:3]):
+            emitted = g.push(frame(sid, k, t + OFFSETS_US[i]), arrival + i * 1000)
+            assert emitted == [] or k > 0  # earlier groups may come due while pushing later ones
+        assert g.poll(arrival + DEADLINE_US * 1000 - 1) == []
+        [group] = g.poll(arrival + DEADLINE_US * 1000)
+        assert group.missing == ("s3",) and not group.complete
+        assert list(group.frames) == ["s0", "s1", "s2"]
+        assert group.time_us == t
+    assert g.stats.complete_groups == 0 and g.stats.groups == 3
+
+
+def test_missing_frame_of_a_live_sensor_is_emitted_when_that_sensor_moves_on() -> None:
+    rng = np.random.default_rng(SEED + 1)
+    g = grouper()
+    groups = run(g, synced_stream(20, rng, skip={("s2", 7)}))
+    assert len(groups) == 20
+    assert [grp.missing for grp in groups if not grp.complete] == [("s2",)]
+    assert g.stats.sensors["s2"].dropped == 1  # from the sequence gap 6 -> 8
+    assert g.stats.totals.dropped == 1
+
+
+def test_late_frame_is_counted_and_dropped_and_never_reopens_the_instant() -> None:
+    g = grouper()
+    t = 3_000_000
+    for i, sid in enumerate(SENSORS[:3]):
+        g.push(frame(sid, 0, t + OFFSETS_US[i]), now_ns=1000 + i)
+    [group] = g.poll(1000 + DEADLINE_US * 1000)
+    assert group.missing == ("s3",)
+    assert g.push(frame("s3", 0, t + 480), now_ns=1000 + DEADLINE_US * 1000 + 5) == []
+    assert g.n_open == 0
+    assert g.stats.sensors["s3"].late == 1 and g.stats.sensors["s3"].grouped == 0
+    # the next instant is unaffected
+    for i, sid in enumerate(SENSORS):
+        out = g.push(frame(sid, 1, t + PERIOD_US + OFFSETS_US[i]), now_ns=40_000_000 + i)
+    [next_group] = out
+    assert next_group.complete and next_group.time_us == t + PERIOD_US
+
+
+def test_duplicate_and_unknown_frames_are_counted_and_ignored() -> None:
+    g = grouper()
+    t = 1_000_000
+    g.push(frame("s0", 0, t), now_ns=1)
+    g.push(frame("s0", 0, t + 3), now_ns=2)  # a second frame of s0 for the same instant
+    g.push(frame("intruder", 0, t), now_ns=3)
+    for i, sid in enumerate(SENSORS[1:], start=1):
+        out = g.push(frame(sid, 0, t + OFFSETS_US[i]), now_ns=4 + i)
+    [group] = out
+    assert group.complete and group.frames["s0"].device_time_us == t  # the first one kept
+    stats = g.stats
+    assert stats.sensors["s0"].duplicate == 1 and stats.sensors["s0"].received == 2
+    assert stats.unknown == 1 and stats.unknown_ids == ["intruder"]
+    assert "intruder" not in stats.sensors
+
+
+def test_host_time_grouping_with_host_offsets_and_usb_jitter() -> None:
+    rng = np.random.default_rng(SEED + 2)
+    host_offset_ms = rng.normal(0.0, 1.5, size=len(SENSORS))  # constant per sensor (USB controller, tracker)
+    device_epoch_us = rng.integers(0, 10**9, size=len(SENSORS))  # independent device clocks: unrelated epochs
+    events = []
+    for k in range(400):
+        true_ns = 1_700_000_000_000_000_000 + k * PERIOD_US * 1000
+        for i, sid in enumerate(SENSORS):
+            jitter_ms = float(np.clip(rng.normal(0.0, 1.5), -4.0, 4.0))  # USB + processing jitter
+            host_ns = true_ns + int((30.0 + host_offset_ms[i] + jitter_ms) * 1e6)
+            events.append((host_ns, frame(sid, k, int(device_epoch_us[i]) + k * PERIOD_US, host_ns)))
+    # Host mode needs a wider tolerance than device mode (the config's host default: 0.4 frame = 13.3 ms).
+    g = grouper(by="host", tolerance_us=13_000)
+    groups = run(g, fix_per_sensor_order(events))
+    assert len(groups) == 400
+    assert all(grp.complete for grp in groups)
+    for k, group in enumerate(groups):
+        assert {f.sequence for f in group.frames.values()} == {k}
+        assert group.time_us == min(f.host_time_ns // 1000 for f in group.frames.values())
+
+
+def test_device_grouping_would_fail_without_a_shared_epoch_so_host_mode_exists() -> None:
+    # Same stream as above, grouped by device time: unrelated epochs never meet within the tolerance.
+    g = grouper(by="device")
+    events = [(k * 1000 + i, frame(sid, k, i * 10**8 + k * PERIOD_US)) for k in range(5) for i, sid in
+              enumerate(SENSORS)]
+    groups = run(g, events)
+    assert not any(grp.complete for grp in groups)
+
+
+def test_whole_rig_clock_reset_resyncs_without_losing_frames() -> None:
+    rng = np.random.default_rng(SEED + 3)
+    first = synced_stream(60, rng, start_us=50_000_000)
+    # a looped replay: the same rig starts again 49 s earlier (far outside the 1 s horizon)
+    second = synced_stream(60, rng, start_us=1_000_000)
+    shift_ns = first[-1][0] + 1_000_000
+    second = [(arrival + shift_ns, frame(f.sensor_id, f.sequence, f.device_time_us)) for arrival, f in second]
+    g = grouper()
+    groups = run(g, first + second)
+    stats = g.stats
+    assert stats.resyncs == 1
+    assert stats.totals.out_of_window == 0  # held-back frames were replayed into the new epoch
+    assert stats.totals.received == stats.totals.grouped == 480
+    assert len(groups) == 120 and all(grp.complete for grp in groups)
+    times = [grp.time_us for grp in groups]
+    assert all(b > a for a, b in pairwise(times[:60]))
+    assert times[60] < times[59]  # the new epoch starts earlier; within it, time order again
+    assert all(b > a for a, b in pairwise(times[60:]))
+
+
+def test_one_sensor_on_a_foreign_clock_is_ignored_not_followed() -> None:
+    # s3 restarts without sync: its device clock starts near 0 while the rig is at ~100 s.
+    g = grouper()
+    out: list[FrameGroup] = []
+    for k in range(40):
+        t = 100_000_000 + k * PERIOD_US
+        arrival = 10**12 + k * PERIOD_US * 1000
+        for i, sid in enumerate(SENSORS):
+            device_us = t + OFFSETS_US[i] if (sid != "s3" or k < 10) else 500 + (k - 10) * PERIOD_US
+            out += g.poll(arrival + i * 1000)
+            out += g.push(frame(sid, k if sid != "s3" or k < 10 else k - 10, device_us), arrival + i * 1000)
+    out += g.flush()
+    stats = g.stats
+    assert stats.resyncs == 0
+    assert len(out) == 40
+    assert all(grp.complete for grp in out[:10])
+    assert all(grp.missing == ("s3",) for grp in out[10:])
+    assert stats.sensors["s3"].out_of_window == 30
+    assert stats.sensors["s3"].dropped == 0  # the sequence restarting is not counted as drops
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        pytest.param({"tolerance_us": 20_000}, "half a frame period", id="tolerance-too-wide"),
+        pytest.param({"tolerance_us": 0}, "tolerance_us", id="tolerance-zero"),
+        pytest.param({"deadline_us": 0}, "deadline_us", id="deadline-zero"),
+        pytest.param({"resync_after": 0}, "resync_after", id="resync-after-zero"),
+        pytest.param({"resync_horizon_us": 5_000}, "resync_horizon_us", id="horizon-below-tolerance"),
+    ],
+)
+def test_invalid_parameters_are_refused(kwargs: dict[str, int], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        grouper(**kwargs)
+
+
+def test_invalid_sensor_list_and_clock_are_refused() -> None:
+    with pytest.raises(ValueError, match="duplicates"):
+        FrameGrouper(["a", "a"], tolerance_us=TOL_US, deadline_us=DEADLINE_US)
+    with pytest.raises(ValueError, match="at least one"):
+        FrameGrouper([], tolerance_us=TOL_US, deadline_us=DEADLINE_US)
+    with pytest.raises(ValueError, match="'device' or 'host'"):
+        FrameGrouper(["a"], by="gps", tolerance_us=TOL_US, deadline_us=DEADLINE_US)  # type: ignore[arg-type]
+
+
+def test_stats_is_a_snapshot_and_serializes() -> None:
+    g = grouper()
+    g.push(frame("s0", 0, 1_000), now_ns=0)
+    snapshot = g.stats
+    g.push(frame("s0", 2, 1_000 + 2 * PERIOD_US), now_ns=1)
+    assert snapshot.sensors["s0"].received == 1 and g.stats.sensors["s0"].received == 2
+    doc = g.stats.to_dict()
+    assert doc["totals"]["dropped"] == 1 and doc["sensors"]["s0"]["received"] == 2  # type: ignore[index]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Property: every pushed frame ends in exactly one emitted group or in one counter; groups in time order.
+# ---------------------------------------------------------------------------------------------------------
+
+_stream = st.lists(
+    st.tuples(
+        st.integers(0, 3),                 # sensor
+        st.integers(0, 40),                # instant
+        st.integers(-600, 600),            # device time error, µs (delays + jitter)
+        st.integers(0, 60_000),            # arrival delay, µs
+        st.booleans(),                     # poll before pushing
+    ),
+    max_size=120,
+)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(events=_stream, extra_sensor=st.booleans())
+def test_property_accounting_and_time_order(events: list[tuple[int, int, int, int, bool]], extra_sensor: bool) -> None:
+    sensors = (*SENSORS, "s4") if extra_sensor else SENSORS  # s4 is expected but never sends
+    g = grouper(sensors=sensors)
+    pushed = []
+    timeline = sorted(
+        ((instant * PERIOD_US + delay) * 1000, sid, instant, err, poll)
+        for sid, instant, err, delay, poll in events
+    )
+    groups: list[FrameGroup] = []
+    for arrival_ns, sid, instant, err, poll in timeline:
+        f = frame(SENSORS[sid], instant, 1_000_000 + instant * PERIOD_US + err)
+        pushed.append(f)
+        if poll:
+            groups += g.poll(arrival_ns)
+        groups += g.push(f, arrival_ns)
+    groups += g.flush()
+    assert g.n_held == 0
+
+    in_groups = [f for grp in groups for f in grp.frames.values()]
+    assert len({id(f) for f in in_groups}) == len(in_groups)  # no frame in two groups
+    assert {id(f) for f in in_groups} <= {id(f) for f in pushed}
+    stats = g.stats
+    for sid in sensors:
+        c = stats.sensors[sid]
+        assert c.received == sum(f.sensor_id == sid for f in pushed)
+        assert c.grouped == sum(f.sensor_id == sid for f in in_groups)
+        assert c.received == c.grouped + c.late + c.duplicate + c.out_of_window
+    times = [grp.time_us for grp in groups]
+    assert all(b > a for a, b in pairwise(times))
+    for grp in groups:
+        assert grp.complete == (not grp.missing)
+        assert set(grp.frames) | set(grp.missing) == set(sensors)
+        frame_times = [f.device_time_us for f in grp.frames.values()]
+        assert grp.time_us == min(frame_times)
+        assert max(frame_times) - min(frame_times) <= 2 * TOL_US
+    assert stats.groups == len(groups)
+    assert stats.complete_groups == sum(grp.complete for grp in groups)
+
+
+def test_for_rig_takes_sensors_and_sync_settings_from_the_config() -> None:
+    from pathlib import Path
+
+    from skelfuse.config import load_rig_config
+
+    cfg = load_rig_config(Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml")
+    g = FrameGrouper.for_rig(cfg)
+    assert g.expected_sensor_ids == cfg.sensor_ids
+    assert (g.by, g.tolerance_us, g.deadline_us, g.resync_after) == ("device", 10_000, 17_000, 8)
