@@ -1,0 +1,616 @@
+"""Record raw sensor frames into MCAP files and read them back, tolerating files cut short by a crash.
+
+Layout of a skelfuse recording (details and the reasons for MCAP in ``docs/recording.md``):
+
+* one *schema* record ``skelfuse.SensorFrame`` (encoding :data:`SCHEMA_ENCODING`) whose text points at
+  ``docs/wire-format.md`` section 4, where the payload is specified byte by byte;
+* one *channel* per sensor, its topic the sensor's zenoh key expression
+  (``skelfuse/<rig>/sensors/<serial>/skeletons``, :func:`skelfuse.wire.keys.sensor_skeletons`), message
+  encoding :data:`MESSAGE_ENCODING`;
+* one *message* per sensor frame: the payload is exactly :func:`skelfuse.wire.codec.encode_sensor_frame`'s
+  bytes (so a replay republishes bit-identical payloads), ``log_time`` = the frame's host time (ns),
+  ``publish_time`` = its device time (µs -> ns), ``sequence`` = its sequence number modulo 2**32;
+* *metadata* records ``skelfuse.recording`` (rig, skelfuse version, start time, sensors, caller's keys) and,
+  when a calibration is given, ``skelfuse.calibration`` (``world_from_sensor`` per sensor, row-major 4x4,
+  mm);
+* zstd-compressed chunks with message indexes, and at :meth:`RecordingWriter.close` the summary section
+  (chunk indexes, statistics, repeated schemas and channels) and the footer.
+
+Cycle: a recorder opens a :class:`RecordingWriter`, calls :meth:`~RecordingWriter.write` (or
+:meth:`~RecordingWriter.write_payload` with the bytes it received) per frame, and closes it. The writer
+finishes the open chunk and flushes it to the OS every ``flush_interval_s``, so a recorder killed with
+``kill -9`` leaves a file that :class:`RecordingReader` reads up to the last flushed chunk: without a
+footer the reader scans the records from the start (the "streaming fallback") instead of using the index.
+
+Reading never crashes on bad content: a message whose payload fails to decode is skipped and counted in
+:attr:`RecordingReader.rejects` under its :class:`~skelfuse.wire.codec.DecodeError` reason, a chunk that
+cannot be decompressed or fails its CRC is skipped and counted in :attr:`RecordingReader.bad_chunks`.
+Only a missing file or one that is not MCAP at all raises :class:`~skelfuse.errors.DataError`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import io
+import json
+import math
+import os
+import struct
+import time
+from collections import Counter
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk
+from mcap.writer import CompressionType, IndexType, Writer
+
+import skelfuse
+from skelfuse.errors import DataError
+from skelfuse.frames import SensorFrame
+from skelfuse.wire import keys
+from skelfuse.wire.codec import VERSION_MAJOR, VERSION_MINOR, DecodeError, decode_sensor_frame, encode_sensor_frame
+
+MESSAGE_ENCODING = "skelfuse-sensor-frame/1"
+"""MCAP message encoding of sensor-frame channels: the wire codec's sensor frame, schema major 1."""
+SCHEMA_NAME = "skelfuse.SensorFrame"
+"""Name of the schema record of sensor-frame channels."""
+SCHEMA_ENCODING = "skelfuse-wire"
+"""Schema encoding: the schema data is a UTF-8 text that names the specification (docs/wire-format.md)."""
+SCHEMA_TEXT = (
+    f"skelfuse sensor frame, wire schema {VERSION_MAJOR}.{VERSION_MINOR} (message kind 1).\n"
+    "Specified byte by byte in docs/wire-format.md, section 4 'Sensor frame', of the skelfuse project; "
+    "reference implementation: skelfuse.wire.codec.decode_sensor_frame.\n"
+    "Little-endian; prefix 'SKLF', major, minor, kind, flags, header_size; then sequence, device time (us), "
+    "host time (ns), body ids, positions f32[B][32][3] mm, orientations f32[B][32][4] wxyz, confidence "
+    "u8[B][32], sensor id.\n"
+)
+PROFILE = "skelfuse"
+"""MCAP header profile of skelfuse recordings."""
+RECORDING_METADATA = "skelfuse.recording"
+"""Name of the metadata record with rig, version, start time, sensors and the caller's keys."""
+CALIBRATION_METADATA = "skelfuse.calibration"
+"""Name of the metadata record with ``world_from_sensor/<sensor>`` = JSON row-major 4x4 (mm)."""
+RESERVED_METADATA_KEYS = ("rig", "skelfuse_version", "wire_version", "start_time_ns", "start_time_utc",
+                          "sensor_ids")
+"""Keys of :data:`RECORDING_METADATA` that the writer fills; the caller's metadata cannot use them."""
+
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD_PREFIX = struct.Struct("<BQ")  # opcode, length
+_CHUNK_TIMES = struct.Struct("<QQ")  # message_start_time, message_end_time: first fields of a chunk record
+_U64_MAX = 2**64 - 1
+_COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, None: CompressionType.NONE}
+
+
+def _clamp_u64(value: int) -> int:
+    return min(max(int(value), 0), _U64_MAX)
+
+
+def _as_pose(value: Any, sensor_id: str) -> np.ndarray:
+    pose = np.asarray(value, dtype=np.float64)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise ValueError(f"world_from_sensor[{sensor_id!r}] must be a finite 4x4 matrix, got shape {pose.shape}"
+                         + ("" if pose.shape != (4, 4) else " with NaN/Inf"))
+    return pose
+
+
+# --------------------------------------------------------------------------------------------------------
+# Writer
+
+
+class RecordingWriter:
+    """Write raw sensor frames of one rig into an MCAP file.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to create (overwritten if it exists). ``.mcap`` is the usual extension.
+    rig : str
+        Rig name; the topics are the rig's zenoh sensor keys.
+    sensor_ids : iterable of str
+        Sensors whose channels are created up front (in this order). Frames of other sensors get a
+        channel when their first frame arrives.
+    metadata : dict, optional
+        Extra keys for the ``skelfuse.recording`` metadata record (e.g. operator, take, notes). Values that
+        are not str are stored as JSON text. Keys must not be one of :data:`RESERVED_METADATA_KEYS`.
+    world_from_sensor : mapping of sensor id -> (4, 4) array, optional
+        The rig's calibration (mm), stored in a ``skelfuse.calibration`` metadata record so that offline
+        fusion needs no separate file.
+    chunk_size : int
+        Bytes of uncompressed messages after which a chunk is closed (the mcap writer's ``chunk_size``).
+    flush_interval_s : float or None
+        Seconds after which the open chunk is finished and flushed to the OS on the next write: the most
+        data a killed recorder can lose. None: flush only when a chunk is full (and on :meth:`flush`).
+    fsync : bool
+        Also ``os.fsync`` on every flush (survives power loss, not only a killed process; slower).
+    compression : {"zstd", "lz4", None}
+        Chunk compression. Foxglove and the ``mcap`` CLI read both.
+    clock : callable
+        Monotonic time source in seconds (injected by tests).
+
+    Attributes
+    ----------
+    path : Path
+    rig : str
+    frames_written : int
+    flushes : int
+        How many times buffered data was pushed to the OS.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        rig: str,
+        sensor_ids: Iterable[str] = (),
+        metadata: Mapping[str, Any] | None = None,
+        world_from_sensor: Mapping[str, Any] | None = None,
+        chunk_size: int = 1024 * 1024,
+        flush_interval_s: float | None = 1.0,
+        fsync: bool = False,
+        compression: str | None = "zstd",
+        clock=time.monotonic,
+    ) -> None:
+        self.path = Path(path)
+        self.rig = keys.validate_name(rig, "rig")
+        if compression not in _COMPRESSIONS:
+            raise ValueError(f"compression must be one of 'zstd', 'lz4' or None, got {compression!r}")
+        if flush_interval_s is not None and not (math.isfinite(flush_interval_s) and flush_interval_s > 0):
+            raise ValueError(f"flush_interval_s must be a number of seconds > 0 or None, got {flush_interval_s!r}")
+        if int(chunk_size) <= 0:
+            raise ValueError(f"chunk_size must be > 0 bytes, got {chunk_size!r}")
+        user = dict(metadata or {})
+        clash = sorted(set(user) & set(RESERVED_METADATA_KEYS))
+        if clash:
+            raise ValueError(f"metadata keys {clash} are reserved for the writer; rename them "
+                             f"(reserved: {', '.join(RESERVED_METADATA_KEYS)})")
+        sensors = [keys.validate_name(s, "sensor") for s in sensor_ids]
+        poses = {sid: _as_pose(pose, sid) for sid, pose in (world_from_sensor or {}).items()}
+
+        self._clock = clock
+        self._flush_interval_s = flush_interval_s
+        self._fsync = bool(fsync)
+        self._stream: IO[bytes] = open(self.path, "wb")  # closed in close()
+        self._writer = Writer(self._stream, chunk_size=int(chunk_size), compression=_COMPRESSIONS[compression],
+                              index_types=IndexType.ALL)
+        self._channels: dict[str, int] = {}
+        self._closed = False
+        self.frames_written = 0
+        self.flushes = 0
+
+        start_ns = time.time_ns()
+        self._writer.start(profile=PROFILE, library=f"skelfuse/{skelfuse.__version__}")
+        record = {str(k): v if isinstance(v, str) else json.dumps(v) for k, v in user.items()}
+        record.update({
+            "rig": self.rig,
+            "skelfuse_version": skelfuse.__version__,
+            "wire_version": f"{VERSION_MAJOR}.{VERSION_MINOR}",
+            "start_time_ns": str(start_ns),
+            "start_time_utc": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
+            "sensor_ids": json.dumps(sensors),
+        })
+        self._writer.add_metadata(RECORDING_METADATA, record)
+        if poses:
+            calib = {"units": "mm", "convention": "world_from_sensor, row-major 4x4, p_world = T @ p_sensor"}
+            calib.update({f"world_from_sensor/{sid}": json.dumps(pose.tolist()) for sid, pose in poses.items()})
+            self._writer.add_metadata(CALIBRATION_METADATA, calib)
+        self._schema_id = self._writer.register_schema(SCHEMA_NAME, SCHEMA_ENCODING, SCHEMA_TEXT.encode())
+        for sid in sensors:
+            self._channel(sid)
+        self._stream.flush()
+        self._last_flush = self._clock()
+
+    # -- context manager -------------------------------------------------------------------------------
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _channel(self, sensor_id: str) -> int:
+        channel_id = self._channels.get(sensor_id)
+        if channel_id is None:
+            channel_id = self._writer.register_channel(
+                topic=keys.sensor_skeletons(self.rig, sensor_id),
+                message_encoding=MESSAGE_ENCODING,
+                schema_id=self._schema_id,
+                metadata={"sensor_id": sensor_id},
+            )
+            self._channels[sensor_id] = channel_id
+        return channel_id
+
+    def write(self, frame: SensorFrame) -> None:
+        """Encode ``frame`` with the wire codec and record it (ValueError if the codec refuses it)."""
+        self._write(frame, encode_sensor_frame(frame))
+
+    def write_payload(self, payload: bytes | bytearray | memoryview) -> SensorFrame:
+        """Record a received wire payload as it is (bit-identical); returns the decoded frame.
+
+        Raises
+        ------
+        DecodeError
+            The payload is not a valid sensor frame: nothing is written (count it and carry on).
+        """
+        data = bytes(payload)
+        frame = decode_sensor_frame(data)
+        self._write(frame, data)
+        return frame
+
+    def _write(self, frame: SensorFrame, data: bytes) -> None:
+        if self._closed:
+            raise ValueError(f"recording {self.path} is closed")
+        channel_id = self._channel(frame.sensor_id)
+        self._writer.add_message(
+            channel_id=channel_id,
+            log_time=_clamp_u64(frame.host_time_ns),
+            publish_time=_clamp_u64(frame.device_time_us * 1000),
+            data=data,
+            sequence=int(frame.sequence) & 0xFFFFFFFF,
+        )
+        self.frames_written += 1
+        if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Finish the open chunk and push everything written so far to the OS (and disk, with ``fsync``).
+
+        A recorder that can sit idle should call this on a timer: the periodic flush runs on writes only.
+        """
+        if self._closed:
+            return
+        self._writer.flush()
+        if self._fsync:
+            os.fsync(self._stream.fileno())
+        self.flushes += 1
+        self._last_flush = self._clock()
+
+    def close(self) -> None:
+        """Write the last chunk, the summary (indexes, statistics) and the footer; close the file."""
+        if self._closed:
+            return
+        try:
+            self._writer.finish()
+            self._stream.flush()
+            if self._fsync:
+                os.fsync(self._stream.fileno())
+        finally:
+            self._closed = True
+            self._stream.close()
+
+
+# --------------------------------------------------------------------------------------------------------
+# Reader
+
+
+@dataclass(frozen=True)
+class RecordedFrame:
+    """One recorded sensor frame with its MCAP envelope.
+
+    Attributes
+    ----------
+    topic : str
+        The channel topic: the zenoh key the frame was (and is, on replay) published on.
+    sensor_id : str
+    log_time_ns : int
+        Host time of the frame (ns), the recording's time axis.
+    publish_time_ns : int
+        Device time of the frame (ns).
+    payload : bytes
+        The wire payload, bit-identical to what was recorded.
+    frame : SensorFrame
+        The decoded payload.
+    """
+
+    topic: str
+    sensor_id: str
+    log_time_ns: int
+    publish_time_ns: int
+    payload: bytes = field(repr=False)
+    frame: SensorFrame = field(repr=False)
+
+
+@dataclass(frozen=True)
+class _ChunkRef:
+    start_ns: int
+    end_ns: int
+    offset: int  # file offset of the chunk record (its opcode byte); -1 for loose (unchunked) messages
+    loose: tuple[Message, ...] = ()
+
+
+class RecordingReader:
+    """Read a skelfuse MCAP recording, with or without its summary section.
+
+    Parameters
+    ----------
+    path : str or Path
+    validate_crcs : bool
+        Check each chunk's CRC before using it (a mismatch skips the chunk and counts it).
+
+    Attributes
+    ----------
+    path : Path
+    indexed : bool
+        True when the summary section (chunk index) was read; False when the file was scanned record by
+        record (no footer: a recorder was killed, or the file was cut).
+    truncated : bool
+        The file ends inside a record or without a footer: it was read up to its last complete record.
+    sensors : tuple[str, ...]
+        Sensor ids of the sensor-frame channels, in channel order.
+    topics : dict[str, str]
+        Sensor id -> topic.
+    metadata : dict[str, str]
+        The ``skelfuse.recording`` metadata record (empty if absent).
+    calibration : dict[str, (4, 4) ndarray] or None
+        ``world_from_sensor`` per sensor from the ``skelfuse.calibration`` record, None if absent.
+    rejects : Counter[str]
+        Messages skipped, per :data:`skelfuse.wire.codec.REJECT_REASONS` reason, accumulated over reads.
+    bad_chunks : int
+        Chunks skipped because they could not be read, decompressed or failed their CRC.
+    problems : list[str]
+        Human-readable notes about what was skipped (at most 20 kept).
+
+    Raises
+    ------
+    DataError
+        The file does not exist, cannot be read, or is not an MCAP file.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, validate_crcs: bool = True) -> None:
+        self.path = Path(path)
+        self._validate_crcs = validate_crcs
+        if not self.path.is_file():
+            raise DataError(f"recording {self.path} not found (or not a file); check the path")
+        try:
+            with open(self.path, "rb") as f:
+                magic = f.read(len(_MAGIC))
+        except OSError as exc:
+            raise DataError(f"cannot read recording {self.path}: {exc}") from exc
+        if magic != _MAGIC:
+            raise DataError(f"{self.path} is not an MCAP file: it starts with {magic[:8]!r}, expected the MCAP "
+                            f"magic {_MAGIC!r}; skelfuse recordings are written by `skelfuse record`")
+        self.rejects: Counter[str] = Counter()
+        self.bad_chunks = 0
+        self.problems: list[str] = []
+        self.truncated = False
+        self._schemas: dict[int, Schema] = {}
+        self._channels: dict[int, Channel] = {}
+        self._chunks: list[_ChunkRef] = []
+        self._metadata: dict[str, dict[str, str]] = {}
+        self._message_count: int | None = None
+        self.indexed = self._load_index()
+        if not self.indexed:
+            self._scan()
+        self._chunks.sort(key=lambda c: (c.start_ns, c.offset))
+
+        sensor_channels = [c for _, c in sorted(self._channels.items()) if c.message_encoding == MESSAGE_ENCODING]
+        self.topics = {self._sensor_of(c): c.topic for c in sensor_channels}
+        self.sensors = tuple(self.topics)
+        self.metadata = dict(self._metadata.get(RECORDING_METADATA, {}))
+        self.calibration = self._read_calibration()
+
+    # -- loading ---------------------------------------------------------------------------------------
+    def _note(self, text: str) -> None:
+        if len(self.problems) < 20:
+            self.problems.append(text)
+
+    @staticmethod
+    def _sensor_of(channel: Channel) -> str:
+        sensor_id = channel.metadata.get("sensor_id")
+        if sensor_id:
+            return sensor_id
+        try:
+            return keys.parse_sensor_key(channel.topic)
+        except ValueError:
+            return channel.topic
+
+    def _load_index(self) -> bool:
+        """Read the summary section; False when there is none or it is unreadable (then scan)."""
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(-len(_MAGIC), io.SEEK_END)
+                if f.read(len(_MAGIC)) != _MAGIC:  # no closing magic: the writer never finished
+                    return False
+                f.seek(0)
+                reader = SeekingReader(f, validate_crcs=False, record_size_limit=self.path.stat().st_size)
+                summary = reader.get_summary()
+                if summary is None or not summary.chunk_indexes:
+                    return False
+                metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        except (McapError, EOFError, OSError, ValueError, KeyError, struct.error, UnicodeDecodeError):
+            return False
+        self._schemas = dict(summary.schemas)
+        self._channels = dict(summary.channels)
+        self._metadata = metadata
+        self._chunks = [_ChunkRef(ci.message_start_time, ci.message_end_time, ci.chunk_start_offset)
+                        for ci in summary.chunk_indexes]
+        if summary.statistics is not None:
+            self._message_count = summary.statistics.message_count
+        return True
+
+    def _scan(self) -> None:
+        """Streaming fallback: walk the records from the start, stop at the footer or where the file ends.
+
+        Chunks are decompressed once here to learn the channels they define (the mcap writer puts schema
+        and channel records inside chunks) and to count messages; the bodies are read again by
+        :meth:`records`.
+        """
+        size = self.path.stat().st_size
+        loose: list[Message] = []
+        count = 0
+        footer = False
+        with open(self.path, "rb") as f:
+            pos = len(_MAGIC)
+            while True:
+                if pos + _RECORD_PREFIX.size > size:
+                    break
+                f.seek(pos)
+                opcode, length = _RECORD_PREFIX.unpack(f.read(_RECORD_PREFIX.size))
+                body_at = pos + _RECORD_PREFIX.size
+                if body_at + length > size:
+                    self._note(f"file ends inside a record (opcode {opcode:#04x}) at byte {pos}: read up to there")
+                    break
+                if opcode == Opcode.FOOTER:
+                    footer = True
+                    break
+                if opcode not in _KNOWN_OPCODES:
+                    self._note(f"unknown or corrupt record (opcode {opcode:#04x}) at byte {pos}: stopped there")
+                    break
+                if opcode in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.MESSAGE):
+                    body = f.read(length)
+                    try:
+                        count += self._scan_record(opcode, body, pos, loose)
+                    except Exception as exc:  # any damage in one record must not stop the scan
+                        if opcode == Opcode.CHUNK:
+                            self.bad_chunks += 1
+                        self._note(f"unreadable record (opcode {opcode:#04x}) at byte {pos}: {exc!r}")
+                pos = body_at + length
+        self.truncated = not footer
+        if loose:
+            times = [m.log_time for m in loose]
+            self._chunks.append(_ChunkRef(min(times), max(times), -1, tuple(loose)))
+        self._message_count = count
+
+    def _scan_record(self, opcode: int, body: bytes, pos: int, loose: list[Message]) -> int:
+        stream = ReadDataStream(io.BytesIO(body))
+        if opcode == Opcode.CHUNK:
+            chunk = Chunk.read(stream)
+            n = 0
+            for record in breakup_chunk(chunk, validate_crc=self._validate_crcs):
+                if isinstance(record, Schema):
+                    self._schemas.setdefault(record.id, record)
+                elif isinstance(record, Channel):
+                    self._channels.setdefault(record.id, record)
+                elif isinstance(record, Message):
+                    n += 1
+            self._chunks.append(_ChunkRef(chunk.message_start_time, chunk.message_end_time, pos))
+            return n
+        if opcode == Opcode.SCHEMA:
+            schema = Schema.read(stream)
+            self._schemas.setdefault(schema.id, schema)
+        elif opcode == Opcode.CHANNEL:
+            channel = Channel.read(stream)
+            self._channels.setdefault(channel.id, channel)
+        elif opcode == Opcode.METADATA:
+            meta = Metadata.read(stream)
+            self._metadata[meta.name] = dict(meta.metadata)
+        elif opcode == Opcode.MESSAGE:
+            loose.append(Message.read(stream, len(body)))
+            return 1
+        return 0
+
+    def _read_calibration(self) -> dict[str, np.ndarray] | None:
+        record = self._metadata.get(CALIBRATION_METADATA)
+        if not record:
+            return None
+        poses: dict[str, np.ndarray] = {}
+        for key, value in record.items():
+            if not key.startswith("world_from_sensor/"):
+                continue
+            sensor_id = key.split("/", 1)[1]
+            try:
+                poses[sensor_id] = _as_pose(json.loads(value), sensor_id)
+            except (ValueError, TypeError) as exc:
+                self._note(f"calibration of sensor {sensor_id!r} unreadable: {exc}")
+        return poses or None
+
+    # -- queries ---------------------------------------------------------------------------------------
+    @property
+    def time_range_ns(self) -> tuple[int, int] | None:
+        """(first, last) log time (host ns) of the recorded messages, None when there are none."""
+        if not self._chunks:
+            return None
+        return min(c.start_ns for c in self._chunks), max(c.end_ns for c in self._chunks)
+
+    @property
+    def message_count(self) -> int | None:
+        """Messages in the file (all channels), from the statistics or the scan; None if unknown."""
+        return self._message_count
+
+    def frames(self, start_ns: int | None = None, end_ns: int | None = None,
+               sensors: Iterable[str] | None = None) -> Iterator[SensorFrame]:
+        """Decoded sensor frames in log-time (host time) order; see :meth:`records` for the arguments."""
+        for record in self.records(start_ns, end_ns, sensors):
+            yield record.frame
+
+    def records(self, start_ns: int | None = None, end_ns: int | None = None,
+                sensors: Iterable[str] | None = None) -> Iterator[RecordedFrame]:
+        """Recorded frames with their envelope, in log-time order (ties: file order).
+
+        Parameters
+        ----------
+        start_ns, end_ns : int, optional
+            Half-open log-time window ``[start_ns, end_ns)``, host ns. Chunks outside it are not read.
+        sensors : iterable of str, optional
+            Only these sensors (unknown ids yield nothing).
+
+        Yields
+        ------
+        RecordedFrame
+            Corrupt messages are skipped and counted in :attr:`rejects`; unreadable chunks in
+            :attr:`bad_chunks`.
+        """
+        wanted = None if sensors is None else set(sensors)
+        channels = {cid: c for cid, c in self._channels.items() if c.message_encoding == MESSAGE_ENCODING
+                    and (wanted is None or self._sensor_of(c) in wanted)}
+        chunks = [c for c in self._chunks
+                  if (start_ns is None or c.end_ns >= start_ns) and (end_ns is None or c.start_ns < end_ns)]
+        if not channels or not chunks:
+            return
+        # k-way merge: every message of a later chunk is logged at or after that chunk's start, so messages
+        # earlier than the next chunk's start can be released before that chunk is read.
+        heap: list[tuple[int, int, int, Message]] = []
+        with open(self.path, "rb") as f:
+            for chunk in chunks:
+                while heap and heap[0][0] < chunk.start_ns:
+                    yield from self._decode(heapq.heappop(heap)[3], channels)
+                for index, message in enumerate(self._messages_of(f, chunk)):
+                    if message.channel_id not in channels:
+                        continue
+                    if start_ns is not None and message.log_time < start_ns:
+                        continue
+                    if end_ns is not None and message.log_time >= end_ns:
+                        continue
+                    heapq.heappush(heap, (message.log_time, chunk.offset, index, message))
+            while heap:
+                yield from self._decode(heapq.heappop(heap)[3], channels)
+
+    def _messages_of(self, f: IO[bytes], chunk: _ChunkRef) -> list[Message]:
+        if chunk.offset < 0:
+            return list(chunk.loose)
+        try:
+            f.seek(chunk.offset)
+            opcode, length = _RECORD_PREFIX.unpack(f.read(_RECORD_PREFIX.size))
+            if opcode != Opcode.CHUNK:
+                raise McapError(f"expected a chunk record, found opcode {opcode:#04x}")
+            record = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
+            return [r for r in breakup_chunk(record, validate_crc=self._validate_crcs) if isinstance(r, Message)]
+        except Exception as exc:  # a damaged chunk (bad compression, CRC, lengths) is skipped
+            self.bad_chunks += 1
+            self._note(f"chunk at byte {chunk.offset} unreadable, its messages skipped: {exc!r}")
+            return []
+
+    def _decode(self, message: Message, channels: Mapping[int, Channel]) -> Iterator[RecordedFrame]:
+        channel = channels[message.channel_id]
+        sensor_id = self._sensor_of(channel)
+        try:
+            frame = decode_sensor_frame(message.data)
+            if frame.sensor_id != sensor_id:
+                raise DecodeError("bad_value", f"payload of sensor {frame.sensor_id!r} on the channel of "
+                                  f"sensor {sensor_id!r}")
+        except DecodeError as exc:
+            self.rejects[exc.reason] += 1
+            self._note(f"message at log time {message.log_time} on {channel.topic}: {exc.reason}: {exc}")
+            return
+        yield RecordedFrame(topic=channel.topic, sensor_id=sensor_id, log_time_ns=message.log_time,
+                            publish_time_ns=message.publish_time, payload=bytes(message.data), frame=frame)
+
+
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)

@@ -1,0 +1,376 @@
+"""Fuse a recording offline, write the fused skeletons to CSV / Parquet, and pace a replay.
+
+Cycle of :func:`fuse_recording`: read the recording's sensor frames in host-time order
+(:class:`~skelfuse.recording.mcap_io.RecordingReader`), group them into instants as the live fusion node
+does (:class:`skelfuse.service.grouping.FrameGrouper`, fed the recorded host time as its arrival clock),
+take the first body of each sensor's frame, map it to the world frame
+with the rig's calibration, and run one :class:`skelfuse.fusion.pipeline.Fuser` step per instant.
+
+Limitation (multi-person association is a later issue): every sensor frame contributes only its **first
+body** (slot 0, in the order the tracker reported them), and the output carries one person, track id 1.
+A recording of several people fuses whichever body each tracker listed first.
+
+:func:`replay_frames` paces recorded frames by their log time (host clock) and knows nothing of zenoh: the
+CLI's ``skelfuse replay FILE`` publishes each yielded ``record.payload`` on ``record.topic``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.config import RigConfig, SyncConfig
+from skelfuse.errors import DataError
+from skelfuse.eval.progress import Progress
+from skelfuse.frames import FusedFrame
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.presets import FusionParams, preset
+from skelfuse.fusion.transform import apply_transform
+from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
+from skelfuse.service.grouping import FrameGroup, FrameGrouper
+from skelfuse.skeleton import JOINT_NAMES, N_JOINTS
+
+RESET_GAP_S = 1.0
+"""A gap longer than this between two instants restarts the fusion state (filters and previous position)."""
+FUSED_TRACK_ID = 1
+"""Track id of the single person fused until multi-person association exists."""
+
+FUSED_COLUMNS = ("time_us", "track_id", "joint", "joint_name", "x_mm", "y_mm", "z_mm", "n_agree", "confidence")
+"""Columns of :func:`write_fused`, one row per person x joint (see docs/recording.md)."""
+FUSED_FORMATS = (".csv", ".parquet")
+"""Output extensions :func:`write_fused` supports."""
+
+
+# --------------------------------------------------------------------------------------------------------
+# Parameters and calibration
+
+
+def _params(rig_config: RigConfig | None, preset_name: str | None, eps_mm: float | None) -> FusionParams:
+    """Explicit preset / eps first, then the rig config's ``[fusion]`` (with its overrides), then A5 at 100 mm."""
+    if preset_name is None and rig_config is not None:
+        params = rig_config.fusion.fusion_params()
+        return params if eps_mm is None else replace(params, eps_mm=float(eps_mm))
+    return preset(preset_name or "A5", eps_mm=100.0 if eps_mm is None else eps_mm)
+
+
+def resolve_poses(sensor_ids: Iterable[str], *, world_from_sensor: Mapping[str, Any] | None = None,
+                  rig_config: RigConfig | None = None, recording: RecordingReader | None = None) -> np.ndarray:
+    """(S, 4, 4) ``world_from_sensor`` of ``sensor_ids``, from the first source that has them.
+
+    Order: the explicit ``world_from_sensor`` mapping, the rig config, the recording's calibration metadata.
+
+    Raises
+    ------
+    DataError
+        No source holds a pose for every sensor: the message names the sensors and where to get one.
+    """
+    sensor_ids = tuple(sensor_ids)
+    sources: list[tuple[str, Mapping[str, Any]]] = []
+    if world_from_sensor is not None:
+        sources.append(("world_from_sensor argument", world_from_sensor))
+    if rig_config is not None:
+        sources.append((f"rig config {rig_config.source}", rig_config.poses(required=False)))
+    if recording is not None and recording.calibration:
+        sources.append((f"calibration metadata of {recording.path}", recording.calibration))
+    tried = []
+    for name, poses in sources:
+        missing = [s for s in sensor_ids if s not in poses]
+        if not missing:
+            out = np.stack([np.asarray(poses[s], dtype=np.float64) for s in sensor_ids])
+            if out.shape[1:] != (4, 4) or not np.isfinite(out).all():
+                raise DataError(f"the {name} holds a pose that is not a finite 4x4 matrix")
+            return out
+        tried.append(f"the {name} lacks {', '.join(missing)}")
+    where = "; ".join(tried) if tried else "no rig config or world_from_sensor was given and the recording " \
+        "holds no calibration metadata"
+    raise DataError(
+        f"no calibration (world_from_sensor) for every sensor of the recording ({', '.join(sensor_ids)}): "
+        f"{where}. Pass the rig config that holds the poses "
+        f"([calibration] file or sensors[i].world_from_sensor), or pass world_from_sensor; recordings made "
+        f"with a calibrated rig carry it in their metadata"
+    )
+
+
+# --------------------------------------------------------------------------------------------------------
+# Offline fusion
+
+
+def fuse_recording(
+    recording_path: str | os.PathLike[str],
+    *,
+    rig_config: RigConfig | None = None,
+    world_from_sensor: Mapping[str, Any] | None = None,
+    preset_name: str | None = None,
+    eps_mm: float | None = None,
+    by: str | None = None,
+    tolerance_us: int | None = None,
+    deadline_us: int | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+    progress: bool = True,
+) -> Iterator[FusedFrame]:
+    """Fuse every instant of a recording, as the live node would have.
+
+    Parameters
+    ----------
+    recording_path : str or Path
+        A skelfuse MCAP recording (a truncated one is read up to its last complete chunk).
+    rig_config : skelfuse.config.RigConfig, optional
+        Poses of the sensors (``rig_config.poses()``), the fusion section and the grouping (``[sync]``).
+    world_from_sensor : mapping sensor id -> (4, 4), optional
+        Poses (mm); override the rig config's and the recording's.
+    preset_name : str, optional
+        Fusion preset ("A1".."A5"). Default: the rig config's ``[fusion]`` (preset and overrides), else "A5".
+    eps_mm : float, optional
+        DBSCAN radius; default the rig config's, else 100 mm.
+    by : {"device", "host"}, optional
+        Group by device timestamps (hardware-synced rigs) or host timestamps. Default: the rig config's
+        ``[sync] by``, else "device".
+    tolerance_us, deadline_us : int, optional
+        Grouping window and how long an incomplete instant waits, on the recorded host clock. Default: the
+        rig config's ``[sync]``, else :class:`skelfuse.config.SyncConfig`'s defaults (10 ms, 17 ms).
+    start_ns, end_ns : int, optional
+        Log-time (host ns) window of the recording to fuse.
+    progress : bool
+        Draw a progress bar on stderr (only when it is a terminal).
+
+    Returns
+    -------
+    iterator of FusedFrame
+        One per instant, in time order, with the recording's sensors as ``sensor_ids``; one person (track
+        id 1, first body of each sensor), or none when no sensor saw a body and the filter has no track.
+        Setup errors are raised by this call, before iterating.
+
+    Raises
+    ------
+    DataError
+        Missing / not-MCAP recording, no sensor channel, or no calibration for every sensor (see
+        :func:`resolve_poses`).
+    """
+    reader = RecordingReader(recording_path)
+    sensor_ids = reader.sensors
+    if not sensor_ids:
+        raise DataError(f"recording {reader.path} holds no sensor-frame channels; nothing to fuse")
+    poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
+    params = _params(rig_config, preset_name, eps_mm)
+    sync = rig_config.sync if rig_config is not None else SyncConfig()
+    grouper = FrameGrouper(
+        sensor_ids,
+        by=by if by is not None else sync.by,  # type: ignore[arg-type]
+        tolerance_us=int(tolerance_us) if tolerance_us is not None else sync.tolerance_us,
+        deadline_us=int(deadline_us) if deadline_us is not None else sync.deadline_us,
+        fps=sync.fps,
+        resync_after=sync.resync_after_frames,
+        resync_horizon_us=sync.resync_horizon_us,
+    )
+    return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+
+
+def _fuse(reader: RecordingReader, sensor_ids: tuple[str, ...], poses: np.ndarray, params: FusionParams,
+          grouper: FrameGrouper, start_ns: int | None, end_ns: int | None, progress: bool) -> Iterator[FusedFrame]:
+    fuser = Fuser(params, n_bodies=1)
+    column = {s: i for i, s in enumerate(sensor_ids)}
+    last_time_us: int | None = None
+
+    def fuse_group(group: FrameGroup) -> FusedFrame:
+        nonlocal last_time_us
+        time_us = int(group.time_us)
+        # Within one clock epoch the grouper's times strictly increase; a step back is a new epoch (a
+        # restarted rig), and a long gap leaves nothing worth carrying: both restart the fusion state.
+        dt_s = 1.0 / 30.0 if last_time_us is None else (time_us - last_time_us) / 1e6
+        if not 0 < dt_s <= RESET_GAP_S:
+            fuser.reset()
+            dt_s = 1.0 / 30.0
+        last_time_us = time_us
+        positions = np.full((1, len(sensor_ids), N_JOINTS, 3), np.nan)
+        confidence = np.zeros((1, len(sensor_ids), N_JOINTS), dtype=np.uint8)
+        for sensor_id, frame in group.frames.items():
+            if frame.n_bodies > 0:  # first body only: multi-person association is a later issue
+                positions[0, column[sensor_id]] = frame.positions[0]
+                confidence[0, column[sensor_id]] = frame.confidence[0]
+        result = fuser.step(apply_transform(poses, positions), confidence, dt_s)
+        keep = np.isfinite(result.positions).all(axis=-1).any(axis=-1)  # (1,): a person with any estimate
+        return FusedFrame(
+            time_us=time_us,
+            track_ids=np.full(int(keep.sum()), FUSED_TRACK_ID, dtype=np.int64),
+            positions=result.positions[keep],
+            n_agree=result.n_agree[keep].astype(np.int16, copy=False),
+            confidence=result.confidence[keep].astype(np.uint8, copy=False),
+            contributors=result.contributors[keep].astype(bool, copy=False),
+            sensor_ids=sensor_ids,
+        )
+
+    bar = Progress(reader.message_count or 0, "fuse", enabled=None if progress else False)
+    try:
+        for frame in reader.frames(start_ns, end_ns):
+            # The recorded host time stands in for the arrival clock, so deadlines behave as they did live.
+            for group in grouper.push(frame, int(frame.host_time_ns)):
+                yield fuse_group(group)
+            bar.update()
+        for group in grouper.flush():
+            yield fuse_group(group)
+    finally:
+        bar.close()
+
+
+# --------------------------------------------------------------------------------------------------------
+# Writing fused frames
+
+
+def _rows(frame: FusedFrame) -> Iterator[tuple[Any, ...]]:
+    for p in range(frame.n_persons):
+        track_id = int(frame.track_ids[p])
+        for j in range(N_JOINTS):
+            x, y, z = (float(v) for v in frame.positions[p, j])
+            yield (int(frame.time_us), track_id, j, JOINT_NAMES[j], x, y, z, int(frame.n_agree[p, j]),
+                   int(frame.confidence[p, j]))
+
+
+def write_fused(frames: Iterable[FusedFrame], output_path: str | os.PathLike[str]) -> int:
+    """Write fused frames as a table, one row per person x joint; the format follows the extension.
+
+    Columns (:data:`FUSED_COLUMNS`): ``time_us`` (int, device time), ``track_id`` (int), ``joint`` (0..31,
+    k4abt order), ``joint_name`` (e.g. "PELVIS"), ``x_mm y_mm z_mm`` (float, world frame; missing: empty in
+    CSV, null in Parquet), ``n_agree`` (sensors that agreed, 0 = predicted), ``confidence`` (0..3).
+
+    Parameters
+    ----------
+    frames : iterable of FusedFrame
+    output_path : str or Path
+        ``.csv`` (header row, comma separated) or ``.parquet`` (needs pyarrow).
+
+    Returns
+    -------
+    int
+        Rows written.
+
+    Raises
+    ------
+    ValueError
+        The extension is not one of :data:`FUSED_FORMATS`.
+    """
+    path = Path(output_path)
+    suffix = path.suffix.lower()
+    if suffix not in FUSED_FORMATS:
+        raise ValueError(f"cannot write fused frames to {path}: unknown extension {path.suffix!r}; "
+                         f"supported: {', '.join(FUSED_FORMATS)}")
+    if suffix == ".csv":
+        return _write_csv(frames, path)
+    return _write_parquet(frames, path)
+
+
+def _write_csv(frames: Iterable[FusedFrame], path: Path) -> int:
+    n = 0
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f)
+        writer.writerow(FUSED_COLUMNS)
+        for frame in frames:
+            for row in _rows(frame):
+                writer.writerow([("" if isinstance(v, float) and math.isnan(v) else repr(v) if isinstance(v, float)
+                                  else v) for v in row])
+                n += 1
+    return n
+
+
+def _write_parquet(frames: Iterable[FusedFrame], path: Path, batch_frames: int = 1000) -> int:
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as exc:
+        raise ModuleNotFoundError("writing .parquet needs pyarrow (pip install pyarrow); or write .csv") from exc
+    schema = pa.schema([
+        ("time_us", pa.int64()), ("track_id", pa.int64()), ("joint", pa.int16()), ("joint_name", pa.string()),
+        ("x_mm", pa.float64()), ("y_mm", pa.float64()), ("z_mm", pa.float64()), ("n_agree", pa.int16()),
+        ("confidence", pa.uint8()),
+    ])
+    n = 0
+    pending: list[FusedFrame] = []
+
+    def flush(writer: Any) -> int:
+        if not pending:
+            return 0
+        time_us = np.concatenate([np.full(f.n_persons * N_JOINTS, f.time_us, np.int64) for f in pending])
+        track = np.concatenate([np.repeat(np.asarray(f.track_ids, np.int64), N_JOINTS) for f in pending])
+        joints = np.concatenate([np.tile(np.arange(N_JOINTS, dtype=np.int16), f.n_persons) for f in pending])
+        xyz = np.concatenate([np.asarray(f.positions, np.float64).reshape(-1, 3) for f in pending])
+        n_agree = np.concatenate([np.asarray(f.n_agree, np.int16).reshape(-1) for f in pending])
+        conf = np.concatenate([np.asarray(f.confidence, np.uint8).reshape(-1) for f in pending])
+        names = np.asarray(JOINT_NAMES, dtype=object)[joints]
+        nan = np.isnan(xyz)
+        table = pa.Table.from_arrays([
+            pa.array(time_us), pa.array(track), pa.array(joints), pa.array(names.tolist(), pa.string()),
+            pa.array(xyz[:, 0], mask=nan[:, 0]), pa.array(xyz[:, 1], mask=nan[:, 1]),
+            pa.array(xyz[:, 2], mask=nan[:, 2]), pa.array(n_agree), pa.array(conf),
+        ], schema=schema)
+        writer.write_table(table)
+        pending.clear()
+        return table.num_rows
+
+    with pq.ParquetWriter(path, schema) as writer:
+        for frame in frames:
+            if frame.n_persons:
+                pending.append(frame)
+            if len(pending) >= batch_frames:
+                n += flush(writer)
+        n += flush(writer)
+    return n
+
+
+# --------------------------------------------------------------------------------------------------------
+# Replay pacing
+
+
+def replay_frames(
+    source: RecordingReader | Iterable[RecordedFrame],
+    *,
+    speed: float | None = 1.0,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Iterator[tuple[float, RecordedFrame]]:
+    """Yield recorded frames when they are due, paced by their log time (host clock).
+
+    Parameters
+    ----------
+    source : RecordingReader or iterable of RecordedFrame
+        A reader (all its frames, in log-time order) or records from ``reader.records(start, end, sensors)``.
+    speed : float or None
+        Playback rate: 1.0 real time, 2.0 twice as fast. None: as fast as possible (no sleeping).
+    clock, sleep : callables
+        Monotonic seconds and a sleep function (injected by tests).
+
+    Yields
+    ------
+    due_offset_s : float
+        When the frame is due, seconds after the first frame (log-time offset divided by ``speed``; the plain
+        log-time offset when ``speed`` is None).
+    record : RecordedFrame
+        ``record.frame`` is the decoded SensorFrame; publish ``record.payload`` on ``record.topic`` to replay
+        bit-identical traffic. A consumer slower than real time is not caught up by skipping: frames come
+        late instead.
+    """
+    if speed is not None and not (isinstance(speed, int | float) and math.isfinite(speed) and speed > 0):
+        raise ValueError(f"speed must be a number > 0 or None (as fast as possible), got {speed!r}")
+    records = source.records() if isinstance(source, RecordingReader) else source
+    first_ns: int | None = None
+    start_s = 0.0
+    for record in records:
+        if first_ns is None:
+            first_ns = record.log_time_ns
+            start_s = clock()
+        offset_s = (record.log_time_ns - first_ns) / 1e9
+        if speed is None:
+            yield offset_s, record
+            continue
+        due_s = offset_s / speed
+        delay = start_s + due_s - clock()
+        if delay > 0:
+            sleep(delay)
+        yield due_s, record
