@@ -1,0 +1,71 @@
+"""The command line: arguments reach the library as typed, errors become exit codes with a message."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from skelfuse import cli
+from skelfuse.errors import DataError
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        pytest.param(["eval", "paper"], {"quick": False, "json": False, "seed": 0, "workers": 2}, id="paper-defaults"),
+        pytest.param(
+            ["eval", "paper", "--quick", "--json", "--seed", "7", "--workers", "1", "--out", "x"],
+            {"quick": True, "json": True, "seed": 7, "workers": 1, "out": Path("x")},
+            id="paper-flags",
+        ),
+        pytest.param(["eval", "real", "--eps", "150"], {"eps": 150.0, "json": False}, id="real-eps"),
+        pytest.param(
+            ["bench", "fusion", "--sensors", "5", "8", "--bodies", "1", "--quick"],
+            {"sensors": [5, 8], "bodies": [1], "quick": True, "preset": "A5"},
+            id="bench-cases",
+        ),
+        pytest.param(
+            ["demo", "--duration", "3", "--rrd", "d.rrd", "--no-realtime"],
+            {"duration": 3.0, "rrd": Path("d.rrd"), "realtime": False, "gesture": "walking"},
+            id="demo-rrd",
+        ),
+    ],
+)
+def test_parse_args(argv: list[str], expected: dict[str, object]) -> None:
+    args = cli.build_parser().parse_args(argv)
+    for key, value in expected.items():
+        assert getattr(args, key) == value, key
+
+
+def test_unknown_gesture_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["demo", "--gesture", "moonwalk"])
+    assert exit_info.value.code == 2
+    assert "moonwalk" in capsys.readouterr().err
+
+
+def test_data_error_becomes_exit_2_with_message(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from skelfuse.eval import real
+
+    def missing(*_args: object, **_kwargs: object) -> None:
+        raise DataError("no recording in /nowhere: pass --data")
+
+    monkeypatch.setattr(real, "run_real_eval", missing)
+    assert cli.main(["eval", "real", "--data", "/nowhere"]) == cli.EXIT_USAGE
+    assert "no recording in /nowhere" in capsys.readouterr().err
+
+
+def test_json_output_is_strict_json(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    from skelfuse.eval import real
+
+    result = SimpleNamespace(to_dict=lambda: {"value": np.float64(1.5), "rows": np.arange(2)})
+    monkeypatch.setattr(real, "run_real_eval", lambda *_a, **_k: result)
+    assert cli.main(["eval", "real", "--json"]) == cli.EXIT_OK
+    assert json.loads(capsys.readouterr().out) == {"value": 1.5, "rows": [0, 1]}
