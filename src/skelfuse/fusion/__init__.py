@@ -6,7 +6,7 @@ Modules follow the data flow: :mod:`~skelfuse.fusion.transform` (sensor -> world
 the paper's A1-A5) and :mod:`~skelfuse.fusion.pipeline` (``fuse()`` chaining them).
 """
 
-from skelfuse.fusion.pipeline import FusionResult, FusionState, Fuser, fuse, init_state
+from skelfuse.fusion.pipeline import Fuser, FusionResult, FusionState, fuse, init_state
 from skelfuse.fusion.presets import PAPER_PRESETS, FusionParams, preset
 
-__all__ = ["PAPER_PRESETS", "FusionParams", "FusionResult", "FusionState", "Fuser", "fuse", "init_state", "preset"]
+__all__ = ["PAPER_PRESETS", "Fuser", "FusionParams", "FusionResult", "FusionState", "fuse", "init_state", "preset"]

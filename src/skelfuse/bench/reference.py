@@ -1,0 +1,267 @@
+"""Loop-by-loop reference implementation of :mod:`skelfuse.fusion`: the oracle for tests and benchmarks.
+
+It implements the semantics documented in :mod:`skelfuse.fusion.realign`, :mod:`skelfuse.fusion.merge`,
+:mod:`skelfuse.fusion.filters` and :mod:`skelfuse.fusion.pipeline`, written independently of the
+vectorized code: plain Python loops over bodies, sensors and joints, scikit-learn ``DBSCAN(min_samples=1)``
+per joint, and one filterpy ``KalmanFilter`` per joint. It is slow on purpose (about 100x), clear rather
+than fast; "both give the same output" is what the benchmark and the pipeline tests check.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import sklearn
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+from sklearn.cluster import DBSCAN
+
+from skelfuse.fusion.pipeline import FusionResult
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS
+
+MEDIUM = 2
+
+
+class _Track:
+    """Filter of one joint: a filterpy KalmanFilter, or the alpha-beta position and velocity."""
+
+    def __init__(self, params: FusionParams, z: np.ndarray) -> None:
+        self.coast = 0
+        self.kind = params.filter
+        if self.kind == "paper_kalman":
+            kf = KalmanFilter(dim_x=3, dim_z=3)
+            kf.F = np.eye(3)
+            kf.H = np.eye(3)
+            kf.Q = params.kalman_q_mm2 * np.eye(3)
+            kf.R = params.kalman_r_mm2 * np.eye(3)
+            kf.P = params.kalman_p0_mm2 * np.eye(3)
+            kf.x = z.reshape(3, 1).copy()
+            self.kf = kf
+        elif self.kind == "cv_kalman":
+            kf = KalmanFilter(dim_x=6, dim_z=3)  # state (x, vx, y, vy, z, vz)
+            kf.H = np.zeros((3, 6))
+            kf.H[[0, 1, 2], [0, 2, 4]] = 1.0
+            kf.P = np.kron(np.eye(3), np.diag([params.cv_meas_sigma_mm**2, params.cv_velocity0_sigma_mm_s**2]))
+            kf.x = np.zeros((6, 1))
+            kf.x[[0, 2, 4], 0] = z
+            self.kf = kf
+        else:
+            self.position = z.copy()
+            self.velocity = np.zeros(3)
+
+    def step(self, params: FusionParams, z: np.ndarray | None, n_agree: int, dt_s: float) -> np.ndarray:
+        """Predict, output, update; returns this frame's output position."""
+        if self.kind == "paper_kalman":
+            self.kf.predict()
+            out = self.kf.x[:, 0].copy()  # eq. 9: output the prediction
+            if z is not None:
+                self.kf.update(z.reshape(3, 1))
+            return out
+        if self.kind == "cv_kalman":
+            self.kf.F = np.kron(np.eye(3), np.array([[1.0, dt_s], [0.0, 1.0]]))
+            self.kf.Q = Q_discrete_white_noise(dim=2, dt=dt_s, var=params.cv_accel_sigma_mm_s2**2, block_size=3)
+            self.kf.predict()
+            if z is not None:
+                r = params.cv_meas_sigma_mm**2
+                if params.cv_scale_r_by_agree:
+                    r /= max(n_agree, 1)
+                self.kf.update(z.reshape(3, 1), R=r * np.eye(3))
+            return self.kf.x[[0, 2, 4], 0].copy()
+        predicted = self.position + self.velocity * dt_s
+        if z is None:
+            self.position = predicted
+        else:
+            residual = z - predicted
+            self.position = predicted + params.alpha * residual
+            self.velocity = self.velocity + params.beta * residual / dt_s
+        return self.position.copy()
+
+
+class ReferenceFuser:
+    """Slow, obvious implementation of :class:`skelfuse.fusion.pipeline.Fuser` (same inputs and outputs)."""
+
+    def __init__(self, params: FusionParams, n_bodies: int = 1) -> None:
+        self.params = params
+        self.n_bodies = n_bodies
+        self.reset()
+
+    def reset(self) -> None:
+        self.previous: list[list[np.ndarray | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
+        self.tracks: list[list[_Track | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
+
+    def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
+        # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
+        with sklearn.config_context(assume_finite=True, skip_parameter_validation=True):
+            return self._step(np.asarray(candidates), np.asarray(confidence), dt_s)
+
+    def _step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float) -> FusionResult:
+        B, S, J, _ = candidates.shape
+        positions = np.full((B, J, 3), np.nan)
+        n_agree = np.zeros((B, J), dtype=np.int16)
+        conf_out = np.zeros((B, J), dtype=np.uint8)
+        contributors = np.zeros((B, S), dtype=bool)
+        for b in range(B):
+            pos, conf = self._select(candidates[b], confidence[b])
+            if self.params.realign == "paper":
+                pos, conf = _realign_paper(pos, conf)
+            elif self.params.realign == "body":
+                pos, conf = _realign_body(pos, conf, self.params.realign_passes)
+            for j in range(J):
+                merged, members, best_conf = self._merge_joint(pos, conf, j, self.previous[b][j])
+                self.previous[b][j] = merged
+                if merged is not None:
+                    n_agree[b, j] = len(members)
+                    conf_out[b, j] = best_conf
+                    contributors[b, members] = True
+                positions[b, j] = self._filter_joint(b, j, merged, len(members), dt_s)
+        return FusionResult(positions=positions, n_agree=n_agree, confidence=conf_out, contributors=contributors)
+
+    def _select(self, cand: np.ndarray, conf: np.ndarray) -> tuple[list[list], list[list[int]]]:
+        S, J = conf.shape
+        pos: list[list[np.ndarray | None]] = [[None] * J for _ in range(S)]
+        out_conf = [[0] * J for _ in range(S)]
+        for s in range(S):
+            for j in range(J):
+                ok = bool(np.all(np.isfinite(cand[s, j])))
+                if self.params.min_confidence is not None and conf[s, j] < self.params.min_confidence:
+                    ok = False
+                if ok:
+                    pos[s][j] = np.asarray(cand[s, j], dtype=np.float64)
+                    out_conf[s][j] = int(conf[s, j])
+        return pos, out_conf
+
+    def _merge_joint(
+        self, pos: list[list], conf: list[list[int]], j: int, previous: np.ndarray | None
+    ) -> tuple[np.ndarray | None, list[int], int]:
+        """Returns (merged position or None, sensor indices averaged, their highest confidence)."""
+        sensors = [s for s in range(len(pos)) if pos[s][j] is not None]
+        if not sensors:
+            return None, [], 0
+        if self.params.merge == "average":
+            return np.mean([pos[s][j] for s in sensors], axis=0), sensors, max(conf[s][j] for s in sensors)
+        points = [pos[s][j] for s in sensors]
+        kinds = ["sensor"] * len(sensors)
+        weights = [1.0] * len(sensors)
+        if self.params.reference_weight is not None:
+            ref = _reference(pos, conf, j)
+            if ref is not None:
+                points.append(ref)
+                kinds.append("ref")
+                weights.append(self.params.reference_weight)
+        if self.params.previous_weight is not None and previous is not None:
+            points.append(previous)
+            kinds.append("prev")
+            weights.append(self.params.previous_weight)
+        # Nc = 1 and every weight counted by hand (sample_weight below 1 would make a point non-core).
+        labels = DBSCAN(eps=self.params.eps_mm, min_samples=1, algorithm="brute").fit(np.array(points)).labels_
+        best_key = None
+        best = None
+        for label in sorted(set(labels.tolist())):
+            idx = [i for i in range(len(points)) if labels[i] == label]
+            cluster_sensors = [sensors[i] for i in idx if kinds[i] == "sensor"]
+            if not cluster_sensors:
+                continue
+            score = 0.0
+            for i in idx:
+                score += weights[i]
+            centroid = np.mean([pos[s][j] for s in cluster_sensors], axis=0)
+            rounded = np.round(centroid, 6)
+            key = (
+                score,
+                any(kinds[i] == "prev" for i in idx),
+                len(cluster_sensors),
+                any(kinds[i] == "ref" for i in idx),
+                sum(conf[s][j] for s in cluster_sensors),
+                -rounded[0],
+                -rounded[1],
+                -rounded[2],
+                -min(cluster_sensors),
+            )
+            if best_key is None or key > best_key:
+                best_key, best = key, (centroid, cluster_sensors)
+        centroid, members = best
+        return centroid, members, max(conf[s][j] for s in members)
+
+    def _filter_joint(self, b: int, j: int, z: np.ndarray | None, n_agree: int, dt_s: float) -> np.ndarray:
+        if self.params.filter is None:
+            return z if z is not None else np.full(3, np.nan)
+        track = self.tracks[b][j]
+        if track is None:
+            if z is None:
+                return np.full(3, np.nan)
+            self.tracks[b][j] = _Track(self.params, z)
+            return z
+        out = track.step(self.params, z, n_agree, dt_s)
+        if z is not None:
+            track.coast = 0
+            return out
+        track.coast += 1
+        if track.coast > self.params.max_coast_frames:
+            self.tracks[b][j] = None
+            return np.full(3, np.nan)
+        return out
+
+
+def _reference(pos: list[list], conf: list[list[int]], j: int) -> np.ndarray | None:
+    """Mean of the joint's valid candidates in the best tier present (MEDIUM+ > LOW > NONE)."""
+    tiers = [min(conf[s][j], MEDIUM) for s in range(len(pos)) if pos[s][j] is not None]
+    if not tiers:
+        return None
+    best = max(tiers)
+    return np.mean(
+        [pos[s][j] for s in range(len(pos)) if pos[s][j] is not None and min(conf[s][j], MEDIUM) == best], axis=0
+    )
+
+
+def _swap(pos: list[list], conf: list[list[int]], s: int, left: int, right: int) -> None:
+    pos[s][left], pos[s][right] = pos[s][right], pos[s][left]
+    conf[s][left], conf[s][right] = conf[s][right], conf[s][left]
+
+
+def _realign_paper(pos: list[list], conf: list[list[int]]) -> tuple[list[list], list[list[int]]]:
+    pos = [row[:] for row in pos]
+    conf = [row[:] for row in conf]
+    for left, right in PAPER_REALIGN_PAIRS.tolist():
+        ref_right = _reference(pos, conf, right)  # pairs are disjoint: earlier swaps do not touch it
+        if ref_right is None:
+            continue
+        for s in range(len(pos)):
+            if pos[s][left] is None or pos[s][right] is None:
+                continue
+            if np.linalg.norm(ref_right - pos[s][right]) > np.linalg.norm(ref_right - pos[s][left]):
+                _swap(pos, conf, s, left, right)
+    return pos, conf
+
+
+def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[list[list], list[list[int]]]:
+    S = len(pos)
+    mirrored = [False] * S
+    for _ in range(passes):
+        current_pos = [row[:] for row in pos]
+        current_conf = [row[:] for row in conf]
+        for s in range(S):
+            if mirrored[s]:
+                for left, right in PAPER_REALIGN_PAIRS.tolist():
+                    _swap(current_pos, current_conf, s, left, right)
+        refs = {j: _reference(current_pos, current_conf, j) for j in PAPER_REALIGN_PAIRS.ravel().tolist()}
+        decided = []
+        for s in range(S):
+            total = 0.0
+            for left, right in PAPER_REALIGN_PAIRS.tolist():
+                pl, pr, rl, rr = pos[s][left], pos[s][right], refs[left], refs[right]
+                if pl is None or pr is None or rl is None or rr is None:
+                    continue
+                keep = math.dist(rr, pr) + math.dist(rl, pl)
+                swap = math.dist(rr, pl) + math.dist(rl, pr)
+                total += swap - keep
+            decided.append(total < 0.0)
+        mirrored = decided
+    pos = [row[:] for row in pos]
+    conf = [row[:] for row in conf]
+    for s in range(S):
+        if mirrored[s]:
+            for left, right in MIRROR_PAIRS.tolist():
+                _swap(pos, conf, s, left, right)
+    return pos, conf

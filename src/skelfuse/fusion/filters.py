@@ -1,0 +1,158 @@
+"""Temporal filters per joint, batched over all B*J joints (Lee et al. 2022, section 2.2.3, and beyond).
+
+Every filter keeps, per joint, a state ``x`` (N, 2, 3): position (mm) and velocity (mm/s) per axis, a
+covariance ``P`` (N, 3): the upper triangle (p_pos, p_pos_vel, p_vel) of the per-axis 2x2 covariance,
+shared by the three axes because the models and noises are isotropic, and a counter ``coast`` (N,):
+-1 = no track, 0 = measured this frame, k > 0 = k frames in a row without a measurement. ``x`` and ``P``
+of a row with ``coast == -1`` are meaningless.
+
+One step per frame, for every joint:
+
+* no track, measurement z: the track starts, ``x = (z, 0)``, ``P = P0``; the output is z itself (there is
+  no earlier estimate to predict from).
+* track, measurement: predict, then update with z.
+* track, no measurement (the merge gave NaN): predict only ("coasting"); after more than
+  ``max_coast_frames`` such frames in a row the output is NaN and the track is dropped, so the joint
+  restarts from its next measurement instead of drifting on a stale velocity.
+* no track, no measurement: NaN.
+
+Kinds:
+
+``paper_kalman`` (paper eq. 7-13): A = I, H = I, Q = q I, R = r I (paper q = 0.01, r = 1.0, mm^2). The
+    output is the *predicted* state (eq. 9, ``x~_t = A x^_{t-1}``), i.e. the posterior of the previous
+    frame: one frame of delay on top of an exponential smoother whose steady-state gain is
+    ``K = P~ / (P~ + r)`` with ``P~ = (q + sqrt(q^2 + 4 q r)) / 2``, about 0.095 for the paper's q and r:
+    a time constant of about 10 frames, so on fast motion it lags by several frames (lag, not noise, then
+    dominates its error). Since Q and R are per axis and isotropic, P stays a multiple of I.
+``cv_kalman`` (beyond the paper): constant velocity per axis, F = [[1, dt], [0, 1]], H = [1, 0], discrete
+    white-noise acceleration Q = sigma_a^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]], R = sigma_m^2, optionally
+    divided by the number of agreeing sensors. Output = posterior (no added delay).
+``alpha_beta`` (Carraro et al., Algorithm 1): ``X = Xp + V dt; R = Xm - X; X += alpha R;
+    V += beta R / dt``. Output = X.
+
+All functions are pure: they return new arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skelfuse.fusion.presets import FusionParams
+
+
+def init_filter_state(n_joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty filter state for ``n_joints`` joints: x (N, 2, 3) zeros, P (N, 3) zeros, coast (N,) all -1."""
+    return np.zeros((n_joints, 2, 3)), np.zeros((n_joints, 3)), np.full(n_joints, -1, dtype=np.int32)
+
+
+def _as_coast(coast: np.ndarray) -> np.ndarray:
+    return coast if coast.dtype == np.int32 else coast.astype(np.int32)
+
+
+def filter_step(
+    x: np.ndarray,
+    P: np.ndarray,
+    coast: np.ndarray,
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One filter step for N joints, of the kind ``params.filter``.
+
+    Parameters
+    ----------
+    x : (N, 2, 3) float64, position (mm) and velocity (mm/s).
+    P : (N, 3) float64, (p_pos mm^2, p_pos_vel mm^2/s, p_vel mm^2/s^2).
+    coast : (N,) int, -1 = no track, else frames since the last measurement.
+    z : (N, 3) float64, mm, the merged positions; NaN = no measurement.
+    n_agree : (N,) int, sensors behind each measurement (cv_kalman may scale R by it).
+    params : FusionParams
+    dt_s : float, seconds since the previous frame.
+
+    Returns
+    -------
+    out : (N, 3) float64, mm, the filtered positions (NaN = no estimate).
+    x, P, coast : the new state (new arrays).
+    """
+    kind = params.filter
+    if kind is None:
+        return z.copy(), x, P, coast
+    coast = _as_coast(coast)  # the uint32 view below needs int32
+    if kind == "paper_kalman":
+        return _paper_kalman_step(x, P, coast, z, params)
+    has_z = ~np.isnan(z[:, 0])
+    if kind == "cv_kalman":
+        dt = dt_s
+        q = params.cv_accel_sigma_mm_s2**2
+        p00, p01, p11 = P[:, 0], P[:, 1], P[:, 2]
+        # x~ = F x;  P~ = F P F' + Q  (F = [[1, dt], [0, 1]], Q discrete white-noise acceleration).
+        pred_x = x + dt * (x[:, 1:2] * _POSITION_ROW)
+        p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**4 / 4.0
+        p01 = p01 + dt * p11 + q * dt**3 / 2.0
+        p11 = p11 + q * dt * dt
+        pred_P = np.stack([p00, p01, p11], axis=1)
+        r = params.cv_meas_sigma_mm**2
+        if params.cv_scale_r_by_agree:
+            r = r / np.maximum(n_agree, 1)  # n agreeing views average their independent noise down
+        # y = z - H x~;  S = H P~ H' + R;  K = P~ H' / S;  x^ = x~ + K y;  P^ = (I - K H) P~.
+        gain = pred_P[:, :2] / (p00 + r)[:, None]  # (N, 2): position and velocity gains
+        upd_x = pred_x + gain[:, :, None] * (z - pred_x[:, 0])[:, None, :]
+        upd_P = np.stack([(1.0 - gain[:, 0]) * p00, (1.0 - gain[:, 0]) * p01, p11 - gain[:, 1] * p01], axis=1)
+        out_measured = upd_x[:, 0]
+        init_P = (params.cv_meas_sigma_mm**2, 0.0, params.cv_velocity0_sigma_mm_s**2)
+    elif kind == "alpha_beta":
+        pred_x = x + dt_s * (x[:, 1:2] * _POSITION_ROW)  # X = Xp + V dt
+        residual = z - pred_x[:, 0]  # R = Xm - X
+        # X = X + alpha R;  V = V + beta R / dt
+        upd_x = pred_x + np.array([[params.alpha], [params.beta / dt_s]]) * residual[:, None, :]
+        upd_P = pred_P = P
+        out_measured = upd_x[:, 0]
+        init_P = (0.0, 0.0, 0.0)
+    else:
+        raise ValueError(f"filter must be 'paper_kalman', 'cv_kalman', 'alpha_beta' or None, got {kind!r}")
+
+    tracked = coast >= 0
+    measured = (has_z & tracked)[:, None]
+    # Measured: 0; coasting: one more frame; no track and no measurement: stays -1.
+    new_coast = np.where(has_z, 0, coast + tracked)
+    # Seen as unsigned, -1 is huge: one comparison tests 0 <= coast <= max_coast_frames.
+    alive = new_coast.view(np.uint32) <= params.max_coast_frames
+    new_coast = np.where(alive, new_coast, -1)
+    # Rows: measured -> update; coasting -> prediction; new track -> (z, 0); dead -> NaN out.
+    new_x = np.where(measured[:, :, None], upd_x, np.where(has_z[:, None, None], z[:, None, :] * _POSITION_ROW, pred_x))
+    new_P = np.where(measured, upd_P, np.where(has_z[:, None], init_P, pred_P))
+    out = np.where(alive[:, None], np.where(measured, out_measured, new_x[:, 0]), np.nan)
+    return out, new_x, new_P, new_coast
+
+
+_POSITION_ROW = np.array([[1.0], [0.0]])  # (2, 1): selects the position row of a (2, 3) state
+
+
+def _paper_kalman_step(
+    x: np.ndarray, P: np.ndarray, coast: np.ndarray, z: np.ndarray, params: FusionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`filter_step` for "paper_kalman", specialised: velocity and off-diagonal P are always 0.
+
+    The hot path of preset A5, so it spends as few numpy calls as it can.
+    """
+    pos = x[:, 0]
+    has_z = ~np.isnan(z[:, 0])
+    tracked = coast >= 0
+    measured = has_z & tracked
+    p_pred = P[:, 0] + params.kalman_q_mm2  # P~ = A P A' + Q
+    gain = p_pred / (p_pred + params.kalman_r_mm2)  # K = P~ H' (H P~ H' + R)^-1
+    new_coast = np.where(has_z, 0, coast + tracked)
+    alive = new_coast.view(np.uint32) <= params.max_coast_frames  # -1 seen as unsigned is huge
+    new_coast = np.where(alive, new_coast, -1)
+    started = has_z & ~tracked
+    # Measured: x^ = x~ + K (z - H x~); new track: z; coasting: x~ = x^ (A = I).
+    new_pos = np.where(measured[:, None], pos + gain[:, None] * (z - pos), np.where(started[:, None], z, pos))
+    new_p = np.where(measured, (1.0 - gain) * p_pred, np.where(started, params.kalman_p0_mm2, p_pred))
+    # Output the prediction x~ = x^_{t-1} (eq. 9); a new track outputs its first measurement.
+    out = np.where(alive[:, None], np.where(started[:, None], z, pos), np.nan)
+    new_x = np.zeros_like(x)
+    new_x[:, 0] = new_pos
+    new_P = np.zeros_like(P)
+    new_P[:, 0] = new_p
+    return out, new_x, new_P, new_coast

@@ -1,0 +1,257 @@
+"""Per-joint merge of the sensors' candidates into one position (Lee et al. 2022, section 2.2.2).
+
+``merge_dbscan`` is the paper's DBSCAN merge with Nc = 1 (``min_samples=1``). With Nc = 1 every point is a
+core point, so the clusters are exactly the connected components of the graph "distance <= eps". For each
+of the B*J joints at once this module builds the (n, n) adjacency of its n candidates, closes it by
+repeated boolean matrix squaring (ceil(log2(n - 1)) products, each doubling the longest path covered),
+scores every cluster, and takes the best one. No Python loop runs over joints or sensors.
+
+Candidates of one joint, in this order: one per sensor (S), then the reference position (trick 1, if
+``reference_weight`` is set), then the previous frame's merged position (trick 2, if ``previous_weight`` is
+set). Missing candidates (NaN) belong to no cluster.
+
+Choices the paper leaves open, and what this module does:
+
+Weights
+    A sensor candidate weighs 1, the reference ``reference_weight`` (default 2), the previous position
+    ``previous_weight`` (default 1). Weights count only in the cluster score (the summed weight of the
+    cluster's members); they never change the clustering. The reference and previous points do take part
+    in the clustering as points, so either can bridge two groups of sensors that are each within eps of
+    it (exactly what DBSCAN on the full candidate set does).
+Winner
+    Only clusters that hold at least one sensor candidate can win: a cluster of the reference and/or the
+    previous position alone has nothing to average, and its position is already represented elsewhere.
+    Among those, the cluster with the largest score wins; ties are broken, in order, by
+    (1) containing the previous position (temporal continuity), (2) more sensor candidates,
+    (3) containing the reference, (4) larger summed tracker confidence of its sensor candidates,
+    (5) smallest centroid x, then y, then z (rounded to 1e-6 mm). Every key depends only on the cluster's
+    content, so the result does not depend on the order of the sensors; only clusters identical in every
+    key (which would need identical centroids) fall back to the lowest sensor index.
+Output
+    The merged position is the centroid of the winning cluster's *sensor* candidates; the reference and
+    the previous position vote but are not averaged (paper). ``n_agree`` is the number of those sensor
+    candidates, ``confidence`` the highest tracker confidence among them, ``members`` which sensors they
+    came from. A joint no sensor reports comes out NaN with ``n_agree`` 0 and confidence 0, whatever the
+    reference or previous position say.
+
+``merge_average`` is the paper's A1/A2 merge: the plain mean of the valid sensor candidates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+_ROUND_DECIMALS = 6  # centroid tie-break resolution, mm
+
+
+@dataclass(frozen=True)
+class MergeResult:
+    """Output of a merge stage.
+
+    Attributes
+    ----------
+    positions : (B, J, 3) float64, mm. NaN where no sensor reports the joint.
+    n_agree : (B, J) int16, sensor candidates averaged into the joint.
+    confidence : (B, J) uint8, highest tracker confidence among those candidates (0 if none).
+    members : (B, J, S) bool, which sensors were averaged into the joint.
+    """
+
+    positions: np.ndarray
+    n_agree: np.ndarray
+    confidence: np.ndarray
+    members: np.ndarray
+
+
+def cluster_matrix(points: np.ndarray, eps_mm: float) -> np.ndarray:
+    """Same-cluster matrix of DBSCAN with min_samples = 1, for many small point sets at once.
+
+    Parameters
+    ----------
+    points : (N, n, 3) float, mm
+        N independent sets of n points; a point with any NaN coordinate is missing.
+    eps_mm : float
+        Neighbourhood radius, mm (inclusive, like scikit-learn's ``eps``).
+
+    Returns
+    -------
+    (N, n, n) float64 of 0/1: entry [k, a, b] is 1 when points a and b of set k are valid and in the same
+    connected component of "distance <= eps". The diagonal is 1 exactly for the valid points.
+    """
+    return _same_cluster(np.ascontiguousarray(np.transpose(points, (2, 0, 1))), eps_mm)
+
+
+def _same_cluster(axes: np.ndarray, eps_mm: float) -> np.ndarray:
+    """:func:`cluster_matrix` on points laid out (3, N, n): per-axis differences avoid a slow sum over 3."""
+    diff = axes[:, :, :, None] - axes[:, :, None, :]
+    diff *= diff
+    # NaN compares False, so a missing point has no neighbour, not even itself.
+    reach = ((diff[0] + diff[1] + diff[2]) <= eps_mm * eps_mm).astype(np.float64)
+    # Squaring a reflexive adjacency doubles the path length it covers; n - 1 hops connect any component.
+    for _ in range(_closure_steps(axes.shape[2])):
+        reach = reach @ reach  # entries count paths: exact integers, far below float overflow for n < 100
+    return np.minimum(reach, 1.0)
+
+
+def _closure_steps(n: int) -> int:
+    return max(0, int(np.ceil(np.log2(max(n - 1, 1)))))
+
+
+@lru_cache(maxsize=64)
+def _code_weights(n_sensors: int, use_ref: bool, use_prev: bool) -> np.ndarray:
+    """Per-candidate weight whose sum over a cluster's members is its code (see :func:`_rank_table`)."""
+    span = n_sensors + 1
+    weights = [1.0] * n_sensors + [float(span)] * use_ref + [float(2 * span)] * use_prev
+    out = np.array(weights)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _rows(n: int) -> np.ndarray:
+    out = np.arange(n)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _rank_table(n_sensors: int, reference_weight: float | None, previous_weight: float | None) -> np.ndarray:
+    """Rank of each (n_sensors, has_ref, has_prev) code under (score, has_prev, n_sensors, has_ref).
+
+    The code of a cluster is ``n + (S+1) * has_ref + 2 (S+1) * has_prev``; the score is computed from the
+    same integers in one fixed order, so two clusters with equal content get bit-identical scores.
+    """
+    span = n_sensors + 1
+    w_ref = 0.0 if reference_weight is None else float(reference_weight)
+    w_prev = 0.0 if previous_weight is None else float(previous_weight)
+    codes = []
+    for has_prev in (0, 1):
+        for has_ref in (0, 1):
+            for n in range(span):
+                score = float(n) + has_ref * w_ref + has_prev * w_prev
+                codes.append(((score, has_prev, n, has_ref), n + span * has_ref + 2 * span * has_prev))
+    order = sorted(codes)
+    table = np.empty(4 * span, dtype=np.int64)
+    for rank, (_, code) in enumerate(order):
+        table[code] = rank
+    table[0] = -1  # a sensor candidate's cluster holds at least itself: code 0 means a missing candidate
+    table.setflags(write=False)
+    return table
+
+
+def merge_dbscan(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    reference: np.ndarray | None = None,
+    previous: np.ndarray | None = None,
+    eps_mm: float = 100.0,
+    reference_weight: float | None = 2.0,
+    previous_weight: float | None = 1.0,
+) -> MergeResult:
+    """DBSCAN (Nc = 1) merge of every joint; see the module docstring for weights, ties and empty cases.
+
+    Parameters
+    ----------
+    positions : (B, S, J, 3) float, mm, world frame; NaN = missing candidate.
+    confidence : (B, S, J) int, tracker confidence of each candidate.
+    reference : (B, J, 3) float, mm, or None
+        Trick-1 candidate per joint (see :func:`skelfuse.fusion.realign.reference_positions`). Ignored
+        when ``reference_weight`` is None.
+    previous : (B, J, 3) float, mm, or None
+        Trick-2 candidate per joint (last frame's merged position). Ignored when ``previous_weight`` is None.
+    eps_mm : float
+        Searching radius, mm.
+    reference_weight, previous_weight : float or None
+        Weights in the cluster score; None leaves that candidate out.
+
+    Returns
+    -------
+    MergeResult
+    """
+    B, S, J, _ = positions.shape
+    N = B * J
+    sensor_axes = np.transpose(positions, (3, 0, 2, 1)).reshape(3, N, S)  # (3, N, S), a copy
+    sensor_conf = np.transpose(confidence, (0, 2, 1)).reshape(N, S).astype(np.float64)
+    parts = [sensor_axes]
+    use_ref = reference_weight is not None and reference is not None
+    use_prev = previous_weight is not None and previous is not None
+    span = S + 1
+    if use_ref:
+        parts.append(np.transpose(reference, (2, 0, 1)).reshape(3, N, 1))
+    if use_prev:
+        parts.append(np.transpose(previous, (2, 0, 1)).reshape(3, N, 1))
+    axes = np.concatenate(parts, axis=2) if len(parts) > 1 else sensor_axes
+    same = _same_cluster(axes, eps_mm)  # (N, n, n)
+    sensor_same = same[:, :S, :S]  # (N, S, S): only sensor candidates can represent a winning cluster
+    n = axes.shape[2]
+    valid = same.reshape(N, n * n)[:, : S * (n + 1) : n + 1] > 0  # diagonal: the valid sensor candidates
+
+    # Lexicographic key per sensor candidate's cluster: rank of (score, has_prev, n, has_ref), then
+    # summed confidence. Both are sums over members, so two matmuls give them for every cluster at once.
+    code = (same[:, :S] @ _code_weights(S, use_ref, use_prev)).astype(np.intp)  # (N, S)
+    conf_sum = (sensor_same @ sensor_conf[..., None])[..., 0]  # (N, S)
+    rank = _rank_table(S, reference_weight if use_ref else None, previous_weight if use_prev else None)[code]
+    key = rank * (3 * S + 1) + conf_sum  # a missing candidate has code 0, rank -1: a negative key
+    winner = key.argmax(axis=1)
+    rows = _rows(N)
+    members = sensor_same[rows, winner]  # (N, S) 0/1
+    tied = (key == key[rows, winner][:, None]) & valid
+    safe_axes = np.where(valid, sensor_axes, 0.0)  # (3, N, S), 0 where missing
+    if np.count_nonzero(tied) != np.count_nonzero(members):  # another cluster has the same key somewhere
+        winner = _break_ties(tied, sensor_same, safe_axes.transpose(1, 2, 0))
+        members = sensor_same[rows, winner]
+
+    n_agree = code[rows, winner] % span
+    # 0 / NaN is a quiet NaN: a joint no sensor reports becomes NaN without a division warning.
+    sums = (members[:, None, :] @ safe_axes.transpose(1, 2, 0))[:, 0]  # (N, 3)
+    merged = sums / np.where(n_agree > 0, n_agree, np.nan)[:, None]
+    weighted_conf = members * sensor_conf
+    best_conf = weighted_conf[rows, weighted_conf.argmax(axis=1)]
+    return MergeResult(
+        positions=merged.reshape(B, J, 3),
+        n_agree=n_agree.astype(np.int16).reshape(B, J),
+        confidence=best_conf.astype(np.uint8).reshape(B, J),
+        members=(members > 0).reshape(B, J, S),
+    )
+
+
+def _break_ties(tied: np.ndarray, sensor_same: np.ndarray, safe_pts: np.ndarray) -> np.ndarray:
+    """Among tied clusters pick the smallest sensor centroid, x then y then z; returns winner indices (N,).
+
+    Only runs on frames where some joint has a tie, so the common path stays cheap.
+    """
+    count = np.maximum(sensor_same.sum(axis=2), 1.0)[..., None]
+    centroid = np.round((sensor_same @ safe_pts) / count, _ROUND_DECIMALS)  # (N, S, 3)
+    for axis in range(3):  # lexicographic over the three axes
+        value = np.where(tied, centroid[..., axis], np.inf)
+        tied = tied & (value == value.min(axis=1, keepdims=True))
+    return tied.argmax(axis=1)
+
+
+def merge_average(positions: np.ndarray, confidence: np.ndarray) -> MergeResult:
+    """Plain mean of the valid sensor candidates of each joint (the paper's A1/A2).
+
+    Parameters
+    ----------
+    positions : (B, S, J, 3) float, mm; NaN = missing.
+    confidence : (B, S, J) int.
+
+    Returns
+    -------
+    MergeResult; a joint no sensor reports is NaN with n_agree 0.
+    """
+    B, _, J, _ = positions.shape
+    valid = ~np.isnan(positions).any(axis=-1)  # (B, S, J)
+    n_agree = np.count_nonzero(valid, axis=1)  # (B, J)
+    total = np.where(valid[..., None], positions, 0.0).sum(axis=1)  # (B, J, 3)
+    merged = np.full((B, J, 3), np.nan)
+    np.divide(total, n_agree[..., None], out=merged, where=n_agree[..., None] > 0)
+    best_conf = np.where(valid, confidence, 0).max(axis=1)
+    return MergeResult(
+        positions=merged,
+        n_agree=n_agree.astype(np.int16),
+        confidence=best_conf.astype(np.uint8),
+        members=np.transpose(valid, (0, 2, 1)),
+    )

@@ -1,0 +1,248 @@
+"""One fusion step: select candidates -> realign -> merge -> filter (Lee et al. 2022, section 2.2).
+
+Input is one instant of the rig, already in the world frame and already associated: row b of every sensor
+is the same person (a sensor that does not see person b has NaN there). :func:`fuse` is pure: it takes the
+previous :class:`FusionState` and returns the result and a new state, never mutating its inputs;
+:class:`Fuser` is a thin stateful wrapper for callers that just want ``step()``.
+
+Stages (each a pure function of its own module, so it can be tested and timed alone):
+
+1. :func:`select_candidates`: a candidate is missing when any coordinate is NaN/inf or its confidence is
+   below ``params.min_confidence`` (default LOW, so NONE joints are dropped).
+2. :func:`skelfuse.fusion.realign.realign`: left/right realignment ("paper", "body" or off).
+3. Merge: :func:`skelfuse.fusion.merge.merge_dbscan` with the reference candidate (trick 1), recomputed
+   from the *realigned* candidates so a swapped view no longer drags it, and the previous frame's merged
+   position (trick 2: the merge output before filtering, NaN if the joint was not merged last frame); or
+   :func:`skelfuse.fusion.merge.merge_average`.
+4. :func:`skelfuse.fusion.filters.filter_step`: per-joint filter with coasting, or pass-through.
+
+Quality fields: ``n_agree`` and ``confidence`` describe this frame's measurement, so a coasted (predicted
+only) joint reports 0 for both, as does a joint with no estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from skelfuse.fusion.filters import filter_step, init_filter_state
+from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.fusion.realign import realign_body, realign_paper, reference_positions
+from skelfuse.skeleton import N_JOINTS
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """Fused skeletons of one instant.
+
+    Attributes
+    ----------
+    positions : (B, J, 3) float64, mm, world frame. NaN = no estimate.
+    n_agree : (B, J) int16, sensor candidates in the winning cluster (0 = coasted/predicted or none).
+    confidence : (B, J) uint8, highest tracker confidence among the merged candidates (0 if none).
+    contributors : (B, S) bool, sensors whose candidates were merged into at least one joint of the body.
+    """
+
+    positions: np.ndarray
+    n_agree: np.ndarray
+    confidence: np.ndarray
+    contributors: np.ndarray
+
+
+@dataclass
+class FusionState:
+    """Everything :func:`fuse` carries from one frame to the next, for B bodies.
+
+    Attributes
+    ----------
+    previous : (B, J, 3) float64, mm, last frame's merged positions (before filtering); NaN = none.
+    x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
+    P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
+    coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
+    """
+
+    previous: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    coast: np.ndarray
+
+    @property
+    def n_bodies(self) -> int:
+        return int(self.previous.shape[0])
+
+
+def init_state(n_bodies: int, params: FusionParams) -> FusionState:
+    """Empty state for ``n_bodies`` bodies: no previous position, no filter track.
+
+    ``params`` is accepted so that future filters can size their state from it; today every filter
+    shares one layout.
+    """
+    if int(n_bodies) < 0:
+        raise ValueError(f"n_bodies must be >= 0, got {n_bodies!r}")
+    if not isinstance(params, FusionParams):
+        raise ValueError(f"params must be a FusionParams, got {type(params).__name__}")
+    B = int(n_bodies)
+    x, P, coast = init_filter_state(B * N_JOINTS)
+    return FusionState(
+        previous=np.full((B, N_JOINTS, 3), np.nan),
+        x=x.reshape(B, N_JOINTS, 2, 3),
+        P=P.reshape(B, N_JOINTS, 3),
+        coast=coast.reshape(B, N_JOINTS),
+    )
+
+
+def select_candidates(
+    candidates: np.ndarray, confidence: np.ndarray, min_confidence: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mark unusable candidates missing: non-finite, or confidence below ``min_confidence``.
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) float, mm.
+    confidence : (B, S, J) int.
+    min_confidence : int or None (None keeps every finite candidate).
+
+    Returns
+    -------
+    positions : (B, S, J, 3) float64, mm, all three coordinates NaN where missing.
+    confidence : (B, S, J) uint8, 0 where missing.
+    """
+    positions = np.asarray(candidates, dtype=np.float64)
+    valid = np.isfinite(positions).all(axis=-1)
+    if min_confidence is not None:
+        valid &= confidence >= min_confidence
+    conf = confidence * valid
+    return np.where(valid[..., None], positions, np.nan), conf if conf.dtype == np.uint8 else conf.astype(np.uint8)
+
+
+def fuse(
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    state: FusionState,
+    params: FusionParams,
+    dt_s: float = 1.0 / 30.0,
+) -> tuple[FusionResult, FusionState]:
+    """Fuse one instant of S sensors' skeletons of B associated bodies.
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) float, mm, world frame; NaN = missing.
+    confidence : (B, S, J) uint8, :class:`skelfuse.skeleton.Confidence` values.
+    state : FusionState from :func:`init_state` or the previous call, for the same B.
+    params : FusionParams
+    dt_s : float
+        Seconds since the previous frame (used by the cv_kalman and alpha_beta filters).
+
+    Returns
+    -------
+    result : FusionResult
+    state : FusionState, new arrays (the input state is left untouched).
+
+    Raises
+    ------
+    ValueError
+        On shapes that do not match each other, the joint set, or the state's body count, or a
+        non-positive dt_s.
+    """
+    candidates = np.asarray(candidates)
+    confidence = np.asarray(confidence)
+    _validate(candidates, confidence, state, dt_s)
+    B, _, J, _ = candidates.shape
+
+    positions, conf = select_candidates(candidates, confidence, params.min_confidence)
+    positions, conf, reference = _realign(positions, conf, params)
+    merged = _merge(positions, conf, reference, state, params)
+    out, x, P, coast = filter_step(
+        state.x.reshape(B * J, 2, 3),
+        state.P.reshape(B * J, 3),
+        state.coast.reshape(B * J),
+        merged.positions.reshape(B * J, 3),
+        merged.n_agree.reshape(B * J),
+        params,
+        dt_s,
+    )
+    result = FusionResult(
+        positions=out.reshape(B, J, 3),
+        n_agree=merged.n_agree,
+        confidence=merged.confidence,
+        contributors=merged.members.any(axis=1),
+    )
+    new_state = FusionState(
+        previous=merged.positions, x=x.reshape(B, J, 2, 3), P=P.reshape(B, J, 3), coast=coast.reshape(B, J)
+    )
+    return result, new_state
+
+
+def _realign(
+    positions: np.ndarray, conf: np.ndarray, params: FusionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Realign; also return the reference positions of the result when they come for free (else None)."""
+    if params.realign is None:
+        return positions, conf, None
+    reference = reference_positions(positions, conf)
+    if params.realign == "paper":
+        out_positions, out_conf, _ = realign_paper(positions, conf, reference=reference)
+    else:
+        out_positions, out_conf, _ = realign_body(positions, conf, params.realign_passes, reference=reference)
+    # Nothing swapped (the usual case): the reference of the realigned candidates is the one just computed.
+    return out_positions, out_conf, reference if out_positions is positions else None
+
+
+def _merge(
+    positions: np.ndarray, conf: np.ndarray, reference: np.ndarray | None, state: FusionState, params: FusionParams
+) -> MergeResult:
+    if params.merge == "average":
+        return merge_average(positions, conf)
+    if params.reference_weight is not None and reference is None:
+        reference = reference_positions(positions, conf)
+    return merge_dbscan(
+        positions,
+        conf,
+        reference=reference,
+        previous=state.previous if params.previous_weight is not None else None,
+        eps_mm=params.eps_mm,
+        reference_weight=params.reference_weight,
+        previous_weight=params.previous_weight,
+    )
+
+
+def _validate(candidates: np.ndarray, confidence: np.ndarray, state: FusionState, dt_s: float) -> None:
+    if candidates.ndim != 4 or candidates.shape[2:] != (N_JOINTS, 3):
+        raise ValueError(f"candidates must have shape (B, S, {N_JOINTS}, 3), got {candidates.shape}")
+    if confidence.shape != candidates.shape[:3]:
+        raise ValueError(f"confidence must have shape {candidates.shape[:3]} (B, S, J), got {confidence.shape}")
+    if candidates.shape[0] != state.n_bodies:
+        raise ValueError(
+            f"candidates hold {candidates.shape[0]} bodies but the state was made for {state.n_bodies}; "
+            "call init_state with the new body count"
+        )
+    if not (isinstance(dt_s, int | float) and math.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be a finite number of seconds > 0, got {dt_s!r}")
+
+
+class Fuser:
+    """Stateful wrapper over :func:`fuse` for a fixed number of bodies.
+
+    Attributes
+    ----------
+    params : FusionParams
+    n_bodies : int
+    state : FusionState, the state after the last :meth:`step`.
+    """
+
+    def __init__(self, params: FusionParams, n_bodies: int = 1) -> None:
+        self.params = params
+        self.n_bodies = int(n_bodies)
+        self.state = init_state(self.n_bodies, params)
+
+    def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
+        """Fuse one frame (see :func:`fuse`) and keep the new state."""
+        result, self.state = fuse(candidates, confidence, self.state, self.params, dt_s)
+        return result
+
+    def reset(self) -> None:
+        """Forget every track and previous position, as after construction."""
+        self.state = init_state(self.n_bodies, self.params)

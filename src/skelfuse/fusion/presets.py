@@ -1,0 +1,162 @@
+"""Fusion parameters and the paper's ablation presets A1-A5 (Lee et al. 2022, section 3.1).
+
+One frozen :class:`FusionParams` holds every option of the fusion core. Units are in the names, ``None``
+switches a stage or a trick off (never ``-1``). :func:`preset` builds the paper's ablations:
+
+====  =========  =======  ==============================  ==============  ============
+name  realign    merge    reference candidate (trick 1)   previous (t.2)  filter
+====  =========  =======  ==============================  ==============  ============
+A1    off        average  -                               -               off
+A2    paper      average  -                               -               off
+A3    paper      dbscan   weight 2.0                      off             off
+A4    paper      dbscan   weight 2.0                      weight 1.0      off
+A5    paper      dbscan   weight 2.0                      weight 1.0      paper_kalman
+====  =========  =======  ==============================  ==============  ============
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Literal
+
+from skelfuse.skeleton import Confidence
+
+RealignMode = Literal["paper", "body"]
+MergeMode = Literal["dbscan", "average"]
+FilterKind = Literal["paper_kalman", "cv_kalman", "alpha_beta"]
+
+REALIGN_MODES: tuple[str, ...] = ("paper", "body")
+MERGE_MODES: tuple[str, ...] = ("dbscan", "average")
+FILTER_KINDS: tuple[str, ...] = ("paper_kalman", "cv_kalman", "alpha_beta")
+PAPER_PRESETS: tuple[str, ...] = ("A1", "A2", "A3", "A4", "A5")
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Every option of :func:`skelfuse.fusion.pipeline.fuse`, validated on construction.
+
+    Attributes
+    ----------
+    min_confidence : int or None
+        Candidates whose tracker confidence is below this are treated as missing. Default LOW: joints the
+        SDK marks NONE (out of range) carry a guessed position that would only add outliers. None keeps
+        every finite candidate.
+    realign : {"paper", "body"} or None
+        Left/right realignment. "paper": per pair and per sensor, section 2.2.1. "body": one flip decision
+        per sensor for the whole skeleton from the summed cost over all pairs (a tracker flip mirrors the
+        whole body). None: off.
+    realign_passes : int
+        "body" only: how many times the flip decision is taken, each time against a reference recomputed
+        from the previous pass's realigned candidates (a mirrored view contaminates the first reference).
+    merge : {"dbscan", "average"}
+        "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
+        mean of the valid sensor candidates (the paper's A1/A2).
+    eps_mm : float
+        DBSCAN searching radius, mm. Two candidates closer than or exactly eps are neighbours.
+    reference_weight : float or None
+        Trick 1: weight of the reference candidate (mean of the best-confidence candidates) in the cluster
+        score. None: no reference candidate.
+    previous_weight : float or None
+        Trick 2: weight of the previous frame's merged position as a candidate. None: off.
+    filter : {"paper_kalman", "cv_kalman", "alpha_beta"} or None
+        Temporal filter per joint. None: the merged position is the output.
+    max_coast_frames : int
+        How many consecutive frames without a measurement a filtered joint is predicted for; after that it
+        is output as NaN and its track reset. 0: no coasting.
+    kalman_q_mm2 : float
+        "paper_kalman" process noise variance per axis and frame, mm^2 (paper: 0.01).
+    kalman_r_mm2 : float
+        "paper_kalman" measurement noise variance per axis, mm^2 (paper: 1.0).
+    kalman_p0_mm2 : float
+        "paper_kalman" initial state variance per axis, mm^2 (the paper does not say; filterpy's default 1).
+    cv_accel_sigma_mm_s2 : float
+        "cv_kalman" white-noise acceleration standard deviation, mm/s^2 (discrete white noise model).
+    cv_meas_sigma_mm : float
+        "cv_kalman" measurement standard deviation per axis, mm.
+    cv_velocity0_sigma_mm_s : float
+        "cv_kalman" initial velocity standard deviation, mm/s (the velocity starts at 0).
+    cv_scale_r_by_agree : bool
+        "cv_kalman": divide R by the number of agreeing sensors (n independent views average down).
+    alpha, beta : float
+        "alpha_beta" gains of Algorithm 1 in Carraro et al. Default beta = alpha^2 / (2 - alpha), the
+        Benedict-Bordner relation that balances noise reduction against manoeuvre tracking.
+    """
+
+    min_confidence: int | None = int(Confidence.LOW)
+    realign: RealignMode | None = "paper"
+    realign_passes: int = 2
+    merge: MergeMode = "dbscan"
+    eps_mm: float = 100.0
+    reference_weight: float | None = 2.0
+    previous_weight: float | None = 1.0
+    filter: FilterKind | None = "paper_kalman"
+    max_coast_frames: int = 15
+    kalman_q_mm2: float = 0.01
+    kalman_r_mm2: float = 1.0
+    kalman_p0_mm2: float = 1.0
+    cv_accel_sigma_mm_s2: float = 5000.0
+    cv_meas_sigma_mm: float = 15.0
+    cv_velocity0_sigma_mm_s: float = 500.0
+    cv_scale_r_by_agree: bool = True
+    alpha: float = 0.5
+    beta: float = 0.5**2 / (2.0 - 0.5)
+
+    def __post_init__(self) -> None:
+        if self.min_confidence is not None and not 0 <= int(self.min_confidence) <= int(Confidence.HIGH):
+            raise ValueError(f"FusionParams.min_confidence must be None or 0..3, got {self.min_confidence!r}")
+        _one_of("realign", self.realign, (*REALIGN_MODES, None))
+        _one_of("merge", self.merge, MERGE_MODES)
+        _one_of("filter", self.filter, (*FILTER_KINDS, None))
+        if int(self.realign_passes) < 1:
+            raise ValueError(f"FusionParams.realign_passes must be >= 1, got {self.realign_passes!r}")
+        if int(self.max_coast_frames) < 0:
+            raise ValueError(f"FusionParams.max_coast_frames must be >= 0, got {self.max_coast_frames!r}")
+        positive = [
+            "eps_mm",
+            "kalman_q_mm2",
+            "kalman_r_mm2",
+            "kalman_p0_mm2",
+            "cv_accel_sigma_mm_s2",
+            "cv_meas_sigma_mm",
+            "cv_velocity0_sigma_mm_s",
+        ]
+        optional_positive = ["reference_weight", "previous_weight"]
+        for name in positive + optional_positive:
+            value = getattr(self, name)
+            if value is None and name in optional_positive:
+                continue
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"FusionParams.{name} must be a finite number > 0, got {value!r}")
+        if not (0.0 < self.alpha <= 1.0 and 0.0 <= self.beta < 2.0):
+            raise ValueError(f"FusionParams alpha must be in (0, 1] and beta in [0, 2), got {self.alpha}, {self.beta}")
+
+
+def _one_of(name: str, value: object, allowed: tuple[object, ...]) -> None:
+    if value not in allowed:
+        raise ValueError(f"FusionParams.{name} must be one of {allowed!r}, got {value!r}")
+
+
+_PRESETS: dict[str, FusionParams] = {
+    "A1": FusionParams(realign=None, merge="average", reference_weight=None, previous_weight=None, filter=None),
+    "A2": FusionParams(realign="paper", merge="average", reference_weight=None, previous_weight=None, filter=None),
+    "A3": FusionParams(realign="paper", merge="dbscan", reference_weight=2.0, previous_weight=None, filter=None),
+    "A4": FusionParams(realign="paper", merge="dbscan", reference_weight=2.0, previous_weight=1.0, filter=None),
+    "A5": FusionParams(
+        realign="paper", merge="dbscan", reference_weight=2.0, previous_weight=1.0, filter="paper_kalman"
+    ),
+}
+
+
+def preset(name: str, eps_mm: float = 100.0) -> FusionParams:
+    """The paper's ablation ``name`` ("A1".."A5"); ``eps_mm`` is the DBSCAN radius (used by A3-A5).
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`PAPER_PRESETS`.
+    """
+    key = str(name).strip().upper()
+    if key not in _PRESETS:
+        raise ValueError(f"unknown fusion preset {name!r}; expected one of {', '.join(PAPER_PRESETS)}")
+    return replace(_PRESETS[key], eps_mm=float(eps_mm))

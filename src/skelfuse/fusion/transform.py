@@ -1,0 +1,100 @@
+"""Rigid transforms between sensor frames and the world frame, as 4x4 homogeneous matrices in millimetres.
+
+``world_from_sensor`` maps a point in a sensor's depth-camera frame to the world frame:
+``p_world = R @ p_sensor + t``. The calibration produces one per sensor, stacked as (S, 4, 4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_ORTHO_TOL = 1e-6
+
+
+def make_transform(rotation: np.ndarray, translation_mm: np.ndarray) -> np.ndarray:
+    """Build a rigid transform from a rotation and a translation.
+
+    Parameters
+    ----------
+    rotation : (3, 3) array
+        Proper rotation matrix (orthonormal, determinant +1).
+    translation_mm : (3,) array
+        Translation, mm.
+
+    Returns
+    -------
+    (4, 4) float64 homogeneous matrix.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-finite value, or a rotation that is not orthonormal with determinant +1
+        (a reflection would mirror every skeleton, swapping left and right).
+    """
+    R = np.asarray(rotation, dtype=np.float64)
+    t = np.asarray(translation_mm, dtype=np.float64)
+    if R.shape != (3, 3):
+        raise ValueError(f"rotation must have shape (3, 3), got {R.shape}")
+    if t.shape != (3,):
+        raise ValueError(f"translation_mm must have shape (3,), got {t.shape}")
+    if not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise ValueError("rotation and translation_mm must be finite; check the calibration")
+    ortho_err = np.abs(R.T @ R - np.eye(3)).max()
+    if ortho_err > _ORTHO_TOL or np.linalg.det(R) < 0:
+        raise ValueError(
+            f"rotation must be orthonormal with determinant +1, got |R'R - I| = {ortho_err:.2e}, "
+            f"det = {np.linalg.det(R):.6f}; re-orthonormalize it (SVD) before building the transform"
+        )
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def invert_transform(T: np.ndarray) -> np.ndarray:
+    """Rigid inverse ``[R' | -R't]``: exact for rotations, cheaper and better conditioned than ``np.linalg.inv``.
+
+    Parameters
+    ----------
+    T : (..., 4, 4) array of rigid transforms.
+
+    Returns
+    -------
+    (..., 4, 4) float64, the inverse transforms (``sensor_from_world`` for a ``world_from_sensor``).
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape[-2:] != (4, 4):
+        raise ValueError(f"T must have shape (..., 4, 4), got {T.shape}")
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -(Rt @ T[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def apply_transform(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Map every sensor's joints into the world frame.
+
+    Parameters
+    ----------
+    world_from_sensor : (S, 4, 4) array
+        One rigid transform per sensor.
+    positions : (..., S, J, 3) array, mm, sensor frames
+        Joint positions; NaN marks a missing joint.
+
+    Returns
+    -------
+    (..., S, J, 3) float64, mm, world frame. A joint with any NaN coordinate comes out all NaN
+    (``NaN * 0`` is NaN, so the matrix product spreads it to the three axes).
+    """
+    T = np.asarray(world_from_sensor, dtype=np.float64)
+    p = np.asarray(positions, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"world_from_sensor must have shape (S, 4, 4), got {T.shape}")
+    if p.ndim < 3 or p.shape[-1] != 3 or p.shape[-3] != T.shape[0]:
+        raise ValueError(
+            f"positions must have shape (..., S={T.shape[0]}, J, 3) to match world_from_sensor, got {p.shape}"
+        )
+    # p @ R' + t, batched over sensors: (..., S, J, 3) @ (S, 3, 3) broadcasts the leading axes.
+    return p @ np.swapaxes(T[:, :3, :3], -1, -2) + T[:, None, :3, 3]

@@ -1,0 +1,145 @@
+"""fuse() against the loop reference (scikit-learn DBSCAN + filterpy), purity, state and validation."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from skelfuse.bench.reference import ReferenceFuser
+from skelfuse.fusion import PAPER_PRESETS, Fuser, FusionParams, fuse, init_state, preset
+from skelfuse.skeleton import MIRROR, N_JOINTS
+
+SEED = 20220420
+
+
+def _sequence(rng: np.random.Generator, n_bodies: int, n_sensors: int, n_frames: int):
+    """Moving bodies seen by noisy sensors with outliers, mirrored views, dropouts and mixed confidence."""
+    truth = rng.normal(0.0, 300.0, (n_bodies, 1, N_JOINTS, 3))
+    frames = []
+    for _ in range(n_frames):
+        truth = truth + rng.normal(0.0, 15.0, truth.shape)
+        cand = truth + rng.normal(0.0, 30.0, (n_bodies, n_sensors, N_JOINTS, 3))
+        outlier = rng.random(cand.shape[:3]) < 0.1
+        cand[outlier] += rng.normal(0.0, 300.0, (int(outlier.sum()), 3))
+        mirrored = rng.random((n_bodies, n_sensors)) < 0.15
+        cand[mirrored] = cand[mirrored][:, MIRROR]
+        cand[rng.random(cand.shape[:3]) < 0.1] = np.nan
+        cand[:, :, 9] = np.nan if rng.random() < 0.5 else cand[:, :, 9]  # a joint that comes and goes
+        conf = rng.choice(np.array([0, 1, 2, 2, 2], dtype=np.uint8), size=cand.shape[:3])
+        frames.append((cand.astype(np.float32), conf))
+    return frames
+
+
+def _assert_same(a, b, where):
+    np.testing.assert_allclose(a.positions, b.positions, rtol=0, atol=1e-8, equal_nan=True, err_msg=where)
+    np.testing.assert_array_equal(a.n_agree, b.n_agree, err_msg=where)
+    np.testing.assert_array_equal(a.confidence, b.confidence, err_msg=where)
+    np.testing.assert_array_equal(a.contributors, b.contributors, err_msg=where)
+    assert a.positions.dtype == np.float64 and a.n_agree.dtype == np.int16 and a.confidence.dtype == np.uint8
+
+
+VARIANTS = [pytest.param(preset(name), id=name) for name in PAPER_PRESETS] + [
+    pytest.param(preset("A5", eps_mm=50.0), id="A5-eps50"),
+    pytest.param(replace(preset("A5"), realign="body"), id="A5-body"),
+    pytest.param(replace(preset("A5"), filter="cv_kalman", max_coast_frames=2), id="A5-cv"),
+    pytest.param(replace(preset("A4"), filter="alpha_beta", min_confidence=None), id="A4-alphabeta-allconf"),
+]
+
+
+@pytest.mark.parametrize("params", VARIANTS)
+def test_fuse_equals_reference_implementation(params):
+    rng = np.random.default_rng(SEED)
+    n_bodies, n_sensors = 2, 4
+    fuser, oracle = Fuser(params, n_bodies), ReferenceFuser(params, n_bodies)
+    for t, (cand, conf) in enumerate(_sequence(rng, n_bodies, n_sensors, 6)):
+        _assert_same(fuser.step(cand, conf), oracle.step(cand, conf), f"frame {t}")
+
+
+def test_fuse_equals_reference_with_exact_ties():
+    # Two sensors on each of two spots (2 vs 2): ties broken by the previous position, then confidence,
+    # then centroid; the oracle breaks them independently with tuple comparison.
+    rng = np.random.default_rng(SEED + 1)
+    params = preset("A4")
+    fuser, oracle = Fuser(params, 1), ReferenceFuser(params, 1)
+    for t in range(4):
+        spot = rng.normal(0.0, 300.0, (2, N_JOINTS, 3))
+        cand = spot[[0, 0, 1, 1]][None] + rng.normal(0.0, 5.0, (1, 4, N_JOINTS, 3))
+        conf = rng.integers(1, 3, (1, 4, N_JOINTS)).astype(np.uint8)
+        _assert_same(fuser.step(cand, conf), oracle.step(cand, conf), f"frame {t}")
+
+
+def test_fuse_does_not_mutate_its_inputs():
+    rng = np.random.default_rng(SEED + 2)
+    params = replace(preset("A5"), realign="body")
+    state = init_state(2, params)
+    (cand, conf), (cand2, conf2) = _sequence(rng, 2, 3, 2)
+    _, state = fuse(cand, conf, state, params)
+    snapshot = [a.copy() for a in (cand2, conf2, state.previous, state.x, state.P, state.coast)]
+    fuse(cand2, conf2, state, params)
+    for before, after in zip(snapshot, (cand2, conf2, state.previous, state.x, state.P, state.coast), strict=True):
+        np.testing.assert_array_equal(before, after)
+
+
+def test_init_state_shapes_and_fuse_with_several_bodies():
+    params = preset("A5")
+    state = init_state(3, params)
+    assert state.n_bodies == 3
+    assert state.previous.shape == (3, N_JOINTS, 3) and np.isnan(state.previous).all()
+    assert state.x.shape == (3, N_JOINTS, 2, 3) and state.P.shape == (3, N_JOINTS, 3)
+    assert (state.coast == -1).all()
+    cand = np.zeros((3, 2, N_JOINTS, 3))
+    cand[1] = np.nan  # body 1 is seen by nobody
+    result, state = fuse(cand, np.full((3, 2, N_JOINTS), 2, np.uint8), state, params)
+    assert result.positions.shape == (3, N_JOINTS, 3) and result.contributors.shape == (3, 2)
+    assert np.isnan(result.positions[1]).all() and (result.n_agree[1] == 0).all()
+    assert not result.contributors[1].any() and result.contributors[[0, 2]].all()
+    np.testing.assert_array_equal(result.positions[0], 0.0)
+
+
+def test_none_confidence_is_missing_by_default():
+    params = preset("A1")
+    cand = np.stack([np.zeros((N_JOINTS, 3)), np.full((N_JOINTS, 3), 90.0)])[None]
+    conf = np.array([[[2] * N_JOINTS, [0] * N_JOINTS]], dtype=np.uint8)
+    result, _ = fuse(cand, conf, init_state(1, params), params)
+    np.testing.assert_array_equal(result.positions[0], 0.0)
+    result, _ = fuse(cand, conf, init_state(1, params), replace(params, min_confidence=None))
+    np.testing.assert_array_equal(result.positions[0], 45.0)
+
+
+def test_fuser_reset_forgets_state():
+    params = preset("A5")
+    fuser = Fuser(params)
+    cand = np.zeros((1, 2, N_JOINTS, 3))
+    conf = np.full((1, 2, N_JOINTS), 2, np.uint8)
+    first = fuser.step(cand, conf)
+    fuser.step(cand + 100.0, conf)
+    fuser.reset()
+    np.testing.assert_array_equal(fuser.step(cand, conf).positions, first.positions)
+
+
+@pytest.mark.parametrize(
+    ("cand_shape", "conf_shape", "n_bodies", "dt_s", "match"),
+    [
+        ((1, 2, 31, 3), (1, 2, 31), 1, 1 / 30, "candidates must have shape"),
+        ((1, 2, 32, 3), (1, 3, 32), 1, 1 / 30, "confidence must have shape"),
+        ((2, 2, 32, 3), (2, 2, 32), 1, 1 / 30, "init_state"),
+        ((1, 2, 32, 3), (1, 2, 32), 1, 0.0, "dt_s"),
+    ],
+)
+def test_fuse_rejects_bad_input(cand_shape, conf_shape, n_bodies, dt_s, match):
+    params = preset("A5")
+    with pytest.raises(ValueError, match=match):
+        fuse(np.zeros(cand_shape), np.zeros(conf_shape, np.uint8), init_state(n_bodies, params), params, dt_s)
+
+
+def test_preset_names_and_errors():
+    assert [preset(n).merge for n in PAPER_PRESETS] == ["average", "average", "dbscan", "dbscan", "dbscan"]
+    assert preset("A5").filter == "paper_kalman" and preset("A4").filter is None
+    assert preset("A3").previous_weight is None and preset("A4").previous_weight == 1.0
+    assert preset("a3", eps_mm=150.0).eps_mm == 150.0
+    with pytest.raises(ValueError, match="A1, A2, A3, A4, A5"):
+        preset("A6")
+    with pytest.raises(ValueError, match="eps_mm"):
+        FusionParams(eps_mm=-1.0)
+    with pytest.raises(ValueError, match="filter"):
+        FusionParams(filter="kalman")  # type: ignore[arg-type]

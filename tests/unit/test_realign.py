@@ -1,0 +1,142 @@
+"""Left/right realignment: mirrored views fixed, correct views untouched, vectorized == per-sensor loop."""
+
+import numpy as np
+
+from skelfuse.fusion.realign import _swap_pairs, realign_body, realign_paper, reference_positions
+from skelfuse.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+
+RNG_SEED = 20220418
+
+
+def _skeleton(rng: np.random.Generator) -> np.ndarray:
+    """A body-like skeleton: left joints at x < 0, right joints at x > 0, 300 mm apart."""
+    skel = rng.normal(0.0, 30.0, (N_JOINTS, 3))
+    skel[PAPER_REALIGN_PAIRS[:, 0], 0] -= 150.0
+    skel[PAPER_REALIGN_PAIRS[:, 1], 0] += 150.0
+    return skel
+
+
+def _views(rng, n_sensors=5, mirrored=(), noise=10.0):
+    truth = _skeleton(rng)
+    pos = truth + rng.normal(0.0, noise, (1, n_sensors, N_JOINTS, 3))
+    for s in mirrored:
+        pos[0, s] = pos[0, s, MIRROR]
+    conf = np.full((1, n_sensors, N_JOINTS), int(Confidence.MEDIUM), dtype=np.uint8)
+    return truth, pos, conf
+
+
+def test_mirrored_view_is_fixed_and_correct_views_left_alone():
+    rng = np.random.default_rng(RNG_SEED)
+    _, pos, conf = _views(rng, mirrored=(2,))
+    out, out_conf, swapped = realign_paper(pos, conf)
+    assert swapped[0, 2].all() and not swapped[0, [0, 1, 3, 4]].any()
+    expected = pos.copy()
+    expected[0, 2, PAPER_REALIGN_PAIRS.ravel()] = pos[0, 2, PAPER_REALIGN_PAIRS[:, ::-1].ravel()]
+    np.testing.assert_array_equal(out, expected)
+    assert out_conf.shape == conf.shape
+
+
+def test_correct_views_come_back_unchanged():
+    rng = np.random.default_rng(RNG_SEED + 1)
+    _, pos, conf = _views(rng)
+    out, out_conf, swapped = realign_paper(pos, conf)
+    assert not swapped.any()
+    np.testing.assert_array_equal(out, pos)
+    np.testing.assert_array_equal(out_conf, conf)
+
+
+def test_swap_applied_twice_is_identity():
+    rng = np.random.default_rng(RNG_SEED + 2)
+    pos = rng.normal(size=(2, 4, N_JOINTS, 3))
+    conf = rng.integers(0, 3, (2, 4, N_JOINTS)).astype(np.uint8)
+    flags = rng.random((2, 4, len(PAPER_REALIGN_PAIRS))) < 0.5
+    left, right = PAPER_REALIGN_PAIRS[:, 0], PAPER_REALIGN_PAIRS[:, 1]
+    once = _swap_pairs(pos, conf, flags, left, right)
+    twice = _swap_pairs(*once, flags, left, right)
+    np.testing.assert_array_equal(twice[0], pos)
+    np.testing.assert_array_equal(twice[1], conf)
+    assert not np.array_equal(once[0], pos)
+
+
+def _loop_reference(pos, conf, j):
+    ok = [s for s in range(pos.shape[0]) if not np.isnan(pos[s, j, 0])]
+    if not ok:
+        return None
+    tiers = {s: min(int(conf[s, j]), 2) for s in ok}
+    best = max(tiers.values())
+    return np.mean([pos[s, j] for s in ok if tiers[s] == best], axis=0)
+
+
+def _loop_realign_paper(pos, conf):
+    out, out_conf = pos.copy(), conf.copy()
+    for left, right in PAPER_REALIGN_PAIRS:
+        ref = _loop_reference(pos, conf, right)
+        for s in range(pos.shape[0]):
+            if ref is None or np.isnan(pos[s, left, 0]) or np.isnan(pos[s, right, 0]):
+                continue
+            if np.linalg.norm(ref - pos[s, right]) > np.linalg.norm(ref - pos[s, left]):
+                out[s, [left, right]] = pos[s, [right, left]]
+                out_conf[s, [left, right]] = conf[s, [right, left]]
+    return out, out_conf
+
+
+def test_vectorized_equals_per_sensor_loop_on_random_views():
+    rng = np.random.default_rng(RNG_SEED + 3)
+    for _ in range(40):
+        n_sensors = int(rng.integers(1, 7))
+        truth = _skeleton(rng)
+        pos = truth + rng.normal(0.0, 60.0, (3, n_sensors, N_JOINTS, 3))
+        flip = rng.random((3, n_sensors)) < 0.3
+        pos[flip] = pos[flip][:, MIRROR]
+        pos[rng.random(pos.shape[:3]) < 0.2] = np.nan
+        conf = rng.integers(0, 3, pos.shape[:3]).astype(np.uint8)
+        out, out_conf, _ = realign_paper(pos, conf)
+        for b in range(3):
+            exp, exp_conf = _loop_realign_paper(pos[b], conf[b])
+            np.testing.assert_array_equal(out[b], exp)
+            np.testing.assert_array_equal(out_conf[b], exp_conf)
+
+
+def test_reference_prefers_medium_then_low_and_is_nan_without_candidates():
+    pos = np.full((1, 3, N_JOINTS, 3), np.nan)
+    conf = np.zeros((1, 3, N_JOINTS), dtype=np.uint8)
+    pos[0, :, 0] = [[0.0, 0, 0], [10.0, 0, 0], [100.0, 0, 0]]
+    conf[0, :, 0] = [2, 3, 1]  # HIGH counts as MEDIUM: mean of the first two
+    pos[0, :, 1] = [[0.0, 0, 0], [20.0, 0, 0], [np.nan] * 3]
+    conf[0, :, 1] = [1, 1, 2]  # the MEDIUM one is missing: mean of the LOW ones
+    ref = reference_positions(pos, conf)
+    np.testing.assert_allclose(ref[0, 0], [5.0, 0, 0])
+    np.testing.assert_allclose(ref[0, 1], [10.0, 0, 0])
+    assert np.isnan(ref[0, 2:]).all()
+
+
+def test_missing_joint_never_swaps():
+    rng = np.random.default_rng(RNG_SEED + 4)
+    _, pos, conf = _views(rng, mirrored=(1,))
+    pos[0, 1, PAPER_REALIGN_PAIRS[:, 0]] = np.nan  # mirrored view lost its left joints: undecidable
+    out, _, swapped = realign_paper(pos, conf)
+    assert not swapped[0, 1].any()
+    np.testing.assert_array_equal(out[0, 1], pos[0, 1])
+
+
+def test_body_mode_mirrors_whole_skeleton_when_reference_is_contaminated():
+    # 2 of 4 views mirrored: the paper's per-pair reference sits between left and right; the whole-body
+    # vote with a recomputed reference still finds one consistent labelling.
+    rng = np.random.default_rng(RNG_SEED + 5)
+    truth, pos, conf = _views(rng, n_sensors=4, mirrored=(2, 3), noise=5.0)
+    conf[0, :2] = int(Confidence.MEDIUM)
+    conf[0, 2:] = int(Confidence.LOW)  # the mirrored ones are less sure: the reference leans to the truth
+    out, out_conf, mirrored = realign_body(pos, conf)
+    assert mirrored[0].tolist() == [False, False, True, True]
+    np.testing.assert_array_equal(out[0, 2], pos[0, 2, MIRROR])  # hands, feet, face swapped too
+    np.testing.assert_array_equal(out_conf[0, 2], conf[0, 2, MIRROR])
+    spread = np.abs(out[0] - truth).max()
+    assert spread < 50.0
+
+
+def test_body_mode_leaves_correct_views_alone():
+    rng = np.random.default_rng(RNG_SEED + 6)
+    _, pos, conf = _views(rng)
+    out, _, mirrored = realign_body(pos, conf)
+    assert not mirrored.any()
+    np.testing.assert_array_equal(out, pos)
