@@ -1,0 +1,652 @@
+"""``skelfuse eval paper``: the experiments of Lee et al. 2022 (section 3) re-run on simulated data.
+
+The set-up follows the paper's section 2.3: four capture sensors at fixed places (``paper_rig(4)``), a
+subject performing each of the six gestures while facing each of four directions (0, 90, 180, 270
+degrees), and a fifth "best view" sensor placed in front of the subject, whose skeleton the paper used as
+its ground truth. All five sensors are simulated together, once per take, so every algorithm and every
+sensor subset sees the same noise. The four capture skeletons are brought to world coordinates with the
+*calibrated* extrinsics (as a real rig would) and fused; the best-view skeleton is transformed with its
+calibrated extrinsics too. Every output is scored twice:
+
+- ``truth``: against the simulator's exact ground truth (what we actually want to know);
+- ``best_view``: against the best-view sensor's skeleton (the paper's protocol, to compare with its figures).
+
+Experiments (names used in tables, CSV files and ``to_dict()``):
+
+- ``algorithms`` (paper section 3.1, Figure 9): A1, A2, A3, A4, A5 with 4 sensors; A3-A5 averaged over
+  eps 50/100/150/200 mm as the paper did. A2 is reported although the paper dropped it: its data had no
+  mirrored views, ours has rear views.
+- ``eps_sweep`` (section 3.2, Figure 10): A3, A4, A5 at each eps.
+- ``n_sensors`` (section 3.3, Figure 11): A5 at eps 100 mm with 1-4 sensors, every combination (4, 6, 4, 1),
+  averaged over the combinations; one sensor is its raw skeleton, as in the paper.
+
+Aggregation (``metrics`` has the formulas): per joint, the frames of one gesture are pooled over the four
+directions (AE / RMSE / STD of the Euclidean distance); those per-gesture values are averaged over gestures
+with equal weight (as the paper averages its per-gesture Appendix tables); a group value is the plain mean
+over the group's joints (the paper's group figures are the means of its per-joint RMSEs). Frames where an
+output is NaN while the reference is not are counted per joint (``n_missing``), never dropped silently.
+
+Lag: for every 4-sensor configuration and joint group, the shift in frames (searched over ``LAG_SHIFTS``)
+that minimizes the mean distance between the output and the exact truth, pooled over all takes; positive
+means the output is late.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.eval import paper_reference
+from skelfuse.eval.metrics import (
+    ErrorAccumulator,
+    ErrorStats,
+    best_lag,
+    group_means,
+    lag_error_curve,
+    mean_stats,
+    swap_counts,
+)
+from skelfuse.eval.progress import Progress
+from skelfuse.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
+
+__all__ = [
+    "DIRECTIONS_DEG",
+    "EPS_MM",
+    "EXPERIMENTS",
+    "PROTOCOLS",
+    "PaperEvalResult",
+    "format_markdown",
+    "run_paper_eval",
+]
+
+EPS_MM: tuple[float, ...] = (50.0, 100.0, 150.0, 200.0)
+DIRECTIONS_DEG: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+N_CAPTURE = 4
+TNOS_EPS_MM = 100.0
+LAG_SHIFTS = np.arange(-5, 21)
+PROTOCOLS: tuple[str, ...] = ("truth", "best_view")
+EXPERIMENTS: tuple[str, ...] = ("algorithms", "eps_sweep", "n_sensors")
+GROUP_NAMES: tuple[str, ...] = tuple(JOINT_GROUPS)
+
+DEFAULT_DURATION_S = 1000.0 / 30.0  # the paper's takes: 1000 frames per gesture (section 2.3)
+QUICK_DURATION_S = 4.0
+QUICK_GESTURES: tuple[str, ...] = ("hands_up_down", "squat")
+QUICK_DIRECTIONS_DEG: tuple[float, ...] = (0.0, 180.0)
+FPS = 30.0
+
+
+# ----------------------------------------------------------------------------------------------------
+# Run plan: which outputs one take produces.
+
+
+@dataclass(frozen=True)
+class FusionRun:
+    """One fusion configuration applied to one take.
+
+    Attributes
+    ----------
+    key : str
+        Name in tables: "A5_100" (all four sensors), "A5_100[0,2]" (a subset of the capture sensors).
+    preset : str
+        Paper preset name, "A1".."A5".
+    eps_mm : float
+        DBSCAN radius handed to the preset (A1/A2 ignore it).
+    sensors : tuple of int
+        Indices of the capture sensors that take part.
+    """
+
+    key: str
+    preset: str
+    eps_mm: float
+    sensors: tuple[int, ...]
+
+
+def fusion_runs(
+    n_capture: int = N_CAPTURE, eps_values: Sequence[float] = EPS_MM, tnos_eps_mm: float = TNOS_EPS_MM
+) -> list[FusionRun]:
+    """Every fusion run of one take: the algorithm/eps grid on all sensors, then A5 on every proper subset of
+    2..n-1 sensors (the full set is the grid's A5 run; single sensors are raw data, not fused)."""
+    all_sensors = tuple(range(n_capture))
+    runs = [FusionRun("A1", "A1", tnos_eps_mm, all_sensors), FusionRun("A2", "A2", tnos_eps_mm, all_sensors)]
+    for name in ("A3", "A4", "A5"):
+        runs += [FusionRun(_eps_key(name, eps), name, float(eps), all_sensors) for eps in eps_values]
+    for size in range(2, n_capture):
+        for combo in itertools.combinations(all_sensors, size):
+            runs.append(FusionRun(_subset_key(_eps_key("A5", tnos_eps_mm), combo), "A5", tnos_eps_mm, combo))
+    return runs
+
+
+def sensor_combinations(n_capture: int = N_CAPTURE, tnos_eps_mm: float = TNOS_EPS_MM) -> dict[int, list[str]]:
+    """Output keys averaged for each number of sensors in experiment 3: raw skeletons for one sensor,
+    A5 runs on every combination otherwise (4, 6, 4, 1 of them for four sensors)."""
+    full = _eps_key("A5", tnos_eps_mm)
+    out: dict[int, list[str]] = {1: [_raw_key(s) for s in range(n_capture)]}
+    for size in range(2, n_capture):
+        out[size] = [_subset_key(full, c) for c in itertools.combinations(range(n_capture), size)]
+    out[n_capture] = [full]
+    return out
+
+
+def _eps_key(preset: str, eps_mm: float) -> str:
+    return f"{preset}_{round(eps_mm)}"
+
+
+def _subset_key(key: str, sensors: Sequence[int]) -> str:
+    return f"{key}[{','.join(str(s) for s in sensors)}]"
+
+
+def _raw_key(sensor: int) -> str:
+    return f"raw[{sensor}]"
+
+
+BEST_VIEW_RAW = "best_view_raw"
+"""Output key of the best-view skeleton itself, scored against exact truth: how good the paper's reference
+is."""
+
+
+# ----------------------------------------------------------------------------------------------------
+# One take (runs in a worker process when workers > 1).
+
+
+@dataclass(frozen=True)
+class TakeTask:
+    gesture: str
+    facing_deg: float
+    duration_s: float
+    fps: float
+    motion_seed: int
+    sim_seed: int
+    profile_path: str | None
+    eps_values: tuple[float, ...]
+
+
+@dataclass
+class TakeResult:
+    """Accumulated errors of every output of one take.
+
+    Attributes
+    ----------
+    errors : dict key -> protocol -> ErrorAccumulator over the 16 EVAL_JOINTS
+    lag : dict key -> group -> (sums, counts) over LAG_SHIFTS, against exact truth
+    swaps : dict key -> (n_swapped, n_valid) per PAPER_REALIGN_PAIRS pair, against exact truth
+    info : per-take facts (frames, tracked and mirrored fractions, seconds spent)
+    """
+
+    gesture: str
+    facing_deg: float
+    errors: dict[str, dict[str, ErrorAccumulator]]
+    lag: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]
+    info: dict[str, Any]
+    swaps: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+def _world_skeletons(obs: Any) -> np.ndarray:
+    """(T, S, 32, 3) world positions with the calibrated extrinsics; NaN where a sensor tracked nobody."""
+    from skelfuse.fusion.transform import apply_transform
+
+    world = np.asarray(
+        apply_transform(obs.world_from_sensor_calibrated, np.asarray(obs.positions, np.float64)),
+        dtype=np.float64,
+    )
+    tracked = np.asarray(obs.tracked, dtype=bool)
+    return np.where(tracked[..., None, None], world, np.nan)
+
+
+def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fps: float) -> np.ndarray:
+    """Fuse a whole take with one configuration.
+
+    Parameters
+    ----------
+    run : FusionRun
+    candidates : (T, S, 32, 3) world mm, NaN = missing (all capture sensors; ``run.sensors`` picks)
+    confidence : (T, S, 32) uint8
+    fps : frame rate of the take
+
+    Returns
+    -------
+    (T, 32, 3) fused positions, NaN where the fuser gave none.
+    """
+    from skelfuse.fusion.pipeline import Fuser
+    from skelfuse.fusion.presets import preset
+
+    sensors = list(run.sensors)
+    cand = np.ascontiguousarray(candidates[:, sensors])
+    conf = np.ascontiguousarray(confidence[:, sensors])
+    fuser = Fuser(preset(run.preset, eps_mm=run.eps_mm), n_bodies=1)
+    out = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
+    dt_s = 1.0 / fps
+    for t in range(cand.shape[0]):
+        result = fuser.step(cand[t][None], conf[t][None], dt_s=dt_s)
+        out[t] = np.asarray(result.positions)[0]
+    return out
+
+
+def evaluate_take(task: TakeTask) -> TakeResult:
+    """Simulate one take with all five sensors, run every output and accumulate its errors."""
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.rig import best_view_sensor, paper_rig
+
+    t0 = time.perf_counter()
+    motion = make_gesture(
+        task.gesture,
+        duration_s=task.duration_s,
+        fps=task.fps,
+        facing_deg=task.facing_deg,
+        seed=task.motion_seed,
+    )
+    sensors = [*list(paper_rig(N_CAPTURE)), best_view_sensor(task.facing_deg)]
+    profile = load_profile(task.profile_path)
+    obs = simulate(motion, sensors, profile, seed=task.sim_seed)
+    t_sim = time.perf_counter() - t0
+
+    world = _world_skeletons(obs)
+    capture = world[:, :N_CAPTURE]
+    confidence = np.asarray(obs.confidence)[:, :N_CAPTURE]
+    best_view = world[:, N_CAPTURE]
+    truth = np.asarray(obs.truth, dtype=np.float64)
+    references = {"truth": truth[:, EVAL_JOINTS], "best_view": best_view[:, EVAL_JOINTS]}
+
+    errors: dict[str, dict[str, ErrorAccumulator]] = {}
+    lag: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    swaps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def score(key: str, output: np.ndarray, with_lag: bool, protocols: Sequence[str] = PROTOCOLS) -> None:
+        est = output[:, EVAL_JOINTS]
+        errors[key] = {p: ErrorAccumulator.zeros(len(EVAL_JOINTS)).add(est, references[p]) for p in protocols}
+        swaps[key] = swap_counts(output, truth, PAPER_REALIGN_PAIRS)
+        if with_lag:
+            lag[key] = {
+                g: lag_error_curve(output[:, idx], truth[:, idx], LAG_SHIFTS) for g, idx in JOINT_GROUPS.items()
+            }
+
+    for sensor in range(N_CAPTURE):
+        score(_raw_key(sensor), capture[:, sensor], with_lag=True)
+    score(BEST_VIEW_RAW, best_view, with_lag=True, protocols=("truth",))
+    t1 = time.perf_counter()
+    for run in fusion_runs(N_CAPTURE, task.eps_values):
+        fused = fuse_take(run, capture, confidence, task.fps)
+        score(run.key, fused, with_lag=len(run.sensors) == N_CAPTURE)
+    t_fuse = time.perf_counter() - t1
+
+    tracked = np.asarray(obs.tracked, dtype=bool)
+    mirrored = np.asarray(obs.mirrored, dtype=bool) & tracked
+    info = {
+        "gesture": task.gesture,
+        "facing_deg": task.facing_deg,
+        "n_frames": int(truth.shape[0]),
+        "tracked_fraction": [float(x) for x in tracked.mean(axis=0)],
+        "mirrored_fraction": [float(x) for x in mirrored.mean(axis=0)],
+        "simulate_s": t_sim,
+        "fuse_s": t_fuse,
+        "n_fusion_steps": int(truth.shape[0]) * len(fusion_runs(N_CAPTURE, task.eps_values)),
+    }
+    return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps)
+
+
+# ----------------------------------------------------------------------------------------------------
+# The result.
+
+
+@dataclass
+class PaperEvalResult:
+    """Everything ``skelfuse eval paper`` measured.
+
+    Attributes
+    ----------
+    settings : dict
+        Gestures, directions, duration, fps, seed, eps values, workers, quick.
+    stats : dict output key -> protocol -> gesture -> ErrorStats over the 16 EVAL_JOINTS
+        Frames pooled over the directions of that gesture.
+    lag : dict output key -> group -> {"lag_frames", "error_mm"}
+        Against exact truth, pooled over all takes.
+    takes : list of per-take info dicts
+    swapped : dict output key -> fraction of (frame, pair) samples with a left/right pair the wrong way round
+        against exact truth (pairs: shoulders, elbows, wrists, hips, knees, ankles), over all takes
+    elapsed_s : float
+        Wall time of the whole run.
+    files : list of str
+        Files written (empty without an output folder).
+    """
+
+    settings: dict[str, Any]
+    stats: dict[str, dict[str, dict[str, ErrorStats]]]
+    lag: dict[str, dict[str, dict[str, float]]]
+    takes: list[dict[str, Any]]
+    swapped: dict[str, float] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    files: list[str] = field(default_factory=list)
+
+    # ---- derived views -------------------------------------------------------------------------------------
+
+    @property
+    def gestures(self) -> list[str]:
+        return list(self.settings["gestures"])
+
+    @property
+    def eps_values(self) -> list[float]:
+        return list(self.settings["eps_mm"])
+
+    def experiment_configs(self, experiment: str) -> list[str]:
+        """Row names of an experiment, in display order."""
+        if experiment == "algorithms":
+            return ["A1", "A2", "A3", "A4", "A5"]
+        if experiment == "eps_sweep":
+            return [_eps_key(p, e) for p in ("A3", "A4", "A5") for e in self.eps_values]
+        if experiment == "n_sensors":
+            return [str(n) for n in sorted(self._combinations())]
+        raise ValueError(f"unknown experiment {experiment!r}; expected one of {EXPERIMENTS}")
+
+    def _combinations(self) -> dict[int, list[str]]:
+        return sensor_combinations(N_CAPTURE, TNOS_EPS_MM)
+
+    def members(self, experiment: str, config: str) -> list[str]:
+        """The base output keys whose per-gesture stats are averaged into one row."""
+        if experiment == "algorithms" and config in ("A3", "A4", "A5"):
+            return [_eps_key(config, e) for e in self.eps_values]
+        if experiment == "n_sensors":
+            return self._combinations()[int(config)]
+        return [config]
+
+    def joint_stats(self, experiment: str, config: str, protocol: str, gesture: str = "all") -> ErrorStats:
+        """Per-joint stats of one row: mean over its member outputs (eps values or sensor combinations) and,
+        for ``gesture="all"``, over gestures."""
+        gestures = self.gestures if gesture == "all" else [gesture]
+        items = [self.stats[key][protocol][g] for key in self.members(experiment, config) for g in gestures]
+        return mean_stats(items)
+
+    def group_stats(
+        self, experiment: str, config: str, protocol: str, gesture: str = "all"
+    ) -> dict[str, dict[str, float]]:
+        """{group: {"ae_mm", "rmse_mm", "std_mm", "n_frames", "n_missing"}} of one row."""
+        s = self.joint_stats(experiment, config, protocol, gesture)
+        out: dict[str, dict[str, float]] = {g: {} for g in GROUP_NAMES}
+        for metric in ("ae_mm", "rmse_mm", "std_mm"):
+            for g, v in group_means(getattr(s, metric), EVAL_JOINTS, JOINT_GROUPS).items():
+                out[g][metric] = float(v)
+        col = {int(j): k for k, j in enumerate(EVAL_JOINTS)}
+        for g, idx in JOINT_GROUPS.items():
+            cols = [col[int(j)] for j in idx]
+            out[g]["n_frames"] = int(s.n_frames[cols].sum())
+            out[g]["n_missing"] = int(s.n_missing[cols].sum())
+        return out
+
+    def paper_value(self, experiment: str, config: str, metric: str, group: str) -> float | None:
+        """The paper's figure for a row (``metric`` "ae_mm" or "std_mm"), or None."""
+        if experiment == "algorithms":
+            return paper_reference.reference_value("algorithms", config, metric, group)
+        if experiment == "eps_sweep":
+            name, eps = config.split("_")
+            if name != paper_reference.EPS_SWEEP_PRESET:
+                return None
+            return paper_reference.reference_value("eps_sweep", float(eps), metric, group)
+        if experiment == "n_sensors":
+            return paper_reference.reference_value("n_sensors", int(config), metric, group)
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serializable summary (NaN becomes None).
+
+        Settings; per experiment, protocol and row the group and joint values over all gestures and the group
+        values per gesture; lag; per-take facts; the paper's figures.
+        """
+        experiments: dict[str, Any] = {}
+        for exp in EXPERIMENTS:
+            experiments[exp] = {}
+            for protocol in PROTOCOLS:
+                rows = {}
+                for config in self.experiment_configs(exp):
+                    s = self.joint_stats(exp, config, protocol)
+                    rows[config] = {
+                        "members": self.members(exp, config),
+                        "groups": self.group_stats(exp, config, protocol),
+                        "groups_by_gesture": {g: self.group_stats(exp, config, protocol, g) for g in self.gestures},
+                        "joints": {
+                            name: {
+                                "ae_mm": float(s.ae_mm[k]),
+                                "rmse_mm": float(s.rmse_mm[k]),
+                                "std_mm": float(s.std_mm[k]),
+                                "n_frames": int(s.n_frames[k]),
+                                "n_missing": int(s.n_missing[k]),
+                                "n_ref_missing": int(s.n_ref_missing[k]),
+                            }
+                            for k, name in enumerate(EVAL_JOINT_NAMES)
+                        },
+                        "n_missing": int(s.n_missing.sum()),
+                        "paper": {
+                            g: {m: self.paper_value(exp, config, m, g) for m in ("ae_mm", "std_mm")}
+                            for g in GROUP_NAMES
+                        },
+                    }
+                experiments[exp][protocol] = rows
+        best = {g: v for g, v in self.group_stats_key(BEST_VIEW_RAW, "truth").items()}
+        return _json_safe(
+            {
+                "settings": self.settings,
+                "elapsed_s": self.elapsed_s,
+                "experiments": experiments,
+                "best_view_vs_truth": best,
+                "lag": self.lag,
+                "swapped_fraction": self.swapped,
+                "takes": self.takes,
+                "paper": {
+                    "citation": paper_reference.CITATION,
+                    "algorithms": paper_reference.ALGORITHMS,
+                    "eps_sweep": {str(int(k)): v for k, v in paper_reference.EPS_SWEEP.items()},
+                    "n_sensors": {str(k): v for k, v in paper_reference.N_SENSORS.items()},
+                    "oddities": list(paper_reference.ODDITIES),
+                },
+                "files": self.files,
+            }
+        )
+
+    def group_stats_key(self, key: str, protocol: str) -> dict[str, dict[str, float]]:
+        """Group values of one base output key (e.g. ``best_view_raw``) over all gestures."""
+        s = mean_stats([self.stats[key][protocol][g] for g in self.gestures])
+        out: dict[str, dict[str, float]] = {g: {} for g in GROUP_NAMES}
+        for metric in ("ae_mm", "rmse_mm", "std_mm"):
+            for g, v in group_means(getattr(s, metric), EVAL_JOINTS, JOINT_GROUPS).items():
+                out[g][metric] = float(v)
+        return out
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_safe(value.tolist())
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+# ----------------------------------------------------------------------------------------------------
+# Driver.
+
+
+def plan_takes(
+    *,
+    quick: bool,
+    seed: int,
+    duration_s: float | None,
+    profile_path: str | None,
+    gestures: Sequence[str] | None = None,
+    directions_deg: Sequence[float] | None = None,
+    eps_values: Sequence[float] = EPS_MM,
+    fps: float = FPS,
+) -> list[TakeTask]:
+    """The takes of a run: every gesture facing every direction, each with its own seeds from ``seed``."""
+    if gestures is None:
+        if quick:
+            gestures = QUICK_GESTURES
+        else:
+            from skelfuse.sim.gestures import GESTURES
+
+            gestures = GESTURES
+    if directions_deg is None:
+        directions_deg = QUICK_DIRECTIONS_DEG if quick else DIRECTIONS_DEG
+    if duration_s is None:
+        duration_s = QUICK_DURATION_S if quick else DEFAULT_DURATION_S
+    if duration_s <= 0:
+        raise ValueError(f"duration_s must be > 0, got {duration_s}")
+    tasks = []
+    for gi, gesture in enumerate(gestures):
+        for di, facing in enumerate(directions_deg):
+            motion_seed, sim_seed = np.random.SeedSequence([seed, gi, di]).generate_state(2)
+            tasks.append(
+                TakeTask(
+                    gesture,
+                    float(facing),
+                    float(duration_s),
+                    float(fps),
+                    int(motion_seed),
+                    int(sim_seed),
+                    profile_path,
+                    tuple(float(e) for e in eps_values),
+                )
+            )
+    return tasks
+
+
+def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: float = 0.0) -> PaperEvalResult:
+    """Pool take results: per output key, protocol and gesture, add the accumulators of the directions and
+    turn them into stats; per key and group, add the lag curves of all takes and find the best lag."""
+    gestures = list(settings["gestures"])
+    pooled: dict[str, dict[str, dict[str, ErrorAccumulator]]] = {}
+    lag_sums: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    swap_sums: dict[str, np.ndarray] = {}
+    for take in takes:
+        for key, (n_swapped, n_valid) in take.swaps.items():
+            swap_sums[key] = swap_sums.get(key, np.zeros(2)) + np.array([n_swapped.sum(), n_valid.sum()])
+        for key, by_protocol in take.errors.items():
+            for protocol, acc in by_protocol.items():
+                slot = pooled.setdefault(key, {}).setdefault(protocol, {})
+                slot[take.gesture] = slot[take.gesture] + acc if take.gesture in slot else acc
+        for key, by_group in take.lag.items():
+            for group, (s, c) in by_group.items():
+                slot = lag_sums.setdefault(key, {})
+                slot[group] = (slot[group][0] + s, slot[group][1] + c) if group in slot else (s, c)
+    stats = {
+        key: {p: {g: pooled[key][p][g].stats() for g in gestures if g in pooled[key][p]} for p in pooled[key]}
+        for key in pooled
+    }
+    lag: dict[str, dict[str, dict[str, float]]] = {}
+    for key, by_group in lag_sums.items():
+        lag[key] = {}
+        for group, (s, c) in by_group.items():
+            frames, err = best_lag(s, c, LAG_SHIFTS)
+            lag[key][group] = {"lag_frames": frames, "error_mm": err}
+    infos = sorted((t.info for t in takes), key=lambda i: (gestures.index(i["gesture"]), i["facing_deg"]))
+    swapped = {key: float(n[0] / n[1]) if n[1] > 0 else float("nan") for key, n in swap_sums.items()}
+    return PaperEvalResult(settings=settings, stats=stats, lag=lag, takes=infos, swapped=swapped, elapsed_s=elapsed_s)
+
+
+def run_paper_eval(
+    *,
+    out_dir: Path | None,
+    quick: bool = False,
+    seed: int = 0,
+    duration_s: float | None = None,
+    profile_path: str | Path | None = None,
+    progress: bool = True,
+    workers: int = 1,
+    gestures: Sequence[str] | None = None,
+    directions_deg: Sequence[float] | None = None,
+) -> PaperEvalResult:
+    """Run the paper's three experiments on simulated takes and write the report.
+
+    Parameters
+    ----------
+    out_dir : Path or None
+        Where to write report.md, CSV tables, PNG figures and result.json (created if needed); None writes
+        nothing.
+    quick : bool
+        CI mode: 2 gestures x 2 directions x 4 s takes (well under a minute) instead of 6 x 4 x 33 s
+        (1000 frames, as the paper's takes).
+    seed : int
+        Master seed; each take derives its own motion and simulation seeds from it.
+    duration_s : float or None
+        Length of each take; None for the mode's default.
+    profile_path : path or None
+        Simulator noise profile (``skelfuse.sim.observe.load_profile``); None for the packaged default.
+    progress : bool
+        Draw a progress bar on stderr (only when stderr is a terminal).
+    workers : int
+        Processes to spread the takes over (1 runs in this process).
+    gestures, directions_deg : optional overrides of the takes (e.g. for tests).
+
+    Returns
+    -------
+    PaperEvalResult
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    t0 = time.perf_counter()
+    profile = None if profile_path is None else str(profile_path)
+    tasks = plan_takes(
+        quick=quick,
+        seed=seed,
+        duration_s=duration_s,
+        profile_path=profile,
+        gestures=gestures,
+        directions_deg=directions_deg,
+    )
+    gesture_list = list(dict.fromkeys(t.gesture for t in tasks))
+    settings = {
+        "quick": quick,
+        "seed": seed,
+        "gestures": gesture_list,
+        "directions_deg": list(dict.fromkeys(t.facing_deg for t in tasks)),
+        "duration_s": tasks[0].duration_s,
+        "fps": tasks[0].fps,
+        "eps_mm": list(EPS_MM),
+        "tnos_eps_mm": TNOS_EPS_MM,
+        "n_capture_sensors": N_CAPTURE,
+        "lag_shifts_frames": [int(LAG_SHIFTS[0]), int(LAG_SHIFTS[-1])],
+        "profile_path": profile,
+        "workers": workers,
+        "n_takes": len(tasks),
+    }
+    results: list[TakeResult] = []
+    with Progress(len(tasks), "eval paper", enabled=None if progress else False) as bar:
+        if workers == 1:
+            for task in tasks:
+                results.append(evaluate_take(task))
+                bar.update(1, f"{task.gesture} {task.facing_deg:.0f}°")
+        else:
+            # spawn: a fresh interpreter per worker, safe whatever threads the parent runs.
+            with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+                futures = {pool.submit(evaluate_take, task): task for task in tasks}
+                for future in as_completed(futures):
+                    task = futures[future]
+                    results.append(future.result())
+                    bar.update(1, f"{task.gesture} {task.facing_deg:.0f}°")
+    result = collect(results, settings)
+    if out_dir is not None:
+        from skelfuse.eval.report import write_report
+
+        result.elapsed_s = time.perf_counter() - t0
+        result.files = [str(p) for p in write_report(result, Path(out_dir))]
+    result.elapsed_s = time.perf_counter() - t0
+    return result
+
+
+def format_markdown(result: PaperEvalResult) -> str:
+    """The report as markdown (the text of report.md)."""
+    from skelfuse.eval.report import format_markdown as _format
+
+    return _format(result)
