@@ -20,3 +20,7 @@ class DataError(SkelfuseError):
 
 class CalibrationError(SkelfuseError):
     """A calibration is missing, malformed, or could not be computed."""
+
+
+class ServiceError(SkelfuseError):
+    """A long-running node cannot do its job: a source that cannot start, a zenoh session that cannot open."""

@@ -1,0 +1,335 @@
+/* Fake libk4abt with the real ABI (k4a_abi.h), scripted by the test suite through the exported
+ * fake_k4abt_* functions. Every enqueued capture consumes the next scripted event:
+ *   FRAME            the capture is accepted; its body frame becomes ready to pop
+ *   ENQUEUE_TIMEOUT  k4abt_tracker_enqueue_capture returns K4A_WAIT_RESULT_TIMEOUT (queue full)
+ *   ENQUEUE_FAILED   ... returns K4A_WAIT_RESULT_FAILED
+ *   POP_FAILED       the capture is accepted; the matching k4abt_tracker_pop_result returns FAILED
+ *   DROP             the capture is accepted; its result never comes (pops time out)
+ * With an empty script a capture yields a frame with no bodies. Ready results are queued up to
+ * FAKE_QUEUE_MAX (the SDK's input queue is small); a full queue makes enqueue time out.
+ * Waits never block for long: a pop on an empty queue sleeps min(timeout, 20 ms) and times out; an
+ * infinite wait (K4A_WAIT_INFINITE) is counted in the stats and fails, since skelfuse must never use it.
+ */
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "k4a_abi.h"
+
+#define FAKE_QUEUE_MAX 3
+#define FAKE_SCRIPT_MAX 4096
+#define FAKE_FRAME_MAGIC 0x4B344246u
+
+enum { EV_FRAME = 0, EV_ENQUEUE_TIMEOUT = 1, EV_ENQUEUE_FAILED = 2, EV_POP_FAILED = 3, EV_DROP = 4 };
+
+typedef struct {
+    size_t magic;
+    int refcount;
+    int failed; /* a POP_FAILED marker, not a frame */
+    uint64_t device_usec;
+    uint64_t system_nsec;
+    uint32_t n_bodies;
+    uint32_t *ids;
+    k4abt_skeleton_t *skeletons;
+} fake_frame;
+
+typedef struct {
+    int kind;
+    fake_frame *frame;
+} fake_event;
+
+typedef struct { size_t magic; int shutdown; } fake_tracker;
+
+typedef struct {
+    int32_t created;
+    int32_t destroyed;
+    int32_t shutdowns;
+    int32_t frames_alive;
+    int32_t infinite_waits;
+    int32_t enqueued;
+    int32_t popped;
+    int32_t bad_captures;
+    int32_t config_sensor_orientation;
+    int32_t config_processing_mode; /* 1.0: cpu_only_mode */
+    int32_t config_gpu_device_id;
+    float smoothing;
+    int32_t smoothing_calls;
+    int32_t abi;
+    const void *last_calibration;
+    const void *last_capture;
+    char model_path[512];
+} fake_stats;
+
+static fake_event g_script[FAKE_SCRIPT_MAX];
+static int g_script_head = 0, g_script_len = 0;
+static fake_frame *g_ready[FAKE_QUEUE_MAX];
+static int g_ready_len = 0;
+static int g_fail_creates = 0;
+static uint64_t g_auto_time = 0;
+static fake_stats g_stats;
+
+static void nap_ms(int ms) {
+    if (ms <= 0) return;
+    if (ms > 20) ms = 20;
+    struct timespec ts = {0, (long)ms * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+static fake_frame *new_frame(uint64_t device_usec, uint64_t system_nsec, uint32_t n, const uint32_t *ids,
+                             const k4abt_skeleton_t *skeletons) {
+    fake_frame *frame = calloc(1, sizeof(fake_frame));
+    frame->magic = FAKE_FRAME_MAGIC;
+    frame->device_usec = device_usec;
+    frame->system_nsec = system_nsec;
+    frame->n_bodies = n;
+    if (n > 0) {
+        frame->ids = malloc(n * sizeof(uint32_t));
+        frame->skeletons = malloc(n * sizeof(k4abt_skeleton_t));
+        memcpy(frame->ids, ids, n * sizeof(uint32_t));
+        memcpy(frame->skeletons, skeletons, n * sizeof(k4abt_skeleton_t));
+    }
+    return frame;
+}
+
+static void free_frame(fake_frame *frame) {
+    frame->magic = 0;
+    free(frame->ids);
+    free(frame->skeletons);
+    free(frame);
+}
+
+/* ------------------------------------------------------------------ test control */
+
+FAKE_EXPORT void fake_k4abt_reset(void) {
+    for (int i = g_script_head; i < g_script_len; i++) if (g_script[i].frame) free_frame(g_script[i].frame);
+    for (int i = 0; i < g_ready_len; i++) free_frame(g_ready[i]);
+    g_script_head = g_script_len = g_ready_len = 0;
+    g_fail_creates = 0;
+    g_auto_time = 0;
+    int alive = g_stats.frames_alive; /* frames the binding still holds stay counted */
+    memset(&g_stats, 0, sizeof(g_stats));
+    g_stats.frames_alive = alive;
+    g_stats.abi = FAKE_K4ABT_ABI;
+}
+
+FAKE_EXPORT int fake_k4abt_script_frame(uint64_t device_usec, uint64_t system_nsec, uint32_t n_bodies,
+                                        const uint32_t *ids, const k4abt_skeleton_t *skeletons) {
+    if (g_script_len >= FAKE_SCRIPT_MAX) return -1;
+    g_script[g_script_len].kind = EV_FRAME;
+    g_script[g_script_len].frame = new_frame(device_usec, system_nsec, n_bodies, ids, skeletons);
+    return g_script_len++;
+}
+
+FAKE_EXPORT int fake_k4abt_script_event(int kind) {
+    if (g_script_len >= FAKE_SCRIPT_MAX || kind < 1 || kind > 4) return -1;
+    g_script[g_script_len].kind = kind;
+    g_script[g_script_len].frame = NULL;
+    return g_script_len++;
+}
+
+FAKE_EXPORT void fake_k4abt_fail_next_creates(int n) { g_fail_creates = n; }
+
+FAKE_EXPORT void fake_k4abt_get_stats(fake_stats *out) {
+    g_stats.abi = FAKE_K4ABT_ABI;
+    *out = g_stats;
+}
+
+FAKE_EXPORT int fake_k4abt_abi(void) { return FAKE_K4ABT_ABI; }
+
+FAKE_EXPORT size_t fake_k4abt_layout(const char *name) {
+#define L(key, value) if (strcmp(name, key) == 0) return (value)
+    L("float3", sizeof(k4a_float3_t));
+    L("quaternion", sizeof(k4a_quaternion_t));
+    L("joint", sizeof(k4abt_joint_t));
+    L("joint.position", offsetof(k4abt_joint_t, position));
+    L("joint.orientation", offsetof(k4abt_joint_t, orientation));
+    L("joint.confidence_level", offsetof(k4abt_joint_t, confidence_level));
+    L("skeleton", sizeof(k4abt_skeleton_t));
+    L("config", sizeof(k4abt_tracker_configuration_t));
+    L("config.sensor_orientation", offsetof(k4abt_tracker_configuration_t, sensor_orientation));
+    L("config.gpu_device_id", offsetof(k4abt_tracker_configuration_t, gpu_device_id));
+#if FAKE_K4ABT_ABI >= 11
+    L("config.processing_mode", offsetof(k4abt_tracker_configuration_t, processing_mode));
+    L("config.model_path", offsetof(k4abt_tracker_configuration_t, model_path));
+#else
+    L("config.cpu_only_mode", offsetof(k4abt_tracker_configuration_t, cpu_only_mode));
+#endif
+#undef L
+    return (size_t)-1;
+}
+
+/* ------------------------------------------------------------------ k4abt.h */
+
+FAKE_EXPORT k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_calibration,
+                                              k4abt_tracker_configuration_t config, k4abt_tracker_t *tracker_handle) {
+    g_stats.last_calibration = sensor_calibration;
+    g_stats.config_sensor_orientation = (int32_t)config.sensor_orientation;
+    g_stats.config_gpu_device_id = config.gpu_device_id;
+#if FAKE_K4ABT_ABI >= 11
+    g_stats.config_processing_mode = (int32_t)config.processing_mode;
+    g_stats.model_path[0] = '\0';
+    if (config.model_path != NULL) {
+        strncpy(g_stats.model_path, config.model_path, sizeof(g_stats.model_path) - 1);
+        g_stats.model_path[sizeof(g_stats.model_path) - 1] = '\0';
+    }
+#else
+    g_stats.config_processing_mode = config.cpu_only_mode ? 1 : 0;
+#endif
+    if (sensor_calibration == NULL || tracker_handle == NULL) return K4A_RESULT_FAILED;
+    if (g_fail_creates > 0) {
+        g_fail_creates--;
+        return K4A_RESULT_FAILED;
+    }
+    fake_tracker *tracker = calloc(1, sizeof(fake_tracker));
+    tracker->magic = 0x4B344254u;
+    *tracker_handle = (k4abt_tracker_t)tracker;
+    g_stats.created++;
+    return K4A_RESULT_SUCCEEDED;
+}
+
+FAKE_EXPORT void k4abt_tracker_destroy(k4abt_tracker_t tracker_handle) {
+    fake_tracker *tracker = (fake_tracker *)tracker_handle;
+    if (tracker == NULL) return;
+    tracker->magic = 0;
+    free(tracker);
+    g_stats.destroyed++;
+}
+
+FAKE_EXPORT void k4abt_tracker_set_temporal_smoothing(k4abt_tracker_t tracker_handle, float smoothing_factor) {
+    (void)tracker_handle;
+    g_stats.smoothing = smoothing_factor;
+    g_stats.smoothing_calls++;
+}
+
+FAKE_EXPORT k4a_wait_result_t k4abt_tracker_enqueue_capture(k4abt_tracker_t tracker_handle,
+                                                            k4a_capture_t sensor_capture_handle, int32_t timeout_in_ms) {
+    fake_tracker *tracker = (fake_tracker *)tracker_handle;
+    if (timeout_in_ms < 0) {
+        g_stats.infinite_waits++;
+        return K4A_WAIT_RESULT_FAILED;
+    }
+    if (tracker == NULL || tracker->magic != 0x4B344254u || tracker->shutdown) return K4A_WAIT_RESULT_FAILED;
+    g_stats.last_capture = sensor_capture_handle;
+    if (sensor_capture_handle == NULL || sensor_capture_handle->_rsvd != FAKE_CAPTURE_MAGIC) {
+        g_stats.bad_captures++;
+        return K4A_WAIT_RESULT_FAILED;
+    }
+    if (g_ready_len >= FAKE_QUEUE_MAX) {
+        nap_ms(timeout_in_ms);
+        return K4A_WAIT_RESULT_TIMEOUT;
+    }
+    fake_event event = {EV_FRAME, NULL};
+    if (g_script_head < g_script_len) event = g_script[g_script_head++];
+    switch (event.kind) {
+    case EV_ENQUEUE_TIMEOUT:
+        nap_ms(timeout_in_ms);
+        return K4A_WAIT_RESULT_TIMEOUT;
+    case EV_ENQUEUE_FAILED:
+        return K4A_WAIT_RESULT_FAILED;
+    case EV_DROP:
+        g_stats.enqueued++;
+        return K4A_WAIT_RESULT_SUCCEEDED;
+    case EV_POP_FAILED: {
+        fake_frame *marker = new_frame(0, 0, 0, NULL, NULL);
+        marker->failed = 1;
+        g_ready[g_ready_len++] = marker;
+        g_stats.enqueued++;
+        return K4A_WAIT_RESULT_SUCCEEDED;
+    }
+    default:
+        if (event.frame == NULL) {
+            g_auto_time += 33333;
+            event.frame = new_frame(g_auto_time, g_auto_time * 1000, 0, NULL, NULL);
+        }
+        g_ready[g_ready_len++] = event.frame;
+        g_stats.enqueued++;
+        return K4A_WAIT_RESULT_SUCCEEDED;
+    }
+}
+
+FAKE_EXPORT k4a_wait_result_t k4abt_tracker_pop_result(k4abt_tracker_t tracker_handle, k4abt_frame_t *body_frame_handle,
+                                                       int32_t timeout_in_ms) {
+    fake_tracker *tracker = (fake_tracker *)tracker_handle;
+    if (timeout_in_ms < 0) {
+        g_stats.infinite_waits++;
+        return K4A_WAIT_RESULT_FAILED;
+    }
+    if (tracker == NULL || tracker->magic != 0x4B344254u || body_frame_handle == NULL) return K4A_WAIT_RESULT_FAILED;
+    if (g_ready_len == 0) {
+        if (tracker->shutdown) return K4A_WAIT_RESULT_FAILED;
+        nap_ms(timeout_in_ms);
+        return K4A_WAIT_RESULT_TIMEOUT;
+    }
+    fake_frame *frame = g_ready[0];
+    memmove(g_ready, g_ready + 1, (size_t)(g_ready_len - 1) * sizeof(fake_frame *));
+    g_ready_len--;
+    if (frame->failed) {
+        free_frame(frame);
+        return K4A_WAIT_RESULT_FAILED;
+    }
+    frame->refcount = 1;
+    g_stats.frames_alive++;
+    g_stats.popped++;
+    *body_frame_handle = (k4abt_frame_t)frame;
+    return K4A_WAIT_RESULT_SUCCEEDED;
+}
+
+FAKE_EXPORT void k4abt_tracker_shutdown(k4abt_tracker_t tracker_handle) {
+    fake_tracker *tracker = (fake_tracker *)tracker_handle;
+    if (tracker == NULL) return;
+    tracker->shutdown = 1;
+    g_stats.shutdowns++;
+}
+
+static fake_frame *as_frame(k4abt_frame_t handle) {
+    fake_frame *frame = (fake_frame *)handle;
+    return (frame != NULL && frame->magic == FAKE_FRAME_MAGIC) ? frame : NULL;
+}
+
+FAKE_EXPORT void k4abt_frame_release(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    if (frame != NULL && --frame->refcount == 0) {
+        free_frame(frame);
+        g_stats.frames_alive--;
+    }
+}
+
+FAKE_EXPORT void k4abt_frame_reference(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    if (frame != NULL) frame->refcount++;
+}
+
+FAKE_EXPORT uint32_t k4abt_frame_get_num_bodies(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    return frame ? frame->n_bodies : 0;
+}
+
+FAKE_EXPORT k4a_result_t k4abt_frame_get_body_skeleton(k4abt_frame_t handle, uint32_t index, k4abt_skeleton_t *skeleton) {
+    fake_frame *frame = as_frame(handle);
+    if (frame == NULL || skeleton == NULL || index >= frame->n_bodies) return K4A_RESULT_FAILED;
+    *skeleton = frame->skeletons[index];
+    return K4A_RESULT_SUCCEEDED;
+}
+
+FAKE_EXPORT uint32_t k4abt_frame_get_body_id(k4abt_frame_t handle, uint32_t index) {
+    fake_frame *frame = as_frame(handle);
+    if (frame == NULL || index >= frame->n_bodies) return 0xFFFFFFFFu; /* K4ABT_INVALID_BODY_ID */
+    return frame->ids[index];
+}
+
+#if FAKE_K4ABT_ABI >= 11
+FAKE_EXPORT uint64_t k4abt_frame_get_device_timestamp_usec(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    return frame ? frame->device_usec : 0;
+}
+
+FAKE_EXPORT uint64_t k4abt_frame_get_system_timestamp_nsec(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    return frame ? frame->system_nsec : 0;
+}
+#else
+FAKE_EXPORT uint64_t k4abt_frame_get_timestamp_usec(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    return frame ? frame->device_usec : 0;
+}
+#endif
