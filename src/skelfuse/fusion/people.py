@@ -1,0 +1,197 @@
+"""Several people: association + tracks + the fusion pipeline, one fused skeleton per confirmed track.
+
+:class:`PeopleFuser` is the stateful front of the multi-person core; every step is pure numpy apart from
+the per-track bookkeeping (a dict of a handful of tracks). Cycle of :meth:`PeopleFuser.step`:
+
+1. :meth:`TrackTable.predict <skelfuse.fusion.tracks.TrackTable.predict>`: where every track should be now.
+2. :func:`~skelfuse.fusion.association.associate`: sensor bodies -> person rows (gated Hungarian per
+   sensor on the mirror-invariant torso descriptor; leftovers clustered across sensors into new persons).
+3. :meth:`TrackTable.update <skelfuse.fusion.tracks.TrackTable.update>`: hits, misses, births, deaths.
+4. Fusion: the candidates of every *confirmed* live track (seen or coasting) are stacked as rows B = P and
+   fused by ONE :func:`~skelfuse.fusion.pipeline.fuse` call, with the tracks' own FusionState rows stacked
+   the same way and written back afterwards. A track is first fused in the frame it is confirmed (fresh
+   state). A coasting track is fused with all-NaN candidates, so the pipeline's filter predicts it (for at
+   most ``params.max_coast_frames`` frames, NaN afterwards) while the track itself lives up to
+   ``timeout_s``.
+
+Only confirmed tracks appear in the output, in ascending track id order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM, associate
+from skelfuse.fusion.pipeline import fuse, init_state
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.fusion.tracks import TrackParams, TrackTable, split_state, stack_states
+from skelfuse.skeleton import N_JOINTS
+
+DEFAULT_DT_S = 1.0 / 30.0
+
+
+@dataclass(frozen=True)
+class PeopleResult:
+    """The fused people of one instant (P confirmed tracks, ascending id).
+
+    Attributes
+    ----------
+    time_s : float, the frame time given to :meth:`PeopleFuser.step`.
+    track_ids : (P,) int64, stable ids.
+    positions : (P, J, 3) float64, mm, world; NaN = no estimate.
+    n_agree : (P, J) int16, sensors in the winning cluster (0 = coasted / none).
+    confidence : (P, J) uint8, best merged tracker confidence (0 = none).
+    contributors : (P, S) bool, sensors merged into at least one joint of the person.
+    coasting : (P,) bool, no sensor saw the person in this frame (positions are predictions or NaN).
+    assignment : (S, B) int64, output row of each input body (-1: padding, a tentative track, a duplicate).
+    body_track_ids : (S, B) int64, track id of each input body, tentative tracks included (-1: none).
+    """
+
+    time_s: float
+    track_ids: np.ndarray
+    positions: np.ndarray
+    n_agree: np.ndarray
+    confidence: np.ndarray
+    contributors: np.ndarray
+    coasting: np.ndarray
+    assignment: np.ndarray
+    body_track_ids: np.ndarray
+
+    @property
+    def n_persons(self) -> int:
+        return int(self.track_ids.size)
+
+
+class PeopleFuser:
+    """Stateful multi-person fusion (see the module docstring).
+
+    Parameters
+    ----------
+    params : FusionParams of the per-person pipeline.
+    gate_mm : association gate, mm (mean torso-descriptor distance).
+    birth_frames : consecutive matched frames before a track is confirmed and output.
+    timeout_s : a confirmed track unseen for longer than this dies, s.
+    duplicate_mm : a second body of one sensor this close to a matched track is a duplicate (None: keep).
+    track_params : full :class:`TrackParams` (overrides gate_mm, birth_frames and timeout_s when given).
+
+    Attributes
+    ----------
+    table : TrackTable, the tracks and their per-track fusion state.
+    last_time_s : time of the previous step, or None.
+    """
+
+    def __init__(
+        self,
+        params: FusionParams,
+        *,
+        gate_mm: float = DEFAULT_GATE_MM,
+        birth_frames: int = 3,
+        timeout_s: float = 1.0,
+        duplicate_mm: float | None = DEFAULT_DUPLICATE_MM,
+        track_params: TrackParams | None = None,
+    ) -> None:
+        if not isinstance(params, FusionParams):
+            raise ValueError(f"params must be a FusionParams, got {type(params).__name__}")
+        self.params = params
+        if track_params is None:
+            track_params = TrackParams(
+                gate_mm=float(gate_mm), birth_frames=int(birth_frames), timeout_s=float(timeout_s)
+            )
+        self.track_params = track_params
+        self.duplicate_mm = duplicate_mm
+        self.table = TrackTable(track_params)
+        self.last_time_s: float | None = None
+
+    def reset(self) -> None:
+        """Forget every track (ids keep counting up: an id is never reused)."""
+        self.table = TrackTable(self.track_params, next_id=self.table.next_id)
+        self.last_time_s = None
+
+    def step(
+        self, world_positions: np.ndarray, confidence: np.ndarray, valid: np.ndarray, time_s: float
+    ) -> PeopleResult:
+        """Associate, track and fuse one frame.
+
+        Parameters
+        ----------
+        world_positions : (S, B, J, 3) float, mm, world frame; the bodies of every sensor, NaN-padded.
+        confidence : (S, B, J) uint8.
+        valid : (S, B) bool, the slot holds a body.
+        time_s : frame time, s; must increase from step to step.
+
+        Returns
+        -------
+        PeopleResult
+
+        Raises
+        ------
+        ValueError
+            On bad shapes or a time that does not increase.
+        """
+        time_s = float(time_s)
+        if not math.isfinite(time_s):
+            raise ValueError(f"time_s must be finite, got {time_s!r}")
+        if self.last_time_s is not None and time_s <= self.last_time_s:
+            raise ValueError(f"time_s must increase: got {time_s} after {self.last_time_s}")
+        dt_s = DEFAULT_DT_S if self.last_time_s is None else time_s - self.last_time_s
+        self.last_time_s = time_s
+        valid = np.asarray(valid, dtype=bool)
+
+        prediction = self.table.predict(time_s)
+        association = associate(
+            world_positions,
+            confidence,
+            valid,
+            prediction.descriptors,
+            prediction.confirmed,
+            gate_mm=self.track_params.gate_mm,
+            track_gate_mm=prediction.gate_mm,
+            duplicate_mm=self.duplicate_mm,
+        )
+        row_ids = self.table.update(prediction, association, time_s)
+
+        # Confirmed live tracks, ascending id; their association rows.
+        row_of_id = {int(tid): row for row, tid in enumerate(row_ids) if tid >= 0}
+        out_ids = sorted(tid for tid, t in self.table.tracks.items() if t.confirmed and tid in row_of_id)
+        S = valid.shape[0]
+        P = len(out_ids)
+        rows = np.array([row_of_id[tid] for tid in out_ids], dtype=np.int64)
+        out_row_of_assoc = np.full(association.n_persons + 1, -1, dtype=np.int64)  # last slot: "-1" lookups
+        out_row_of_assoc[rows] = np.arange(P)
+        assignment = out_row_of_assoc[association.person_of_body]
+        body_track_ids = np.append(row_ids, -1)[association.person_of_body]
+
+        if P == 0:
+            return PeopleResult(
+                time_s=time_s,
+                track_ids=np.zeros(0, dtype=np.int64),
+                positions=np.zeros((0, N_JOINTS, 3)),
+                n_agree=np.zeros((0, N_JOINTS), dtype=np.int16),
+                confidence=np.zeros((0, N_JOINTS), dtype=np.uint8),
+                contributors=np.zeros((0, S), dtype=bool),
+                coasting=np.zeros(0, dtype=bool),
+                assignment=assignment,
+                body_track_ids=body_track_ids,
+            )
+        tracks = [self.table.tracks[tid] for tid in out_ids]
+        for track in tracks:
+            if track.fusion is None:
+                track.fusion = init_state(1, self.params)
+        state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
+        result, new_state = fuse(association.candidates[rows], association.confidence[rows], state, self.params, dt_s)
+        for track, row_state in zip(tracks, split_state(new_state), strict=True):
+            track.fusion = row_state
+        return PeopleResult(
+            time_s=time_s,
+            track_ids=np.array(out_ids, dtype=np.int64),
+            positions=result.positions,
+            n_agree=result.n_agree,
+            confidence=result.confidence,
+            contributors=result.contributors,
+            coasting=np.array([t.coasting(time_s) for t in tracks]),
+            assignment=assignment,
+            body_track_ids=body_track_ids,
+        )
