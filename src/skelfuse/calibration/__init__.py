@@ -10,4 +10,6 @@ Modules (paper section 2.1, and beyond it):
 - ``calfile``: the rig's versioned calibration file (TOML), and the result types every method returns.
 - ``camera``: pinhole intrinsics and depth-image lifting; ``render``: a synthetic RGB-D renderer for tests;
   ``view``: logging a calibration to Rerun.
+- ``commands``: the ``skelfuse calibrate capture|sphere|marker|skeleton|check`` commands
+  (``add_calibrate_parser``) and the RGB-D folder they read (``load_rgbd_folder``, ``save_rgbd_folder``).
 """

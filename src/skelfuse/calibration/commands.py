@@ -1,0 +1,989 @@
+"""The ``skelfuse calibrate ...`` commands: capture RGB-D frames, run a calibration method, write the file.
+
+Sub-commands (``docs/calibration.md`` is the user's procedure)::
+
+    calibrate capture  --config RIG.toml --out DIR --frames N    live Azure Kinects (pyk4a) -> RGB-D folder
+    calibrate sphere   DIR [--config RIG.toml] [--output FILE]   sensor to sensor (paper 2.1.1) -> file
+    calibrate marker   DIR [--config RIG.toml] [--output FILE]   master to world (paper 2.1.2), re-anchors the file
+    calibrate skeleton (--recording REC.mcap | --take ID=FILE ...)   sensor to sensor from a walk -> file
+    calibrate check    (--recording REC.mcap | --take ID=FILE ...)   has a sensor moved since? exit 3 if so
+
+RGB-D folder layout (what ``capture`` writes and ``sphere`` / ``marker`` read; :func:`save_rgbd_folder`,
+:func:`load_rgbd_folder`)::
+
+    DIR/<sensor_id>/intrinsics.json     {"fx", "fy", "cx", "cy", "width", "height"} of the depth camera, px
+    DIR/<sensor_id>/color_000000.png    BGR colour registered to depth (same pixels as the depth image)
+    DIR/<sensor_id>/depth_000000.png    uint16 depth, mm, 0 = invalid
+    ...                                 the same number in every sensor's folder = the same instant
+
+Exit codes: 0 done; 3 (:data:`EXIT_ATTENTION`) the calibration needs attention (a "bad" skeleton verdict,
+a moved sensor); typed errors (:mod:`skelfuse.errors`) are raised and turned into exit codes by ``cli.py``.
+Progress goes to stderr, results to stdout.
+
+The command line hooks these in with one call: ``add_calibrate_parser(commands)`` (the ``skelfuse``
+parser's sub-parsers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import re
+import sys
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.calibration.calfile import (
+    CalibrationResult,
+    SensorCalibration,
+    now_iso,
+    read_calibration,
+    write_calibration,
+)
+from skelfuse.calibration.camera import Intrinsics
+from skelfuse.errors import CalibrationError, ConfigError, DataError
+
+EXIT_OK = 0
+EXIT_ATTENTION = 3
+"""Exit code when the calibration needs attention: a "bad" skeleton verdict, or ``check`` found a moved sensor."""
+
+DEFAULT_OUTPUT = Path("calibration.toml")
+INTRINSICS_FILE = "intrinsics.json"
+COLOR_NAME = "color_{:06d}.png"
+DEPTH_NAME = "depth_{:06d}.png"
+_FRAME_FILE = re.compile(r"^(color|depth)_(\d+)\.png$")
+
+
+def _say(text: str) -> None:
+    """A progress / status line on stderr (stdout holds the results)."""
+    print(text, file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# RGB-D folder
+# ----------------------------------------------------------------------------------------------------------
+
+
+def write_intrinsics(sensor_dir: str | Path, intrinsics: Intrinsics) -> Path:
+    """Write ``<sensor_dir>/intrinsics.json``; returns its path."""
+    path = Path(sensor_dir) / INTRINSICS_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(dataclasses.asdict(intrinsics), indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def read_intrinsics(path: str | Path) -> Intrinsics:
+    """Read an ``intrinsics.json`` ({fx, fy, cx, cy, width, height}); DataError naming the file if malformed."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path} not found: every sensor folder needs {INTRINSICS_FILE} with the depth camera's "
+                        "fx, fy, cx, cy, width, height (px)") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"cannot read {path}: {exc}") from None
+    keys = ("fx", "fy", "cx", "cy", "width", "height")
+    if not isinstance(data, dict) or any(k not in data for k in keys):
+        raise DataError(f"{path}: expected a JSON object with keys {', '.join(keys)}, found {data!r:.200}")
+    try:
+        return Intrinsics(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
+                          int(data["width"]), int(data["height"]))
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{path}: {exc}") from None
+
+
+def save_rgbd_frame(sensor_dir: str | Path, index: int, color_bgr: np.ndarray, depth_mm: np.ndarray) -> None:
+    """Write one frame (``color_%06d.png`` BGR uint8, ``depth_%06d.png`` uint16 mm) into a sensor folder."""
+    import cv2
+
+    sensor_dir = Path(sensor_dir)
+    sensor_dir.mkdir(parents=True, exist_ok=True)
+    color = np.ascontiguousarray(color_bgr, dtype=np.uint8)
+    depth = np.ascontiguousarray(depth_mm)
+    if color.ndim != 3 or color.shape[2] != 3:
+        raise ValueError(f"color_bgr must be (H, W, 3) BGR, got shape {color.shape}")
+    if depth.dtype != np.uint16 or depth.shape != color.shape[:2]:
+        raise ValueError(f"depth_mm must be uint16 (H, W) matching the colour image {color.shape[:2]}, "
+                         f"got {depth.dtype} {depth.shape}")
+    for name, image in ((COLOR_NAME.format(index), color), (DEPTH_NAME.format(index), depth)):
+        if not cv2.imwrite(str(sensor_dir / name), image):
+            raise DataError(f"cannot write {sensor_dir / name}; check the folder is writable")
+
+
+def save_rgbd_folder(
+    directory: str | Path,
+    frames_by_sensor: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+    intrinsics_by_sensor: Mapping[str, Intrinsics],
+    *,
+    start_index: int = 0,
+) -> Path:
+    """Write synchronized RGB-D frames in the folder layout of the module docstring.
+
+    Parameters
+    ----------
+    directory : the folder (created).
+    frames_by_sensor : sensor id -> sequence of ``(color_bgr (H, W, 3) uint8, depth_mm (H, W) uint16)``;
+        frame i of every sensor is the same instant and is written as number ``start_index + i``.
+    intrinsics_by_sensor : sensor id -> the depth camera's Intrinsics (colour registered to depth).
+    """
+    directory = Path(directory)
+    for sensor_id, frames in frames_by_sensor.items():
+        if sensor_id not in intrinsics_by_sensor:
+            raise ValueError(f"no intrinsics for sensor {sensor_id!r}")
+        sensor_dir = directory / sensor_id
+        write_intrinsics(sensor_dir, intrinsics_by_sensor[sensor_id])
+        for i, (color, depth) in enumerate(frames):
+            save_rgbd_frame(sensor_dir, start_index + i, color, depth)
+    return directory
+
+
+class RgbdFrames(Sequence[tuple[np.ndarray, np.ndarray]]):
+    """One sensor's frames of an RGB-D folder, read from disk on access (a take of 1000 frames does not fit
+    in memory at once). Item i: ``(color_bgr (H, W, 3) uint8, depth_mm (H, W) uint16)``.
+
+    Attributes
+    ----------
+    sensor_dir : Path
+    numbers : tuple[int, ...], the frame numbers (file names), in order.
+    intrinsics : Intrinsics
+    """
+
+    def __init__(self, sensor_dir: Path, numbers: Sequence[int], intrinsics: Intrinsics) -> None:
+        self.sensor_dir = sensor_dir
+        self.numbers = tuple(numbers)
+        self.intrinsics = intrinsics
+
+    def __len__(self) -> int:
+        return len(self.numbers)
+
+    def __getitem__(self, index: Any) -> Any:
+        if isinstance(index, slice):
+            return RgbdFrames(self.sensor_dir, self.numbers[index], self.intrinsics)
+        return self.read(self.numbers[index])
+
+    def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for number in self.numbers:
+            yield self.read(number)
+
+    def read(self, number: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``number`` (the number in the file names)."""
+        import cv2
+
+        color_path = self.sensor_dir / COLOR_NAME.format(number)
+        depth_path = self.sensor_dir / DEPTH_NAME.format(number)
+        color = cv2.imread(str(color_path), cv2.IMREAD_COLOR)
+        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+        if color is None:
+            raise DataError(f"cannot read {color_path} as an image; check the file")
+        if depth is None:
+            raise DataError(f"cannot read {depth_path} as an image; check the file")
+        size = (self.intrinsics.height, self.intrinsics.width)
+        if depth.dtype != np.uint16 or depth.ndim != 2:
+            raise DataError(f"{depth_path}: expected a 16-bit single-channel PNG (depth in mm), found "
+                            f"{depth.dtype} with shape {depth.shape}")
+        for path, image in ((color_path, color), (depth_path, depth)):
+            if image.shape[:2] != size:
+                raise DataError(f"{path} is {image.shape[1]}x{image.shape[0]} (W x H), {INTRINSICS_FILE} says "
+                                f"{self.intrinsics.width}x{self.intrinsics.height}; colour must be registered to "
+                                "depth (pyk4a capture.transformed_color) and the intrinsics be the depth camera's")
+        return color, depth
+
+
+def _frame_numbers(sensor_dir: Path) -> list[int]:
+    """Numbers that have both a colour and a depth file."""
+    found: dict[str, set[int]] = {"color": set(), "depth": set()}
+    for entry in sensor_dir.iterdir():
+        match = _FRAME_FILE.match(entry.name)
+        if match:
+            found[match.group(1)].add(int(match.group(2)))
+    return sorted(found["color"] & found["depth"])
+
+
+def load_rgbd_folder(
+    directory: str | Path,
+    *,
+    sensors: Sequence[str] | None = None,
+    frames: Sequence[int] | None = None,
+) -> tuple[dict[str, RgbdFrames], dict[str, Intrinsics]]:
+    """Open an RGB-D folder (layout in the module docstring) for :func:`calibrate_from_sphere` and the marker.
+
+    Parameters
+    ----------
+    directory : the folder holding one sub-folder per sensor.
+    sensors : only these sensor ids (default: every sub-folder with an ``intrinsics.json``).
+    frames : only these frame numbers (default: every number that every selected sensor has).
+
+    Returns
+    -------
+    (frames_by_sensor, intrinsics_by_sensor): sensor id -> :class:`RgbdFrames` (lazy; the frame numbers
+    every selected sensor has, in order, so index i is the same instant everywhere), sensor id -> Intrinsics.
+
+    Raises
+    ------
+    DataError
+        No such folder, no sensor folder, a requested sensor or frame missing, no frame common to all
+        sensors, a malformed ``intrinsics.json``.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DataError(f"RGB-D folder {directory} not found; record one with `skelfuse calibrate capture` "
+                        "(layout: <dir>/<sensor_id>/intrinsics.json, color_%06d.png, depth_%06d.png)")
+    available = sorted(p.name for p in directory.iterdir() if (p / INTRINSICS_FILE).is_file())
+    if sensors is None:
+        selected = available
+    else:
+        selected = list(sensors)
+        missing = [s for s in selected if s not in available]
+        if missing:
+            raise DataError(f"{directory}: no folder with {INTRINSICS_FILE} for sensor(s) {', '.join(missing)}; "
+                            f"found {', '.join(available) or 'none'}")
+    if not selected:
+        raise DataError(f"{directory} holds no sensor folder (<sensor_id>/{INTRINSICS_FILE}); is it the RGB-D "
+                        "folder written by `skelfuse calibrate capture`?")
+    intrinsics = {s: read_intrinsics(directory / s / INTRINSICS_FILE) for s in selected}
+    numbers = {s: _frame_numbers(directory / s) for s in selected}
+    if frames is not None:
+        wanted = [int(n) for n in frames]
+        for s in selected:
+            absent = sorted(set(wanted) - set(numbers[s]))
+            if absent:
+                have = numbers[s]
+                span = f"{have[0]}..{have[-1]} ({len(have)} frames)" if have else "none"
+                raise DataError(f"{directory / s}: frame(s) {absent[:10]} not found (colour and depth); it has {span}")
+        common = wanted
+    else:
+        common_set = set.intersection(*(set(n) for n in numbers.values()))
+        common = sorted(common_set)
+        if not common:
+            counts = ", ".join(f"{s}: {len(n)}" for s, n in numbers.items())
+            raise DataError(f"{directory}: no frame number has colour and depth in every sensor folder (frames per "
+                            f"sensor: {counts}); frames with the same number must be the same instant")
+    return ({s: RgbdFrames(directory / s, common, intrinsics[s]) for s in selected}, intrinsics)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Shared helpers
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _rig(args: argparse.Namespace) -> Any:
+    if getattr(args, "config", None) is None:
+        return None
+    from skelfuse.config import load_rig_config
+
+    return load_rig_config(args.config)
+
+
+def _output_path(args: argparse.Namespace, cfg: Any) -> Path:
+    """--output, else the rig config's [calibration] file, else calibration.toml."""
+    if args.output is not None:
+        return Path(args.output)
+    if cfg is not None and cfg.calibration.file is not None:
+        return Path(cfg.calibration.file)
+    if cfg is not None:
+        _say(f"note: {cfg.source} has no [calibration] file; writing {DEFAULT_OUTPUT} (set [calibration] "
+             f"file = \"{DEFAULT_OUTPUT}\" so that fusion uses it)")
+    return DEFAULT_OUTPUT
+
+
+def _stored_calibration_path(args: argparse.Namespace, cfg: Any, what: str) -> Path:
+    if args.calibration is not None:
+        return Path(args.calibration)
+    if cfg is not None and cfg.calibration.file is not None:
+        return Path(cfg.calibration.file)
+    raise ConfigError(f"{what} needs the stored calibration: --calibration FILE, or --config RIG.toml with a "
+                      "[calibration] file")
+
+
+def _default_master(candidates: Sequence[str], cfg: Any, stored_master: str | None = None) -> str:
+    """The stored calibration's master, else the rig's sync master, else the rig's first sensor, else the
+    first candidate; only among ``candidates``."""
+    if not candidates:
+        raise DataError("no sensors to calibrate")
+    if stored_master is not None and stored_master in candidates:
+        return stored_master
+    if cfg is not None:
+        for s in cfg.sensors:
+            if s.sync.role == "master" and s.id in candidates:
+                return s.id
+        for s in cfg.sensors:
+            if s.id in candidates:
+                return s.id
+    return candidates[0]
+
+
+def _check_master(master: str, candidates: Sequence[str], where: str) -> str:
+    if master not in candidates:
+        raise ConfigError(f"--master {master!r} is not among the sensors of {where}: {', '.join(candidates)}")
+    return master
+
+
+def _check_known_sensors(ids: Sequence[str], cfg: Any, where: str) -> None:
+    if cfg is None:
+        return
+    unknown = [s for s in ids if s not in cfg.sensor_ids]
+    if unknown:
+        raise ConfigError(f"{where} holds sensor(s) {', '.join(unknown)} that rig {cfg.name!r} ({cfg.source}) does "
+                          f"not have (its sensors: {', '.join(cfg.sensor_ids)}); check the serials")
+    absent = [s for s in cfg.sensor_ids if s not in ids]
+    if absent:
+        _say(f"note: {where} has no data of sensor(s) {', '.join(absent)}: they will not be calibrated")
+
+
+def _print_result(result: CalibrationResult, path: Path) -> None:
+    print(f"{result.method} calibration, master {result.master}, written to {path}")
+    print(f"{'sensor':<20} {'method':<9} {'residual':>10} {'points':>7}  position (world, mm)")
+    for sensor_id, s in result.sensors.items():
+        residual = "master" if s.residual_mm is None else f"{s.residual_mm:.1f} mm"
+        points = "-" if s.n_points is None else str(s.n_points)
+        x, y, z = s.world_from_sensor[:3, 3]
+        print(f"{sensor_id:<20} {s.method:<9} {residual:>10} {points:>7}  ({x:.0f}, {y:.0f}, {z:.0f})")
+    if result.notes:
+        print(f"notes: {result.notes}")
+
+
+def _save_rrd(path: Path, result: CalibrationResult) -> None:
+    import rerun as rr
+
+    from skelfuse.calibration.view import log_calibration
+
+    recording = rr.RecordingStream("skelfuse_calibration")
+    recording.save(path)
+    log_calibration(recording, result)
+    recording.flush()
+    recording.disconnect()
+    _say(f"calibration view saved to {path} (open it with `rerun {path}`)")
+
+
+def _positive(kind: type) -> Any:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        return value
+
+    return parse
+
+
+# ----------------------------------------------------------------------------------------------------------
+# capture
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _cmd_capture(args: argparse.Namespace) -> int:
+    from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
+
+    cfg = _rig(args)
+    kinects = kinect_start_order(cfg.sensors)
+    if args.sensors:
+        unknown = [s for s in args.sensors if s not in cfg.sensor_ids]
+        if unknown:
+            raise ConfigError(f"--sensors {', '.join(unknown)}: not in rig {cfg.name!r} ({', '.join(cfg.sensor_ids)})")
+        kinects = [s for s in kinects if s.id in args.sensors]
+    if not kinects:
+        raise ConfigError(f"{cfg.source}: no sensor with source = \"kinect\" to capture from (sensors: "
+                          f"{', '.join(f'{s.id} ({s.source})' for s in cfg.sensors)})")
+    pyk4a = import_pyk4a()  # KinectUnavailable names the extra and the SDK
+    out = Path(args.out)
+    devices: list[tuple[str, Any]] = []
+    try:
+        for sensor in kinects:  # subordinates first, the master last
+            settings = DeviceSettings.from_sensor(sensor, cfg.sync.fps)
+            if settings.color_resolution is None:
+                settings = dataclasses.replace(settings, color_resolution=args.color_resolution)
+            device = _open_by_serial(pyk4a, settings)
+            devices.append((sensor.id, device))
+            device.start()
+            _say(f"started {sensor.id} ({settings.depth_mode}, colour {settings.color_resolution}, "
+                 f"{sensor.sync.role})")
+        _capture_frames(pyk4a, devices, out, args)
+    finally:
+        for _, device in reversed(devices):
+            try:
+                device.stop()
+            except Exception as exc:
+                _say(f"note: stopping a device failed: {exc}")
+    _say(f"wrote {args.frames} frames of {len(devices)} sensor(s) to {out}")
+    print(out)
+    return EXIT_OK
+
+
+def _grab(pyk4a: Any, sensor_id: str, device: Any, timeout_ms: int) -> tuple[Any, int]:
+    try:
+        capture = device.get_capture(timeout=timeout_ms)
+    except pyk4a.K4AException as exc:
+        raise DataError(f"sensor {sensor_id}: no capture within {timeout_ms} ms ({exc}); check its cable, power "
+                        "and, on a synced rig, the sync cables (subordinates wait for the master)") from None
+    return capture, int(capture.depth_timestamp_usec)
+
+
+def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, args: argparse.Namespace) -> None:
+    """Grab ``args.frames`` synchronized rounds (every ``args.every``-th) and write them to ``out``."""
+    timeout_ms = round(args.timeout_s * 1000)
+    tolerance_us = round(args.tolerance_ms * 1000)
+    for sensor_id, device in devices:
+        matrix = np.asarray(device.calibration.get_camera_matrix(pyk4a.CalibrationType.DEPTH), dtype=np.float64)
+        capture, _ = _grab(pyk4a, sensor_id, device, timeout_ms)
+        height, width = np.asarray(capture.depth).shape[:2]
+        write_intrinsics(out / sensor_id, Intrinsics(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2],
+                                                     int(width), int(height)))
+    for _ in range(args.warmup):  # auto exposure settles
+        for sensor_id, device in devices:
+            _grab(pyk4a, sensor_id, device, timeout_ms)
+    written = rounds = 0
+    started = time.monotonic()
+    while written < args.frames:
+        grabbed = {sid: _grab(pyk4a, sid, dev, timeout_ms) for sid, dev in devices}
+        for _ in range(10 * len(devices)):  # catch up the sensors that lag behind the newest one
+            newest = max(t for _, t in grabbed.values())
+            late = [sid for sid, (_, t) in grabbed.items() if newest - t > tolerance_us]
+            if not late:
+                break
+            for sid, dev in devices:
+                if sid in late:
+                    grabbed[sid] = _grab(pyk4a, sid, dev, timeout_ms)
+        else:
+            times = {sid: t for sid, (_, t) in grabbed.items()}
+            raise DataError(f"the sensors' device times never came within {args.tolerance_ms:g} ms of each other "
+                            f"({times}); wired sync is needed for sphere calibration (check the sync cables)")
+        rounds += 1
+        if (rounds - 1) % args.every:
+            continue
+        for sid, (capture, _) in grabbed.items():
+            color = capture.transformed_color
+            if color is None:
+                raise DataError(f"sensor {sid}: the capture has no colour image; enable the colour camera "
+                                "(--color-resolution or sensors.kinect.color_resolution)")
+            save_rgbd_frame(out / sid, written, np.asarray(color)[..., :3], np.asarray(capture.depth, dtype=np.uint16))
+        written += 1
+        if written % 10 == 0 or written == args.frames:
+            _say(f"captured {written}/{args.frames} frames ({time.monotonic() - started:.0f} s)")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# sphere
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _cmd_sphere(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
+
+    cfg = _rig(args)
+    frames, intrinsics = load_rgbd_folder(args.folder)
+    ids = list(frames)
+    _check_known_sensors(ids, cfg, str(args.folder))
+    if len(ids) < 2:
+        raise DataError(f"{args.folder}: sphere calibration needs at least two sensors, found {', '.join(ids)}")
+    master = _check_master(args.master, ids, str(args.folder)) if args.master else _default_master(ids, cfg)
+    if args.max_frames is not None:
+        frames = {s: f[: args.max_frames] for s, f in frames.items()}
+    if args.ball_sample is not None:
+        import cv2
+
+        sample = cv2.imread(str(args.ball_sample), cv2.IMREAD_COLOR)
+        if sample is None:
+            raise DataError(f"cannot read --ball-sample {args.ball_sample} as an image; give a crop showing only "
+                            "the ball")
+        hist = sphere_histogram(sample)
+    else:
+        hist = red_histogram()
+    n_frames = len(next(iter(frames.values())))
+    _say(f"sphere calibration: {len(ids)} sensors, {n_frames} frames, master {master}, radius {args.radius_mm:g} mm")
+    result = calibrate_from_sphere(frames, intrinsics, args.radius_mm, master, hist=hist,
+                                   threshold_mm=args.ransac_threshold_mm, min_points=args.min_frames,
+                                   progress=not args.quiet)
+    path = write_calibration(_output_path(args, cfg), result)
+    _print_result(result, path)
+    print("next: put the marker plate on the floor in the master's view and run `skelfuse calibrate marker`")
+    if args.rrd is not None:
+        _save_rrd(Path(args.rrd), result)
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------------------------
+# marker
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _cmd_marker(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.marker import calibrate_world_from_marker
+
+    cfg = _rig(args)
+    output = _output_path(args, cfg)
+    stored: CalibrationResult | None = None
+    stored_path = Path(args.calibration) if args.calibration is not None else output
+    if not args.fresh and stored_path.exists():
+        stored = read_calibration(stored_path)
+        _say(f"re-anchoring the {stored.method} calibration in {stored_path} ({len(stored.sensors)} sensors, "
+             f"master {stored.master})")
+    elif args.calibration is not None and not args.fresh:
+        raise DataError(f"--calibration {stored_path} not found; run `skelfuse calibrate sphere` (or skeleton) "
+                        "first, or leave it out to calibrate the master alone")
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        load_rgbd_folder(folder)  # raises the folder's DataError
+    available = sorted(p.name for p in folder.iterdir() if (p / INTRINSICS_FILE).is_file())
+    if args.master:
+        master = args.master
+    else:
+        master = _default_master(available, cfg, stored.master if stored is not None else None)
+    if stored is not None and stored.master != master:
+        raise CalibrationError(f"the stored calibration {stored_path} was fitted to master {stored.master!r} but the "
+                               f"plate is read from {master!r}; use {stored.master!r}'s view of the plate "
+                               "(--master), or --fresh to calibrate the master alone")
+    frames, intrinsics = load_rgbd_folder(folder, sensors=[master],
+                                          frames=None if args.frame is None else [args.frame])
+    sequence = frames[master]
+    number = sequence.numbers[0]
+    color, depth = sequence.read(number)
+    _say(f"marker calibration: master {master}, frame {number} of {folder / master}")
+    result, observations = calibrate_world_from_marker(
+        color, depth, intrinsics[master], master, calibration=stored, ids=tuple(args.ids), dictionary=args.dictionary,
+        marker_mm=args.marker_mm, centre_method=args.centre_method)
+    path = write_calibration(output, result)
+    for marker_id, obs in sorted(observations.items()):
+        x, y, z = obs.center
+        pnp = "" if obs.pnp_discrepancy_mm is None else f", {obs.pnp_discrepancy_mm:.1f} mm from the PnP centre"
+        print(f"marker {marker_id}: centre ({x:.0f}, {y:.0f}, {z:.0f}) mm in {master}'s frame, "
+              f"{obs.n_pixels} depth pixels{pnp}")
+    _print_result(result, path)
+    if args.rrd is not None:
+        _save_rrd(Path(args.rrd), result)
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------------------------
+# skeleton takes
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _parse_take(text: str) -> tuple[str, Path]:
+    sensor_id, sep, path = text.partition("=")
+    if not sep or not sensor_id or not path:
+        raise argparse.ArgumentTypeError(f"expected SENSOR=FILE (e.g. 000123412512=master.json), got {text!r}")
+    return sensor_id, Path(path)
+
+
+def load_recording_take(
+    path: str | Path,
+    *,
+    by: str = "device",
+    sync: Any = None,
+    max_frames: int | None = None,
+    progress: bool = True,
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """A skelfuse MCAP recording as a synchronized one-person take for the skeleton calibration.
+
+    Frames are grouped into instants as the fusion node does (:class:`~skelfuse.service.grouping.FrameGrouper`,
+    by device time by default, the recorded host time as the arrival clock); every group is one frame of
+    the take, and each sensor contributes its **first body** (NaN / confidence NONE where it has none).
+
+    Parameters
+    ----------
+    path : the recording.
+    by : "device" (wired sync) or "host".
+    sync : a :class:`skelfuse.config.SyncConfig` for the tolerances (default: SyncConfig()).
+    max_frames : keep only the first this many instants.
+
+    Returns
+    -------
+    positions (T, S, 32, 3) float64 mm, confidence (T, S, 32) uint8, sensor ids (the recording's order).
+
+    Raises
+    ------
+    DataError
+        Not a recording, no sensor channel, no frame with a body.
+    """
+    from skelfuse.config import SyncConfig
+    from skelfuse.recording.mcap_io import RecordingReader
+    from skelfuse.service.grouping import FrameGrouper
+    from skelfuse.skeleton import N_JOINTS
+
+    reader = RecordingReader(path)
+    ids = reader.sensors
+    if not ids:
+        raise DataError(f"recording {reader.path} holds no sensor-frame channels; record with `skelfuse record`")
+    sync = sync if sync is not None else SyncConfig()
+    grouper = FrameGrouper(ids, by=by, tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
+                           deadline_us=sync.deadline_us, fps=sync.fps, resync_after=sync.resync_after_frames,
+                           resync_horizon_us=sync.resync_horizon_us)
+    column = {s: i for i, s in enumerate(ids)}
+    positions: list[np.ndarray] = []
+    confidence: list[np.ndarray] = []
+
+    def take(groups: Sequence[Any]) -> None:
+        for group in groups:
+            pos = np.full((len(ids), N_JOINTS, 3), np.nan)
+            conf = np.zeros((len(ids), N_JOINTS), dtype=np.uint8)
+            for sensor_id, frame in group.frames.items():
+                if frame.n_bodies > 0:
+                    pos[column[sensor_id]] = frame.positions[0]
+                    conf[column[sensor_id]] = frame.confidence[0]
+            positions.append(pos)
+            confidence.append(conf)
+
+    n_read = 0
+    for frame in reader.frames():
+        take(grouper.push(frame, int(frame.host_time_ns)))
+        n_read += 1
+        if progress and n_read % 5000 == 0:
+            _say(f"reading {reader.path.name}: {n_read} frames")
+        if max_frames is not None and len(positions) >= max_frames:
+            break
+    take(grouper.flush())
+    if max_frames is not None:
+        del positions[max_frames:], confidence[max_frames:]
+    if not positions:
+        raise DataError(f"recording {reader.path} holds no readable sensor frames")
+    pos_arr, conf_arr = np.stack(positions), np.stack(confidence)
+    seen = np.isfinite(pos_arr).all(axis=-1).any(axis=-1)  # (T, S)
+    if not seen.any():
+        raise DataError(f"recording {reader.path}: no sensor saw a body in {len(positions)} instants; record a "
+                        "person walking through the shared space")
+    if progress:
+        per_sensor = ", ".join(f"{s}: {int(seen[:, i].sum())}" for i, s in enumerate(ids))
+        rejects = f", {sum(reader.rejects.values())} unreadable messages skipped" if reader.rejects else ""
+        _say(f"read {reader.path.name}: {n_read} frames -> {len(positions)} instants (frames with a body per "
+             f"sensor: {per_sensor}){rejects}")
+    return pos_arr, conf_arr, ids
+
+
+def load_file_takes(
+    takes: Sequence[tuple[str, Path]], *, max_frames: int | None = None
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Per-sensor skeleton files (andyj1 ``.csv`` or offline_processor ``.json``) as one synchronized take.
+
+    Frames match by index (both formats hold one synchronized take per sensor); takes of different length
+    are cut to the shortest. Raises DataError for an unknown extension, a repeated sensor or a file with
+    several people.
+    """
+    from skelfuse.calibration.skeleton import stack_sensor_takes
+    from skelfuse.sources.recorded import load_andyj1_csv, load_offline_processor_json
+
+    per_sensor: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for sensor_id, path in takes:
+        if sensor_id in per_sensor:
+            raise DataError(f"--take: sensor {sensor_id!r} given twice; one file per sensor")
+        suffix = path.suffix.lower()
+        if suffix == ".csv":
+            recording = load_andyj1_csv(path, sensor_id=sensor_id)
+        elif suffix == ".json":
+            recording = load_offline_processor_json(path, sensor_id=sensor_id)
+        else:
+            raise DataError(f"--take {sensor_id}={path}: unknown file type {suffix or '(none)'!r}; expected an "
+                            "andyj1 .csv or an offline_processor .json (or give an MCAP with --recording)")
+        per_sensor[sensor_id] = recording.single_body()
+    lengths = {s: len(p) for s, (p, _) in per_sensor.items()}
+    if len(set(lengths.values())) > 1:
+        _say(f"note: takes differ in length ({lengths}); frames match by index, cut to the shortest")
+    positions, confidence, ids = stack_sensor_takes(per_sensor)
+    if max_frames is not None:
+        positions, confidence = positions[:max_frames], confidence[:max_frames]
+    return positions, confidence, ids
+
+
+def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    if (args.recording is None) == (not args.take):
+        raise ConfigError("give the walking take either as --recording REC.mcap (from `skelfuse record`) or as "
+                          "--take SENSOR=FILE per sensor (andyj1 .csv / offline_processor .json), not both")
+    if args.recording is not None:
+        sync = cfg.sync if cfg is not None else None
+        by = args.by or (sync.by if sync is not None else "device")
+        positions, confidence, ids = load_recording_take(args.recording, by=by, sync=sync, max_frames=args.max_frames,
+                                                         progress=not args.quiet)
+    else:
+        positions, confidence, ids = load_file_takes(args.take, max_frames=args.max_frames)
+    if len(ids) < 2:
+        raise DataError(f"the take holds {len(ids)} sensor ({', '.join(ids)}); a calibration needs at least two")
+    _check_known_sensors(ids, cfg, "the take")
+    return positions, confidence, ids
+
+
+# ----------------------------------------------------------------------------------------------------------
+# skeleton
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def skeleton_calibration_result(cal: Any) -> CalibrationResult:
+    """A :class:`~skelfuse.calibration.skeleton.SkeletonCalibration` as a file-ready CalibrationResult
+    (method "skeleton"; each sensor's verdict, half-take agreement and reasons in its notes)."""
+    date = now_iso()
+    sensors = {}
+    for sensor_id in cal.sensor_ids:
+        q = cal.quality[sensor_id]
+        notes = f"verdict {q.verdict}"
+        if sensor_id == cal.master:
+            notes += "; master"
+        elif q.half_rotation_deg is not None:
+            notes += f"; half-take {q.half_rotation_deg:.2f} deg / {q.half_translation_mm:.0f} mm"
+        if q.reasons:
+            notes += f"; {'; '.join(q.reasons)}"
+        sensors[sensor_id] = SensorCalibration(cal.world_from_sensor[sensor_id], "skeleton",
+                                               _finite_or_none(q.residual_mm), int(q.n_points), date, notes)
+    verdicts = ", ".join(f"{s} {cal.quality[s].verdict}" for s in cal.sensor_ids)
+    world = "ArUco plate (master pose given)" if cal.world_source == "plate" else "floor from the feet"
+    notes = f"skeleton walk of {cal.n_frames} frames; world: {world}; verdicts: {verdicts}"
+    return CalibrationResult(sensors, "skeleton", cal.master, date, notes)
+
+
+def _cmd_skeleton(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.skeleton import calibrate_from_skeletons
+
+    cfg = _rig(args)
+    positions, confidence, ids = _load_take(args, cfg)
+    anchor_pose = None
+    anchor: CalibrationResult | None = None
+    if args.anchor is not None:
+        anchor = read_calibration(args.anchor)
+    master_default = anchor.master if anchor is not None else None
+    master = _check_master(args.master, ids, "the take") if args.master else _default_master(ids, cfg, master_default)
+    if anchor is not None:
+        if master not in anchor.sensors:
+            raise CalibrationError(f"--anchor {args.anchor} has no pose for the master {master!r} (it has "
+                                   f"{', '.join(anchor.sensors)}); give --master one of those")
+        anchor_pose = anchor.sensors[master].world_from_sensor
+    _say(f"skeleton calibration: {len(ids)} sensors, {len(positions)} frames, master {master}")
+    cal = calibrate_from_skeletons(positions, confidence, ids, master, master_world_from_sensor=anchor_pose,
+                                   progress=not args.quiet)
+    print(cal.report())
+    bad = [s for s in cal.sensor_ids if cal.quality[s].verdict == "bad"]
+    result = skeleton_calibration_result(cal)
+    output = _output_path(args, cfg)
+    if bad and not args.force:
+        print(f"\nnot written: sensor(s) {', '.join(bad)} are 'bad' ({output} is left as it was; --force writes "
+              "it anyway)")
+    else:
+        write_calibration(output, result)
+        print(f"\nwritten to {output}" + (" (with bad sensors: do not fuse with them)" if bad else ""))
+    if bad:
+        print("hint: record a longer walk (~30 s or more) that crosses the space every pair of sensors shares, one "
+              "person only, feet visible; a bad sensor with few points did not see the person often enough")
+        return EXIT_ATTENTION
+    if any(cal.quality[s].verdict == "check" for s in cal.sensor_ids):
+        print("hint: 'check' verdicts are usable but not stable; a longer walk through every shared view helps")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------------------------
+# check
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.skeleton import check_calibration
+
+    cfg = _rig(args)
+    path = _stored_calibration_path(args, cfg, "calibrate check")
+    if not path.is_file():
+        raise CalibrationError(f"calibration file {path} not found; make one first with `skelfuse calibrate skeleton` "
+                               "(or sphere, then marker)")
+    stored = read_calibration(path)
+    positions, confidence, ids = _load_take(args, cfg)
+    master = _check_master(args.master, ids, "the take") if args.master else _default_master(ids, cfg, stored.master)
+    # Only residuals of a skeleton calibration measure the same thing as the check's (sphere centres do not).
+    reference = {s: c.residual_mm for s, c in stored.sensors.items()
+                 if c.method == "skeleton" and c.residual_mm is not None}
+    _say(f"checking {path} ({stored.method}, {stored.date or 'undated'}) on a take of {len(positions)} frames, "
+         f"master {master}")
+    result = check_calibration(stored.world_from_sensor, positions, confidence, ids, master,
+                               reference_residual_mm=reference or None, max_rotation_deg=args.max_rotation_deg,
+                               max_translation_mm=args.max_translation_mm,
+                               max_residual_growth_mm=args.max_residual_growth_mm, progress=not args.quiet)
+    print(result.report())
+    if result.moved:
+        print(f"hint: recalibrate ({', '.join(result.moved)} moved): `skelfuse calibrate skeleton` with a new walk, "
+              "or sphere + marker")
+        return EXIT_ATTENTION
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------------------------
+# parser
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _add_output(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
+                        help="the rig config: its sensors are checked, its sync master is the default master and "
+                        "its [calibration] file the default output")
+    parser.add_argument("--output", "-o", type=Path, default=None, metavar="FILE",
+                        help=f"calibration TOML to write (default: the rig config's [calibration] file, else "
+                        f"{DEFAULT_OUTPUT})")
+
+
+def _add_take(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--recording", type=Path, default=None, metavar="REC.mcap",
+                        help="a `skelfuse record` MCAP of one person walking; frames grouped by time, first body "
+                        "per sensor")
+    parser.add_argument("--take", type=_parse_take, action="append", default=[], metavar="SENSOR=FILE",
+                        help="instead of --recording: one skeleton file per sensor (andyj1 .csv or "
+                        "offline_processor .json), frames matched by index; repeat per sensor")
+    parser.add_argument("--by", choices=["device", "host"], default=None,
+                        help="--recording: group frames by device time (wired sync) or host time (default: the "
+                        "rig config's [sync] by, else device)")
+    parser.add_argument("--master", default=None, metavar="ID",
+                        help="sensor whose pose anchors the others (default: the stored calibration's master, else "
+                        "the rig's sync master, else the first sensor)")
+    parser.add_argument("--max-frames", type=_positive(int), default=None, metavar="N",
+                        help="use only the first N frames of the take (default: all)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+
+
+def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``calibrate`` with its sub-commands (capture, sphere, marker, skeleton, check) to ``commands``."""
+    calibrate = commands.add_parser(
+        "calibrate",
+        help="measure where each sensor stands (sphere, marker plate, or skeletons) and write the calibration file",
+        description="Calibrate the rig: sensor to sensor from a red ball (sphere) or from a person walking "
+        "(skeleton), then sensor to world from an ArUco plate on the floor (marker); check a stored "
+        "calibration against a new walk (check). Procedure: docs/calibration.md. Exit code 3: the calibration "
+        "needs attention (bad verdict, moved sensor).",
+    )
+    sub = calibrate.add_subparsers(dest="calibrate_command", metavar="METHOD", required=True)
+
+    # capture ---------------------------------------------------------------------------------------
+    capture = sub.add_parser(
+        "capture",
+        help="grab colour (registered to depth) + depth frames from the rig's Azure Kinects into an RGB-D folder",
+        description="Open every kinect sensor of the rig (pyk4a, the 'kinect' extra), subordinates first, and "
+        "write N synchronized frames per sensor: <out>/<sensor_id>/intrinsics.json, color_%%06d.png "
+        "(capture.transformed_color: colour warped into the depth camera), depth_%%06d.png (uint16 mm). Carry "
+        "the ball through the space while it runs, or show the marker plate to the master.",
+    )
+    capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    capture.add_argument("--out", type=Path, required=True, metavar="DIR", help="RGB-D folder to write")
+    capture.add_argument("--frames", type=_positive(int), default=300, metavar="N",
+                         help="frames to write per sensor (default: %(default)s; the paper used 1000 ball positions)")
+    capture.add_argument("--every", type=_positive(int), default=3, metavar="K",
+                         help="keep every K-th synchronized capture, so the ball moves between frames "
+                         "(default: %(default)s: 10 frames/s at 30 fps)")
+    capture.add_argument("--sensors", nargs="+", default=None, metavar="ID",
+                         help="only these sensors (default: every kinect sensor of the rig)")
+    capture.add_argument("--color-resolution", default="720P",
+                         choices=["720P", "1080P", "1440P", "1536P", "2160P", "3072P"],
+                         help="colour camera mode where the rig config leaves colour off (default: %(default)s)")
+    capture.add_argument("--warmup", type=int, default=30, metavar="N",
+                         help="captures dropped first while auto exposure settles (default: %(default)s)")
+    capture.add_argument("--timeout-s", type=_positive(float), default=2.0, metavar="SECONDS",
+                         help="longest wait for one capture (default: %(default)s)")
+    capture.add_argument("--tolerance-ms", type=_positive(float), default=5.0, metavar="MS",
+                         help="device times of one synchronized frame may differ by this much (default: %(default)s)")
+    capture.set_defaults(func=_cmd_capture)
+
+    # sphere ----------------------------------------------------------------------------------------
+    sphere = sub.add_parser(
+        "sphere",
+        help="sensor-to-sensor calibration from a coloured ball carried through the space (paper 2.1.1)",
+        description="Find the ball (hue/saturation histogram, RANSAC sphere of known radius) in every frame of "
+        "every sensor of an RGB-D folder, fit each sensor's ball trajectory to the master's and write the "
+        "calibration (world = the master's frame until `calibrate marker` puts it on the floor). Prints the "
+        "residual per sensor (RMS distance of the fitted trajectories, mm).",
+    )
+    sphere.add_argument("folder", type=Path, metavar="DIR",
+                        help="RGB-D folder: DIR/<sensor_id>/intrinsics.json, color_%%06d.png, depth_%%06d.png")
+    _add_output(sphere)
+    sphere.add_argument("--master", default=None, metavar="ID",
+                        help="reference sensor (default: the rig's sync master, else its first sensor, else the "
+                        "first folder)")
+    sphere.add_argument("--radius-mm", type=_positive(float), default=240.0, metavar="MM",
+                        help="the ball's radius, mm (default: %(default)s, the paper's red ball)")
+    sphere.add_argument("--ball-sample", type=Path, default=None, metavar="IMAGE",
+                        help="a crop showing only the ball, to learn its colour (default: a red ball model)")
+    sphere.add_argument("--ransac-threshold-mm", type=_positive(float), default=30.0, metavar="MM",
+                        help="ball centres farther than this from the fit are dropped as wrong detections "
+                        "(default: %(default)s)")
+    sphere.add_argument("--min-frames", type=_positive(int), default=10, metavar="N",
+                        help="fewest frames in which every sensor found the ball (default: %(default)s)")
+    sphere.add_argument("--max-frames", type=_positive(int), default=None, metavar="N",
+                        help="use only the first N frames (default: all)")
+    sphere.add_argument("--rrd", type=Path, default=None, metavar="FILE",
+                        help="also save the poses and ball centres as a Rerun .rrd to look at")
+    sphere.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    sphere.set_defaults(func=_cmd_sphere)
+
+    # marker ----------------------------------------------------------------------------------------
+    marker = sub.add_parser(
+        "marker",
+        help="sensor-to-world calibration from a plate of 4 ArUco markers on the floor, seen by the master "
+        "(paper 2.1.2)",
+        description="Detect the plate's markers in one colour frame of the master, take their 3D centres from "
+        "depth and build the world: origin at marker 1, x from marker 2 to 1, y from marker 0 to 1, z up. An "
+        "existing sensor-to-sensor calibration (by default the output file, if it exists) is re-anchored so every "
+        "sensor moves into that world.",
+    )
+    marker.add_argument("folder", type=Path, metavar="DIR",
+                        help="RGB-D folder holding the master's view of the plate (DIR/<master>/...)")
+    _add_output(marker)
+    marker.add_argument("--calibration", type=Path, default=None, metavar="FILE",
+                        help="sensor-to-sensor calibration to re-anchor (default: the output file when it exists)")
+    marker.add_argument("--fresh", action="store_true",
+                        help="ignore any existing calibration: write the master's pose alone")
+    marker.add_argument("--master", default=None, metavar="ID",
+                        help="sensor that sees the plate (default: the calibration's master, else the rig's sync "
+                        "master, else the first folder)")
+    marker.add_argument("--frame", type=int, default=None, metavar="N",
+                        help="frame number to use (default: the first one of the master's folder)")
+    marker.add_argument("--ids", type=int, nargs=4, default=[0, 1, 2, 3], metavar=("ID0", "ID1", "ID2", "ID3"),
+                        help="ArUco ids playing the paper's markers 0, 1 (origin), 2, 3 (default: 0 1 2 3)")
+    marker.add_argument("--dictionary", default="DICT_4X4_50",
+                        help="OpenCV ArUco dictionary of the printed markers (default: %(default)s)")
+    marker.add_argument("--marker-mm", type=_positive(float), default=None, metavar="MM",
+                        help="printed marker side, mm: enables the PnP cross-check of the depth centres")
+    marker.add_argument("--centre-method", choices=["plane", "mean"], default="plane",
+                        help="marker centre from depth: plane fit ∩ centre ray (unbiased) or the paper's pixel mean "
+                        "(default: %(default)s)")
+    marker.add_argument("--rrd", type=Path, default=None, metavar="FILE",
+                        help="also save the poses as a Rerun .rrd to look at")
+    marker.set_defaults(func=_cmd_marker)
+
+    # skeleton --------------------------------------------------------------------------------------
+    skeleton = sub.add_parser(
+        "skeleton",
+        help="sensor-to-sensor (and floor) calibration from one person walking ~30 s through the shared space",
+        description="Fit every sensor's pose from the torso joints the sensors see at the same time (robust, "
+        "mirrored views left out), put z up from the floor under the feet (or the master's pose from --anchor), "
+        "print the quality report (residual, half-take agreement, verdict good / check / bad per sensor) and "
+        "write the calibration. Exit 3 when a verdict is bad (the file is then not written unless --force).",
+    )
+    _add_take(skeleton)
+    _add_output(skeleton)
+    skeleton.add_argument("--anchor", type=Path, default=None, metavar="FILE",
+                          help="a calibration (e.g. from `calibrate marker`) whose master pose defines the world "
+                          "instead of the floor")
+    skeleton.add_argument("--force", action="store_true", help="write the file even when a verdict is bad")
+    skeleton.set_defaults(func=_cmd_skeleton)
+
+    # check -----------------------------------------------------------------------------------------
+    check = sub.add_parser(
+        "check",
+        help="has a sensor moved since calibration? compare the stored calibration with a new walk",
+        description="Fit the rig afresh on a new walking take (~30 s), with the master held at its stored pose, "
+        "and compare every sensor with the stored calibration: the correction a fresh fit would apply "
+        "(rotation, translation at the subject) and the residual. Exit 3 when a sensor moved.",
+    )
+    _add_take(check)
+    check.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
+                       help="the rig config (its [calibration] file is the default --calibration)")
+    check.add_argument("--calibration", type=Path, default=None, metavar="FILE",
+                       help="the stored calibration (default: the rig config's [calibration] file)")
+    check.add_argument("--max-rotation-deg", type=_positive(float), default=2.0, metavar="DEG",
+                       help="a sensor whose correction rotates more than this moved (default: %(default)s)")
+    check.add_argument("--max-translation-mm", type=_positive(float), default=30.0, metavar="MM",
+                       help="... or shifts the subject by more than this (default: %(default)s)")
+    check.add_argument("--max-residual-growth-mm", type=_positive(float), default=15.0, metavar="MM",
+                       help="warn when a residual grew by more than this since a skeleton calibration "
+                       "(default: %(default)s)")
+    check.set_defaults(func=_cmd_check)
