@@ -7,8 +7,11 @@ dependency only affects the command that needs it.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import faulthandler
 import json
 import logging
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -96,20 +99,185 @@ def _cmd_bench_fusion(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from skelfuse import demo
 
-    summary = demo.run_demo(
-        duration_s=args.duration,
-        gesture=args.gesture,
-        preset_name=args.preset,
-        seed=args.seed,
-        rrd_path=args.rrd,
-        spawn=False if args.rrd is not None else None,
-        realtime=args.realtime,
-        progress=not args.json,
-    )
+    if args.offline:
+        summary = demo.run_demo_offline(
+            duration_s=args.duration,
+            gesture=args.gesture,
+            preset_name=args.preset,
+            seed=args.seed,
+            rrd_path=args.rrd,
+            spawn=False if args.rrd is not None else None,
+            realtime=args.realtime,
+            progress=not args.json,
+        )
+    else:
+        summary = demo.run_demo(
+            duration_s=args.duration,
+            gesture=args.gesture,
+            preset_name=args.preset,
+            seed=args.seed,
+            rrd_path=args.rrd,
+            spawn=False if args.rrd is not None or args.serve else None,
+            serve=args.serve,
+            progress=not args.json,
+        )
     if args.json:
         _print_json(summary.to_dict())
     else:
         print(demo.format_summary(summary))
+    return EXIT_OK
+
+
+# -- service commands --------------------------------------------------------------------------------------
+
+
+def _rig(args: argparse.Namespace) -> Any:
+    from skelfuse.config import load_rig_config
+
+    return load_rig_config(args.config)
+
+
+def _zenoh_conf(args: argparse.Namespace, cfg: Any | None) -> Any:
+    from skelfuse.config import RigConfig, zenoh_config, zenoh_flags
+
+    if cfg is None:  # commands that may run without a rig config: zenoh defaults + flags
+        cfg = RigConfig(name="skelfuse", sensors=(), source="<command line>")
+    return zenoh_config(cfg, **zenoh_flags(args))
+
+
+def _limits(args: argparse.Namespace) -> Any:
+    from skelfuse.service.lifecycle import RunLimits
+
+    try:
+        return RunLimits(duration_s=args.duration, max_frames=getattr(args, "max_frames", None))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _cmd_capture(args: argparse.Namespace) -> int:
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.worker import WorkerOptions, run_capture_worker
+
+    cfg = _rig(args)
+    options = WorkerOptions(gesture=args.gesture, take_duration_s=args.take_duration, seed=args.seed,
+                            loop=args.loop, speed=None if args.fast else args.speed, node_name=args.node,
+                            limits=_limits(args))
+    report = run_capture_worker(cfg, args.sensor, _zenoh_conf(args, cfg), options=options,
+                                lifecycle=Lifecycle(f"capture-{args.sensor}"))
+    if args.json:
+        _print_json({"frames_out": report.frames_out, "restarts": report.restarts})
+    return EXIT_OK
+
+
+def _view_options(args: argparse.Namespace, cfg: Any) -> Any:
+    from skelfuse.service.viewer import ViewOptions
+
+    r = cfg.rerun
+    if args.no_view:
+        return ViewOptions(mode="off")
+    if args.rrd is not None:
+        return ViewOptions(mode="save", file=args.rrd, log_sensors=r.log_sensors)
+    if args.serve:
+        return ViewOptions(mode="serve", bind=args.bind or r.bind, grpc_port=args.grpc_port or r.grpc_port,
+                           web_port=args.web_port if args.web_port is not None else r.web_port,
+                           log_sensors=r.log_sensors)
+    if args.spawn:
+        return ViewOptions(mode="spawn", grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors)
+    return ViewOptions(mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port,
+                       log_sensors=r.log_sensors)
+
+
+def _cmd_fuse(args: argparse.Namespace) -> int:
+    if args.input is not None:
+        return _fuse_offline(args)
+    if args.output is not None:
+        raise ConfigError("--output needs --input FILE (offline fusion of a recording); the live node publishes "
+                          "on zenoh, record it with `skelfuse record`")
+    if args.config is None:
+        raise ConfigError("skelfuse fuse needs --config RIG.toml (live) or --input FILE --output OUT (offline)")
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.node import NodeOptions, run_fusion_node
+
+    cfg = _rig(args)
+    options = NodeOptions(node_name=args.node, status_period_s=args.status_period, limits=_limits(args),
+                          view=_view_options(args, cfg))
+    report = run_fusion_node(cfg, _zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle("fusion"))
+    if args.json:
+        _print_json({"frames_in": report.frames_in, "frames_out": report.frames_out, "status": report.status})
+    return EXIT_OK
+
+
+def _fuse_offline(args: argparse.Namespace) -> int:
+    from skelfuse.recording import fuse_recording, write_fused
+
+    if args.output is None:
+        raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
+    cfg = _rig(args) if args.config is not None else None
+    frames = fuse_recording(args.input, rig_config=cfg, preset_name=args.preset, progress=not args.json)
+    try:
+        rows = write_fused(frames, args.output)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if args.json:
+        _print_json({"input": args.input, "output": args.output, "rows": rows})
+    else:
+        print(f"Fused {args.input} -> {args.output} ({rows} rows)", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.recorder import run_recorder
+
+    cfg = _rig(args)
+    report = run_recorder(cfg, _zenoh_conf(args, cfg), output=args.output, limits=_limits(args),
+                          lifecycle=Lifecycle("recorder"))
+    summary = {"path": report.path, "frames_written": report.frames_written, "rejects": dict(report.rejects)}
+    if args.json:
+        _print_json(summary)
+    else:
+        print(f"Recorded {report.frames_written} frames to {report.path}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.recorder import run_replay
+
+    if args.rig is not None:
+        from skelfuse.wire.keys import validate_name
+
+        try:
+            validate_name(args.rig, "rig")
+        except ValueError as exc:
+            raise ConfigError(f"--rig: {exc}") from None
+    cfg = _rig(args) if args.config is not None else None
+    report = run_replay(args.file, _zenoh_conf(args, cfg), speed=None if args.fast else args.speed, rig=args.rig,
+                        limits=_limits(args), lifecycle=Lifecycle("replay"))
+    if args.json:
+        _print_json({"frames_out": report.frames_out, "topics": sorted(report.topics)})
+    return EXIT_OK
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.status import watch_status
+
+    cfg = _rig(args)
+    watch_status(cfg, _zenoh_conf(args, cfg), limits=_limits(args), lifecycle=Lifecycle("status"),
+                 as_json=args.json, out=sys.stdout)
+    return EXIT_OK
+
+
+def _cmd_bench_latency(args: argparse.Namespace) -> int:
+    from skelfuse.bench import latency
+
+    result = latency.run_latency_bench(sensor_counts=args.sensors, duration_s=args.duration,
+                                       sweep=not args.no_sweep, progress=not args.json)
+    if args.json:
+        _print_json(result.to_dict())
+    else:
+        print(latency.format_table(result))
     return EXIT_OK
 
 
@@ -125,22 +293,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"skelfuse {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages on stderr")
+    parser.add_argument(
+        "--log-format",
+        choices=["text", "json"],
+        default="text",
+        help="logs on stderr as text lines or as one JSON object per line (default: %(default)s)",
+    )
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     # demo -----------------------------------------------------------------------------------------
     demo = commands.add_parser(
         "demo",
-        help="a simulated 4-sensor rig fused live and shown in Rerun (saved to a .rrd where there is no screen)",
-        description="Simulate a person in front of four virtual Azure Kinects, fuse the views frame by frame and "
-        "show raw and fused skeletons in the Rerun viewer. Without a display (or with --rrd) the recording is "
-        "saved to a file. Prints accuracy against the simulator's ground truth and the fusion time.",
+        help="a simulated 4-sensor rig fused live over zenoh and shown in Rerun (a .rrd where there is no screen)",
+        description="Start a simulated rig of four virtual Azure Kinects: four capture workers (subprocesses) "
+        "publish over zenoh on loopback (peer mode, no router, no multicast), the fusion node fuses them live "
+        "and draws raw and fused skeletons in the Rerun viewer. Without a display (or with --rrd) the view is "
+        "saved to a .rrd file. Runs for --duration seconds of fused output or until Ctrl-C, then prints "
+        "frames fused, accuracy against the simulator's ground truth and latency p50/p99.",
     )
     demo.add_argument(
         "--duration",
         type=float,
         default=20.0,
         metavar="SECONDS",
-        help="length of the simulated take (default: %(default)s)",
+        help="how long to run, seconds of fused output (default: %(default)s); with --offline: the take's length",
     )
     demo.add_argument(
         "--gesture",
@@ -154,10 +330,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--rrd", type=Path, default=None, metavar="FILE", help="save the recording to FILE instead of spawning a viewer"
     )
     demo.add_argument(
+        "--serve",
+        action="store_true",
+        help="serve the view to Rerun viewers (gRPC on 127.0.0.1:9876) instead of spawning one",
+    )
+    demo.add_argument(
+        "--offline",
+        action="store_true",
+        help="the old single-process demo: simulate and fuse in one loop, without zenoh or workers",
+    )
+    demo.add_argument(
         "--realtime",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="pace frames at 30 Hz (default: only when a live viewer is open)",
+        help="with --offline: pace frames at 30 Hz (default: only when a live viewer is open)",
     )
     demo.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     demo.set_defaults(func=_cmd_demo)
@@ -235,18 +421,161 @@ def build_parser() -> argparse.ArgumentParser:
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     fusion.set_defaults(func=_cmd_bench_fusion)
 
+    latency = bench_commands.add_parser(
+        "latency",
+        help="publish -> fused-receive latency over zenoh on loopback, the node's own latency, max sensors",
+        description="Start a fusion node (subprocess) on loopback zenoh, publish N simulated sensors at 30 Hz "
+        "from this process and time every fused frame: publish -> fused receive p50/p99/max, the node's own "
+        "added latency (from its status), and a sweep for the largest sensor count this machine sustains at "
+        "30 Hz. Prints absolute figures; targets: node adds <= 1 ms p99, publish -> subscriber <= 5 ms p99 "
+        "for 5 sensors.",
+    )
+    latency.add_argument("--sensors", type=int, nargs="+", default=[4, 5, 8], metavar="N",
+                         help="sensor counts to measure (default: %(default)s)")
+    latency.add_argument("--duration", type=float, default=5.0, metavar="SECONDS",
+                         help="measured seconds per sensor count (default: %(default)s)")
+    latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
+    latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    latency.set_defaults(func=_cmd_bench_latency)
+
+    _add_service_commands(commands)
     return parser
+
+
+def _add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                        help="stop cleanly after this many seconds (default: run until SIGINT/SIGTERM)")
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
+                        help=f"stop cleanly after {what} (default: no limit)")
+
+
+def _add_service_commands(commands: Any) -> None:
+    from skelfuse.config import add_zenoh_arguments
+
+    # capture ----------------------------------------------------------------------------------------
+    capture = commands.add_parser(
+        "capture",
+        help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
+        description="Run the capture worker of one sensor of the rig: read its frames from its source (sim, "
+        "replay; kinect is a separate issue) and publish them over zenoh. Retries with backoff when the zenoh "
+        "session cannot open or the source fails. SIGINT/SIGTERM stop it cleanly.",
+    )
+    capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    capture.add_argument("--sensor", required=True, metavar="ID", help="which [[sensors]] id to publish")
+    capture.add_argument("--node", default=None, metavar="NAME",
+                         help="node name for status/liveliness keys (default: capture-<ID>)")
+    capture.add_argument("--gesture", default="walking",
+                         choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
+                         help="sim: what the simulated person does; every worker of a rig must agree "
+                              "(default: %(default)s)")
+    capture.add_argument("--take-duration", type=float, default=20.0, metavar="SECONDS",
+                         help="sim: length of the simulated take before it loops (default: %(default)s)")
+    capture.add_argument("--seed", type=int, default=0,
+                         help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations "
+                              "(default: %(default)s)")
+    capture.add_argument("--loop", action=argparse.BooleanOptionalAction, default=None,
+                         help="start the take / recording over at its end (default: sim loops, replay follows "
+                              "sensors[i].replay.loop)")
+    capture.add_argument("--speed", type=float, default=1.0, help="replay: playback speed (default: %(default)s)")
+    capture.add_argument("--fast", action="store_true", help="replay: as fast as possible")
+    capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    _add_run_limits(capture, "publishing N frames")
+    add_zenoh_arguments(capture)
+    capture.set_defaults(func=_cmd_capture)
+
+    # fuse -------------------------------------------------------------------------------------------
+    fuse = commands.add_parser(
+        "fuse",
+        help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
+        description="Live: subscribe to every sensor of the rig, group the frames of one instant (device or "
+        "host time, [sync]), fuse them as soon as all sensors arrived or the deadline passed, and publish on "
+        "skelfuse/<rig>/fused/skeletons; status every [node] status_period_s on skelfuse/<rig>/status/<node>; "
+        "answers `get skelfuse/<rig>/calibration`. Offline (--input): fuse a recording without zenoh and write "
+        "CSV or Parquet.",
+    )
+    fuse.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
+                      help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)")
+    fuse.add_argument("--input", type=Path, default=None, metavar="FILE", help="offline: an MCAP recording")
+    fuse.add_argument("--output", type=Path, default=None, metavar="OUT",
+                      help="offline: fused frames to OUT.csv or OUT.parquet")
+    fuse.add_argument("--preset", default=None, help="offline: fusion preset (default: the config's, else A5)")
+    fuse.add_argument("--node", default=None, metavar="NAME",
+                      help="node name for status/liveliness keys (default: [node] name, else fusion)")
+    fuse.add_argument("--status-period", type=float, default=None, metavar="SECONDS",
+                      help="status period (default: [node] status_period_s)")
+    view = fuse.add_argument_group("live view (default: the config's [rerun])")
+    view.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="save the live view to FILE")
+    view.add_argument("--spawn", action="store_true", help="spawn a local Rerun viewer")
+    view.add_argument("--serve", action="store_true",
+                      help="serve the view over gRPC (and the web viewer with --web-port) for remote viewers")
+    view.add_argument("--bind", default=None, metavar="ADDR",
+                      help="address to serve on (default: [rerun] bind, 127.0.0.1)")
+    view.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+                      help="gRPC port (default: [rerun] grpc_port, 9876)")
+    view.add_argument("--web-port", type=int, default=None, metavar="PORT",
+                      help="with --serve: also serve the web viewer on this port")
+    view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
+    fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    _add_run_limits(fuse, "publishing N fused frames")
+    add_zenoh_arguments(fuse)
+    fuse.set_defaults(func=_cmd_fuse)
+
+    # record -----------------------------------------------------------------------------------------
+    record = commands.add_parser(
+        "record",
+        help="record every raw sensor frame of the rig to an MCAP file",
+        description="Subscribe to skelfuse/<rig>/sensors/*/skeletons and write every payload with both "
+        "timestamps to an MCAP file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
+        "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
+    )
+    record.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    record.add_argument("--output", type=Path, default=None, metavar="FILE",
+                        help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)")
+    record.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    _add_run_limits(record, "writing N frames")
+    add_zenoh_arguments(record)
+    record.set_defaults(func=_cmd_record)
+
+    # replay -----------------------------------------------------------------------------------------
+    replay = commands.add_parser(
+        "replay",
+        help="republish a recording's sensor frames over zenoh (original or maximum speed)",
+        description="Publish the sensor frames of an MCAP recording on their recorded keys, byte for byte, "
+        "paced by their recorded host time, so a session can be fused again live with other settings.",
+    )
+    replay.add_argument("file", type=Path, metavar="FILE", help="an MCAP recording made by skelfuse record")
+    replay.add_argument("--speed", type=float, default=1.0, help="playback speed (default: %(default)s)")
+    replay.add_argument("--fast", action="store_true", help="as fast as possible")
+    replay.add_argument("--rig", default=None, metavar="NAME",
+                        help="publish under skelfuse/NAME/... instead of the recorded rig")
+    replay.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
+                        help="take the zenoh settings from this rig config (default: zenoh defaults + flags)")
+    replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    _add_run_limits(replay, "publishing N frames")
+    add_zenoh_arguments(replay)
+    replay.set_defaults(func=_cmd_replay)
+
+    # status -----------------------------------------------------------------------------------------
+    status = commands.add_parser(
+        "status",
+        help="print the status messages of the rig's nodes",
+        description="Subscribe to skelfuse/<rig>/status/* and print one line per status message (rates, "
+        "counts, latency), or the documents as JSON lines with --json.",
+    )
+    status.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    status.add_argument("--json", action="store_true", help="print each status document as one JSON line")
+    _add_run_limits(status, "N status messages")
+    add_zenoh_arguments(status)
+    status.set_defaults(func=_cmd_status)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
+    from skelfuse.service.lifecycle import configure_logging
+
+    configure_logging(verbose=args.verbose, fmt=args.log_format)
     try:
         return int(args.func(args))
     except (ConfigError, DataError) as exc:
@@ -261,5 +590,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def entrypoint() -> None:
-    """Console-script entry point (``[project.scripts]``)."""
+    """Console-script entry point (``[project.scripts]``, ``python -m skelfuse``)."""
+    if hasattr(signal, "SIGUSR1"):
+        with contextlib.suppress(OSError, ValueError, AttributeError):  # no real stderr: skip it
+            faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID` dumps a stuck node's stacks
     sys.exit(main())

@@ -5,8 +5,16 @@ through a rig of four virtual Azure Kinects (rear views mirror left and right, o
 everything trembles), the fusion core merges the views frame by frame, and Rerun shows the raw and fused
 skeletons live. Where there is no screen the recording is saved to a .rrd file instead.
 
-The loop runs in one process for now; it is the same per-frame cycle the fusion node runs on live
-sensor frames.
+Two modes:
+
+* live (default, :func:`run_demo`): the real service on loopback zenoh: four capture workers
+  (``python -m skelfuse capture`` subprocesses, one per virtual sensor, each in its own process group),
+  the fusion node in this process, and a subscriber that scores the fused stream against the simulator's
+  ground truth (the demo knows the motion) and measures latency from the workers' publish timestamps.
+  Peer mode with explicit ``tcp/127.0.0.1`` endpoints and multicast scouting off, so it runs in CI
+  sandboxes. Child processes are always stopped (SIGTERM to their group, then SIGKILL); a spawned Rerun
+  viewer is left open for the user.
+* offline (``--offline``, :func:`run_demo_offline`): the same per-frame cycle in one loop, no zenoh.
 """
 
 from __future__ import annotations
@@ -30,7 +38,11 @@ DEFAULT_RRD = Path("skelfuse-demo.rrd")
 
 @dataclass(frozen=True)
 class DemoSummary:
-    """What the demo prints at the end. Errors are mean Euclidean distances to ground truth, mm."""
+    """What the demo prints at the end. Errors are mean Euclidean distances to ground truth, mm.
+
+    ``latency_*``: publish of the last sensor frame of an instant -> its fused frame received by a zenoh
+    subscriber (live demo only); ``node_added_*``: the fusion node's own share of it.
+    """
 
     frames_fused: int
     duration_s: float
@@ -42,6 +54,11 @@ class DemoSummary:
     fusion_p50_ms: float
     fusion_p99_ms: float
     recording: str | None
+    latency_p50_ms: float | None = None
+    latency_p99_ms: float | None = None
+    node_added_p50_ms: float | None = None
+    node_added_p99_ms: float | None = None
+    mode: str = "offline"
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -66,7 +83,7 @@ def _group_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return out
 
 
-def run_demo(
+def run_demo_offline(
     *,
     duration_s: float = 20.0,
     gesture: str = "walking",
@@ -77,7 +94,7 @@ def run_demo(
     realtime: bool | None = None,
     progress: bool = True,
 ) -> DemoSummary:
-    """Simulate, fuse and draw; returns the summary.
+    """Simulate, fuse and draw in one process, without zenoh (``skelfuse demo --offline``); returns the summary.
 
     Parameters
     ----------
@@ -191,6 +208,319 @@ def format_summary(summary: DemoSummary) -> str:
             f"| {errors['all16']:.1f} |"
         )
     lines += ["", f"Fusion time per frame: p50 {summary.fusion_p50_ms:.3f} ms, p99 {summary.fusion_p99_ms:.3f} ms."]
+    if summary.latency_p50_ms is not None and summary.latency_p99_ms is not None:
+        lines.append(f"Latency, sensor publish -> fused frame received over zenoh: "
+                     f"p50 {summary.latency_p50_ms:.2f} ms, p99 {summary.latency_p99_ms:.2f} ms.")
+    if summary.node_added_p50_ms is not None and summary.node_added_p99_ms is not None:
+        lines.append(f"Added by the fusion node (last frame in -> fused frame out): p50 "
+                     f"{summary.node_added_p50_ms:.3f} ms, p99 {summary.node_added_p99_ms:.3f} ms.")
     if summary.recording:
         lines.append(f"Recording saved to {summary.recording}; open it with:  rerun {summary.recording}")
     return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Live demo: capture workers + fusion node over loopback zenoh
+
+DEMO_RIG = "demo"
+DEMO_TAKE_S = 20.0
+STARTUP_TIMEOUT_S = 90.0
+
+
+def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> Path:
+    """Write the demo's rig config (the paper's 4-sensor layout, wired sync emulated) into ``directory``.
+
+    The sensors' inline ``world_from_sensor`` are the true poses the simulator observes from; fusion uses
+    ``calibration.toml`` beside it (the simulated calibration, with its error), written by the demo.
+    """
+    from skelfuse.sim.rig import paper_rig
+
+    lines = [
+        "# skelfuse demo rig, written by `skelfuse demo` (the paper's 4-sensor layout, simulated).",
+        "[rig]", f'name = "{DEMO_RIG}"', "",
+        "[sync]", 'by = "device"', "fps = 30.0", "tolerance_ms = 10.0", "deadline_ms = 17.0", "",
+        "[calibration]", 'file = "calibration.toml"', "",
+        "[fusion]", f'preset = "{preset_name}"', "eps_mm = 100.0", "",
+        "[zenoh]", 'mode = "peer"', "multicast_scouting = false", "",
+    ]
+    for index, sensor in enumerate(paper_rig(n_sensors)):
+        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
+        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
+        lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"sync = {sync}",
+                  f"world_from_sensor = [{rows}]", ""]
+    path = directory / "rig.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+def write_calibration(path: Path, sensor_ids: tuple[str, ...], poses: np.ndarray) -> None:
+    lines = ['method = "simulated"  # the simulator\'s calibration error model', ""]
+    for sensor_id, pose in zip(sensor_ids, poses, strict=True):
+        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in pose)
+        lines += [f'[sensors."{sensor_id}"]', f"world_from_sensor = [{rows}]", ""]
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+class _Scorer:
+    """The demo's subscriber: fused frames against ground truth, latency from the workers' publish stamps.
+
+    Zenoh callbacks (several threads) only decode and store under a lock; scores are computed at the end.
+    """
+
+    def __init__(self, truth: np.ndarray, fps: float, poses_calibrated: np.ndarray,
+                 sensor_ids: tuple[str, ...]) -> None:
+        import threading
+
+        self.truth = truth
+        self.period_us = 1e6 / fps
+        self.poses = poses_calibrated
+        self.column = {sid: i for i, sid in enumerate(sensor_ids)}
+        self.lock = threading.Lock()
+        self.published_ns: dict[int, int] = {}  # instant -> latest publish wall time among its sensor frames
+        self.fused: list[tuple[int, np.ndarray, int]] = []  # (instant, (32, 3) world mm, receive wall ns)
+        self.single: list[list[tuple[int, np.ndarray]]] = [[] for _ in sensor_ids]
+        self.first_fused = None
+        self.on_error = None
+
+    def instant(self, time_us: int) -> int:
+        return round(time_us / self.period_us)
+
+    def on_sensor(self, sample: Any) -> None:
+        from skelfuse.fusion.transform import apply_transform
+        from skelfuse.wire.codec import DecodeError, decode_sensor_frame
+
+        try:
+            frame = decode_sensor_frame(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        n = self.instant(frame.device_time_us)
+        column = self.column.get(frame.sensor_id)
+        world = None
+        if column is not None and frame.n_bodies:
+            world = apply_transform(self.poses[column:column + 1], frame.positions[:1])[0]
+        with self.lock:
+            self.published_ns[n] = max(self.published_ns.get(n, 0), frame.host_time_ns)
+            if world is not None:
+                self.single[column].append((n, world))
+
+    def on_fused(self, sample: Any) -> None:
+        import time as _time
+
+        from skelfuse.wire.codec import DecodeError, decode_fused_frame
+
+        received = _time.time_ns()
+        try:
+            frame = decode_fused_frame(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        if frame.n_persons == 0:
+            return
+        n = self.instant(frame.time_us)
+        with self.lock:
+            self.fused.append((n, frame.positions[0], received))
+            if self.first_fused is None:
+                self.first_fused = _time.monotonic()
+        if self.on_error is not None:
+            error = np.linalg.norm(frame.positions[0, EVAL_JOINTS] - self.truth[n % len(self.truth), EVAL_JOINTS],
+                                   axis=-1)
+            if np.isfinite(error).any():
+                self.on_error(frame.time_us, float(np.nanmean(error)))
+
+    def scores(self) -> tuple[int, dict[str, float], dict[str, float], str, list[float]]:
+        with self.lock:
+            fused = list(self.fused)
+            single = [list(s) for s in self.single]
+            published = dict(self.published_ns)
+        T = len(self.truth)
+        if fused:
+            estimate = np.stack([p for _, p, _ in fused])
+            fused_errors = _group_errors(estimate, self.truth[[n % T for n, _, _ in fused]])
+        else:
+            fused_errors = {k: float("nan") for k in ("torso", "upper_limb", "lower_limb", "all16")}
+        best_id, best = "", {k: float("nan") for k in fused_errors}
+        fused_instants = {n for n, _, _ in fused}
+        for sensor_id, column in self.column.items():
+            rows = [(n, w) for n, w in single[column] if n in fused_instants]
+            if not rows:
+                continue
+            errors = _group_errors(np.stack([w for _, w in rows]), self.truth[[n % T for n, _ in rows]])
+            if not best_id or errors["all16"] < best["all16"]:
+                best_id, best = sensor_id, errors
+        latency = [(received - published[n]) / 1e6 for n, _, received in fused if n in published]
+        return len(fused), fused_errors, best, best_id, latency
+
+
+def _stop_process(process: Any, timeout_s: float = 5.0) -> None:
+    """SIGTERM the process group we started, then SIGKILL after ``timeout_s``."""
+    import signal
+    import subprocess
+
+    if process.poll() is not None:
+        return
+    try:
+        os.killpg(process.pid, signal.SIGTERM)
+        process.wait(timeout=timeout_s)
+    except ProcessLookupError:
+        pass
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=timeout_s)
+
+
+def run_demo(
+    *,
+    duration_s: float = 20.0,
+    gesture: str = "walking",
+    preset_name: str = "A5",
+    seed: int = 0,
+    rrd_path: Path | None = None,
+    spawn: bool | None = None,
+    serve: bool = False,
+    take_duration_s: float = DEMO_TAKE_S,
+    progress: bool = True,
+    lifecycle: Any = None,
+) -> DemoSummary:
+    """The live demo (see the module docstring): runs ``duration_s`` seconds of fused output or until Ctrl-C.
+
+    Parameters
+    ----------
+    rrd_path : save the view here instead of spawning a viewer.
+    spawn : spawn the Rerun viewer; default: when there is a display and neither ``rrd_path`` nor ``serve``.
+        Without any of them the view goes to ``skelfuse-demo.rrd``.
+    serve : serve the view over gRPC on 127.0.0.1:9876 for viewers to connect.
+
+    Raises
+    ------
+    ServiceError
+        A capture worker exits early, or no fused frame arrives within STARTUP_TIMEOUT_S.
+    """
+    import subprocess
+    import tempfile
+    import threading
+
+    from skelfuse.config import load_rig_config
+    from skelfuse.errors import ServiceError
+    from skelfuse.service.lifecycle import Lifecycle
+    from skelfuse.service.node import FusionNode, NodeOptions
+    from skelfuse.service.viewer import ViewOptions, open_recording, stop_server
+    from skelfuse.service.worker import simulate_rig
+    from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+    from skelfuse.wire import keys
+
+    if duration_s <= 0:
+        raise ValueError(f"--duration must be positive, got {duration_s}")
+    lifecycle = lifecycle or Lifecycle("demo")
+    if spawn is None:
+        spawn = rrd_path is None and not serve and has_display()
+    if rrd_path is None and not spawn and not serve:
+        rrd_path = DEFAULT_RRD
+
+    workdir = Path(tempfile.mkdtemp(prefix="skelfuse-demo-"))
+    rig_path = write_demo_rig(workdir, preset_name=preset_name)
+    cfg = load_rig_config(rig_path)
+    # The same simulation every worker runs: truth and the simulated calibration (what fusion uses).
+    observations = simulate_rig(cfg, gesture=gesture, take_duration_s=take_duration_s, seed=seed)
+    write_calibration(workdir / "calibration.toml", observations.sensor_ids, observations.world_from_sensor_calibrated)
+    cfg = load_rig_config(rig_path)
+    poses = cfg.poses()
+    scorer = _Scorer(observations.truth, cfg.sync.fps, np.stack([poses[s] for s in cfg.sensor_ids]), cfg.sensor_ids)
+
+    import zenoh
+
+    port = free_port()
+    if serve:
+        recording, server = open_recording(ViewOptions(mode="serve", application_id="skelfuse_demo"))
+    else:
+        recording, server = open_recording(ViewOptions(mode="spawn" if spawn else "save", file=rrd_path,
+                                                       application_id="skelfuse_demo"))
+    workers: list[subprocess.Popen[bytes]] = []
+    logs = []
+    node_lifecycle = Lifecycle("fusion")
+    session = zenoh.open(loopback_config(listen_port=port))
+    node = FusionNode(cfg, None, options=NodeOptions(node_name="fusion"), lifecycle=node_lifecycle, session=session,
+                      recording=recording)
+    scorer.on_error = lambda time_us, error: node.log_error(time_us, error)
+    node_thread = threading.Thread(target=node.run, name="skelfuse-fusion-node", daemon=True)
+    started = None
+    try:
+        with lifecycle.capture_signals():
+            session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), scorer.on_sensor)
+            session.declare_subscriber(keys.fused_skeletons(cfg.name), scorer.on_fused)
+            node_thread.start()
+            node.ready.wait(10.0)
+            for sensor_id in cfg.sensor_ids:
+                log_file = open(workdir / f"capture-{sensor_id}.log", "wb")
+                logs.append(log_file)
+                command = [sys.executable, "-m", "skelfuse", "capture", "--config", str(rig_path), "--sensor",
+                           sensor_id, "--gesture", gesture, "--take-duration", str(take_duration_s), "--seed",
+                           str(seed), *loopback_args(connect_ports=[port])]
+                workers.append(subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log_file,
+                                                stderr=subprocess.STDOUT, start_new_session=True))
+            if progress:
+                print(f"skelfuse demo: starting 4 capture workers and the fusion node on tcp/127.0.0.1:{port} ...",
+                      file=sys.stderr, flush=True)
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while scorer.first_fused is None and not lifecycle.should_exit:
+                _check_workers(workers, workdir)
+                if time.monotonic() > deadline:
+                    raise ServiceError(f"no fused frame within {STARTUP_TIMEOUT_S:.0f} s; worker logs in {workdir}")
+                lifecycle.wait(0.1)
+            started = time.monotonic()
+            end = started + duration_s
+            while not lifecycle.should_exit and time.monotonic() < end:
+                _check_workers(workers, workdir)
+                lifecycle.wait(min(1.0, max(0.0, end - time.monotonic())))
+                if progress:
+                    print(f"\rskelfuse demo: {len(scorer.fused)} frames fused, {time.monotonic() - started:.0f}/"
+                          f"{duration_s:.0f} s", end="", file=sys.stderr, flush=True)
+            if progress:
+                print("", file=sys.stderr)
+    finally:
+        for process in workers:
+            _stop_process(process)
+        for log_file in logs:
+            log_file.close()
+        node_lifecycle.request_exit()
+        node_thread.join(15.0)
+        session.close()
+        if rrd_path is not None and not spawn:
+            recording.disconnect()
+        stop_server(server)
+    elapsed = 0.0 if started is None else time.monotonic() - started
+    n_fused, fused_errors, best, best_id, latency = scorer.scores()
+    if n_fused == 0:
+        raise ServiceError("the demo stopped before the first fused frame; nothing to summarize")
+    report = node.report
+
+    def pct(values: list[float], q: float) -> float | None:
+        return float(np.percentile(values, q)) if values else None
+
+    fusion_ms = report.fusion_ms
+    return DemoSummary(
+        frames_fused=n_fused,
+        duration_s=round(elapsed, 3),
+        gesture=gesture,
+        preset=preset_name,
+        n_sensors=len(cfg.sensors),
+        error_fused_mm=fused_errors,
+        error_best_single_sensor_mm=best | {"sensor": best_id},  # type: ignore[dict-item]
+        fusion_p50_ms=float(np.percentile(fusion_ms, 50)),
+        fusion_p99_ms=float(np.percentile(fusion_ms, 99)),
+        recording=str(rrd_path) if rrd_path is not None and not spawn else None,
+        latency_p50_ms=pct(latency, 50),
+        latency_p99_ms=pct(latency, 99),
+        node_added_p50_ms=pct(report.added_ms, 50),
+        node_added_p99_ms=pct(report.added_ms, 99),
+        mode="live",
+    )
+
+
+def _check_workers(workers: list[Any], workdir: Path) -> None:
+    from skelfuse.errors import ServiceError
+
+    for process in workers:
+        if process.poll() is not None:
+            log_path = workdir / f"capture-{process.args[process.args.index('--sensor') + 1]}.log"
+            tail = log_path.read_text(errors="replace").strip().splitlines()[-5:] if log_path.exists() else []
+            raise ServiceError(f"capture worker {' '.join(process.args[3:7])} exited with status {process.returncode}:"
+                               f"\n  " + "\n  ".join(tail))

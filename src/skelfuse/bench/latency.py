@@ -1,0 +1,301 @@
+"""``skelfuse bench latency``: publish -> fused-receive latency of the live service over loopback zenoh.
+
+Setup per sensor count N: a rig config with N simulated sensors on a circle (written to a temporary
+folder), the fusion node as a subprocess (``python -m skelfuse fuse``, peer mode on ``tcp/127.0.0.1``,
+multicast off, no view), and this process as the N sensors and the subscriber: one thread publishes the N
+sensors' frames of each instant at 30 Hz (one seeded walking take seen from N poses), a zenoh callback
+stamps each fused frame on arrival.
+
+Measured (``time.monotonic_ns``, one process, so no cross-process clock error):
+
+* ``e2e``: publish of the last sensor frame of an instant -> its fused frame received: what an app sees;
+* ``node_added``: the node's own share, from its final status document: arrival of the frame that completed
+  an instant (zenoh callback in the node) -> fused frame handed to zenoh;
+* ``fusion``: the fusion step plus encoding, from the same status.
+
+Shaped like zenoh-python's ``z_ping``: warm-up (1 s, not counted), then every instant of the measured
+window, and the distribution (p50 / p99 / max), never a mean. A sweep doubles N from 16 to 64 (the wire
+format's cap) and reports the largest N the machine *sustains*: at least 95% of the instants fused, 95% of
+them complete, and e2e p99 under one frame period. The publisher is one Python thread, so the sweep
+measures this whole machine (publisher included), not the node alone.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.skeleton import N_JOINTS
+
+FPS = 30.0
+WARMUP_S = 1.0
+TARGET_NODE_ADDED_P99_MS = 1.0
+TARGET_E2E_P99_MS = 5.0
+TARGET_E2E_SENSORS = 5
+SWEEP = (16, 32, 64)
+
+
+@dataclass(frozen=True)
+class LatencyCase:
+    """One sensor count. Times in ms; None where nothing was measured."""
+
+    n_sensors: int
+    instants_sent: int
+    fused_received: int
+    complete_fraction: float
+    e2e_p50_ms: float | None
+    e2e_p99_ms: float | None
+    e2e_max_ms: float | None
+    node_added_p50_ms: float | None
+    node_added_p99_ms: float | None
+    node_added_max_ms: float | None
+    fusion_p50_ms: float | None
+    fusion_p99_ms: float | None
+    sustained: bool
+
+
+@dataclass
+class LatencyResult:
+    cases: list[LatencyCase] = field(default_factory=list)
+    sweep: list[LatencyCase] = field(default_factory=list)
+    max_sustained_sensors: int | None = None
+    duration_s: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {
+            "fps": FPS,
+            "duration_s": self.duration_s,
+            "cases": [asdict(c) for c in self.cases],
+            "sweep": [asdict(c) for c in self.sweep],
+            "max_sustained_sensors": self.max_sustained_sensors,
+            "targets": {
+                "node_added_p99_ms": TARGET_NODE_ADDED_P99_MS,
+                "e2e_p99_ms": TARGET_E2E_P99_MS,
+                "e2e_sensors": TARGET_E2E_SENSORS,
+            },
+        }
+        return out
+
+
+def _rig_toml(directory: Path, n_sensors: int) -> Path:
+    from skelfuse.sim.rig import paper_rig
+
+    lines = ["[rig]", 'name = "bench"', "", "[sync]", 'by = "device"', f"fps = {FPS}", "tolerance_ms = 10.0",
+             "deadline_ms = 17.0", "", "[zenoh]", "multicast_scouting = false", ""]
+    for sensor in paper_rig(n_sensors):
+        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
+        lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"world_from_sensor = [{rows}]", ""]
+    path = directory / f"bench-{n_sensors}.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0) -> list[list[Any]]:
+    """Per instant, the N sensors' SensorFrames (device time filled in at publish); one body each."""
+    from skelfuse.frames import SensorFrame
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.rig import paper_rig
+
+    truth = make_gesture("walking", duration_s=n_instants / FPS, seed=seed).at_times(np.arange(n_instants) / FPS)
+    rng = np.random.default_rng(seed)
+    out: list[list[Any]] = []
+    sensors = paper_rig(n_sensors)
+    views = [s.to_sensor(truth) + rng.normal(0.0, 10.0, truth.shape) for s in sensors]  # (T, 32, 3) each
+    orientations = np.zeros((1, N_JOINTS, 4), np.float32)
+    orientations[..., 0] = 1.0
+    confidence = np.full((1, N_JOINTS), 2, np.uint8)
+    for t in range(n_instants):
+        out.append([SensorFrame(s.sensor_id, 0, 0, 0, np.array([1], np.uint32), views[i][t][None].astype(np.float32),
+                                orientations, confidence) for i, s in enumerate(sensors)])
+    return out
+
+
+def _percentile(values: Sequence[float], q: float) -> float | None:
+    return round(float(np.percentile(values, q)), 4) if len(values) else None
+
+
+def _merge_windows(windows: list[dict[str, Any]]) -> dict[str, float | None]:
+    windows = [w for w in windows if w.get("n")]
+    if not windows:
+        return {"p50": None, "p99": None, "max": None}
+    return {"p50": round(float(np.median([w["p50"] for w in windows])), 4),
+            "p99": max(w["p99"] for w in windows), "max": max(w["max"] for w in windows)}
+
+
+def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
+    """One sensor count: start a node, publish for WARMUP_S + duration_s, collect, stop the node."""
+    import dataclasses
+
+    import zenoh
+
+    from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+    from skelfuse.wire import keys
+    from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_status, encode_sensor_frame
+
+    config = _rig_toml(workdir, n_sensors)
+    port = free_port()
+    node = subprocess.Popen([sys.executable, "-m", "skelfuse", "fuse", "--config", str(config), "--no-view",
+                             "--status-period", "0.5", *loopback_args(listen_port=port)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=open(workdir / f"node-{n_sensors}.log", "wb"),
+                            start_new_session=True)
+    period_ns = int(1e9 / FPS)
+    n_instants = int((WARMUP_S + duration_s) * FPS)
+    frames = synthetic_frames(n_sensors, min(n_instants, 300))
+    received: dict[int, int] = {}
+    statuses: list[Any] = []
+    lock = threading.Lock()
+    ready = threading.Event()
+
+    def on_fused(sample: Any) -> None:
+        now = time.monotonic_ns()
+        try:
+            frame = decode_fused_frame(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with lock:
+            received[int(frame.time_us)] = now
+            if frame.contributors.size and frame.contributors[0].all():
+                complete.add(int(frame.time_us))
+
+    def on_status(sample: Any) -> None:
+        try:
+            status = decode_status(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with lock:
+            statuses.append((time.monotonic_ns(), status))
+        ready.set()
+
+    complete: set[int] = set()
+    published: dict[int, int] = {}
+    measure_from = measured_until = 0
+    try:
+        with zenoh.open(loopback_config(connect_ports=[port])) as session:
+            session.declare_subscriber(keys.fused_skeletons("bench"), on_fused)
+            session.declare_subscriber(keys.status("bench", "fusion"), on_status)
+            if not ready.wait(60.0):
+                log = (workdir / f"node-{n_sensors}.log").read_text(errors="replace")[-2000:]
+                raise RuntimeError(f"the fusion node did not come up within 60 s:\n{log}")
+            publishers = [session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True)
+                          for f in frames[0]]
+            time.sleep(0.3)  # let the node's subscriber see the publishers
+            start = time.monotonic_ns() + period_ns
+            base_us = time.time_ns() // 1000
+            for k in range(n_instants):
+                due = start + k * period_ns
+                delay = due - time.monotonic_ns()
+                if delay > 0:
+                    time.sleep(delay / 1e9)
+                device_us = base_us + round(k * 1e6 / FPS)
+                batch = [encode_sensor_frame(dataclasses.replace(f, sequence=k, device_time_us=device_us,
+                                                                 host_time_ns=time.time_ns()))
+                         for f in frames[k % len(frames)]]
+                for publisher, payload in zip(publishers[:-1], batch[:-1], strict=True):
+                    publisher.put(payload)
+                last = time.monotonic_ns()
+                publishers[-1].put(batch[-1])
+                if k >= WARMUP_S * FPS:
+                    if not published:
+                        measure_from = time.monotonic_ns() + 500_000_000  # first whole status window
+                    published[device_us] = last
+            measured_until = time.monotonic_ns()
+            time.sleep(0.6)  # one more status window
+            os.killpg(node.pid, signal.SIGTERM)
+            try:
+                node.wait(15.0)
+            except subprocess.TimeoutExpired:
+                print(f"bench latency: the node did not stop within 15 s of SIGTERM; killing it (log: "
+                      f"{workdir / f'node-{n_sensors}.log'})", file=sys.stderr)
+    finally:
+        if node.poll() is None:
+            os.killpg(node.pid, signal.SIGKILL)
+            node.wait(5.0)
+    with lock:
+        e2e = [(received[t] - p) / 1e6 for t, p in published.items() if t in received]
+        n_complete = sum(1 for t in published if t in complete)
+        # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up.
+        # Percentiles of windows do not merge exactly: p50 = median of the windows' p50, p99 and max = the
+        # largest window p99 / max (conservative).
+        windows = [st.info for t, st in statuses
+                   if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"]
+    added = _merge_windows([w.get("node_added_ms") or {} for w in windows])
+    fusion = _merge_windows([w.get("fusion_ms") or {} for w in windows])
+    sent = len(published)
+    complete_fraction = n_complete / sent if sent else 0.0
+    p99 = _percentile(e2e, 99)
+    sustained = bool(sent and len(e2e) >= 0.95 * sent and complete_fraction >= 0.95 and p99 is not None
+                     and p99 < 1e3 / FPS)
+    return LatencyCase(
+        n_sensors=n_sensors, instants_sent=sent, fused_received=len(e2e), complete_fraction=round(complete_fraction, 4),
+        e2e_p50_ms=_percentile(e2e, 50), e2e_p99_ms=p99, e2e_max_ms=round(max(e2e), 4) if e2e else None,
+        node_added_p50_ms=added.get("p50"), node_added_p99_ms=added.get("p99"), node_added_max_ms=added.get("max"),
+        fusion_p50_ms=fusion.get("p50"), fusion_p99_ms=fusion.get("p99"), sustained=sustained,
+    )
+
+
+def run_latency_bench(*, sensor_counts: Sequence[int] = (4, 5, 8), duration_s: float = 5.0, sweep: bool = True,
+                      progress: bool = True) -> LatencyResult:
+    """Measure every sensor count, then (``sweep``) the largest count sustained at 30 Hz."""
+    for n in sensor_counts:
+        if not 1 <= n <= 64:
+            raise ValueError(f"--sensors: each count must be in 1..64 (the wire format's cap), got {n}")
+    result = LatencyResult(duration_s=duration_s)
+    with tempfile.TemporaryDirectory(prefix="skelfuse-bench-") as tmp:
+        workdir = Path(tmp)
+        for n in sensor_counts:
+            if progress:
+                print(f"bench latency: {n} sensors x {FPS:g} Hz for {duration_s:g} s ...", file=sys.stderr, flush=True)
+            result.cases.append(measure(n, duration_s, workdir=workdir))
+        sustained = [c.n_sensors for c in result.cases if c.sustained]
+        if sweep:
+            for n in SWEEP:
+                if n <= max(sensor_counts, default=0):
+                    continue
+                if progress:
+                    print(f"bench latency: sweep, {n} sensors ...", file=sys.stderr, flush=True)
+                case = measure(n, min(duration_s, 3.0), workdir=workdir)
+                result.sweep.append(case)
+                if not case.sustained:
+                    break
+                sustained.append(n)
+        result.max_sustained_sensors = max(sustained) if sustained else None
+    return result
+
+
+def format_table(result: LatencyResult) -> str:
+    def f(value: float | None, digits: int = 2) -> str:
+        return "-" if value is None else f"{value:.{digits}f}"
+
+    lines = [
+        f"Latency over zenoh on loopback, {FPS:g} Hz, {result.duration_s:g} s per case (ms):",
+        "",
+        "| sensors | instants | fused | complete | e2e p50 | e2e p99 | e2e max | node p50 | node p99 | node max "
+        "| fusion p50 | fusion p99 | sustained |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
+    ]
+    for c in [*result.cases, *result.sweep]:
+        lines.append(f"| {c.n_sensors} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
+                     f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
+                     f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
+                     f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} |")
+    lines += [
+        "",
+        "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",
+        "node: the fusion node's own added latency (completing frame in -> fused frame out), from its status.",
+        f"Largest sensor count sustained at {FPS:g} Hz: {result.max_sustained_sensors or 'none measured'}.",
+        f"Targets: node adds <= {TARGET_NODE_ADDED_P99_MS:g} ms p99; e2e p99 <= {TARGET_E2E_P99_MS:g} ms "
+        f"for {TARGET_E2E_SENSORS} sensors.",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,576 @@
+"""The fusion node: ``skelfuse fuse --config RIG.toml``. A thin adapter around the pure fusion core.
+
+Data flow of one sensor frame::
+
+    zenoh callback (zenoh thread)        SampleQueue: stamp arrival (monotonic ns), copy bytes, enqueue
+      -> node loop (one thread)          FusionCore.receive: decode (rejects counted per sensor and reason,
+                                         never raised, never reach fusion state)
+      -> FrameGrouper.push(frame, now)   groups of one instant (complete, or at their deadline)
+      -> FusionCore._fuse                pick one body per sensor, map to the world with the rig's poses,
+                                         Fuser.step, FusedFrame, encode
+      -> publisher.put                   skelfuse/<rig>/fused/skeletons
+      -> RerunView.submit (optional)     drawn on the view's own thread
+
+A poll every ``poll_interval_s`` (2 ms) emits groups whose deadline passed, so a dead or slow sensor never
+stalls the output. Every ``status_period_s`` the node publishes its status on
+``skelfuse/<rig>/status/<node>``; it answers ``get`` on ``skelfuse/<rig>/calibration`` with the rig's poses
+and holds a liveliness token on ``skelfuse/<rig>/alive/<node>``.
+
+One person, track id 1 (multi-person association is a later issue): every sensor contributes one body per
+instant, the one whose pelvis (in the world frame) is nearest the previous fused pelvis, else its first
+body. The fusion state restarts (``Fuser.reset``) when the instants' time steps back (a new clock epoch)
+or jumps by more than :data:`skelfuse.recording.offline.RESET_GAP_S`, exactly as offline fusion does, so
+the live stream of a recording equals ``skelfuse fuse --input`` of it.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from skelfuse.config import RigConfig
+from skelfuse.frames import FusedFrame, SensorFrame
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.fusion.transform import apply_transform
+from skelfuse.recording.offline import FUSED_TRACK_ID, RESET_GAP_S
+from skelfuse.service.grouping import FrameGroup, FrameGrouper
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
+from skelfuse.service.zenoh_io import SampleQueue, open_session
+from skelfuse.skeleton import N_JOINTS
+from skelfuse.wire import keys
+from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import zenoh
+
+log = logging.getLogger("skelfuse.service.node")
+
+KEY_MISMATCH = "key_mismatch"
+"""Node-level reject reason: the payload's sensor id differs from the sensor id of the key it came on."""
+BAD_KEY = "bad_key"
+"""Node-level reject reason: a sample on the sensor wildcard whose key is not a valid sensor key."""
+UNKNOWN_SENSOR = "?"
+"""Sensor name under which rejects of unparseable keys are counted."""
+LATENCY_WINDOW = 10_000
+"""Latency samples kept for the "since start" percentiles (the most recent ones)."""
+
+
+def calibration_document(cfg: RigConfig, poses: np.ndarray) -> dict[str, Any]:
+    """What the calibration queryable answers (JSON; see docs/service.md)."""
+    return {
+        "rig": cfg.name,
+        "units": "mm",
+        "convention": "world_from_sensor: p_world = R @ p_sensor + t; row-major 4x4; sensor frame x right, "
+                      "y down, z forward; world right-handed, z up",
+        "sensor_ids": list(cfg.sensor_ids),
+        "world_from_sensor": {sid: poses[i].tolist() for i, sid in enumerate(cfg.sensor_ids)},
+    }
+
+
+@dataclass(frozen=True)
+class FusedOutput:
+    """One fused instant, ready to publish.
+
+    Attributes
+    ----------
+    frame : FusedFrame
+    payload : bytes
+        ``encode_fused_frame(frame)``.
+    sensors_world : (S, 32, 3) float64
+        The body each sensor contributed, in the world frame, mm (NaN: no frame / no body).
+    fusion_ns : int
+        Time of the fusion step plus encoding, ns.
+    trigger_arrival_ns : int or None
+        Arrival (monotonic ns) of the frame that completed the group; None when a deadline or the final
+        flush emitted it.
+    complete : bool
+        Every sensor of the rig delivered a frame for this instant.
+    """
+
+    frame: FusedFrame
+    payload: bytes
+    sensors_world: np.ndarray
+    fusion_ns: int
+    trigger_arrival_ns: int | None
+    complete: bool
+
+
+@dataclass
+class _SensorWindow:
+    received: int = 0
+    last_seen_ns: int | None = None
+    rejects: Counter[str] = field(default_factory=Counter)
+    window_received: int = 0
+
+
+class FusionCore:
+    """Decode -> group -> fuse -> encode, single-threaded, no I/O: the clock is passed in.
+
+    Parameters
+    ----------
+    cfg : RigConfig
+        The rig: its sensors, ``[sync]`` (grouping), ``[fusion]`` and poses.
+    params : FusionParams, optional
+        Overrides ``cfg.fusion.fusion_params()``.
+    poses : (S, 4, 4), optional
+        Overrides ``cfg.poses()`` (rows in ``cfg.sensor_ids`` order).
+
+    Attributes
+    ----------
+    grouper : FrameGrouper
+    fuser : Fuser
+    frames_in, frames_out : int
+        Payloads received, fused frames produced.
+    rejects : dict[str, Counter]
+        Per sensor (from the key), rejects per reason (codec reasons, plus "key_mismatch", "bad_key").
+    """
+
+    def __init__(self, cfg: RigConfig, *, params: FusionParams | None = None, poses: np.ndarray | None = None) -> None:
+        self.cfg = cfg
+        self.sensor_ids = cfg.sensor_ids
+        self.column = {sid: i for i, sid in enumerate(self.sensor_ids)}
+        if poses is None:
+            by_id = cfg.poses()
+            poses = np.stack([by_id[sid] for sid in self.sensor_ids])
+        self.poses = np.asarray(poses, dtype=np.float64)
+        self.params = params if params is not None else cfg.fusion.fusion_params()
+        self.grouper = FrameGrouper.for_rig(cfg)
+        self.fuser = Fuser(self.params, n_bodies=1)
+        self.frames_in = 0
+        self.frames_out = 0
+        self.groups_complete = 0
+        self.groups_partial = 0
+        self.deadline_emits = 0
+        self.rejects: dict[str, Counter[str]] = {}
+        self._sensors = {sid: _SensorWindow() for sid in self.sensor_ids}
+        self._last_time_us: int | None = None
+        self._previous_pelvis: np.ndarray | None = None
+        self._logged_rejects: Counter[tuple[str, str]] = Counter()
+
+    # -- input --------------------------------------------------------------------------------------------
+
+    def receive(self, key: str, payload: bytes, arrival_ns: int) -> list[FusedOutput]:
+        """One sample from the sensor wildcard; returns the fused instants that became due."""
+        self.frames_in += 1
+        try:
+            key_sensor = keys.parse_sensor_key(key, self.cfg.name)
+        except ValueError as exc:
+            self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
+            return self.poll(arrival_ns)
+        try:
+            frame = decode_sensor_frame(payload)
+        except DecodeError as exc:
+            self._reject(key_sensor, exc.reason, str(exc))
+            return self.poll(arrival_ns)
+        if frame.sensor_id != key_sensor:
+            self._reject(key_sensor, KEY_MISMATCH,
+                         f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}")
+            return self.poll(arrival_ns)
+        window = self._sensors.get(key_sensor)
+        if window is not None:
+            window.received += 1
+            window.window_received += 1
+            window.last_seen_ns = arrival_ns
+        groups = self.grouper.push(frame, arrival_ns)
+        return self._fuse_groups(groups, trigger_arrival_ns=arrival_ns)
+
+    def poll(self, now_ns: int) -> list[FusedOutput]:
+        """Instants whose deadline passed by ``now_ns``."""
+        groups = self.grouper.poll(now_ns)
+        self.deadline_emits += sum(1 for g in groups if not g.complete)
+        return self._fuse_groups(groups, trigger_arrival_ns=None)
+
+    def flush(self) -> list[FusedOutput]:
+        """Every open instant (shutdown)."""
+        return self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None)
+
+    def _reject(self, sensor_id: str, reason: str, message: str) -> None:
+        self.rejects.setdefault(sensor_id, Counter())[reason] += 1
+        if sensor_id in self._sensors:
+            self._sensors[sensor_id].rejects[reason] += 1
+        seen = self._logged_rejects[(sensor_id, reason)]
+        self._logged_rejects[(sensor_id, reason)] += 1
+        if seen == 0 or (seen + 1) % 1000 == 0:  # first of a kind, then every 1000th: no log floods
+            log.warning("rejected a payload of sensor %s (%s, %d so far): %s", sensor_id, reason, seen + 1, message,
+                        extra={"sensor": sensor_id, "reason": reason})
+
+    # -- fusion -------------------------------------------------------------------------------------------
+
+    def _fuse_groups(self, groups: list[FrameGroup], trigger_arrival_ns: int | None) -> list[FusedOutput]:
+        out = []
+        for index, group in enumerate(groups):
+            # Only the newest group of a push was completed by the pushed frame; older ones were pushed out.
+            trigger = trigger_arrival_ns if index == len(groups) - 1 and group.complete else None
+            out.append(self._fuse(group, trigger))
+        return out
+
+    def _pick_body(self, frame: SensorFrame, column: int) -> int:
+        """Index of the body this sensor contributes: nearest the previous fused pelvis, else the first."""
+        if frame.n_bodies == 1 or self._previous_pelvis is None:
+            return 0
+        pelvis = apply_transform(self.poses[column:column + 1], frame.positions[:, None, :1])[:, 0, 0]  # (B, 3)
+        return int(np.argmin(np.linalg.norm(pelvis - self._previous_pelvis, axis=-1)))
+
+    def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
+        tick = time.perf_counter_ns()
+        time_us = int(group.time_us)
+        # Same rule as offline fusion: a step back is a new clock epoch, a long gap leaves nothing to carry.
+        dt_s = 1.0 / 30.0 if self._last_time_us is None else (time_us - self._last_time_us) / 1e6
+        if not 0 < dt_s <= RESET_GAP_S:
+            self.fuser.reset()
+            self._previous_pelvis = None
+            dt_s = 1.0 / 30.0
+        self._last_time_us = time_us
+        n_sensors = len(self.sensor_ids)
+        positions = np.full((1, n_sensors, N_JOINTS, 3), np.nan)
+        confidence = np.zeros((1, n_sensors, N_JOINTS), dtype=np.uint8)
+        for sensor_id, frame in group.frames.items():
+            if frame.n_bodies > 0:
+                column = self.column[sensor_id]
+                body = self._pick_body(frame, column)
+                positions[0, column] = frame.positions[body]
+                confidence[0, column] = frame.confidence[body]
+        world = apply_transform(self.poses, positions)  # (1, S, 32, 3)
+        result = self.fuser.step(world, confidence, dt_s)
+        keep = np.isfinite(result.positions).all(axis=-1).any(axis=-1)
+        fused = FusedFrame(
+            time_us=time_us,
+            track_ids=np.full(int(keep.sum()), FUSED_TRACK_ID, dtype=np.int64),
+            positions=result.positions[keep],
+            n_agree=result.n_agree[keep].astype(np.int16, copy=False),
+            confidence=result.confidence[keep].astype(np.uint8, copy=False),
+            contributors=result.contributors[keep].astype(bool, copy=False),
+            sensor_ids=self.sensor_ids,
+        )
+        pelvis = result.positions[0, 0]
+        if np.isfinite(pelvis).all():
+            self._previous_pelvis = pelvis.copy()
+        payload = encode_fused_frame(fused)
+        self.frames_out += 1
+        if group.complete:
+            self.groups_complete += 1
+        else:
+            self.groups_partial += 1
+        return FusedOutput(fused, payload, world[0], time.perf_counter_ns() - tick, trigger_arrival_ns,
+                           group.complete)
+
+    # -- status -------------------------------------------------------------------------------------------
+
+    def sensor_report(self, now_ns: int, window_s: float) -> dict[str, dict[str, Any]]:
+        """Per sensor: rate over the last window, last seen, grouper counters, rejects. Resets the window."""
+        stats = self.grouper.stats
+        report = {}
+        for sid, window in self._sensors.items():
+            counters = stats.sensors[sid]
+            report[sid] = {
+                "rate_hz": round(window.window_received / window_s, 3) if window_s > 0 else None,
+                "last_seen_s": None if window.last_seen_ns is None else round((now_ns - window.last_seen_ns) / 1e9, 4),
+                "received": counters.received,
+                "grouped": counters.grouped,
+                "late": counters.late,
+                "dropped": counters.dropped,
+                "duplicate": counters.duplicate,
+                "out_of_window": counters.out_of_window,
+                "invalid": sum(window.rejects.values()),
+                "rejects": dict(window.rejects),
+            }
+            window.window_received = 0
+        return report
+
+
+def _percentiles(values: Any) -> dict[str, float | int | None]:
+    data = np.fromiter(values, dtype=np.float64)
+    if data.size == 0:
+        return {"p50": None, "p99": None, "max": None, "n": 0}
+    return {"p50": round(float(np.percentile(data, 50)), 4), "p99": round(float(np.percentile(data, 99)), 4),
+            "max": round(float(data.max()), 4), "n": int(data.size)}
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """How the fusion node runs (the rig config says what it fuses).
+
+    Attributes
+    ----------
+    node_name : str
+        Key chunk of its status and liveliness keys (default ``[node] name``, else "fusion").
+    status_period_s : float or None
+        Default: the rig's ``[node] status_period_s``.
+    poll_interval_s : float
+        How often deadlines are checked when no frame arrives.
+    drain_timeout_s : float
+        At shutdown, how long queued samples may still be fused.
+    limits : RunLimits
+        ``max_frames`` counts fused frames published.
+    view : ViewOptions
+        The live Rerun view (mode "off": none).
+    """
+
+    node_name: str | None = None
+    status_period_s: float | None = None
+    poll_interval_s: float = 0.002
+    drain_timeout_s: float = 2.0
+    limits: RunLimits = field(default_factory=RunLimits)
+    view: ViewOptions = field(default_factory=ViewOptions)
+
+
+@dataclass
+class NodeReport:
+    """What a fusion node run did (returned when it stops).
+
+    Attributes
+    ----------
+    frames_in, frames_out : int
+    fusion_ms : list of float
+        Time of each fusion step + encoding, ms.
+    added_ms : list of float
+        Arrival of the frame that completed an instant (zenoh callback) -> its fused frame handed to
+        zenoh, ms: the latency the node adds (complete instants only).
+    status : dict
+        The last status document.
+    """
+
+    frames_in: int = 0
+    frames_out: int = 0
+    fusion_ms: list[float] = field(default_factory=list)
+    added_ms: list[float] = field(default_factory=list)
+    status: dict[str, Any] = field(default_factory=dict)
+
+
+class FusionNode:
+    """The fusion node's zenoh shell around :class:`FusionCore` (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : RigConfig
+    zenoh_conf : zenoh.Config or None
+        Used to open the session; ignored when ``session`` is given.
+    options : NodeOptions
+    lifecycle : Lifecycle
+        Its ``should_exit`` stops the loop.
+    session : zenoh.Session, optional
+        A session owned by the caller (the demo shares one); not closed by the node.
+    recording : rr.RecordingStream, optional
+        An injected Rerun stream (the caller owns where it goes); overrides ``options.view.mode``.
+    on_fused : callable, optional
+        Called on the loop thread with every :class:`FusedOutput` after it is published.
+    """
+
+    def __init__(self, cfg: RigConfig, zenoh_conf: zenoh.Config | None, *, options: NodeOptions | None = None,
+                 lifecycle: Lifecycle | None = None, session: zenoh.Session | None = None, recording: Any = None,
+                 on_fused: Callable[[FusedOutput], None] | None = None) -> None:
+        self.cfg = cfg
+        self.options = options or NodeOptions()
+        self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
+        self.lifecycle = lifecycle or Lifecycle(self.name)
+        self.core = FusionCore(cfg)
+        self.zenoh_conf = zenoh_conf
+        self.session = session
+        self.recording = recording
+        self.on_fused = on_fused
+        self.report = NodeReport()
+        self.ready = threading.Event()
+        self._added = collections.deque(maxlen=LATENCY_WINDOW)
+        self._fusion = collections.deque(maxlen=LATENCY_WINDOW)
+        self._window_added: list[float] = []
+        self._window_fusion: list[float] = []
+        self._first_time_us: int | None = None
+        self._rates: dict[str, float] | None = None
+        self.view: RerunView | None = None
+
+    def log_error(self, time_us: int, error_mm: float) -> None:
+        """Draw an error against ground truth (simulated rigs) on the live view's time axis, if there is one."""
+        view, first = self.view, self._first_time_us
+        if view is not None and first is not None:
+            view.log_error((time_us - first) / 1e6, error_mm)
+
+    def run(self) -> NodeReport:
+        """Open zenoh (retrying), serve until ``lifecycle.should_exit`` or the run limits, drain, close."""
+        own_session = self.session is None
+        session = self.session
+        if session is None:
+            assert self.zenoh_conf is not None
+            session = open_session(self.zenoh_conf, lifecycle=self.lifecycle, what=f"fusion node {self.name}")
+            if session is None:
+                return self.report
+        view, server = self._open_view()
+        self.view = view
+        rig = self.cfg.name
+        samples = SampleQueue()
+        try:
+            publisher = session.declare_publisher(keys.fused_skeletons(rig), express=True)
+            status_pub = session.declare_publisher(keys.status(rig, self.name))
+            calibration = json.dumps(calibration_document(self.cfg, self.core.poses)).encode()
+            calibration_key = keys.calibration(rig)
+            queryable = session.declare_queryable(calibration_key,
+                                                  lambda query: query.reply(calibration_key, calibration))
+            token = session.liveliness().declare_token(keys.alive(rig, self.name))
+            subscriber = session.declare_subscriber(keys.all_sensor_skeletons(rig), samples)
+            log.info("fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
+                     "%.1f ms, preset %s; publishing on %s", self.name, rig, len(self.cfg.sensors),
+                     ", ".join(self.cfg.sensor_ids), self.cfg.sync.by, self.cfg.sync.tolerance_ms,
+                     self.cfg.sync.deadline_ms, self.cfg.fusion.preset, keys.fused_skeletons(rig))
+            self.ready.set()
+            self._loop(samples, publisher, status_pub, view)
+            # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
+            subscriber.undeclare()
+            deadline = time.monotonic() + self.options.drain_timeout_s
+            while not self.lifecycle.force_exit and time.monotonic() < deadline:
+                item = samples.get_nowait()
+                if item is None:
+                    break
+                self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+            self._publish(self.core.flush(), publisher, view)
+            self._publish_status(status_pub, "stopped", time.monotonic_ns())
+            token.undeclare()
+            queryable.undeclare()
+            publisher.undeclare()
+            status_pub.undeclare()
+        finally:
+            self.ready.set()
+            if view is not None:
+                view.close(timeout_s=0.5 if self.lifecycle.force_exit else 5.0)
+            stop_server(server)
+            if own_session:
+                session.close()
+        self.report.frames_in = self.core.frames_in
+        self.report.frames_out = self.core.frames_out
+        log.info("fusion node %s stopped: %d payloads in, %d fused frames out", self.name, self.core.frames_in,
+                 self.core.frames_out)
+        return self.report
+
+    def _open_view(self) -> tuple[RerunView | None, Any]:
+        view_options = self.options.view
+        recording, server = self.recording, None
+        if recording is None and view_options.mode != "off":
+            recording, server = open_recording(view_options)
+        if recording is None:
+            return None, None
+        return RerunView(recording, self.cfg.sensor_ids, self.core.poses, log_sensors=view_options.log_sensors), server
+
+    def _loop(self, samples: SampleQueue, publisher: Any, status_pub: Any, view: RerunView | None) -> None:
+        period_s = self.options.status_period_s or self.cfg.node.status_period_s
+        period_ns = int(period_s * 1e9)
+        start = time.monotonic()
+        next_status = time.monotonic_ns()
+        last_status = next_status
+        limits = self.options.limits
+        deadline = limits.deadline(start)
+        poll_s = self.options.poll_interval_s
+        while not self.lifecycle.should_exit:
+            item = samples.get(timeout=poll_s)
+            outputs: list[FusedOutput] = []
+            while item is not None:
+                outputs += self.core.receive(item.key, item.payload, item.arrival_ns)
+                item = samples.get_nowait()
+            now_ns = time.monotonic_ns()
+            outputs += self.core.poll(now_ns)
+            self._publish(outputs, publisher, view)
+            if now_ns >= next_status:
+                window_s = (now_ns - last_status) / 1e9
+                self._rates = None
+                self._publish_status(status_pub, self._state(now_ns), now_ns, window_s)
+                last_status = now_ns
+                next_status = now_ns + period_ns
+            if limits.max_frames is not None and self.core.frames_out >= limits.max_frames:
+                log.info("fusion node %s: --max-frames %d reached", self.name, limits.max_frames)
+                break
+            if time.monotonic() >= deadline:
+                log.info("fusion node %s: --duration %.1f s reached", self.name, limits.duration_s)
+                break
+
+    def _publish(self, outputs: list[FusedOutput], publisher: Any, view: RerunView | None) -> None:
+        for out in outputs:
+            publisher.put(out.payload)
+            done_ns = time.monotonic_ns()
+            fusion_ms = out.fusion_ns / 1e6
+            self._fusion.append(fusion_ms)
+            self._window_fusion.append(fusion_ms)
+            self.report.fusion_ms.append(fusion_ms)
+            added_ms = None
+            if out.trigger_arrival_ns is not None:
+                added_ms = (done_ns - out.trigger_arrival_ns) / 1e6
+                self._added.append(added_ms)
+                self._window_added.append(added_ms)
+                self.report.added_ms.append(added_ms)
+            if view is not None:
+                if self._first_time_us is None:
+                    self._first_time_us = out.frame.time_us
+                view.submit((out.frame.time_us - self._first_time_us) / 1e6, out.sensors_world, out.frame.positions,
+                            out.frame.track_ids, fusion_ms, added_ms, self._rates)
+            if self.on_fused is not None:
+                self.on_fused(out)
+
+    def _state(self, now_ns: int) -> str:
+        seen = [w.last_seen_ns for w in self.core._sensors.values()]
+        if all(s is None for s in seen):
+            return "starting"
+        stale = any(s is None or now_ns - s > 1e9 for s in seen)
+        return "degraded" if stale else "running"
+
+    def _publish_status(self, status_pub: Any, state: str, now_ns: int, window_s: float | None = None) -> None:
+        core = self.core
+        window_s = window_s or 1.0
+        sensors = core.sensor_report(now_ns, window_s)
+        self._rates = {sid: s["rate_hz"] for sid, s in sensors.items() if s["rate_hz"] is not None}
+        stats = core.grouper.stats
+        totals = stats.totals
+        reject_totals: Counter[str] = Counter()
+        for counter in core.rejects.values():
+            reject_totals.update(counter)
+        counters = {
+            "frames_in": core.frames_in,
+            "frames_out": core.frames_out,
+            "groups_complete": core.groups_complete,
+            "groups_partial": core.groups_partial,
+            "deadline_emits": core.deadline_emits,
+            "late": totals.late,
+            "dropped": totals.dropped,
+            "duplicate": totals.duplicate,
+            "out_of_window": totals.out_of_window,
+            "unknown": stats.unknown,
+            "resyncs": stats.resyncs,
+            "invalid": sum(reject_totals.values()),
+        } | {f"rejects.{reason}": n for reason, n in sorted(reject_totals.items())}
+        info = {
+            "rig": self.cfg.name,
+            "preset": self.cfg.fusion.preset,
+            "sync_by": self.cfg.sync.by,
+            "window_s": round(window_s, 4),
+            "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
+            "sensors": sensors,
+            "unknown_ids": stats.unknown_ids,
+            "rejects_unknown_sensor": dict(core.rejects.get(UNKNOWN_SENSOR, {})),
+            "fusion_ms": _percentiles(self._window_fusion),
+            "node_added_ms": _percentiles(self._window_added),
+            "fusion_ms_total": _percentiles(self._fusion),
+            "node_added_ms_total": _percentiles(self._added),
+        }
+        self._window_fusion.clear()
+        self._window_added.clear()
+        status = NodeStatus(node=self.name, role="fusion", state=state, time_ns=time.time_ns(), counters=counters,
+                            info=info)
+        self.report.status = {"state": state, "counters": counters, "info": info}
+        try:
+            status_pub.put(encode_status(status))
+        except ValueError:
+            log.exception("fusion node %s: status could not be encoded", self.name)
+
+
+def run_fusion_node(cfg: RigConfig, zenoh_conf: zenoh.Config, *, options: NodeOptions,
+                    lifecycle: Lifecycle) -> NodeReport:
+    """``skelfuse fuse --config RIG.toml``: run the node in this thread (signals via ``lifecycle``)."""
+    node = FusionNode(cfg, zenoh_conf, options=options, lifecycle=lifecycle)
+    with lifecycle.capture_signals():
+        return node.run()

@@ -1,0 +1,80 @@
+"""``skelfuse status``: print the status documents the rig's nodes publish on ``skelfuse/<rig>/status/*``."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from typing import TYPE_CHECKING, Any, TextIO
+
+from skelfuse.config import RigConfig
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.zenoh_io import SampleQueue, open_session
+from skelfuse.wire import keys
+from skelfuse.wire.codec import DecodeError, NodeStatus, decode_status
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import zenoh
+
+log = logging.getLogger("skelfuse.service.status")
+
+
+def format_status(status: NodeStatus) -> str:
+    """One human line per status: node, state, the main counters, per-sensor rates, latency."""
+    c, info = status.counters, status.info
+    parts = [f"{status.node} [{status.role}] {status.state}"]
+    if status.role == "fusion":
+        parts.append(f"in {c.get('frames_in', 0)} out {c.get('frames_out', 0)} "
+                     f"({info.get('fused_rate_hz', 0):.1f} Hz) late {c.get('late', 0)} dropped {c.get('dropped', 0)} "
+                     f"invalid {c.get('invalid', 0)}")
+        added = info.get("node_added_ms") or {}
+        if added.get("p50") is not None:
+            parts.append(f"node latency p50 {added['p50']:.3f} p99 {added['p99']:.3f} ms")
+        sensors = info.get("sensors") or {}
+        rates = []
+        for sid, s in sensors.items():
+            seen = s.get("last_seen_s")
+            rates.append(f"{sid} {s.get('rate_hz') or 0:.1f} Hz" + (" (never seen)" if seen is None else
+                                                                      f" ({seen:.2f} s ago)" if seen > 1 else ""))
+        if rates:
+            parts.append("sensors: " + ", ".join(rates))
+    else:
+        parts.append(f"out {c.get('frames_out', 0)} ({info.get('rate_hz', 0) or 0:.1f} Hz)")
+        if info.get("last_error"):
+            parts.append(f"last error: {info['last_error']}")
+    return " | ".join(parts)
+
+
+def watch_status(cfg: RigConfig, zenoh_conf: zenoh.Config, *, limits: RunLimits, lifecycle: Lifecycle,
+                 as_json: bool, out: TextIO) -> int:
+    """Print status messages until a signal or the limits (``max_frames``: messages); returns how many."""
+    count = 0
+    with lifecycle.capture_signals():
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="status")
+        if session is None:
+            return 0
+        samples = SampleQueue()
+        try:
+            session.declare_subscriber(keys.all_status(cfg.name), samples)
+            start = time.monotonic()
+            while not lifecycle.should_exit and not limits.reached(count, start):
+                item = samples.get(timeout=0.1)
+                if item is None:
+                    continue
+                try:
+                    status = decode_status(item.payload)
+                except DecodeError as exc:
+                    log.warning("status: rejected a payload on %s (%s): %s", item.key, exc.reason, exc)
+                    continue
+                count += 1
+                if as_json:
+                    doc: dict[str, Any] = {"node": status.node, "role": status.role, "state": status.state,
+                                           "time_ns": status.time_ns, "counters": status.counters,
+                                           "info": status.info}
+                    out.write(json.dumps(doc) + "\n")
+                else:
+                    out.write(format_status(status) + "\n")
+                out.flush()
+        finally:
+            session.close()
+    return count

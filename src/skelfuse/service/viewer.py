@@ -1,0 +1,185 @@
+"""The fusion node's live Rerun view: where the stream goes (spawn, serve, save) and a logging thread.
+
+Logging happens on its own thread (:class:`RerunView`) fed by a bounded queue, so drawing never delays a
+fused frame on the wire: when the viewer cannot keep up, frames are skipped for the view (counted in
+``dropped``), never for subscribers.
+
+Modes (``[rerun] mode`` or the command's flags):
+
+- ``spawn``: start a local viewer (``rr.RecordingStream.spawn``); it stays open when the node stops.
+- ``serve``: start ``rerun --serve-grpc --bind <bind>`` (plus the web viewer with ``--web-viewer-port``)
+  as a child process bound to 127.0.0.1 unless told otherwise, and stream to it. Viewers connect with
+  ``rerun rerun+http://<bind>:<grpc_port>/proxy`` (or open ``http://<bind>:<web_port>``). The server is
+  the node's child: it stops with the node.
+- ``save``: write an ``.rrd`` file (open it with ``rerun FILE``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.errors import ServiceError
+from skelfuse.service.zenoh_io import wait_for_port
+
+log = logging.getLogger("skelfuse.service")
+
+VIEW_MODES = ("off", "spawn", "serve", "save")
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """Where the live view goes; see the module docstring for the modes."""
+
+    mode: str = "off"
+    file: Path | None = None
+    bind: str = "127.0.0.1"
+    grpc_port: int = 9876
+    web_port: int | None = None
+    log_sensors: bool = True
+    application_id: str = "skelfuse"
+
+    def __post_init__(self) -> None:
+        if self.mode not in VIEW_MODES:
+            raise ValueError(f"view mode must be one of {VIEW_MODES}, got {self.mode!r}")
+        if self.mode == "save" and self.file is None:
+            raise ValueError("view mode 'save' needs a file (--rrd FILE)")
+
+
+def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] | None]:
+    """A ``rr.RecordingStream`` sending where ``options`` says, and the server process it started (serve)."""
+    import rerun as rr
+
+    from skelfuse.sinks.rerun_sink import default_blueprint
+
+    recording = rr.RecordingStream(options.application_id)
+    server: subprocess.Popen[bytes] | None = None
+    if options.mode == "spawn":
+        recording.spawn(port=options.grpc_port, default_blueprint=default_blueprint())
+    elif options.mode == "save":
+        assert options.file is not None
+        recording.save(options.file, default_blueprint=default_blueprint())
+    elif options.mode == "serve":
+        exe = shutil.which("rerun")
+        if exe is None:
+            raise ServiceError("--serve needs the `rerun` executable of rerun-sdk on PATH; install rerun-sdk "
+                               "into this environment or use --rrd FILE")
+        command = [exe, "--bind", options.bind, "--port", str(options.grpc_port)]
+        command += ["--serve-web", "--web-viewer-port", str(options.web_port)] if options.web_port else ["--serve-grpc"]
+        server = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)
+        host = "127.0.0.1" if options.bind in ("0.0.0.0", "::") else options.bind
+        if not wait_for_port(options.grpc_port, host=host, timeout_s=15.0):
+            stop_server(server)
+            raise ServiceError(f"the rerun server ({' '.join(command)}) did not start listening on "
+                               f"{host}:{options.grpc_port} within 15 s; is the port taken?")
+        url = f"rerun+http://{host}:{options.grpc_port}/proxy"
+        recording.connect_grpc(url, default_blueprint=default_blueprint())
+        web = f", web viewer http://{host}:{options.web_port}" if options.web_port else ""
+        log.info("rerun: serving on %s%s; open it with:  rerun %s", url, web, url)
+    return recording, server
+
+
+def stop_server(server: subprocess.Popen[bytes] | None, timeout_s: float = 5.0) -> None:
+    """Stop the rerun server process group this node started (and only that one)."""
+    if server is None or server.poll() is not None:
+        return
+    try:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=timeout_s)
+    except ProcessLookupError:
+        return
+    except subprocess.TimeoutExpired:
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait(timeout=timeout_s)
+
+
+class RerunView:
+    """Draws the rig, the sensors' raw skeletons and the fused skeletons on a thread of its own.
+
+    Parameters
+    ----------
+    recording : rr.RecordingStream
+        Injected: the caller decides where it goes (:func:`open_recording`).
+    sensor_ids : sequence of str
+    world_from_sensor : (S, 4, 4) mm, drawn once (static).
+    log_sensors : bool
+        Also draw each sensor's raw skeleton (in the world frame).
+    max_pending : int
+        Frames waiting to be drawn before new ones are skipped.
+    """
+
+    def __init__(self, recording: Any, sensor_ids: tuple[str, ...], world_from_sensor: np.ndarray, *,
+                 log_sensors: bool = True, max_pending: int = 64) -> None:
+        from skelfuse.sinks.rerun_sink import RerunSink
+
+        self.recording = recording
+        self.sink = RerunSink(recording, sensor_ids)
+        self.log_sensors = log_sensors
+        self.dropped = 0
+        self.drawn = 0
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=max_pending)
+        self.sink.log_rig(world_from_sensor)
+        self._thread = threading.Thread(target=self._run, name="skelfuse-rerun", daemon=True)
+        self._thread.start()
+
+    def submit(self, time_s: float, sensors_world: np.ndarray | None, fused: np.ndarray, track_ids: np.ndarray,
+               fusion_ms: float | None, latency_ms: float | None, rate_hz: dict[str, float] | None) -> None:
+        """Queue one instant: (S, 32, 3) raw skeletons in the world, (P, 32, 3) fused, metrics."""
+        try:
+            self._queue.put_nowait((time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz))
+        except queue.Full:
+            self.dropped += 1
+
+    def log_error(self, time_s: float, error_mm: float) -> None:
+        """Error against ground truth (simulated rigs)."""
+        try:
+            self._queue.put_nowait(("error", time_s, error_mm))
+        except queue.Full:
+            self.dropped += 1
+
+    def _run(self) -> None:
+        import rerun as rr
+
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            try:
+                if item[0] == "error":
+                    _, time_s, error_mm = item
+                    self.sink.set_time(time_s)
+                    self.sink.log_metrics(error_mm=error_mm)
+                    continue
+                time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz = item
+                self.sink.set_time(time_s)
+                if self.log_sensors and sensors_world is not None:
+                    self.sink.log_sensor_skeletons(sensors_world[:, None])
+                self.sink.log_fused(fused, track_ids)
+                self.sink.log_metrics(fusion_ms=fusion_ms, rate_hz=rate_hz)
+                if latency_ms is not None:
+                    self.recording.log("metrics/fusion_ms/node_latency", rr.Scalars(latency_ms))
+                self.drawn += 1
+            except Exception:  # a viewer problem must never stop the node
+                log.exception("rerun: logging a frame failed")
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Draw what is queued (up to ``timeout_s``), then flush the recording."""
+        try:
+            self._queue.put(None, timeout=timeout_s)
+        except queue.Full:
+            log.warning("rerun: view queue still full at shutdown; %d frames not drawn", self._queue.qsize())
+        self._thread.join(timeout_s)
+        try:
+            self.recording.flush()
+        except Exception:
+            log.exception("rerun: flushing the recording failed")

@@ -1,0 +1,434 @@
+"""Capture worker: ``skelfuse capture --config RIG.toml --sensor ID``. One source's frames onto zenoh.
+
+Cycle::
+
+    source = make_source(cfg, sensor_id, options)       # sim | replay | kinect (pluggable)
+    session = open_session(...)                          # retried with backoff while it fails
+    for due_ns, frame in source.frames():                # due: monotonic ns when the frame is "captured"
+        lifecycle.wait(until due)                        # paced on the monotonic clock
+        frame.host_time_ns = time.time_ns()              # stamped at publish
+        publisher.put(encode_sensor_frame(frame))        # skelfuse/<rig>/sensors/<id>/skeletons
+    + status every status_period_s on skelfuse/<rig>/status/capture-<id>, liveliness on .../alive/capture-<id>
+
+A source that fails at run time (an exception while producing frames) is logged and restarted with
+exponential backoff; a source that cannot exist in this config (a sim sensor without a pose, a missing replay
+file) raises at once, before anything opens, and a kinect source without pyk4a / the SDKs stops the worker.
+
+Sources
+-------
+``sim``
+    Simulates the whole rig (the rig's sim sensors in config order, master first) with one seed and keeps
+    this sensor's column: per-sensor noise streams are keyed by (seed, sensor id), so every worker of the
+    rig simulates the same person and each gets exactly its own view. Wired sync is emulated on the host
+    clock: the frame of instant ``n`` (``n = Unix time / frame period``) is published at that time with
+    device timestamp ``n * period`` plus the sensor's simulated subordinate delay, and shows take frame
+    ``n mod T``. So workers started at different times (or restarted after a crash) agree on the instant
+    and the pose, like hardware-synced Kinects. ``sequence`` is ``n`` (a gap is a drop). The take loops, or
+    with ``loop = False`` the worker stops at the end of the take.
+``replay``
+    This sensor's frames of an MCAP recording (``sensors[i].replay``), paced by their recorded host
+    time at ``speed``. Device times are kept; with ``loop`` each pass is shifted by the recording's span
+    so time keeps increasing.
+``kinect``
+    An Azure Kinect / Femto Bolt through :class:`skelfuse.sources.kinect.KinectSource` (pyk4a + k4abt, the
+    ``kinect`` extra): frames as the tracker delivers them, host time stamped on receipt; a failing device
+    is reopened with backoff; without pyk4a or the SDKs the worker stops with a message naming them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.errors import ConfigError, DataError, ServiceError
+from skelfuse.frames import SensorFrame
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
+from skelfuse.skeleton import N_JOINTS
+from skelfuse.wire import keys
+from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import zenoh
+
+log = logging.getLogger("skelfuse.service.worker")
+
+DEFAULT_GESTURE = "walking"
+DEFAULT_TAKE_S = 20.0
+
+
+class FrameSource(Protocol):
+    """What a capture worker publishes from."""
+
+    sensor_id: str
+
+    def frames(self) -> Iterator[tuple[int, SensorFrame]]:
+        """(due monotonic ns, frame) in publish order; ``host_time_ns`` is stamped by the worker."""
+        ...
+
+
+@dataclass(frozen=True)
+class WorkerOptions:
+    """How a capture worker runs.
+
+    Attributes
+    ----------
+    gesture, take_duration_s, seed : the sim source's take (every worker of a rig must use the same).
+    loop : bool or None
+        Start the take / recording over at its end (default: sim loops, replay follows ``replay.loop``).
+    speed : float or None
+        Replay speed (1.0 real time; None as fast as possible).
+    node_name : str or None
+        Default ``capture-<sensor id>``.
+    limits : RunLimits
+        ``max_frames`` counts published frames.
+    """
+
+    gesture: str = DEFAULT_GESTURE
+    take_duration_s: float = DEFAULT_TAKE_S
+    seed: int = 0
+    loop: bool | None = None
+    speed: float | None = 1.0
+    node_name: str | None = None
+    status_period_s: float | None = None
+    limits: RunLimits = field(default_factory=RunLimits)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Sources
+
+
+def sim_rig_order(cfg: RigConfig) -> list[SensorConfig]:
+    """The rig's sim sensors in simulation order: the master first, then the others in config order."""
+    sims = [s for s in cfg.sensors if s.source == "sim"]
+    return sorted(sims, key=lambda s: s.sync.role != "master")
+
+
+def simulate_rig(cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: int,
+                 observation_seed: int | None = None) -> Any:
+    """Simulate the rig's sim sensors (:func:`sim_rig_order`) for one take: ``skelfuse.sim`` Observations."""
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.rig import VirtualSensor
+
+    sensors = sim_rig_order(cfg)
+    if not sensors:
+        raise ConfigError(f"{cfg.source}: rig {cfg.name!r} has no sensor with source = \"sim\"")
+    virtual = []
+    for s in sensors:
+        pose = s.pose()
+        if pose is None:
+            raise ConfigError(f"{cfg.source}: sim sensor {s.id!r} needs sensors[i].world_from_sensor: the "
+                              "simulator observes the person from that (true) pose")
+        u, _, vt = np.linalg.svd(pose[:3, :3])  # TOML poses carry ~6 decimals: re-orthonormalize
+        pose = pose.copy()
+        pose[:3, :3] = u @ vt
+        virtual.append(VirtualSensor(s.id, pose))
+    profile_paths = {s.sim.profile for s in sensors if s.sim is not None and s.sim.profile is not None}
+    if len(profile_paths) > 1:
+        raise ConfigError(f"{cfg.source}: sim sensors use different profiles ({', '.join(map(str, profile_paths))}); "
+                          "one simulation covers the whole rig, so give them one profile")
+    profile = load_profile(next(iter(profile_paths)) if profile_paths else None)
+    motion = make_gesture(gesture, duration_s=take_duration_s, seed=seed)
+    return simulate(motion, virtual, profile, seed=seed if observation_seed is None else observation_seed)
+
+
+class SimSource:
+    """One sensor of a simulated rig, emulating wired sync on the host clock (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : RigConfig
+    sensor_id : str
+    gesture, take_duration_s, seed : the take; the observation seed is ``sensors[i].sim.seed`` if set.
+    loop : bool
+    clock_ns : callable
+        Host clock (Unix ns) used to align instants across workers; injected by tests.
+    """
+
+    def __init__(self, cfg: RigConfig, sensor_id: str, *, gesture: str = DEFAULT_GESTURE,
+                 take_duration_s: float = DEFAULT_TAKE_S, seed: int = 0, loop: bool = True,
+                 clock_ns: Any = time.time_ns) -> None:
+        sensor = cfg.sensor(sensor_id)
+        if sensor.source != "sim":
+            raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has source {sensor.source!r}, not 'sim'")
+        observation_seed = sensor.sim.seed if sensor.sim is not None else None
+        self.sensor_id = sensor_id
+        self.observations = simulate_rig(cfg, gesture=gesture, take_duration_s=take_duration_s, seed=seed,
+                                         observation_seed=observation_seed)
+        self.column = list(self.observations.sensor_ids).index(sensor_id)
+        self.fps = float(cfg.sync.fps)
+        self.loop = loop
+        self.clock_ns = clock_ns
+
+    def frame_at(self, n: int) -> SensorFrame | None:
+        """The frame of instant ``n`` (take frame ``n mod T``); None where the simulated sensor dropped it."""
+        obs, s = self.observations, self.column
+        f = n % obs.n_frames
+        if obs.dropped[f, s]:
+            return None
+        period_us = 1e6 / self.fps
+        master = obs.device_time_us[f, 0]
+        delay_us = int(obs.device_time_us[f, s] - master) if master >= 0 else 0
+        device_time_us = round(n * period_us) + delay_us
+        positions = obs.positions[f, s]
+        if obs.tracked[f, s] and np.isfinite(positions).all():
+            body_ids = np.array([max(int(obs.body_ids[f, s]), 0)], dtype=np.uint32)
+            positions = positions[None].astype(np.float32)
+            confidence = obs.confidence[f, s][None]
+        else:  # the tracker lost the body: a frame without bodies (never NaN on the wire)
+            body_ids = np.zeros(0, dtype=np.uint32)
+            positions = np.zeros((0, N_JOINTS, 3), dtype=np.float32)
+            confidence = np.zeros((0, N_JOINTS), dtype=np.uint8)
+        orientations = np.zeros((len(body_ids), N_JOINTS, 4), dtype=np.float32)
+        orientations[..., 0] = 1.0  # the simulator has no joint orientations: identity quaternions
+        return SensorFrame(sensor_id=self.sensor_id, sequence=n, device_time_us=device_time_us, host_time_ns=0,
+                           body_ids=body_ids, positions=positions, orientations=orientations,
+                           confidence=np.ascontiguousarray(confidence, dtype=np.uint8))
+
+    def frames(self) -> Iterator[tuple[int, SensorFrame]]:
+        period_ns = 1e9 / self.fps
+        offset_ns = time.monotonic_ns() - self.clock_ns()  # host (Unix) ns -> monotonic ns
+        n = math.ceil(self.clock_ns() / period_ns)
+        first = n
+        n_frames = self.observations.n_frames
+        while True:
+            if not self.loop and n > first and n % n_frames == 0:
+                return  # end of the take
+            frame = self.frame_at(n)
+            if frame is not None:
+                yield round(n * period_ns) + offset_ns, frame
+            n += 1
+
+
+class ReplaySource:
+    """One sensor's frames of an MCAP recording, paced by recorded host time (see the module docstring)."""
+
+    def __init__(self, path: Path, sensor_id: str, *, recorded_sensor: str | None = None, loop: bool = False,
+                 speed: float | None = 1.0) -> None:
+        from skelfuse.recording import RecordingReader
+
+        self.sensor_id = sensor_id
+        self.recorded_sensor = recorded_sensor or sensor_id
+        self.reader = RecordingReader(path)
+        if self.recorded_sensor not in self.reader.sensors:
+            raise DataError(f"recording {path} has no sensor {self.recorded_sensor!r}; it holds "
+                            f"{', '.join(self.reader.sensors) or 'no sensors'} (set sensors[i].replay.sensor)")
+        self.loop = loop
+        self.speed = speed
+
+    def frames(self) -> Iterator[tuple[int, SensorFrame]]:
+        pass_index = 0
+        start_ns = time.monotonic_ns()
+        shift_us = 0
+        pass_offset_ns = 0
+        while True:
+            first_log: int | None = None
+            last_log = 0
+            first_dev: int | None = None
+            last_dev = 0
+            for record in self.reader.records(sensors=[self.recorded_sensor]):
+                frame = record.frame
+                if first_log is None:
+                    first_log = record.log_time_ns
+                    first_dev = frame.device_time_us
+                last_log, last_dev = record.log_time_ns, frame.device_time_us
+                offset = record.log_time_ns - first_log
+                due = start_ns + pass_offset_ns + (0 if self.speed is None else int(offset / self.speed))
+                yield due, dataclasses.replace(frame, sensor_id=self.sensor_id,
+                                               device_time_us=frame.device_time_us + shift_us)
+            if first_log is None or not self.loop:
+                return
+            pass_index += 1
+            span_us = last_dev - (first_dev or 0) + 33_333
+            shift_us += span_us
+            pass_offset_ns += 0 if self.speed is None else int((last_log - first_log + 33_333_333) / self.speed)
+
+
+class KinectFrameSource:
+    """An Azure Kinect / Femto Bolt (``skelfuse.sources.kinect.KinectSource``) as a worker source.
+
+    Frames are due when the tracker delivers them (no pacing) and keep the host time the source stamped on
+    receipt. ``frames()`` also yields ``(now, None)`` every read timeout so the worker can check its exit
+    flag while the device is silent. Device failures (unplugged, tracker stalled) raise out of ``frames()``
+    and the worker restarts the source with backoff; pyk4a or the SDKs missing raise ``KinectUnavailable``
+    (a ServiceError), which stops the worker with a message naming the ``kinect`` extra.
+    """
+
+    stamps_host_time = True
+
+    def __init__(self, cfg: RigConfig, sensor_id: str, *, read_timeout_s: float = 0.1) -> None:
+        self.cfg = cfg
+        self.sensor_id = sensor_id
+        self.read_timeout_s = read_timeout_s
+
+    def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
+        from skelfuse.sources.kinect import KinectSource
+
+        source = KinectSource.from_config(self.cfg, self.sensor_id)
+        source.open()
+        try:
+            while True:
+                yield time.monotonic_ns(), source.read(self.read_timeout_s)
+        finally:
+            source.close()
+
+
+def check_source(cfg: RigConfig, sensor_id: str) -> None:
+    """The cheap checks of :func:`make_source`, done before anything opens (same errors)."""
+    sensor = cfg.sensor(sensor_id)
+    if sensor.source == "sim" and sensor.pose() is None:
+        raise ConfigError(f"{cfg.source}: sim sensor {sensor_id!r} needs sensors[i].world_from_sensor: the "
+                          "simulator observes the person from that (true) pose")
+    if sensor.source == "replay" and sensor.replay is not None and not Path(sensor.replay.file).exists():
+        raise DataError(f"{cfg.source}: sensors[{sensor_id!r}].replay.file {sensor.replay.file} does not exist")
+
+
+def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> FrameSource:
+    """The source of ``sensor_id`` as its ``[[sensors]]`` entry says.
+
+    Raises
+    ------
+    ConfigError
+        Unknown sensor, or a sim sensor without a pose.
+    ServiceError
+        (from ``frames()``) ``source = "kinect"`` without pyk4a or the Azure Kinect SDKs.
+    DataError
+        A replay recording that is missing or lacks the sensor.
+    """
+    sensor = cfg.sensor(sensor_id)
+    if sensor.source == "sim":
+        return SimSource(cfg, sensor_id, gesture=options.gesture, take_duration_s=options.take_duration_s,
+                         seed=options.seed, loop=True if options.loop is None else options.loop)
+    if sensor.source == "replay":
+        assert sensor.replay is not None
+        loop = sensor.replay.loop if options.loop is None else options.loop
+        return ReplaySource(sensor.replay.file, sensor_id, recorded_sensor=sensor.replay.sensor, loop=loop,
+                            speed=options.speed)
+    if sensor.source == "kinect":
+        return KinectFrameSource(cfg, sensor_id)
+    raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has unknown source {sensor.source!r}")  # pragma: no cover
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The worker
+
+
+@dataclass
+class WorkerReport:
+    frames_out: int = 0
+    restarts: int = 0
+    late_publishes: int = 0
+
+
+def run_capture_worker(cfg: RigConfig, sensor_id: str, zenoh_conf: zenoh.Config, *, options: WorkerOptions,
+                       lifecycle: Lifecycle, source: FrameSource | None = None) -> WorkerReport:
+    """Publish one sensor's frames until ``lifecycle.should_exit`` or the run limits.
+
+    ``source`` (injected by tests) defaults to :func:`make_source`, which raises for a source that cannot
+    work in this build or config before any session opens.
+    """
+    name = keys.validate_name(options.node_name or f"capture-{sensor_id}", "node")
+    check_source(cfg, sensor_id)
+    report = WorkerReport()
+    with lifecycle.capture_signals():
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what=f"capture worker {name}")
+        if session is None:
+            return report
+        try:
+            # The source is built after the session opened (simulating a take takes a second or two), so the
+            # subscribers' declarations have reached this peer before its first frame is published.
+            source = source if source is not None else make_source(cfg, sensor_id, options)
+            _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report)
+        finally:
+            session.close()
+    log.info("capture worker %s stopped: %d frames published", name, report.frames_out)
+    return report
+
+
+def _publish_loop(cfg: RigConfig, sensor_id: str, name: str, source: FrameSource, session: Any,
+                  options: WorkerOptions, lifecycle: Lifecycle, report: WorkerReport) -> None:
+    rig = cfg.name
+    key = keys.sensor_skeletons(rig, sensor_id)
+    publisher = session.declare_publisher(key, express=True)
+    status_pub = session.declare_publisher(keys.status(rig, name))
+    token = session.liveliness().declare_token(keys.alive(rig, name))
+    period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
+    limits = options.limits
+    start = time.monotonic()
+    deadline_ns = math.inf if limits.duration_s is None else time.monotonic_ns() + limits.duration_s * 1e9
+    next_status = time.monotonic_ns()
+    window_frames = 0
+    last_status = next_status
+    backoff = BACKOFF_FIRST_S
+    last_error = ""
+    stamps_host_time = bool(getattr(source, "stamps_host_time", False))
+    log.info("capture worker %s: publishing sensor %s (%s) on %s", name, sensor_id, type(source).__name__, key)
+
+    def status(state: str) -> None:
+        nonlocal window_frames, last_status
+        now = time.monotonic_ns()
+        window_s = max((now - last_status) / 1e9, 1e-9)
+        info = {"sensor": sensor_id, "source": type(source).__name__, "rate_hz": round(window_frames / window_s, 3),
+                "last_error": last_error or None}
+        counters = {"frames_out": report.frames_out, "restarts": report.restarts,
+                    "late_publishes": report.late_publishes}
+        status_pub.put(encode_status(NodeStatus(node=name, role="capture", state=state, time_ns=time.time_ns(),
+                                                counters=counters, info=info)))
+        window_frames = 0
+        last_status = now
+
+    try:
+        while not lifecycle.should_exit:
+            try:
+                for due_ns, frame in source.frames():
+                    now = time.monotonic_ns()
+                    if now >= next_status:
+                        status("running")
+                        next_status = now + period_ns
+                    if due_ns > deadline_ns or lifecycle.should_exit:
+                        return
+                    if frame is None:  # a live device with nothing new within its read timeout
+                        continue
+                    wait_ns = due_ns - time.monotonic_ns()
+                    if wait_ns > 0 and lifecycle.wait(wait_ns / 1e9):
+                        return
+                    if wait_ns < -5_000_000:
+                        report.late_publishes += 1
+                    if not stamps_host_time:
+                        frame = dataclasses.replace(frame, host_time_ns=time.time_ns())
+                    publisher.put(encode_sensor_frame(frame))
+                    report.frames_out += 1
+                    window_frames += 1
+                    backoff = BACKOFF_FIRST_S
+                    if limits.max_frames is not None and report.frames_out >= limits.max_frames:
+                        return
+                    if time.monotonic() - start > (limits.duration_s or math.inf):
+                        return
+                log.info("capture worker %s: source finished", name)
+                return
+            except (ConfigError, ServiceError):
+                raise
+            except Exception as exc:  # the source failed at run time: log, back off, start it again
+                report.restarts += 1
+                last_error = f"{type(exc).__name__}: {exc}"
+                log.error("capture worker %s: source failed (%s); restarting it in %.1f s", name, last_error,
+                          backoff, exc_info=log.isEnabledFor(logging.DEBUG))
+                status("degraded")
+                if lifecycle.wait(backoff):
+                    return
+                backoff = min(backoff * 2, BACKOFF_MAX_S)
+    finally:
+        status("stopped")
+        token.undeclare()
+        publisher.undeclare()
+        status_pub.undeclare()

@@ -1,0 +1,164 @@
+"""Helpers for the live-service tests: real ``python -m skelfuse`` processes and zenoh on loopback.
+
+Every node listens or connects on ``tcp/127.0.0.1`` with a free port, multicast scouting off; every wait has
+a timeout; every process is started in its own process group and killed at teardown.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
+from skelfuse.sim.rig import paper_rig
+from skelfuse.wire import keys
+from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
+
+RIG = "svc"
+
+
+def write_rig(directory: Path, *, by: str = "device", deadline_ms: float = 17.0, tolerance_ms: float | None = None,
+              status_period_s: float = 0.25, n_sensors: int = 4) -> Path:
+    tolerance = tolerance_ms if tolerance_ms is not None else (10.0 if by == "device" else 13.0)
+    lines = ["[rig]", f'name = "{RIG}"', "", "[sync]", f'by = "{by}"', "fps = 30.0", f"tolerance_ms = {tolerance}",
+             f"deadline_ms = {deadline_ms}", "", "[node]", f"status_period_s = {status_period_s}", "",
+             "[zenoh]", "multicast_scouting = false", ""]
+    for index, sensor in enumerate(paper_rig(n_sensors)):
+        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
+        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
+        lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"sync = {sync}",
+                  f"world_from_sensor = [{rows}]", ""]
+    path = directory / f"rig-{by}.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+class Processes:
+    """Starts ``python -m skelfuse ...`` in new process groups; kills whatever is left at teardown."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.started: list[subprocess.Popen[bytes]] = []
+
+    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+        log = open(self.log_dir / f"{name}.log", "ab")
+        process = subprocess.Popen([sys.executable, "-m", "skelfuse", *args], stdin=subprocess.DEVNULL,
+                                   stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        process.log_file = log  # type: ignore[attr-defined]
+        process.log_path = self.log_dir / f"{name}.log"  # type: ignore[attr-defined]
+        self.started.append(process)
+        return process
+
+    def log(self, process: subprocess.Popen[bytes]) -> str:
+        return Path(process.log_path).read_text(errors="replace")[-3000:]  # type: ignore[attr-defined]
+
+    def stop(self, process: subprocess.Popen[bytes], sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> int:
+        if process.poll() is None:
+            try:
+                os.killpg(process.pid, sig)
+                process.wait(timeout_s)
+            except ProcessLookupError:
+                pass
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGUSR1)  # skelfuse dumps every thread's stack on SIGUSR1
+                time.sleep(0.5)
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait(5.0)
+                raise AssertionError(f"process did not stop within {timeout_s} s:\n{self.log(process)}") from None
+        process.log_file.close()  # type: ignore[attr-defined]
+        return int(process.returncode)
+
+    def cleanup(self) -> None:
+        for process in self.started:
+            if process.poll() is None:
+                try:
+                    os.killpg(process.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                process.wait(5.0)
+            if not process.log_file.closed:  # type: ignore[attr-defined]
+                process.log_file.close()  # type: ignore[attr-defined]
+
+
+class Listener:
+    """An in-test zenoh session connected to the node: collects sensor frames, fused frames, statuses."""
+
+    def __init__(self, port: int) -> None:
+        import zenoh
+
+        self.port = free_port()  # workers connect here too, so no frame depends on gossip timing
+        self.lock = threading.Lock()
+        self.sensor_payloads: list[bytes] = []
+        self.fused: list[tuple[float, Any]] = []  # (monotonic receive time, FusedFrame)
+        self.statuses: list[Any] = []
+        self.session = zenoh.open(loopback_config(listen_port=self.port, connect_ports=[port]))
+        self.session.declare_subscriber(keys.all_sensor_skeletons(RIG), self._on_sensor)
+        self.session.declare_subscriber(keys.fused_skeletons(RIG), self._on_fused)
+        self.session.declare_subscriber(keys.all_status(RIG), self._on_status)
+
+    def _on_sensor(self, sample: Any) -> None:
+        with self.lock:
+            self.sensor_payloads.append(sample.payload.to_bytes())
+
+    def _on_fused(self, sample: Any) -> None:
+        now = time.monotonic()
+        frame = decode_fused_frame(sample.payload.to_bytes())
+        with self.lock:
+            self.fused.append((now, frame))
+
+    def _on_status(self, sample: Any) -> None:
+        try:
+            status = decode_status(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with self.lock:
+            self.statuses.append(status)
+
+    def fusion_status(self) -> Any:
+        with self.lock:
+            found = [s for s in self.statuses if s.role == "fusion"]
+        return found[-1] if found else None
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float, what: str,
+                 logs: Callable[[], str] = str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}\n{logs()}")
+
+    def sensor_frames(self) -> list[Any]:
+        with self.lock:
+            return [decode_sensor_frame(p) for p in self.sensor_payloads]
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def node_args(config: Path, port: int, *extra: str) -> list[str]:
+    return ["fuse", "--config", str(config), "--no-view", "--duration", "120", *extra,
+            *loopback_args(listen_port=port)]
+
+
+def worker_args(config: Path, port: int, sensor_id: str, *extra: str, listener: Listener | None = None) -> list[str]:
+    ports = [port] if listener is None else [port, listener.port]
+    return ["capture", "--config", str(config), "--sensor", sensor_id, "--take-duration", "4", *extra,
+            *loopback_args(connect_ports=ports)]
+
+
+def start_node(processes: Processes, config: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Listener]:
+    """The node as a subprocess, and a listener that has seen its first status (so it is subscribed)."""
+    node = processes.start("node", *node_args(config, port, *extra))
+    assert wait_for_port(port, timeout_s=60.0), f"the node never listened on {port}:\n{processes.log(node)}"
+    listener = Listener(port)
+    listener.wait_for(lambda: listener.fusion_status() is not None, 60.0, "the fusion node's first status",
+                      lambda: processes.log(node))
+    return node, listener

@@ -1,0 +1,235 @@
+"""The live service end to end: real ``python -m skelfuse`` processes talking zenoh on loopback.
+
+Every test is bounded (timeouts on every wait, processes killed at teardown) and uses free ports with
+multicast scouting off.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import signal
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from service_helpers import RIG, Processes, start_node, worker_args, write_rig
+
+from skelfuse.bench.latency import synthetic_frames
+from skelfuse.config import load_rig_config
+from skelfuse.recording import RecordingWriter, fuse_recording
+from skelfuse.wire import keys
+from skelfuse.wire.codec import encode_sensor_frame
+
+pytestmark = pytest.mark.service
+
+SENSORS = ("capture_0", "capture_1", "capture_2", "capture_3")
+
+
+def test_live_rig_equals_offline_fusion_of_the_same_frames(tmp_path: Path, processes: Processes,
+                                                           node_port: int) -> None:
+    """4 sim workers -> node; the fused stream equals fuse_recording() of the frames the workers published."""
+    # A long deadline: a frame delayed by a loaded CI machine is still grouped live as offline would group it.
+    config = write_rig(tmp_path, deadline_ms=200.0)
+    node, listener = start_node(processes, config, node_port)
+    try:
+        workers = [processes.start(f"w{i}", *worker_args(config, node_port, sid, "--duration", "3.5",
+                                                         listener=listener))
+                   for i, sid in enumerate(SENSORS)]
+        for worker in workers:
+            worker.wait(60.0)
+            assert worker.returncode == 0, processes.log(worker)
+        listener.wait_for(lambda: bool(listener.fused) and time.monotonic() - listener.fused[-1][0] > 0.5, 10.0,
+                          "the fused stream to settle")
+        assert processes.stop(node) == 0, processes.log(node)
+        time.sleep(0.3)
+        frames = listener.sensor_frames()
+        node_received = {sid: s["received"] for sid, s in listener.fusion_status().info["sensors"].items()}
+        live = [frame for _, frame in listener.fused]
+    finally:
+        listener.close()
+    assert len(frames) >= 4 * 60, f"only {len(frames)} sensor frames arrived"
+    seen = {sid: sum(1 for f in frames if f.sensor_id == sid) for sid in SENSORS}
+    assert seen == node_received, "the node and the test did not receive the same frames"
+
+    # Offline: the same frames, recorded with their publish host time, fused as the live node would.
+    cfg = load_rig_config(config)
+    path = tmp_path / "published.mcap"
+    with RecordingWriter(path, rig=RIG, sensor_ids=cfg.sensor_ids) as writer:
+        for frame in sorted(frames, key=lambda f: f.host_time_ns):
+            writer.write(frame)
+    offline = {f.time_us: f for f in fuse_recording(path, rig_config=cfg, progress=False)}
+
+    both = [f for f in live if f.time_us in offline]
+    assert len(both) >= 0.95 * len(live) and len(both) >= 60, (len(both), len(live), len(offline))
+    complete = 0
+    for frame in both:
+        expected = offline[frame.time_us]
+        assert frame.n_persons == expected.n_persons
+        np.testing.assert_allclose(frame.positions, expected.positions, rtol=0, atol=1e-9, equal_nan=True)
+        np.testing.assert_array_equal(frame.contributors, expected.contributors)
+        np.testing.assert_array_equal(frame.n_agree, expected.n_agree)
+        complete += bool(frame.n_persons and frame.contributors[0].all())
+    assert complete >= 30, f"only {complete} instants fused all four sensors"
+
+
+def test_kill_9_one_worker_fusion_goes_on_and_takes_it_back(tmp_path: Path, processes: Processes,
+                                                          node_port: int) -> None:
+    """kill -9 a capture worker: 3-sensor fusion at full rate within a deadline; a restart is taken back."""
+    config = write_rig(tmp_path)
+    node, listener = start_node(processes, config, node_port)
+
+    def with_all_four() -> bool:
+        with listener.lock:
+            recent = listener.fused[-10:]
+        return len(recent) == 10 and all(f.contributors[0].all() for _, f in recent if f.n_persons)
+
+    try:
+        workers = {sid: processes.start(sid, *worker_args(config, node_port, sid)) for sid in SENSORS}
+        listener.wait_for(with_all_four, 60.0, "four sensors fused", lambda: processes.log(workers["capture_3"]))
+        killed_at = time.monotonic()
+        processes.stop(workers["capture_3"], sig=signal.SIGKILL)
+        time.sleep(2.0)
+        with listener.lock:
+            after = [(t, f) for t, f in listener.fused if t > killed_at]
+        # Full rate on three sensors: ~60 instants in 2 s, none stalled longer than a frame + the deadline.
+        assert len(after) >= 50, f"only {len(after)} fused frames in the 2 s after the kill"
+        times = np.array([killed_at] + [t for t, _ in after])
+        assert np.diff(times).max() < 0.25, f"fused output stalled {np.diff(times).max() * 1e3:.0f} ms"
+        column = SENSORS.index("capture_3")
+        settled = [f for t, f in after if t > killed_at + 0.1 and f.n_persons]
+        assert settled and not any(f.contributors[0, column] for f in settled)
+        assert all(f.contributors[0, :column].all() for f in settled[-30:])
+
+        restarted_at = time.monotonic()
+        workers["capture_3"] = processes.start("capture_3-again", *worker_args(config, node_port, "capture_3"))
+        listener.wait_for(lambda: with_all_four() and listener.fused[-1][0] > restarted_at, 60.0,
+                          "the restarted sensor fused again", lambda: processes.log(workers["capture_3"]))
+        status = listener.fusion_status()
+        assert status.info["sensors"]["capture_3"]["last_seen_s"] < 1.0
+        for worker in workers.values():
+            assert processes.stop(worker) == 0
+        assert processes.stop(node) == 0, processes.log(node)
+    finally:
+        listener.close()
+
+
+def _corrupt(good: bytes) -> list[tuple[str, bytes]]:
+    """(expected reject reason, payload) for every kind of corruption; ``good`` is a one-body sensor frame."""
+    def patched(offset: int, fmt: str, value: object) -> bytes:
+        data = bytearray(good)
+        struct.pack_into(fmt, data, offset, value)
+        return bytes(data)
+
+    positions = 40 + 4  # header, then one u32 body id
+    return [
+        ("truncated", good[: len(good) // 2]),
+        ("truncated", good[:7]),
+        ("bad_version", patched(4, "<B", 2)),
+        ("bad_magic", b"XXXX" + good[4:]),
+        ("non_finite", patched(positions + 4 * 5, "<f", float("nan"))),
+        ("non_finite", patched(positions, "<f", float("inf"))),
+        ("too_large", patched(12, "<H", 65535)),  # 65535 bodies claimed
+        ("bad_joint_count", patched(10, "<H", 31)),
+        ("bad_length", good + b"\0" * 16),
+    ]
+
+
+def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(tmp_path: Path, processes: Processes,
+                                                                          node_port: int) -> None:
+    # capture_3 never delivers a valid frame, so every instant waits for its deadline; 100 ms keeps a good
+    # frame delayed by a loaded CI machine from counting as late.
+    config = write_rig(tmp_path, deadline_ms=100.0)
+    node, listener = start_node(processes, config, node_port)
+    n_instants = 90
+    frames = synthetic_frames(4, n_instants, seed=3)
+    sent_reasons: dict[str, int] = {}
+    try:
+        publishers = {sid: listener.session.declare_publisher(keys.sensor_skeletons(RIG, sid)) for sid in SENSORS}
+        time.sleep(0.3)
+        base_us = time.time_ns() // 1000
+        start = time.monotonic()
+        for k in range(n_instants):
+            delay = start + k / 30.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            stamped = [dataclasses.replace(f, sequence=k, device_time_us=base_us + round(k * 1e6 / 30) + 160 * i,
+                                           host_time_ns=time.time_ns()) for i, f in enumerate(frames[k])]
+            for frame in stamped[:3]:
+                publishers[frame.sensor_id].put(encode_sensor_frame(frame))
+            reason, payload = _corrupt(encode_sensor_frame(stamped[3]))[k % 9]
+            publishers["capture_3"].put(payload)
+            sent_reasons[reason] = sent_reasons.get(reason, 0) + 1
+        total = sum(sent_reasons.values())
+        listener.wait_for(lambda: (s := listener.fusion_status()) is not None and s.counters.get("invalid") == total
+                          and s.counters["frames_out"] >= n_instants, 10.0, "the rejects counted",
+                          lambda: str(listener.fusion_status()))
+        status = listener.fusion_status()
+        assert node.poll() is None, "the node died"
+        for reason, count in sent_reasons.items():
+            assert status.counters[f"rejects.{reason}"] == count, reason
+        assert status.info["sensors"]["capture_3"]["invalid"] == total
+        assert status.info["sensors"]["capture_3"]["rejects"] == sent_reasons
+        for sid in SENSORS[:3]:  # none of the good frames lost
+            sensor = status.info["sensors"][sid]
+            assert sensor["received"] == sensor["grouped"] == n_instants, (sid, sensor)
+            assert sensor["invalid"] == sensor["late"] == 0
+        fused = [f for _, f in listener.fused]
+        assert len(fused) == n_instants
+        assert all(f.n_persons == 1 and f.contributors[0].tolist() == [True, True, True, False] for f in fused)
+        assert processes.stop(node) == 0, processes.log(node)
+    finally:
+        listener.close()
+
+
+@pytest.mark.parametrize("by", ["device", "host"])
+def test_grouping_with_constant_offsets_and_jitter(tmp_path: Path, processes: Processes, node_port: int,
+                                                   by: str) -> None:
+    """Per-sensor clock offsets, jitter and shuffled arrival: every instant fused once, all four sensors in it.
+
+    device: subordinate delays 0/160/320/480 us plus +-60 us jitter. host: per-sensor host latency offsets
+    of -3..+4 ms plus +-1 ms jitter, and device clocks on unrelated epochs (host grouping must ignore them).
+    """
+    config = write_rig(tmp_path, by=by, deadline_ms=150.0)  # long: a loaded machine must not make frames late
+    node, listener = start_node(processes, config, node_port)
+    rng = random.Random(7)
+    n_instants = 60
+    frames = synthetic_frames(4, n_instants, seed=5)
+    expected_times = []
+    try:
+        publishers = {sid: listener.session.declare_publisher(keys.sensor_skeletons(RIG, sid)) for sid in SENSORS}
+        time.sleep(0.3)
+        base_us = time.time_ns() // 1000
+        start = time.monotonic()
+        for k in range(n_instants):
+            delay = start + k / 30.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            instant_us = base_us + round(k * 1e6 / 30)
+            stamped = []
+            for i, frame in enumerate(frames[k]):
+                if by == "device":
+                    device = instant_us + 160 * i + rng.randint(-60, 60)
+                    host = time.time_ns()
+                else:
+                    device = 10**12 * (i + 1) + k * 33_333  # unrelated device clocks
+                    host = instant_us * 1000 + [0, 4_000_000, -3_000_000, 2_000_000][i] + rng.randint(-10**6, 10**6)
+                stamped.append(dataclasses.replace(frame, sequence=k, device_time_us=device, host_time_ns=host))
+            expected_times.append(min(f.device_time_us if by == "device" else f.host_time_ns // 1000 for f in stamped))
+            rng.shuffle(stamped)
+            for frame in stamped:
+                publishers[frame.sensor_id].put(encode_sensor_frame(frame))
+                time.sleep(rng.uniform(0, 0.002))
+        listener.wait_for(lambda: len(listener.fused) >= n_instants, 10.0, f"{n_instants} fused frames",
+                          lambda: str(listener.fusion_status()))
+        time.sleep(0.3)
+        fused = [f for _, f in listener.fused]
+        assert [f.time_us for f in fused] == expected_times
+        assert all(f.n_persons == 1 and f.contributors[0].all() for f in fused)
+        status = listener.fusion_status()
+        assert status.counters["late"] == status.counters["duplicate"] == status.counters["out_of_window"] == 0
+        assert processes.stop(node) == 0, processes.log(node)
+    finally:
+        listener.close()
