@@ -96,6 +96,41 @@ def _cmd_bench_fusion(args: argparse.Namespace) -> int:
     return EXIT_OK if result.outputs_match else EXIT_ERROR
 
 
+def _cmd_bench_people(args: argparse.Namespace) -> int:
+    from skelfuse.bench.people import bench_people, format_people_bench
+
+    result = bench_people(args.sensors, args.people, args.frames, preset_name=args.preset)
+    if args.json:
+        _print_json(result)
+    else:
+        print(format_people_bench(result))
+    return EXIT_OK
+
+
+def _cmd_eval_tracking(args: argparse.Namespace) -> int:
+    from skelfuse.eval.tracking import run_tracking_eval
+
+    result = run_tracking_eval(quick=args.quick, seed=args.seed, preset_name=args.preset)
+    if args.json:
+        _print_json(result.to_dict())
+    else:
+        print(result.format_markdown())
+    return EXIT_OK
+
+
+def _cmd_devices(args: argparse.Namespace) -> int:
+    from skelfuse.sources.devices import describe_environment, format_devices, list_devices
+    from skelfuse.sources.kinect import KinectUnavailable
+
+    try:
+        devices = list_devices()
+    except KinectUnavailable:
+        print(describe_environment())
+        return EXIT_ERROR
+    print(format_devices(devices))
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from skelfuse import demo
 
@@ -159,11 +194,18 @@ def _cmd_capture(args: argparse.Namespace) -> int:
     from skelfuse.service.worker import WorkerOptions, run_capture_worker
 
     cfg = _rig(args)
-    options = WorkerOptions(gesture=args.gesture, take_duration_s=args.take_duration, seed=args.seed,
-                            loop=args.loop, speed=None if args.fast else args.speed, node_name=args.node,
-                            limits=_limits(args))
-    report = run_capture_worker(cfg, args.sensor, _zenoh_conf(args, cfg), options=options,
-                                lifecycle=Lifecycle(f"capture-{args.sensor}"))
+    options = WorkerOptions(
+        gesture=args.gesture,
+        take_duration_s=args.take_duration,
+        seed=args.seed,
+        loop=args.loop,
+        speed=None if args.fast else args.speed,
+        node_name=args.node,
+        limits=_limits(args),
+    )
+    report = run_capture_worker(
+        cfg, args.sensor, _zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
+    )
     if args.json:
         _print_json({"frames_out": report.frames_out, "restarts": report.restarts})
     return EXIT_OK
@@ -178,29 +220,37 @@ def _view_options(args: argparse.Namespace, cfg: Any) -> Any:
     if args.rrd is not None:
         return ViewOptions(mode="save", file=args.rrd, log_sensors=r.log_sensors)
     if args.serve:
-        return ViewOptions(mode="serve", bind=args.bind or r.bind, grpc_port=args.grpc_port or r.grpc_port,
-                           web_port=args.web_port if args.web_port is not None else r.web_port,
-                           log_sensors=r.log_sensors)
+        return ViewOptions(
+            mode="serve",
+            bind=args.bind or r.bind,
+            grpc_port=args.grpc_port or r.grpc_port,
+            web_port=args.web_port if args.web_port is not None else r.web_port,
+            log_sensors=r.log_sensors,
+        )
     if args.spawn:
         return ViewOptions(mode="spawn", grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors)
-    return ViewOptions(mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port,
-                       log_sensors=r.log_sensors)
+    return ViewOptions(
+        mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port, log_sensors=r.log_sensors
+    )
 
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
     if args.input is not None:
         return _fuse_offline(args)
     if args.output is not None:
-        raise ConfigError("--output needs --input FILE (offline fusion of a recording); the live node publishes "
-                          "on zenoh, record it with `skelfuse record`")
+        raise ConfigError(
+            "--output needs --input FILE (offline fusion of a recording); the live node publishes "
+            "on zenoh, record it with `skelfuse record`"
+        )
     if args.config is None:
         raise ConfigError("skelfuse fuse needs --config RIG.toml (live) or --input FILE --output OUT (offline)")
     from skelfuse.service.lifecycle import Lifecycle
     from skelfuse.service.node import NodeOptions, run_fusion_node
 
     cfg = _rig(args)
-    options = NodeOptions(node_name=args.node, status_period_s=args.status_period, limits=_limits(args),
-                          view=_view_options(args, cfg))
+    options = NodeOptions(
+        node_name=args.node, status_period_s=args.status_period, limits=_limits(args), view=_view_options(args, cfg)
+    )
     report = run_fusion_node(cfg, _zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle("fusion"))
     if args.json:
         _print_json({"frames_in": report.frames_in, "frames_out": report.frames_out, "status": report.status})
@@ -230,8 +280,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from skelfuse.service.recorder import run_recorder
 
     cfg = _rig(args)
-    report = run_recorder(cfg, _zenoh_conf(args, cfg), output=args.output, limits=_limits(args),
-                          lifecycle=Lifecycle("recorder"))
+    report = run_recorder(
+        cfg, _zenoh_conf(args, cfg), output=args.output, limits=_limits(args), lifecycle=Lifecycle("recorder")
+    )
     summary = {"path": report.path, "frames_written": report.frames_written, "rejects": dict(report.rejects)}
     if args.json:
         _print_json(summary)
@@ -252,8 +303,14 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ConfigError(f"--rig: {exc}") from None
     cfg = _rig(args) if args.config is not None else None
-    report = run_replay(args.file, _zenoh_conf(args, cfg), speed=None if args.fast else args.speed, rig=args.rig,
-                        limits=_limits(args), lifecycle=Lifecycle("replay"))
+    report = run_replay(
+        args.file,
+        _zenoh_conf(args, cfg),
+        speed=None if args.fast else args.speed,
+        rig=args.rig,
+        limits=_limits(args),
+        lifecycle=Lifecycle("replay"),
+    )
     if args.json:
         _print_json({"frames_out": report.frames_out, "topics": sorted(report.topics)})
     return EXIT_OK
@@ -264,16 +321,23 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from skelfuse.service.status import watch_status
 
     cfg = _rig(args)
-    watch_status(cfg, _zenoh_conf(args, cfg), limits=_limits(args), lifecycle=Lifecycle("status"),
-                 as_json=args.json, out=sys.stdout)
+    watch_status(
+        cfg,
+        _zenoh_conf(args, cfg),
+        limits=_limits(args),
+        lifecycle=Lifecycle("status"),
+        as_json=args.json,
+        out=sys.stdout,
+    )
     return EXIT_OK
 
 
 def _cmd_bench_latency(args: argparse.Namespace) -> int:
     from skelfuse.bench import latency
 
-    result = latency.run_latency_bench(sensor_counts=args.sensors, duration_s=args.duration,
-                                       sweep=not args.no_sweep, progress=not args.json)
+    result = latency.run_latency_bench(
+        sensor_counts=args.sensors, duration_s=args.duration, sweep=not args.no_sweep, progress=not args.json
+    )
     if args.json:
         _print_json(result.to_dict())
     else:
@@ -396,6 +460,19 @@ def build_parser() -> argparse.ArgumentParser:
     real.add_argument("--out", type=Path, default=None, help="also write report.md into this folder")
     real.set_defaults(func=_cmd_eval_real)
 
+    tracking = eval_commands.add_parser(
+        "tracking",
+        help="several people: association, stable ids and per-person accuracy on simulated crowds",
+        description="Simulate people crossing, a bystander seen by one sensor, people entering and leaving, and "
+        "a crowd; fuse them with per-person tracking and report CLEAR-MOT figures (MOTA, MOTP, IDF1, id switches, "
+        "fragmentation) and per-person accuracy against ground truth.",
+    )
+    tracking.add_argument("--quick", action="store_true", help="shorter takes, for CI")
+    tracking.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    tracking.add_argument("--preset", default="skelfuse", help="fusion preset (default: %(default)s)")
+    tracking.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    tracking.set_defaults(func=_cmd_eval_tracking)
+
     # bench ----------------------------------------------------------------------------------------
     bench = commands.add_parser("bench", help="measure speed")
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
@@ -421,6 +498,17 @@ def build_parser() -> argparse.ArgumentParser:
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     fusion.set_defaults(func=_cmd_bench_fusion)
 
+    people = bench_commands.add_parser(
+        "people",
+        help="time per frame of multi-person fusion (association + tracks + fusion) on a simulated crowd",
+    )
+    people.add_argument("--sensors", type=int, default=8, help="sensors in the rig (default: %(default)s)")
+    people.add_argument("--people", type=int, default=6, help="people in the crowd (default: %(default)s)")
+    people.add_argument("--frames", type=int, default=300, help="timed frames (default: %(default)s)")
+    people.add_argument("--preset", default="skelfuse", help="fusion preset (default: %(default)s)")
+    people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    people.set_defaults(func=_cmd_bench_people)
+
     latency = bench_commands.add_parser(
         "latency",
         help="publish -> fused-receive latency over zenoh on loopback, the node's own latency, max sensors",
@@ -430,10 +518,21 @@ def build_parser() -> argparse.ArgumentParser:
         "30 Hz. Prints absolute figures; targets: node adds <= 1 ms p99, publish -> subscriber <= 5 ms p99 "
         "for 5 sensors.",
     )
-    latency.add_argument("--sensors", type=int, nargs="+", default=[4, 5, 8], metavar="N",
-                         help="sensor counts to measure (default: %(default)s)")
-    latency.add_argument("--duration", type=float, default=5.0, metavar="SECONDS",
-                         help="measured seconds per sensor count (default: %(default)s)")
+    latency.add_argument(
+        "--sensors",
+        type=int,
+        nargs="+",
+        default=[4, 5, 8],
+        metavar="N",
+        help="sensor counts to measure (default: %(default)s)",
+    )
+    latency.add_argument(
+        "--duration",
+        type=float,
+        default=5.0,
+        metavar="SECONDS",
+        help="measured seconds per sensor count (default: %(default)s)",
+    )
     latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
     latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     latency.set_defaults(func=_cmd_bench_latency)
@@ -443,10 +542,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
-    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
-                        help="stop cleanly after this many seconds (default: run until SIGINT/SIGTERM)")
-    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
-                        help=f"stop cleanly after {what} (default: no limit)")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="stop cleanly after this many seconds (default: run until SIGINT/SIGTERM)",
+    )
+    parser.add_argument(
+        "--max-frames", type=int, default=None, metavar="N", help=f"stop cleanly after {what} (default: no limit)"
+    )
 
 
 def _add_service_commands(commands: Any) -> None:
@@ -462,20 +567,34 @@ def _add_service_commands(commands: Any) -> None:
     )
     capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
     capture.add_argument("--sensor", required=True, metavar="ID", help="which [[sensors]] id to publish")
-    capture.add_argument("--node", default=None, metavar="NAME",
-                         help="node name for status/liveliness keys (default: capture-<ID>)")
-    capture.add_argument("--gesture", default="walking",
-                         choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
-                         help="sim: what the simulated person does; every worker of a rig must agree "
-                              "(default: %(default)s)")
-    capture.add_argument("--take-duration", type=float, default=20.0, metavar="SECONDS",
-                         help="sim: length of the simulated take before it loops (default: %(default)s)")
-    capture.add_argument("--seed", type=int, default=0,
-                         help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations "
-                              "(default: %(default)s)")
-    capture.add_argument("--loop", action=argparse.BooleanOptionalAction, default=None,
-                         help="start the take / recording over at its end (default: sim loops, replay follows "
-                              "sensors[i].replay.loop)")
+    capture.add_argument(
+        "--node", default=None, metavar="NAME", help="node name for status/liveliness keys (default: capture-<ID>)"
+    )
+    capture.add_argument(
+        "--gesture",
+        default="walking",
+        choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
+        help="sim: what the simulated person does; every worker of a rig must agree (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--take-duration",
+        type=float,
+        default=20.0,
+        metavar="SECONDS",
+        help="sim: length of the simulated take before it loops (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--loop",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="start the take / recording over at its end (default: sim loops, replay follows sensors[i].replay.loop)",
+    )
     capture.add_argument("--speed", type=float, default=1.0, help="replay: playback speed (default: %(default)s)")
     capture.add_argument("--fast", action="store_true", help="replay: as fast as possible")
     capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
@@ -493,27 +612,52 @@ def _add_service_commands(commands: Any) -> None:
         "answers `get skelfuse/<rig>/calibration`. Offline (--input): fuse a recording without zenoh and write "
         "CSV or Parquet.",
     )
-    fuse.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
-                      help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)")
+    fuse.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)",
+    )
     fuse.add_argument("--input", type=Path, default=None, metavar="FILE", help="offline: an MCAP recording")
-    fuse.add_argument("--output", type=Path, default=None, metavar="OUT",
-                      help="offline: fused frames to OUT.csv or OUT.parquet")
+    fuse.add_argument(
+        "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
+    )
     fuse.add_argument("--preset", default=None, help="offline: fusion preset (default: the config's, else A5)")
-    fuse.add_argument("--node", default=None, metavar="NAME",
-                      help="node name for status/liveliness keys (default: [node] name, else fusion)")
-    fuse.add_argument("--status-period", type=float, default=None, metavar="SECONDS",
-                      help="status period (default: [node] status_period_s)")
+    fuse.add_argument(
+        "--node",
+        default=None,
+        metavar="NAME",
+        help="node name for status/liveliness keys (default: [node] name, else fusion)",
+    )
+    fuse.add_argument(
+        "--status-period",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="status period (default: [node] status_period_s)",
+    )
     view = fuse.add_argument_group("live view (default: the config's [rerun])")
     view.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="save the live view to FILE")
     view.add_argument("--spawn", action="store_true", help="spawn a local Rerun viewer")
-    view.add_argument("--serve", action="store_true",
-                      help="serve the view over gRPC (and the web viewer with --web-port) for remote viewers")
-    view.add_argument("--bind", default=None, metavar="ADDR",
-                      help="address to serve on (default: [rerun] bind, 127.0.0.1)")
-    view.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
-                      help="gRPC port (default: [rerun] grpc_port, 9876)")
-    view.add_argument("--web-port", type=int, default=None, metavar="PORT",
-                      help="with --serve: also serve the web viewer on this port")
+    view.add_argument(
+        "--serve",
+        action="store_true",
+        help="serve the view over gRPC (and the web viewer with --web-port) for remote viewers",
+    )
+    view.add_argument(
+        "--bind", default=None, metavar="ADDR", help="address to serve on (default: [rerun] bind, 127.0.0.1)"
+    )
+    view.add_argument(
+        "--grpc-port", type=int, default=None, metavar="PORT", help="gRPC port (default: [rerun] grpc_port, 9876)"
+    )
+    view.add_argument(
+        "--web-port",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="with --serve: also serve the web viewer on this port",
+    )
     view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
     fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     _add_run_limits(fuse, "publishing N fused frames")
@@ -529,8 +673,13 @@ def _add_service_commands(commands: Any) -> None:
         "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
     )
     record.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
-    record.add_argument("--output", type=Path, default=None, metavar="FILE",
-                        help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)")
+    record.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
+    )
     record.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     _add_run_limits(record, "writing N frames")
     add_zenoh_arguments(record)
@@ -546,10 +695,16 @@ def _add_service_commands(commands: Any) -> None:
     replay.add_argument("file", type=Path, metavar="FILE", help="an MCAP recording made by skelfuse record")
     replay.add_argument("--speed", type=float, default=1.0, help="playback speed (default: %(default)s)")
     replay.add_argument("--fast", action="store_true", help="as fast as possible")
-    replay.add_argument("--rig", default=None, metavar="NAME",
-                        help="publish under skelfuse/NAME/... instead of the recorded rig")
-    replay.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
-                        help="take the zenoh settings from this rig config (default: zenoh defaults + flags)")
+    replay.add_argument(
+        "--rig", default=None, metavar="NAME", help="publish under skelfuse/NAME/... instead of the recorded rig"
+    )
+    replay.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
+    )
     replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     _add_run_limits(replay, "publishing N frames")
     add_zenoh_arguments(replay)
@@ -567,6 +722,19 @@ def _add_service_commands(commands: Any) -> None:
     _add_run_limits(status, "N status messages")
     add_zenoh_arguments(status)
     status.set_defaults(func=_cmd_status)
+
+    # devices and calibration ------------------------------------------------------------------------
+    devices = commands.add_parser(
+        "devices",
+        help="list connected Azure Kinect / Femto Bolt sensors (serial, firmware, sync jacks)",
+        description="List connected sensors through pyk4a / libk4a. Where the SDK or the kinect extra is missing, "
+        "says what is missing and how to install it.",
+    )
+    devices.set_defaults(func=_cmd_devices)
+
+    from skelfuse.calibration.commands import add_calibrate_parser
+
+    add_calibrate_parser(commands)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
