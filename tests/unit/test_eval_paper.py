@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -25,23 +26,64 @@ def test_experiment3_uses_every_combination_4_6_4_1() -> None:
     assert combos[4] == ["A5_100"]
     assert "A5_100[0,3]" in combos[2] and "A5_100[1,2,3]" in combos[3]
     assert paper_reference.N_SENSORS_COMBINATIONS == {n: len(k) for n, k in combos.items()}
+    ours = paper.sensor_combinations(4, algorithm="skelfuse")
+    assert ours[1] == combos[1]  # one sensor is the raw skeleton, shared by both algorithms
+    assert ours[4] == ["skelfuse"] and "skelfuse[0,3]" in ours[2] and len(ours[3]) == 4
 
 
 def test_fusion_runs_cover_the_grid_and_the_subsets_once() -> None:
     runs = paper.fusion_runs(4)
     keys = [r.key for r in runs]
     assert len(keys) == len(set(keys))
-    # A1, A2, 3 presets x 4 eps on all sensors, then A5 on the 6 pairs and 4 triples.
-    assert len(runs) == 2 + 3 * 4 + 6 + 4
+    # A1, A2, 3 presets x 4 eps and ours on all sensors, then A5 and ours on the 6 pairs and 4 triples.
+    assert len(runs) == 2 + 3 * 4 + 1 + 2 * (6 + 4)
     assert {r.key for r in runs if len(r.sensors) == 4} == {
         "A1",
         "A2",
         *(f"A{n}_{e}" for n in (3, 4, 5) for e in (50, 100, 150, 200)),
+        "skelfuse",
     }
-    assert all(r.preset == "A5" and r.eps_mm == 100.0 for r in runs if len(r.sensors) < 4)
+    subsets = [r for r in runs if len(r.sensors) < 4]
+    assert all(r.eps_mm == 100.0 for r in subsets if r.preset == "A5")
+    assert {r.preset for r in subsets} == {"A5", "skelfuse"}
+    # eps is handed to A3-A5 only; A1, A2 and ours run at their preset's own default.
+    assert {r.preset for r in runs if r.eps_mm is None} == {"A1", "A2", "skelfuse"}
     # Every key experiment 3 averages is produced by a run or is a raw sensor.
     produced = set(keys) | {f"raw[{s}]" for s in range(4)}
-    assert all(k in produced for ks in paper.sensor_combinations(4).values() for k in ks)
+    for algorithm in ("A5", "skelfuse"):
+        assert all(k in produced for ks in paper.sensor_combinations(4, algorithm=algorithm).values() for k in ks)
+    assert len(paper.fusion_runs(4, ours=())) == 2 + 3 * 4 + 6 + 4
+
+
+def test_runs_pass_eps_only_where_set(monkeypatch) -> None:
+    from skelfuse.fusion import presets
+
+    calls: list[tuple] = []
+    monkeypatch.setattr(presets, "preset", lambda name, **kwargs: calls.append((name, kwargs)) or name)
+    paper.FusionRun("skelfuse", "skelfuse", None, (0, 1)).params()
+    paper.FusionRun("A4_150", "A4", 150.0, (0, 1)).params()
+    assert calls == [("skelfuse", {}), ("A4", {"eps_mm": 150.0})]
+
+
+def test_scenarios_switch_mirroring_off_only_in_the_paper_scenario() -> None:
+    from skelfuse.sim.observe import load_profile
+
+    default = load_profile()
+    assert default.flip_on_prob > 0
+    assert paper.scenario_profile(default, "rear_mirroring") == default
+    paper_profile = paper.scenario_profile(default, "paper")
+    assert paper_profile.flip_on_prob == 0.0
+    assert paper_profile == dataclasses.replace(default, flip_on_prob=0.0)  # nothing else changes
+    with pytest.raises(ValueError, match="scenario"):
+        paper.scenario_profile(default, "mirror")
+    tasks = paper.plan_takes(
+        quick=True, seed=3, duration_s=1.0, profile_path=None, gestures=("jump",), scenarios=paper.SCENARIOS
+    )
+    by_scenario = {t.scenario: t for t in tasks if t.facing_deg == 0.0}
+    # Common random numbers: the same take has the same seeds in every scenario.
+    assert by_scenario["paper"].sim_seed == by_scenario["rear_mirroring"].sim_seed
+    with pytest.raises(ValueError, match="scenario"):
+        paper.plan_takes(quick=True, seed=0, duration_s=1.0, profile_path=None, scenarios=("nope",))
 
 
 def test_takes_have_distinct_seeds_and_follow_the_plan() -> None:
@@ -76,12 +118,15 @@ def _fake_take(gesture: str, facing: float, rng: np.random.Generator, scale: dic
     ref = rng.normal(0.0, 100.0, (n_frames, len(EVAL_JOINTS), 3))
     errors = {}
     lag = {}
+    jitter = {paper.EXACT_TRUTH: {g: (1.0 * n_frames, n_frames) for g in JOINT_GROUPS}}
     for key in keys:
         est = ref.copy()
         est[..., 0] += scale.get(key, 10.0) * (np.arange(len(EVAL_JOINTS)) + 1.0)
         protocols = ("truth",) if key == paper.BEST_VIEW_RAW else paper.PROTOCOLS
         errors[key] = {p: ErrorAccumulator.zeros(len(EVAL_JOINTS)).add(est, ref) for p in protocols}
         lag[key] = {g: lag_error_curve(est[:, :2], ref[:, :2], paper.LAG_SHIFTS) for g in JOINT_GROUPS}
+        # Jitter sums whose RMS is the scale: scale² x n over n samples.
+        jitter[key] = {g: (scale.get(key, 10.0) ** 2 * n_frames, n_frames) for g in JOINT_GROUPS}
     info = {
         "gesture": gesture,
         "facing_deg": facing,
@@ -92,24 +137,27 @@ def _fake_take(gesture: str, facing: float, rng: np.random.Generator, scale: dic
         "fuse_s": 0.0,
         "n_fusion_steps": 0,
     }
-    return paper.TakeResult(gesture, facing, errors, lag, info)
+    return paper.TakeResult(gesture, facing, errors, lag, info, jitter=jitter)
 
 
-def _fake_result(scale: dict[str, float]) -> paper.PaperEvalResult:
+_FAKE_SETTINGS = {
+    "quick": True,
+    "seed": 0,
+    "gestures": ["jump", "squat"],
+    "directions_deg": [0.0, 180.0],
+    "duration_s": 1.0,
+    "fps": 30.0,
+    "eps_mm": list(paper.EPS_MM),
+    "ours": ["skelfuse"],
+    "workers": 1,
+    "n_takes": 4,
+}
+
+
+def _fake_result(scale: dict[str, float], scenario: str = "rear_mirroring") -> paper.PaperEvalResult:
     rng = np.random.default_rng(1124)
-    gestures = ["jump", "squat"]
-    takes = [_fake_take(g, d, rng, scale) for g in gestures for d in (0.0, 180.0)]
-    settings = {
-        "quick": True,
-        "seed": 0,
-        "gestures": gestures,
-        "directions_deg": [0.0, 180.0],
-        "duration_s": 1.0,
-        "fps": 30.0,
-        "eps_mm": list(paper.EPS_MM),
-        "n_takes": len(takes),
-    }
-    return paper.collect(takes, settings)
+    takes = [_fake_take(g, d, rng, scale) for g in _FAKE_SETTINGS["gestures"] for d in (0.0, 180.0)]
+    return paper.collect(takes, {**_FAKE_SETTINGS, "scenario": scenario})
 
 
 def test_group_value_is_the_mean_of_its_joints_and_rows_average_their_members() -> None:
@@ -131,6 +179,25 @@ def test_group_value_is_the_mean_of_its_joints_and_rows_average_their_members() 
     # Two directions x 20 frames pooled per gesture, two gestures: 80 frames per joint and output.
     assert result.joint_stats("algorithms", "A1", "truth").n_frames.tolist() == [80] * len(EVAL_JOINTS)
     assert result.members("n_sensors", "2") == paper.sensor_combinations(4)[2]
+    assert result.members("n_sensors", "skelfuse_3") == paper.sensor_combinations(4, algorithm="skelfuse")[3]
+
+
+def test_rows_mark_ours_and_average_lag_and_jitter_over_their_members() -> None:
+    scale = {"A5_50": 1.0, "A5_100": 2.0, "A5_150": 3.0, "A5_200": 6.0, "skelfuse": 0.5}
+    result = _fake_result(scale)
+    assert result.experiment_configs("algorithms") == ["A1", "A2", "A3", "A4", "A5", "skelfuse"]
+    assert result.experiment_configs("n_sensors") == ["1", "2", "3", "4", "skelfuse_2", "skelfuse_3", "skelfuse_4"]
+    assert paper.is_ours("skelfuse_3") and paper.is_ours("skelfuse[0,1]") and not paper.is_ours("A5_100[0,1]")
+    # Jitter of a row = mean over its eps members of the pooled RMS (each member's RMS is its scale).
+    assert result.row_jitter("algorithms", "A5", "upper_limb") == pytest.approx(3.0)
+    assert result.row_jitter("algorithms", "skelfuse", "torso") == pytest.approx(0.5)
+    assert result.jitter[paper.EXACT_TRUTH]["torso"] == pytest.approx(1.0)
+    lags = [result.lag[k]["torso"]["lag_frames"] for k in result.members("algorithms", "A5")]
+    assert result.row_lag("algorithms", "A5", "torso") == pytest.approx(np.mean(lags))
+    # The paper has no figure for our rows.
+    assert result.paper_value("algorithms", "skelfuse", "ae_mm", "torso") is None
+    assert result.paper_value("n_sensors", "skelfuse_4", "ae_mm", "torso") is None
+    assert result.paper_value("n_sensors", "4", "ae_mm", "torso") == 39.6
 
 
 def test_report_files_markdown_and_json(tmp_path) -> None:
@@ -154,15 +221,47 @@ def test_report_files_markdown_and_json(tmp_path) -> None:
         assert p.exists() and p.stat().st_size > 0
     assert (tmp_path / "out" / "fig09_algorithms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = paper.format_markdown(result)
-    assert "Experiment 1" in md and "Experiment 3" in md and "| A5 |" in md
+    assert "Experiment 1" in md and "Experiment 3" in md and "| A5 | paper |" in md
+    assert "| **skelfuse (ours)** | **ours** |" in md and "| **4 sensors, skelfuse (ours)** | **ours** |" in md
     assert "39.1 ± 9.6" in md  # the paper's A5 at eps 10 cm, printed beside ours
+    assert "jitter (mm/frame²)" in md
     data = json.loads((tmp_path / "out" / "result.json").read_text())
-    assert data["experiments"]["algorithms"]["truth"]["A1"]["paper"]["upper_limb"]["ae_mm"] == 90.9
-    assert set(data["experiments"]["n_sensors"]["truth"]) == {"1", "2", "3", "4"}
+    assert data["scenario"] == "rear_mirroring"
+    algorithms = data["experiments"]["algorithms"]["truth"]
+    assert algorithms["A1"]["paper"]["upper_limb"]["ae_mm"] == 90.9
+    assert algorithms["skelfuse"]["algorithm"] == "ours" and algorithms["A5"]["algorithm"] == "paper"
+    assert algorithms["skelfuse"]["jitter_mm_per_frame2"]["torso"] == pytest.approx(10.0)
+    assert set(data["experiments"]["n_sensors"]["truth"]) == {
+        "1",
+        "2",
+        "3",
+        "4",
+        "skelfuse_2",
+        "skelfuse_3",
+        "skelfuse_4",
+    }
     json.dumps(result.to_dict(), allow_nan=False)  # strictly JSON (NaN -> null)
     joints_csv = (tmp_path / "out" / "algorithms_truth_joints.csv").read_text().splitlines()
     assert joints_csv[0].startswith("config,gesture,joint,ae_mm,rmse_mm,std_mm")
-    assert len(joints_csv) == 1 + 5 * 3 * len(EVAL_JOINTS)  # 5 rows x ("all" + 2 gestures) x 16 joints
+    assert joints_csv[0].endswith(",algorithm")
+    assert len(joints_csv) == 1 + 6 * 3 * len(EVAL_JOINTS)  # 6 rows x ("all" + 2 gestures) x 16 joints
+    assert sum(line.endswith(",ours") for line in joints_csv) == 3 * len(EVAL_JOINTS)
+
+
+def test_summary_puts_both_scenarios_beside_the_paper() -> None:
+    suite = paper.PaperEvalSuite(
+        {name: _fake_result({"skelfuse": 1.0}, name) for name in paper.SCENARIOS},
+        {**_FAKE_SETTINGS, "scenarios": list(paper.SCENARIOS)},
+    )
+    summary = paper.format_markdown(suite)
+    assert "paper: vs truth" in summary and "rear_mirroring: vs best view" in summary
+    assert "rear_mirroring: jitter" in summary and "paper: swapped" in summary
+    assert "| **skelfuse (ours)** | **ours** |" in summary and "| 1 sensor (raw) | raw |" in summary
+    assert "| A5 | paper |" in summary and "40 / 56 / 36 |" in summary  # the paper's A5 figure beside ours
+    data = suite.to_dict()
+    json.dumps(data, allow_nan=False)
+    assert set(data["scenarios"]) == set(paper.SCENARIOS)
+    assert data["scenarios"]["paper"]["scenario"] == "paper"
 
 
 def test_paper_reference_figures_are_the_text_values() -> None:
@@ -210,9 +309,10 @@ def _require_core() -> None:
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
+    """Both scenarios, 3 gestures x 2 directions x 5 s, seed 1124 (about 20 s on one core)."""
     _require_core()
     out = tmp_path_factory.mktemp("paper")
-    result = paper.run_paper_eval(
+    suite = paper.run_paper_eval(
         out_dir=out,
         quick=True,
         seed=1124,
@@ -221,49 +321,167 @@ def quick_run(tmp_path_factory):
         directions_deg=(0.0, 180.0),
         duration_s=5.0,
     )
-    return result, out
+    return suite, out
+
+
+def _upper(result: paper.PaperEvalResult, experiment: str, config: str, group: str = "upper_limb") -> float:
+    return result.group_stats(experiment, config, "truth")[group]["rmse_mm"]
 
 
 def test_quick_run_writes_files_and_finite_results(quick_run) -> None:
-    result, out = quick_run
-    for name in ("report.md", "result.json", "fig09_algorithms.png", "algorithms_truth_groups.csv"):
-        assert (out / name).stat().st_size > 0
-    for exp in paper.EXPERIMENTS:
-        for protocol in paper.PROTOCOLS:
-            for config in result.experiment_configs(exp):
-                for g, v in result.group_stats(exp, config, protocol).items():
-                    assert math.isfinite(v["rmse_mm"]) and v["rmse_mm"] > 0, (exp, protocol, config, g)
-    data = result.to_dict()
+    suite, out = quick_run
+    assert list(suite.scenarios) == list(paper.SCENARIOS)
+    for file in ("report.md", "result.json", "summary_algorithms.png", "summary_n_sensors.png"):
+        assert str(out / file) in suite.files and (out / file).stat().st_size > 0
+    summary = (out / "report.md").read_text()
+    assert "Experiment 1" in summary and "rear_mirroring: vs truth" in summary and "(ours)" in summary
+    data = suite.to_dict()
     json.dumps(data, allow_nan=False)
-    assert all(math.isfinite(v["lag_frames"]) for v in result.lag["A5_100"].values())
+    assert set(data["scenarios"]) == set(paper.SCENARIOS)
+    assert set(json.loads((out / "result.json").read_text())["scenarios"]) == set(paper.SCENARIOS)
+    for name, result in suite.scenarios.items():
+        for file in ("report.md", "result.json", "fig09_algorithms.png", "algorithms_truth_groups.csv"):
+            assert (out / name / file).stat().st_size > 0
+        for exp in paper.EXPERIMENTS:
+            for protocol in paper.PROTOCOLS:
+                for config in result.experiment_configs(exp):
+                    for g, v in result.group_stats(exp, config, protocol).items():
+                        assert math.isfinite(v["rmse_mm"]) and v["rmse_mm"] > 0, (name, exp, protocol, config, g)
+        assert "skelfuse" in result.experiment_configs("algorithms")
+        for key in ("A5_100", "skelfuse"):
+            assert all(math.isfinite(v["lag_frames"]) for v in result.lag[key].values())
+            assert all(math.isfinite(v) and v > 0 for v in result.jitter[key].values())
 
 
-# The two claims below are the paper's; they FAIL on the current simulator + fusion core, and are marked
-# xfail(strict) so that they turn red again (XPASS) the day they hold. Cause, from `skelfuse eval paper`: with
-# the subject facing between sensors (paper_rig 45°/135°/..., facing 0/90/180/270), two of the four capture
-# views are rear views, mirrored ~43% of frames; the paper's per-pair realignment (reference = mean of all
-# candidates) cannot resolve a 2-against-2 split, so 31-39% of fused limb pairs stay left/right swapped (A1-A5)
-# and the paper's Kalman (Q=0.01, R=1) makes A5 lag ~8-9 frames (torso ~99 mm on walking).
-_CLAIM_FAILS = (
-    "fails today: rear views mirrored ~43% of frames defeat the paper's realignment (31-39% of fused limb pairs "
-    "swapped) and the paper Kalman lags ~8-9 frames; see the comment above and the eval paper report"
+def test_paper_scenario_has_no_mirrored_view_and_rear_views_mirror_otherwise(quick_run) -> None:
+    suite, _ = quick_run
+    assert all(max(t["mirrored_fraction"]) == 0.0 for t in suite["paper"].takes)
+    # Without mirroring a pair ends up swapped only where left and right cross (A5's lag: ~0.2%).
+    assert all(suite["paper"].swapped[k] < 0.01 for k in ("A1", "A5_100", "skelfuse"))
+    mirrored = [np.mean(t["mirrored_fraction"][:4]) for t in suite["rear_mirroring"].takes]
+    assert np.mean(mirrored) > 0.2
+
+
+# ---- The paper's claims, in the paper's conditions (no mirrored view), against exact truth.
+# Measured on this quick run (3 gestures x 2 directions x 5 s, seed 1124), RMSE torso / upper / lower, mm:
+#   A1 16.8 / 24.4 / 22.0, A3 16.9 / 23.5 / 22.0, A4 16.8 / 23.5 / 22.1, A5 113 / 192 / 110,
+#   1 sensor (raw) 30.0 / 44.9 / 43.4, 4 sensors A5 113 / 191 / 110, A3 eps 100 mm 16.8 / 22.8 / 21.2,
+#   skelfuse 16.8 / 22.5 / 21.1 (2 sensors 22.4 / 31.3 / 30.5, 3 sensors 18.9 / 25.6 / 24.5).
+# The full default run (6 x 4 x 33 s, seed 0) shows the same pattern: A1 18.5 / 32.4 / 26.2, A3 18.2 / 31.1 / 25.3,
+# A5 104 / 174 / 101, 1 sensor 32 / 60 / 47, skelfuse 18.6 / 31.6 / 24.4.
+
+_NO_MARGIN = (
+    "measured: without mirrored views all four views agree within DBSCAN's radius, so DBSCAN (A3/A4) merges the "
+    "same candidates as the plain average and is only ~4% better on upper limbs (23.5 vs 24.4 mm), not the "
+    "paper's 27-34%; A5 is far worse (192 mm) because the paper's Kalman (Q=0.01, R=1) lags ~9 frames"
+)
+_A5_LAGS = (
+    "measured: A5 with 4 sensors is worse than one raw sensor (torso 113 vs 30 mm, upper limb 191 vs 45 mm) "
+    "because the paper's Kalman (Q=0.01, R=1) lags ~9 frames; the merge alone (A3, no filter) does beat one "
+    "sensor, see test_paper_scenario_merging_four_sensors_beats_one"
 )
 
 
-@pytest.mark.xfail(strict=True, reason=_CLAIM_FAILS)
-def test_fusion_beats_plain_average_on_upper_limbs(quick_run) -> None:
-    """The paper's central claim, against exact truth: DBSCAN fusion (A5) beats the plain average (A1) on the
-    upper limbs by a clear margin (paper: 55.9 vs 90.9 mm)."""
-    result, _ = quick_run
-    a1 = result.group_stats("algorithms", "A1", "truth")["upper_limb"]["rmse_mm"]
-    best = min(result.group_stats("algorithms", c, "truth")["upper_limb"]["rmse_mm"] for c in ("A3", "A4", "A5"))
+def test_paper_scenario_dbscan_is_no_worse_than_the_plain_average(quick_run) -> None:
+    """The direction of the paper's Figure 9 holds without mirroring: A3 and A4 are at least as good as A1 on
+    the upper limbs (the size of the gain does not, see the xfail below)."""
+    result = quick_run[0]["paper"]
+    a1 = _upper(result, "algorithms", "A1")
+    for config in ("A3", "A4"):
+        assert _upper(result, "algorithms", config) <= a1, config
+
+
+@pytest.mark.xfail(strict=True, reason=_NO_MARGIN)
+def test_paper_scenario_fusion_beats_plain_average_on_upper_limbs(quick_run) -> None:
+    """The paper's central claim, against exact truth: DBSCAN fusion (best of A3-A5) beats the plain average
+    (A1) on the upper limbs by a clear margin (paper: 55.9-66.0 vs 90.9 mm)."""
+    result = quick_run[0]["paper"]
+    a1 = _upper(result, "algorithms", "A1")
+    best = min(_upper(result, "algorithms", c) for c in ("A3", "A4", "A5"))
     assert best < 0.85 * a1, f"A3-A5 best {best:.1f} mm vs A1 {a1:.1f} mm on upper limbs"
 
 
-@pytest.mark.xfail(strict=True, reason=_CLAIM_FAILS)
-def test_four_sensors_beat_one(quick_run) -> None:
-    result, _ = quick_run
+@pytest.mark.xfail(strict=True, reason=_A5_LAGS)
+def test_paper_scenario_four_sensors_beat_one(quick_run) -> None:
+    """The paper's Figure 11 (A5 at eps 100 mm, 1 = raw): error falls from 1 to 4 sensors in every group."""
+    result = quick_run[0]["paper"]
     for g in ("torso", "upper_limb", "lower_limb"):
-        one = result.group_stats("n_sensors", "1", "truth")[g]["rmse_mm"]
-        four = result.group_stats("n_sensors", "4", "truth")[g]["rmse_mm"]
+        one, four = _upper(result, "n_sensors", "1", g), _upper(result, "n_sensors", "4", g)
         assert four < one, f"{g}: 4 sensors {four:.1f} mm vs 1 sensor {one:.1f} mm"
+
+
+def test_paper_scenario_merging_four_sensors_beats_one(quick_run) -> None:
+    """Without the lagging filter, the paper's merge (A3, eps 100 mm) of four views beats one raw view by a
+    clear margin in every group (measured 16.8 / 22.8 / 21.2 vs 30.0 / 44.9 / 43.4 mm)."""
+    result = quick_run[0]["paper"]
+    raw = result.group_stats("n_sensors", "1", "truth")
+    merged = result.group_stats_key("A3_100", "truth")
+    for g in ("torso", "upper_limb", "lower_limb"):
+        assert merged[g]["rmse_mm"] < 0.75 * raw[g]["rmse_mm"], g
+
+
+# ---- The same claims with rear views mirrored (the default simulator): the paper's algorithm fails them.
+
+_MIRRORED = (
+    "measured with rear views mirrored (two of four views, ~40% of frames): the paper's per-pair realignment "
+    "cannot out-vote a 2-against-2 split, ~35% of fused limb pairs stay swapped and DBSCAN then picks whole "
+    "mirrored clusters: A1 265, A3 355, A4 317, A5 292 mm on upper limbs; A5 with 4 sensors 150 / 288 / 153 vs "
+    "one raw sensor 103 / 384 / 165 mm (torso / upper / lower)"
+)
+
+
+@pytest.mark.xfail(strict=True, reason=_MIRRORED)
+def test_rear_mirroring_fusion_beats_plain_average_on_upper_limbs(quick_run) -> None:
+    result = quick_run[0]["rear_mirroring"]
+    a1 = _upper(result, "algorithms", "A1")
+    best = min(_upper(result, "algorithms", c) for c in ("A3", "A4", "A5"))
+    assert best < 0.85 * a1, f"A3-A5 best {best:.1f} mm vs A1 {a1:.1f} mm on upper limbs"
+
+
+@pytest.mark.xfail(strict=True, reason=_MIRRORED)
+def test_rear_mirroring_four_sensors_beat_one(quick_run) -> None:
+    result = quick_run[0]["rear_mirroring"]
+    for g in ("torso", "upper_limb", "lower_limb"):
+        one, four = _upper(result, "n_sensors", "1", g), _upper(result, "n_sensors", "4", g)
+        assert four < one, f"{g}: 4 sensors {four:.1f} mm vs 1 sensor {one:.1f} mm"
+
+
+# ---- Ours, in both scenarios, against exact truth.
+
+
+_OURS_NO_MARGIN_OVER_A1 = (
+    "measured: without mirrored views the plain average is already close to the views' shared error; skelfuse "
+    "is 8% better than A1 on upper limbs in this quick run (22.5 vs 24.4 mm) and only 2.5% in the full default "
+    "run (31.6 vs 32.4 mm), where it is worse on 'jump' (44.2 vs 35.3 mm), a gesture this quick run lacks"
+)
+
+
+@pytest.mark.parametrize(
+    "scenario",
+    [
+        pytest.param("paper", marks=pytest.mark.xfail(strict=True, reason=_OURS_NO_MARGIN_OVER_A1), id="paper"),
+        # With mirroring ours keeps its accuracy (23.0 mm here, 31.4 mm in the full run) while A1 is at 265 mm.
+        pytest.param("rear_mirroring", id="rear_mirroring"),
+    ],
+)
+def test_skelfuse_beats_a1_on_upper_limbs_by_a_clear_margin(quick_run, scenario: str) -> None:
+    result = quick_run[0][scenario]
+    ours, a1 = _upper(result, "algorithms", "skelfuse"), _upper(result, "algorithms", "A1")
+    assert ours < 0.85 * a1, f"skelfuse {ours:.1f} mm vs A1 {a1:.1f} mm"
+
+
+@pytest.mark.parametrize("scenario", paper.SCENARIOS)
+def test_skelfuse_beats_a5_on_upper_limbs_without_lag_or_swaps(quick_run, scenario: str) -> None:
+    result = quick_run[0][scenario]
+    ours, a5 = _upper(result, "algorithms", "skelfuse"), _upper(result, "algorithms", "A5")
+    assert ours < 0.25 * a5, f"skelfuse {ours:.1f} mm vs A5 {a5:.1f} mm"
+    assert result.row_swapped("algorithms", "skelfuse") < 0.01
+    assert all(abs(result.row_lag("algorithms", "skelfuse", g)) < 1.0 for g in ("torso", "upper_limb"))
+
+
+@pytest.mark.parametrize("scenario", paper.SCENARIOS)
+def test_skelfuse_with_four_sensors_beats_one(quick_run, scenario: str) -> None:
+    result = quick_run[0][scenario]
+    for g in ("torso", "upper_limb", "lower_limb"):
+        one, four = _upper(result, "n_sensors", "1", g), _upper(result, "n_sensors", "skelfuse_4", g)
+        assert four < 0.75 * one, f"{g}: skelfuse 4 sensors {four:.1f} mm vs 1 sensor {one:.1f} mm"

@@ -10,6 +10,8 @@ from skelfuse.eval.metrics import (
     best_lag,
     error_stats,
     group_means,
+    jitter_rms,
+    jitter_sums,
     joint_distances,
     lag_error_curve,
     mean_stats,
@@ -141,3 +143,26 @@ def test_swap_counts_detects_exchanged_labels() -> None:
     estimate[3, 0] = np.nan  # frame 3 not scorable
     n_swapped, n_valid = swap_counts(estimate, reference, np.array([[0, 1]]))
     assert n_swapped.tolist() == [2] and n_valid.tolist() == [3]
+
+
+def test_jitter_is_zero_on_constant_velocity_and_the_acceleration_otherwise() -> None:
+    t = np.arange(10.0)
+    linear = np.stack([np.stack([3.0 * t, -t, 0.5 * t], axis=-1)] * 2, axis=1)  # (T, 2, 3)
+    assert jitter_sums(linear) == pytest.approx((0.0, 2 * 8))
+    # x = t² along one axis: second difference 2 mm/frame² everywhere.
+    parabola = np.zeros((6, 1, 3))
+    parabola[:, 0, 0] = np.arange(6.0) ** 2
+    s, n = jitter_sums(parabola)
+    assert n == 4 and jitter_rms(s, n) == pytest.approx(2.0)
+    # A NaN frame removes the three second differences that touch it.
+    parabola[2] = np.nan
+    assert jitter_sums(parabola)[1] == 1
+    assert np.isnan(jitter_rms(0.0, 0)) and jitter_sums(parabola[:2]) == (0.0, 0)
+
+
+def test_jitter_of_white_noise_is_sqrt18_sigma() -> None:
+    rng = np.random.default_rng(1124)
+    noise = rng.normal(0.0, 2.0, (20000, 1, 3))
+    assert jitter_rms(*jitter_sums(noise)) == pytest.approx(2.0 * np.sqrt(18.0), rel=0.02)
+    with pytest.raises(ValueError, match="T, J, 3"):
+        jitter_sums(np.zeros((5, 3)))

@@ -18,7 +18,8 @@ The cycle of an evaluation:
 
 ``lag_error_curve`` / ``best_lag`` measure how late an output trails the reference: the time shift, in frames,
 that minimizes the mean distance between the shifted output and the reference. ``swap_counts`` counts frames
-where an output has a left/right pair the wrong way round.
+where an output has a left/right pair the wrong way round. ``jitter_sums`` / ``jitter_rms`` measure how much an
+output shakes: the RMS of its second difference over time (mm/frame², the discrete acceleration).
 
 References
 ----------
@@ -40,6 +41,8 @@ __all__ = [
     "best_lag",
     "error_stats",
     "group_means",
+    "jitter_rms",
+    "jitter_sums",
     "joint_distances",
     "lag_error_curve",
     "mean_stats",
@@ -334,3 +337,37 @@ def swap_counts(estimate: np.ndarray, reference: np.ndarray, pairs: np.ndarray) 
     swap = np.linalg.norm(e_left - r_right, axis=-1) + np.linalg.norm(e_right - r_left, axis=-1)
     valid = np.isfinite(keep) & np.isfinite(swap)
     return (valid & (swap < keep)).sum(axis=0), valid.sum(axis=0)
+
+
+def jitter_sums(positions: np.ndarray) -> tuple[float, int]:
+    """Sum of squared second differences of a trajectory, for an RMS jitter pooled over takes.
+
+    The second difference ``x[t+1] - 2 x[t] + x[t-1]`` is the discrete acceleration in mm/frame². Its RMS over
+    frames and joints measures shake: white noise of standard deviation s per axis gives ``s * sqrt(18)``
+    (``sqrt(6)`` per axis, three axes), and smooth motion at 30 fps only a few mm/frame². Compare an output
+    with the exact truth's own value, which is the motion's real acceleration.
+
+    Parameters
+    ----------
+    positions : (T, J, 3) array
+        Positions in mm, NaN = missing; a second difference counts only where all three frames are finite.
+
+    Returns
+    -------
+    sum_sq_mm2, count : float, int
+        Sum of the squared Euclidean norms of the valid second differences (mm²/frame⁴) and their number.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[-1] != 3:
+        raise ValueError(f"positions must be (T, J, 3) mm, got shape {positions.shape}")
+    if positions.shape[0] < 3:
+        return 0.0, 0
+    second = positions[2:] - 2.0 * positions[1:-1] + positions[:-2]
+    norm_sq = np.sum(second**2, axis=-1)
+    ok = np.isfinite(norm_sq)
+    return float(norm_sq[ok].sum()), int(ok.sum())
+
+
+def jitter_rms(sum_sq_mm2: float, count: int) -> float:
+    """RMS second difference (mm/frame²) from ``jitter_sums`` (added over takes); NaN without a sample."""
+    return float(np.sqrt(sum_sq_mm2 / count)) if count > 0 else float("nan")
