@@ -1,8 +1,13 @@
-"""Left/right realignment: mirrored views fixed, correct views untouched, vectorized == per-sensor loop."""
+"""Left/right realignment: mirrored views fixed, correct views untouched, vectorized == per-sensor loop;
+the temporal mode on constructed cold starts, recoveries and turns."""
+
+from dataclasses import replace
 
 import numpy as np
 
-from skelfuse.fusion.realign import _swap_pairs, realign_body, realign_paper, reference_positions
+from skelfuse.eval.metrics import swap_counts
+from skelfuse.fusion import Fuser, fuse, init_state, preset
+from skelfuse.fusion.realign import _swap_pairs, realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
 
 RNG_SEED = 20220418
@@ -140,3 +145,112 @@ def test_body_mode_leaves_correct_views_alone():
     out, _, mirrored = realign_body(pos, conf)
     assert not mirrored.any()
     np.testing.assert_array_equal(out, pos)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# realign="temporal": whole-body flips against the previous merged skeleton
+
+
+def _facing_skeleton(rng: np.random.Generator, facing_deg: float) -> np.ndarray:
+    """:func:`_skeleton` (facing +y: its right side at +x) turned about the vertical z axis to ``facing_deg``
+    (counter-clockwise from +x)."""
+    angle = np.radians(facing_deg - 90.0)
+    rotation = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0, 0, 1]])
+    return _skeleton(rng) @ rotation.T
+
+
+def _rig_views(truth, facing_deg, rng, noise=8.0, sensors_deg=(45.0, 135.0, 225.0, 315.0)):
+    """Four views; a view more than 110 deg from the facing is mirrored and sees face and hands LOW."""
+    away = np.abs((np.asarray(sensors_deg) - facing_deg + 180.0) % 360.0 - 180.0) > 110.0
+    pos = truth + rng.normal(0.0, noise, (1, len(sensors_deg), N_JOINTS, 3))
+    conf = np.full((1, len(sensors_deg), N_JOINTS), int(Confidence.MEDIUM), dtype=np.uint8)
+    pos[0, away] = pos[0, away][:, MIRROR]
+    conf[0, away, 20:] = int(Confidence.LOW)  # ankles, feet, face: occluded from behind
+    return pos, conf, away
+
+
+def test_temporal_cold_start_two_versus_two_picks_the_group_with_more_medium_evidence():
+    rng = np.random.default_rng(RNG_SEED + 7)
+    truth = _facing_skeleton(rng, 0.0)  # views at 135 and 225 deg see the back
+    pos, conf, away = _rig_views(truth, 0.0, rng)
+    assert away.tolist() == [False, True, True, False]
+    no_previous = np.full((1, N_JOINTS, 3), np.nan)
+    _, _, mirrored, streak = realign_temporal(pos, conf, no_previous, np.zeros(1, np.int32))
+    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [0]
+    # Same views, but the mirrored pair now holds more MEDIUM joints: evidence sides with them (documented
+    # limit of a cold start; the anchor then keeps that choice until a clear majority disagrees).
+    conf_swapped = conf[:, [1, 0, 3, 2]]
+    _, _, mirrored, _ = realign_temporal(pos, conf_swapped, no_previous, np.zeros(1, np.int32))
+    assert mirrored[0].tolist() == [True, False, False, True]
+
+
+def test_temporal_anchor_decides_a_two_versus_two_split_the_static_vote_cannot():
+    rng = np.random.default_rng(RNG_SEED + 8)
+    truth = _facing_skeleton(rng, 0.0)
+    pos, conf, away = _rig_views(truth, 0.0, rng)
+    conf[:] = int(Confidence.MEDIUM)  # no confidence hint at all
+    _, _, mirrored, _ = realign_temporal(pos, conf, truth[None] + 20.0, np.zeros(1, np.int32))
+    assert mirrored[0].tolist() == away.tolist()
+    # The anchor mirrored: every view is realigned to it (the recovery counter does not move on 2 vs 2).
+    _, _, mirrored, streak = realign_temporal(pos, conf, truth[MIRROR][None], np.zeros(1, np.int32))
+    assert mirrored[0].tolist() == (~away).tolist() and streak.tolist() == [0]
+
+
+def test_temporal_falls_back_to_the_static_reference_for_pairs_the_previous_lacks():
+    rng = np.random.default_rng(RNG_SEED + 9)
+    truth = _facing_skeleton(rng, 45.0)
+    pos, conf, away = _rig_views(truth, 45.0, rng)
+    previous = np.full((1, N_JOINTS, 3), np.nan)
+    previous[0, PAPER_REALIGN_PAIRS[0]] = truth[PAPER_REALIGN_PAIRS[0]]  # only the shoulders are known
+    _, _, mirrored, _ = realign_temporal(pos, conf, previous, np.zeros(1, np.int32))
+    assert mirrored[0].tolist() == away.tolist()
+
+
+def test_temporal_recovers_from_a_mirrored_anchor_after_recovery_frames():
+    # The anchor is deliberately mirrored; 3 of 4 views are correct: the body follows them on frame N.
+    rng = np.random.default_rng(RNG_SEED + 10)
+    truth = _facing_skeleton(rng, 45.0)  # only the view at 225 deg sees the back
+    params = replace(preset("A4"), realign="temporal", recovery_frames=4)
+    state = init_state(1, params)
+    state.previous = truth[MIRROR][None].astype(np.float64)
+    for frame in range(1, 8):
+        pos, conf, away = _rig_views(truth, 45.0, rng)
+        assert away.sum() == 1
+        result, state = fuse(pos, conf, state, params)
+        n_swapped, n_valid = swap_counts(result.positions, truth[None], PAPER_REALIGN_PAIRS)
+        assert n_valid.all()
+        if frame < params.recovery_frames:
+            assert n_swapped.all(), f"frame {frame}: followed the majority too early"
+            assert state.flip_streak.tolist() == [frame]
+        else:
+            assert not n_swapped.any(), f"frame {frame}: still mirrored"
+            assert state.flip_streak.tolist() == [0]
+
+
+def test_temporal_follows_a_person_turning_around():
+    # Four sensors, a person turning 6 deg per frame through two full turns; each view more than 110 deg
+    # from the facing is mirrored. The fused labels stay right in every frame.
+    rng = np.random.default_rng(RNG_SEED + 11)
+    body = _skeleton(rng)
+    params = replace(preset("A4"), realign="temporal")
+    fuser = Fuser(params)
+    flipped_views = 0
+    for frame in range(120):
+        facing = 90.0 + 6.0 * frame
+        angle = np.radians(facing - 90.0)
+        rotation = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0, 0, 1]])
+        truth = body @ rotation.T
+        pos, conf, away = _rig_views(truth, facing, rng)
+        flipped_views += int(away.sum())
+        result = fuser.step(pos, conf)
+        n_swapped, n_valid = swap_counts(result.positions, truth[None], PAPER_REALIGN_PAIRS)
+        assert n_valid.all() and not n_swapped.any(), f"frame {frame}, facing {facing % 360:.0f} deg"
+    assert flipped_views > 100  # the test did see mirrored views
+
+
+def test_temporal_without_mirrored_views_changes_nothing():
+    rng = np.random.default_rng(RNG_SEED + 12)
+    _, pos, conf = _views(rng)
+    out, out_conf, mirrored, streak = realign_temporal(pos, conf, np.full((1, N_JOINTS, 3), np.nan), np.zeros(1))
+    assert not mirrored.any() and streak.tolist() == [0]
+    assert out is pos and out_conf is conf

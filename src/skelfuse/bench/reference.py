@@ -2,7 +2,9 @@
 
 It implements the semantics documented in :mod:`skelfuse.fusion.realign`, :mod:`skelfuse.fusion.merge`,
 :mod:`skelfuse.fusion.filters` and :mod:`skelfuse.fusion.pipeline`, written independently of the
-vectorized code: plain Python loops over bodies, sensors and joints, scikit-learn ``DBSCAN(min_samples=1)``
+vectorized code (including the "temporal" realignment's cold-start and recovery policy, and the filter's
+prediction as trick 2's candidate): plain Python loops over bodies, sensors and joints, scikit-learn
+``DBSCAN(min_samples=1)``
 per joint, and one filterpy ``KalmanFilter`` per joint. It is slow on purpose (about 100x), clear rather
 than fast; "both give the same output" is what the benchmark and the pipeline tests check.
 """
@@ -90,6 +92,7 @@ class ReferenceFuser:
     def reset(self) -> None:
         self.previous: list[list[np.ndarray | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
         self.tracks: list[list[_Track | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
+        self.flip_streak: list[int] = [0] * self.n_bodies
 
     def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
         # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
@@ -104,12 +107,17 @@ class ReferenceFuser:
         contributors = np.zeros((B, S), dtype=bool)
         for b in range(B):
             pos, conf = self._select(candidates[b], confidence[b])
+            previous = [self._previous_candidate(b, j, dt_s) for j in range(J)]
             if self.params.realign == "paper":
                 pos, conf = _realign_paper(pos, conf)
             elif self.params.realign == "body":
                 pos, conf = _realign_body(pos, conf, self.params.realign_passes)
+            elif self.params.realign == "temporal":
+                pos, conf, self.flip_streak[b] = _realign_temporal(
+                    pos, conf, previous, self.flip_streak[b], self.params
+                )
             for j in range(J):
-                merged, members, best_conf = self._merge_joint(pos, conf, j, self.previous[b][j])
+                merged, members, best_conf = self._merge_joint(pos, conf, j, previous[j])
                 self.previous[b][j] = merged
                 if merged is not None:
                     n_agree[b, j] = len(members)
@@ -117,6 +125,16 @@ class ReferenceFuser:
                     contributors[b, members] = True
                 positions[b, j] = self._filter_joint(b, j, merged, len(members), dt_s)
         return FusionResult(positions=positions, n_agree=n_agree, confidence=conf_out, contributors=contributors)
+
+    def _previous_candidate(self, b: int, j: int, dt_s: float) -> np.ndarray | None:
+        """Trick 2's candidate: the last merged position, or the live filter track's one-step prediction."""
+        track = self.tracks[b][j]
+        if self.params.previous_candidate == "merged" or track is None or track.kind not in ("cv_kalman", "alpha_beta"):
+            return self.previous[b][j]
+        if track.kind == "cv_kalman":
+            state = track.kf.x[:, 0]
+            return np.array([state[0] + dt_s * state[1], state[2] + dt_s * state[3], state[4] + dt_s * state[5]])
+        return track.position + dt_s * track.velocity
 
     def _select(self, cand: np.ndarray, conf: np.ndarray) -> tuple[list[list], list[list[int]]]:
         S, J = conf.shape
@@ -265,3 +283,64 @@ def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[
             for left, right in MIRROR_PAIRS.tolist():
                 _swap(pos, conf, s, left, right)
     return pos, conf
+
+
+def _realign_temporal(
+    pos: list[list], conf: list[list[int]], previous: list[np.ndarray | None], streak: int, params: FusionParams
+) -> tuple[list[list], list[list[int]], int]:
+    """Whole-body flip per sensor against the previous skeleton (seed view on a cold start), with recovery."""
+    S = len(pos)
+    pairs = PAPER_REALIGN_PAIRS.tolist()
+    prev_has = [previous[left] is not None and previous[right] is not None for left, right in pairs]
+    cold = not any(prev_has)
+    evidence = []
+    present = []
+    for s in range(S):
+        present.append(sum(1 for pair in pairs for j in pair if pos[s][j] is not None))
+        evidence.append(sum(1 for j in range(len(pos[s])) if pos[s][j] is not None and conf[s][j] >= MEDIUM))
+    seed = 0
+    for s in range(1, S):  # most MEDIUM joints, then most pair joints; the lowest index on a tie
+        if (evidence[s], present[s]) > (evidence[seed], present[seed]):
+            seed = s
+    anchors = []
+    for p, (left, right) in enumerate(pairs):
+        if prev_has[p]:
+            anchors.append((previous[left], previous[right]))
+        elif cold and pos[seed][left] is not None and pos[seed][right] is not None:
+            anchors.append((pos[seed][left], pos[seed][right]))
+        else:
+            anchors.append((_reference(pos, conf, left), _reference(pos, conf, right)))
+    flipped = [False] * S
+    decided = [False] * S
+    for s in range(S):
+        total = 0.0
+        for (left, right), (a_left, a_right) in zip(pairs, anchors, strict=True):
+            p_left, p_right = pos[s][left], pos[s][right]
+            if p_left is None or p_right is None or a_left is None or a_right is None:
+                continue
+            decided[s] = True
+            keep = math.dist(a_right, p_right) + math.dist(a_left, p_left)
+            swap = math.dist(a_right, p_left) + math.dist(a_left, p_right)
+            total += swap - keep
+        flipped[s] = total < 0.0
+    against = sum(evidence[s] for s in range(S) if flipped[s])
+    weight = sum(evidence[s] for s in range(S) if decided[s])
+    invert = False
+    if cold:
+        invert = against > weight - against  # the flipped group holds more MEDIUM evidence
+        streak = 0
+    else:
+        if weight > 0 and against >= params.recovery_share * weight:
+            streak += 1
+        else:
+            streak = 0
+        if streak >= params.recovery_frames:
+            invert = True
+            streak = 0
+    pos = [row[:] for row in pos]
+    conf = [row[:] for row in conf]
+    for s in range(S):
+        if flipped[s] != (invert and decided[s]):
+            for left, right in MIRROR_PAIRS.tolist():
+                _swap(pos, conf, s, left, right)
+    return pos, conf, streak

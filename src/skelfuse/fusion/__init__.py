@@ -7,6 +7,16 @@ the paper's A1-A5) and :mod:`~skelfuse.fusion.pipeline` (``fuse()`` chaining the
 """
 
 from skelfuse.fusion.pipeline import Fuser, FusionResult, FusionState, fuse, init_state
-from skelfuse.fusion.presets import PAPER_PRESETS, FusionParams, preset
+from skelfuse.fusion.presets import ALL_PRESETS, PAPER_PRESETS, FusionParams, preset
 
-__all__ = ["PAPER_PRESETS", "Fuser", "FusionParams", "FusionResult", "FusionState", "fuse", "init_state", "preset"]
+__all__ = [
+    "ALL_PRESETS",
+    "PAPER_PRESETS",
+    "Fuser",
+    "FusionParams",
+    "FusionResult",
+    "FusionState",
+    "fuse",
+    "init_state",
+    "preset",
+]

@@ -35,6 +35,8 @@ All functions are pure: they return new arrays.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from skelfuse.fusion.presets import FusionParams
@@ -81,25 +83,23 @@ def filter_step(
     coast = _as_coast(coast)  # the uint32 view below needs int32
     if kind == "paper_kalman":
         return _paper_kalman_step(x, P, coast, z, params)
-    has_z = ~np.isnan(z[:, 0])
+    has_z = z[:, 0] == z[:, 0]  # NaN never equals itself: a missing measurement
     if kind == "cv_kalman":
-        dt = dt_s
-        q = params.cv_accel_sigma_mm_s2**2
-        p00, p01, p11 = P[:, 0], P[:, 1], P[:, 2]
-        # x~ = F x;  P~ = F P F' + Q  (F = [[1, dt], [0, 1]], Q discrete white-noise acceleration).
-        pred_x = x + dt * (x[:, 1:2] * _POSITION_ROW)
-        p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**4 / 4.0
-        p01 = p01 + dt * p11 + q * dt**3 / 2.0
-        p11 = p11 + q * dt * dt
-        pred_P = np.stack([p00, p01, p11], axis=1)
+        cov_map, q_vec, state_map = _cv_model(dt_s, params.cv_accel_sigma_mm_s2)
+        # x~ = F x;  P~ = F P F' + Q, on the triangle (p00, p01, p11) as one linear map plus Q.
+        pred_x = state_map @ x
+        pred_P = P @ cov_map + q_vec
         r = params.cv_meas_sigma_mm**2
         if params.cv_scale_r_by_agree:
-            r = r / np.maximum(n_agree, 1)  # n agreeing views average their independent noise down
+            # n agreeing views average their independent noise down: R / n (a table lookup for int16 counts;
+            # the same divisions, done once).
+            r = _r_by_agree(r)[n_agree] if n_agree.dtype == np.int16 else r / np.maximum(n_agree, 1)
+            r = r[:, None]
         # y = z - H x~;  S = H P~ H' + R;  K = P~ H' / S;  x^ = x~ + K y;  P^ = (I - K H) P~.
-        gain = pred_P[:, :2] / (p00 + r)[:, None]  # (N, 2): position and velocity gains
+        gain = pred_P[:, :2] / (pred_P[:, :1] + r)
         upd_x = pred_x + gain[:, :, None] * (z - pred_x[:, 0])[:, None, :]
-        upd_P = np.stack([(1.0 - gain[:, 0]) * p00, (1.0 - gain[:, 0]) * p01, p11 - gain[:, 1] * p01], axis=1)
-        out_measured = upd_x[:, 0]
+        # (p00, p01, p11) - (K0 p00, K0 p01, K1 p01)
+        upd_P = pred_P - gain[:, _GAIN_ROWS] * pred_P[:, _COV_ROWS]
         init_P = (params.cv_meas_sigma_mm**2, 0.0, params.cv_velocity0_sigma_mm_s**2)
     elif kind == "alpha_beta":
         pred_x = x + dt_s * (x[:, 1:2] * _POSITION_ROW)  # X = Xp + V dt
@@ -107,7 +107,6 @@ def filter_step(
         # X = X + alpha R;  V = V + beta R / dt
         upd_x = pred_x + np.array([[params.alpha], [params.beta / dt_s]]) * residual[:, None, :]
         upd_P = pred_P = P
-        out_measured = upd_x[:, 0]
         init_P = (0.0, 0.0, 0.0)
     else:
         raise ValueError(f"filter must be 'paper_kalman', 'cv_kalman', 'alpha_beta' or None, got {kind!r}")
@@ -122,11 +121,42 @@ def filter_step(
     # Rows: measured -> update; coasting -> prediction; new track -> (z, 0); dead -> NaN out.
     new_x = np.where(measured[:, :, None], upd_x, np.where(has_z[:, None, None], z[:, None, :] * _POSITION_ROW, pred_x))
     new_P = np.where(measured, upd_P, np.where(has_z[:, None], init_P, pred_P))
-    out = np.where(alive[:, None], np.where(measured, out_measured, new_x[:, 0]), np.nan)
+    # The output is the new position row: the update when measured (x^), z for a new track, the
+    # prediction while coasting.
+    out = np.where(alive[:, None], new_x[:, 0], np.nan)
     return out, new_x, new_P, new_coast
 
 
 _POSITION_ROW = np.array([[1.0], [0.0]])  # (2, 1): selects the position row of a (2, 3) state
+_GAIN_ROWS = np.array([0, 0, 1])
+_COV_ROWS = np.array([0, 1, 1])
+
+
+@lru_cache(maxsize=8)
+def _r_by_agree(r: float) -> np.ndarray:
+    """(32768,) ``r / max(n, 1)`` for every non-negative int16 count n (256 KiB per distinct r)."""
+    table = r / np.maximum(np.arange(1 << 15), 1)
+    table.setflags(write=False)
+    return table
+
+
+@lru_cache(maxsize=16)
+def _cv_model(dt: float, accel_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Constant-velocity model for one dt, cached (dt is the same frame after frame).
+
+    Returns
+    -------
+    cov_map : (3, 3), ``P~ = P @ cov_map + q_vec`` on the triangle (p00, p01, p11) of F P F'.
+    q_vec : (3,), the discrete white-noise acceleration Q = s^2 [dt^4/4, dt^3/2, dt^2].
+    state_map : (2, 2), F = [[1, dt], [0, 1]] acting on the (position, velocity) rows of x.
+    """
+    cov_map = np.array([[1.0, 0.0, 0.0], [2.0 * dt, 1.0, 0.0], [dt * dt, dt, 1.0]])
+    q = accel_sigma**2
+    q_vec = np.array([q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt * dt])
+    state_map = np.array([[1.0, dt], [0.0, 1.0]])
+    for array in (cov_map, q_vec, state_map):
+        array.setflags(write=False)
+    return cov_map, q_vec, state_map
 
 
 def _paper_kalman_step(
@@ -137,7 +167,7 @@ def _paper_kalman_step(
     The hot path of preset A5, so it spends as few numpy calls as it can.
     """
     pos = x[:, 0]
-    has_z = ~np.isnan(z[:, 0])
+    has_z = z[:, 0] == z[:, 0]  # NaN never equals itself: a missing measurement
     tracked = coast >= 0
     measured = has_z & tracked
     p_pred = P[:, 0] + params.kalman_q_mm2  # P~ = A P A' + Q
@@ -145,14 +175,16 @@ def _paper_kalman_step(
     new_coast = np.where(has_z, 0, coast + tracked)
     alive = new_coast.view(np.uint32) <= params.max_coast_frames  # -1 seen as unsigned is huge
     new_coast = np.where(alive, new_coast, -1)
-    started = has_z & ~tracked
+    started = has_z > tracked  # a measurement and no track
     # Measured: x^ = x~ + K (z - H x~); new track: z; coasting: x~ = x^ (A = I).
     new_pos = np.where(measured[:, None], pos + gain[:, None] * (z - pos), np.where(started[:, None], z, pos))
     new_p = np.where(measured, (1.0 - gain) * p_pred, np.where(started, params.kalman_p0_mm2, p_pred))
     # Output the prediction x~ = x^_{t-1} (eq. 9); a new track outputs its first measurement.
     out = np.where(alive[:, None], np.where(started[:, None], z, pos), np.nan)
-    new_x = np.zeros_like(x)
-    new_x[:, 0] = new_pos
-    new_P = np.zeros_like(P)
-    new_P[:, 0] = new_p
+    # Velocity and the off-diagonal covariance stay 0 (new_pos and new_p are finite: z only where present).
+    new_x = new_pos[:, None, :] * _POSITION_ROW
+    new_P = new_p[:, None] * _P_POSITION
     return out, new_x, new_P, new_coast
+
+
+_P_POSITION = np.array([1.0, 0.0, 0.0])  # (3,): p_pos alone of the (p_pos, p_pos_vel, p_vel) triangle

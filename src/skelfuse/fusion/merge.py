@@ -207,8 +207,7 @@ def merge_dbscan(
     # 0 / NaN is a quiet NaN: a joint no sensor reports becomes NaN without a division warning.
     sums = (members[:, None, :] @ safe_axes.transpose(1, 2, 0))[:, 0]  # (N, 3)
     merged = sums / np.where(n_agree > 0, n_agree, np.nan)[:, None]
-    weighted_conf = members * sensor_conf
-    best_conf = weighted_conf[rows, weighted_conf.argmax(axis=1)]
+    best_conf = (members * sensor_conf).max(axis=1)
     return MergeResult(
         positions=merged.reshape(B, J, 3),
         n_agree=n_agree.astype(np.int16).reshape(B, J),

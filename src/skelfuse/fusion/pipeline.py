@@ -9,10 +9,14 @@ Stages (each a pure function of its own module, so it can be tested and timed al
 
 1. :func:`select_candidates`: a candidate is missing when any coordinate is NaN/inf or its confidence is
    below ``params.min_confidence`` (default LOW, so NONE joints are dropped).
-2. :func:`skelfuse.fusion.realign.realign`: left/right realignment ("paper", "body" or off).
+2. Left/right realignment (:mod:`skelfuse.fusion.realign`): "paper", "body", "temporal" or off. The
+   "temporal" anchor is the previous candidate of trick 2 (see ``FusionParams.previous_candidate``), so
+   the labels follow the person frame by frame; its disagreement counters live in the state.
 3. Merge: :func:`skelfuse.fusion.merge.merge_dbscan` with the reference candidate (trick 1), recomputed
    from the *realigned* candidates so a swapped view no longer drags it, and the previous frame's merged
-   position (trick 2: the merge output before filtering, NaN if the joint was not merged last frame); or
+   position (trick 2: the merge output before filtering, NaN if the joint was not merged last frame; or,
+   with ``previous_candidate="predicted"`` and a cv_kalman/alpha_beta filter, the filter's one-step
+   prediction ``x + v dt`` for joints whose track is alive); or
    :func:`skelfuse.fusion.merge.merge_average`.
 4. :func:`skelfuse.fusion.filters.filter_step`: per-joint filter with coasting, or pass-through.
 
@@ -30,8 +34,10 @@ import numpy as np
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.fusion.realign import realign_body, realign_paper, reference_positions
+from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.skeleton import N_JOINTS
+
+_ONES3 = np.ones(3)
 
 
 @dataclass(frozen=True)
@@ -62,12 +68,15 @@ class FusionState:
     x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
     P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
     coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
+    flip_streak : (B,) int32 or None, "temporal" realignment: frames in a row a clear majority of views
+        disagreed with the anchor (None reads as all 0).
     """
 
     previous: np.ndarray
     x: np.ndarray
     P: np.ndarray
     coast: np.ndarray
+    flip_streak: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -91,6 +100,7 @@ def init_state(n_bodies: int, params: FusionParams) -> FusionState:
         x=x.reshape(B, N_JOINTS, 2, 3),
         P=P.reshape(B, N_JOINTS, 3),
         coast=coast.reshape(B, N_JOINTS),
+        flip_streak=np.zeros(B, dtype=np.int32),
     )
 
 
@@ -98,6 +108,9 @@ def select_candidates(
     candidates: np.ndarray, confidence: np.ndarray, min_confidence: int | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mark unusable candidates missing: non-finite, or confidence below ``min_confidence``.
+
+    A candidate whose coordinates are so large that their sum overflows (beyond about 1e307 mm) counts as
+    non-finite too: one sum and one test per candidate instead of three tests and a reduction.
 
     Parameters
     ----------
@@ -111,7 +124,9 @@ def select_candidates(
     confidence : (B, S, J) uint8, 0 where missing.
     """
     positions = np.asarray(candidates, dtype=np.float64)
-    valid = np.isfinite(positions).all(axis=-1)
+    # The sum of the three coordinates is finite exactly when all three are (inf - inf is NaN); mm-sized
+    # values cannot overflow.
+    valid = np.isfinite(positions @ _ONES3)
     if min_confidence is not None:
         valid &= confidence >= min_confidence
     conf = confidence * valid
@@ -153,8 +168,9 @@ def fuse(
     B, _, J, _ = candidates.shape
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
-    positions, conf, reference = _realign(positions, conf, params)
-    merged = _merge(positions, conf, reference, state, params)
+    previous = _previous_candidate(state, params, dt_s)
+    positions, conf, reference, streak = _realign(positions, conf, params, previous, state.flip_streak)
+    merged = _merge(positions, conf, reference, previous, params)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
         state.P.reshape(B * J, 3),
@@ -171,28 +187,59 @@ def fuse(
         contributors=merged.members.any(axis=1),
     )
     new_state = FusionState(
-        previous=merged.positions, x=x.reshape(B, J, 2, 3), P=P.reshape(B, J, 3), coast=coast.reshape(B, J)
+        previous=merged.positions,
+        x=x.reshape(B, J, 2, 3),
+        P=P.reshape(B, J, 3),
+        coast=coast.reshape(B, J),
+        flip_streak=streak,
     )
     return result, new_state
 
 
+def _previous_candidate(state: FusionState, params: FusionParams, dt_s: float) -> np.ndarray:
+    """Trick 2's candidate and the temporal anchor: last merged positions, or the filter's prediction."""
+    if params.previous_candidate == "merged" or params.filter not in ("cv_kalman", "alpha_beta"):
+        return state.previous
+    x = state.x
+    predicted = x[:, :, 0] + dt_s * x[:, :, 1]  # x~ = x + v dt
+    return np.where((state.coast >= 0)[..., None], predicted, state.previous)
+
+
 def _realign(
-    positions: np.ndarray, conf: np.ndarray, params: FusionParams
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Realign; also return the reference positions of the result when they come for free (else None)."""
+    positions: np.ndarray,
+    conf: np.ndarray,
+    params: FusionParams,
+    previous: np.ndarray,
+    streak: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """Realign; also return the reference positions of the result when they come for free (else None)
+    and the new flip counters."""
+    B = positions.shape[0]
+    if streak is None:
+        streak = np.zeros(B, dtype=np.int32)
     if params.realign is None:
-        return positions, conf, None
+        return positions, conf, None, streak
+    if params.realign == "temporal":
+        # The static reference is needed only where the anchor lacks a pair: computed there, on demand.
+        out_positions, out_conf, _, streak = realign_temporal(
+            positions, conf, previous, streak, params.recovery_frames, params.recovery_share
+        )
+        return out_positions, out_conf, None, streak
     reference = reference_positions(positions, conf)
     if params.realign == "paper":
         out_positions, out_conf, _ = realign_paper(positions, conf, reference=reference)
     else:
         out_positions, out_conf, _ = realign_body(positions, conf, params.realign_passes, reference=reference)
     # Nothing swapped (the usual case): the reference of the realigned candidates is the one just computed.
-    return out_positions, out_conf, reference if out_positions is positions else None
+    return out_positions, out_conf, reference if out_positions is positions else None, streak
 
 
 def _merge(
-    positions: np.ndarray, conf: np.ndarray, reference: np.ndarray | None, state: FusionState, params: FusionParams
+    positions: np.ndarray,
+    conf: np.ndarray,
+    reference: np.ndarray | None,
+    previous: np.ndarray,
+    params: FusionParams,
 ) -> MergeResult:
     if params.merge == "average":
         return merge_average(positions, conf)
@@ -202,7 +249,7 @@ def _merge(
         positions,
         conf,
         reference=reference,
-        previous=state.previous if params.previous_weight is not None else None,
+        previous=previous if params.previous_weight is not None else None,
         eps_mm=params.eps_mm,
         reference_weight=params.reference_weight,
         previous_weight=params.previous_weight,
