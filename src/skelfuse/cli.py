@@ -351,6 +351,8 @@ def _default_data_dir() -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from skelfuse.config import DEFAULT_PRESET
+
     parser = argparse.ArgumentParser(
         prog="skelfuse",
         description="Fuse the skeletons of several Azure Kinect body trackers into one accurate, smooth skeleton.",
@@ -388,7 +390,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
         help="what the simulated person does (default: %(default)s)",
     )
-    demo.add_argument("--preset", default="A5", help="fusion preset (default: %(default)s)")
+    demo.add_argument("--preset", default=DEFAULT_PRESET,
+                      help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)")
     demo.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
     demo.add_argument(
         "--rrd", type=Path, default=None, metavar="FILE", help="save the recording to FILE instead of spawning a viewer"
@@ -555,7 +558,7 @@ def _add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _add_service_commands(commands: Any) -> None:
-    from skelfuse.config import add_zenoh_arguments
+    from skelfuse.config import DEFAULT_PRESET, add_zenoh_arguments
 
     # capture ----------------------------------------------------------------------------------------
     capture = commands.add_parser(
@@ -623,7 +626,8 @@ def _add_service_commands(commands: Any) -> None:
     fuse.add_argument(
         "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
     )
-    fuse.add_argument("--preset", default=None, help="offline: fusion preset (default: the config's, else A5)")
+    fuse.add_argument("--preset", default=None, help=f"offline: fusion preset, {DEFAULT_PRESET} or the paper's A1..A5 "
+                      f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})")
     fuse.add_argument(
         "--node",
         default=None,

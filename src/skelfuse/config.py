@@ -57,6 +57,10 @@ SENSOR_ORIENTATIONS: tuple[str, ...] = ("default", "clockwise90", "counterclockw
 """k4abt_sensor_orientation_t, in SDK order."""
 ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
 RERUN_MODES: tuple[str, ...] = ("off", "spawn", "serve", "save")
+DEFAULT_PRESET = "skelfuse"
+"""The fusion preset of a rig config without ``[fusion] preset``, and of the demo and offline fusion."""
+FUSION_PRESETS: tuple[str, ...] = ("skelfuse", "A1", "A2", "A3", "A4", "A5")
+"""Accepted ``[fusion] preset`` names (case-insensitive), as :func:`skelfuse.fusion.presets.preset` knows them."""
 
 MIN_DELAY_SPACING_US = 160
 """Subordinate depth delays must be at least this far apart (and from the master's 0) to avoid IR interference."""
@@ -208,14 +212,15 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class FusionConfig:
-    """``[fusion]``: a paper preset, its DBSCAN radius, and overrides of FusionParams fields.
+    """``[fusion]``: a preset ("skelfuse" or the paper's A1-A5), its DBSCAN radius, and FusionParams overrides.
 
+    ``eps_mm`` None keeps the preset's own radius (75 mm for "skelfuse", 100 mm for the paper's presets).
     ``params`` holds the ``[fusion.params]`` overrides as sorted ``(field, value)`` pairs, with "off"
     already turned into None.
     """
 
-    preset: str = "A5"
-    eps_mm: float = 100.0
+    preset: str = DEFAULT_PRESET
+    eps_mm: float | None = None
     params: tuple[tuple[str, Any], ...] = ()
 
     def fusion_params(self) -> FusionParams:
@@ -897,15 +902,17 @@ def _check_rig(sensors: tuple[SensorConfig, ...], sync: SyncConfig, source: str)
 def _parse_fusion(t: _Table | None) -> FusionConfig:
     if t is None:
         return FusionConfig()
-    preset = t.string("preset", "A5")
+    preset = t.string("preset", DEFAULT_PRESET)
     try:
         from skelfuse.fusion import presets as presets_module
     except ImportError:  # the fusion core is optional at config time
         presets_module = None  # type: ignore[assignment]
-    if presets_module is not None and preset.strip().upper() not in presets_module.PAPER_PRESETS:
-        raise t.error(t.key("preset"), f"one of {', '.join(presets_module.PAPER_PRESETS)}", preset,
-                      _did_you_mean(preset.upper(), presets_module.PAPER_PRESETS))
-    eps_mm = t.number("eps_mm", 100.0, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
+    canonical = {name.upper(): name for name in FUSION_PRESETS}
+    if preset.strip().upper() not in canonical:
+        raise t.error(t.key("preset"), f"one of {', '.join(FUSION_PRESETS)}", preset,
+                      _did_you_mean(preset.strip(), FUSION_PRESETS))
+    preset = canonical[preset.strip().upper()]
+    eps_mm = t.number("eps_mm", None, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
     params: dict[str, Any] = {}
     p = t.table("params")
     if p is not None:
@@ -921,7 +928,7 @@ def _parse_fusion(t: _Table | None) -> FusionConfig:
                                   f"[fusion.params] takes FusionParams fields: {', '.join(sorted(fields))}")
             params[name] = _fusion_value(value, fields.get(name), key, p.source)
         p.done()
-    fusion = FusionConfig(preset=preset.strip().upper(), eps_mm=eps_mm, params=tuple(sorted(params.items())))
+    fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())))
     if presets_module is not None:
         try:  # FusionParams' own range checks, reported at load time
             dataclasses.replace(presets_module.preset(fusion.preset, eps_mm), **params)

@@ -22,6 +22,7 @@ from skelfuse.config import (
     zenoh_flags,
 )
 from skelfuse.errors import ConfigError
+from skelfuse.fusion.presets import preset
 
 REPO = Path(__file__).resolve().parents[2]
 IDENTITY = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
@@ -87,7 +88,7 @@ def test_sim_rig_loads_with_four_posed_sensors() -> None:
         np.testing.assert_allclose(poses[sensor.sensor_id], sensor.world_from_sensor, atol=1e-3)
     assert cfg.sync.by == "device" and cfg.sync.tolerance_us == 10_000 and cfg.sync.deadline_us == 17_000
     assert cfg.rerun.mode == "spawn"
-    assert cfg.fusion.fusion_params().filter == "paper_kalman"
+    assert cfg.fusion.preset == "skelfuse" and cfg.fusion.fusion_params() == preset("skelfuse")
 
 
 def test_kinect_example_loads_and_says_how_to_get_a_calibration() -> None:
@@ -111,7 +112,8 @@ def test_config_is_frozen_and_defaults_fill_in() -> None:
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.name = "other"  # type: ignore[misc]
     assert cfg.sync.fps == 30.0 and cfg.sync.tolerance_ms == 10.0 and cfg.sync.deadline_ms == 17.0
-    assert cfg.fusion.preset == "A5" and cfg.fusion.eps_mm == 100.0
+    assert cfg.fusion.preset == "skelfuse" and cfg.fusion.eps_mm is None
+    assert cfg.fusion.fusion_params() == preset("skelfuse")  # the preset's own DBSCAN radius (75 mm)
     assert cfg.zenoh.mode == "peer" and cfg.zenoh.multicast_scouting is True
     assert cfg.node.status_period_s == 1.0 and cfg.node.name is None
     assert cfg.rerun.mode == "off" and cfg.rerun.bind == "127.0.0.1"
@@ -180,7 +182,7 @@ def test_kinect_defaults() -> None:
         pytest.param("sensors.0.kinect", {"serial": "x"}, r"sensors\[0\]\.kinect: a \[sensors\[0\]\.kinect\] table "
                      r"belongs to source = 'kinect' sensors, but this sensor has source = 'sim'",
                      id="wrong-kind-table"),
-        pytest.param("fusion.preset", "A9", r"fusion\.preset: expected one of A1, A2, A3, A4, A5, found 'A9'",
+        pytest.param("fusion.preset", "A9", r"fusion\.preset: expected one of skelfuse, A1, A2, A3, A4, A5, found 'A9'",
                      id="fusion-preset"),
         pytest.param("fusion.eps_mm", 0, r"fusion\.eps_mm: expected a number in \(0, 10000\] mm, found 0",
                      id="fusion-eps"),
@@ -267,6 +269,14 @@ def test_fusion_params_overrides_and_off() -> None:
     assert cfg.fusion.preset == "A4"
     assert params.eps_mm == 150.0 and params.previous_weight is None and params.max_coast_frames == 5
     assert params.filter is None  # A4 has no filter
+
+
+@pytest.mark.parametrize("name", ["skelfuse", "SkelFuse", " a5 "])
+def test_fusion_preset_names_are_case_insensitive_and_canonical(name: str) -> None:
+    cfg = RigConfig.from_dict(with_change(minimal(), "fusion", {"preset": name}))
+    canonical = "A5" if "5" in name else "skelfuse"
+    assert cfg.fusion.preset == canonical
+    assert cfg.fusion.fusion_params() == preset(canonical)
 
 
 def test_file_errors_name_the_file(tmp_path: Path) -> None:

@@ -40,6 +40,8 @@ ROOT = Path(__file__).resolve().parents[2]
 SEED = 20240612
 RIG = "lab"
 SENSORS = ("000111", "000222", "000333")
+BIRTH_FRAMES = 3
+"""PeopleFuser's default: instants a person must be seen before it is output."""
 T0_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
 
@@ -373,19 +375,23 @@ def test_fuse_recording_is_within_the_noise_of_the_truth(tmp_path: Path) -> None
     assert len(fused) == n_frames
     assert [f.time_us for f in fused] == [5_000_000 + i * 33_333 for i in range(n_frames)]
     errors = []
+    born = BIRTH_FRAMES - 1  # a person is output once confirmed: from the third instant on
     for i, frame in enumerate(fused):
-        assert frame.sensor_ids == SENSORS and frame.n_persons == 1
-        assert frame.track_ids.tolist() == [offline.FUSED_TRACK_ID]
+        assert frame.sensor_ids == SENSORS and frame.n_persons == (i >= born)
+        if i < born:
+            continue
+        assert frame.track_ids.tolist() == [1]  # the first track id, kept for the whole take
         assert frame.contributors.all()
         assert (frame.n_agree == 3).all()
         errors.append(np.linalg.norm(frame.positions[0] - truth_skeleton(i), axis=-1))
-    # A5's Kalman filter (the paper's Q/R) lags the 3 mm/frame sway by several frames: bounded, not zero.
+    # The default preset's filter follows the 3 mm/frame sway closely: within a few noise sigmas.
     assert np.median(np.array(errors)[10:]) < 30.0
 
     # Without the filter (A4) the merge must be within the noise: one view's 3D error is about
     # sqrt(3) * 5 = 8.7 mm, the merge of three views about 5 mm.
     merged = list(fuse_recording(path, preset_name="A4", progress=False))
-    errors = np.array([np.linalg.norm(f.positions[0] - truth_skeleton(i), axis=-1) for i, f in enumerate(merged)])
+    errors = np.array([np.linalg.norm(f.positions[0] - truth_skeleton(i), axis=-1) for i, f in enumerate(merged)
+                       if i >= born])
     assert np.median(errors) < NOISE_MM * math.sqrt(3) * 0.8, np.median(errors)
     assert errors.max() < 5 * NOISE_MM
 

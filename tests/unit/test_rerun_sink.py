@@ -54,6 +54,34 @@ def test_logged_skeletons_round_trip_in_metres(tmp_path: Path) -> None:
     s1_bones = columns["/world/sensors/s1/skeleton/bones"]["LineStrips3D:strips"][0]
     touching_wrist = int(((BONES[:, 0] == 7) | (BONES[:, 1] == 7)).sum())
     assert len(s1_bones) == len(BONES) - touching_wrist
-    translation = np.array(columns["/world/sensors/s1"]["Transform3D:translation"][0])
+    # The pose sits beside the world-frame skeleton, never above it (a transform applies to the subtree).
+    assert not any("Transform3D" in name for name in columns.get("/world/sensors/s1", {}))
+    translation = np.array(columns["/world/sensors/s1/pose"]["Transform3D:translation"][0])
     np.testing.assert_allclose(translation.reshape(3), [1.0, 2.0, 0.5])
     assert columns["/metrics/fusion_ms"]["Scalars:scalars"][0] == [0.12]
+
+
+def test_every_body_and_every_person_is_drawn_one_colour_per_track(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    recording = rr.RecordingStream("skelfuse_test")
+    path = tmp_path / "people.rrd"
+    recording.save(path)
+    sink = RerunSink(recording, ["s0", "s1"])
+    sink.log_rig(np.tile(np.eye(4), (2, 1, 1)))
+    raw = rng.normal(0.0, 500.0, size=(2, 2, N_JOINTS, 3))
+    raw[1, 1] = np.nan  # s1 sees one body, s0 two
+    fused = rng.normal(0.0, 500.0, size=(2, N_JOINTS, 3))
+    sink.set_time(0.0)
+    sink.log_sensor_skeletons(raw)
+    sink.log_fused(fused, np.array([3, 4]))
+    recording.flush()
+    recording.disconnect()
+
+    columns = _columns(path)
+    assert len(columns["/world/sensors/s0/skeleton/joints"]["Points3D:positions"][0]) == 2 * N_JOINTS
+    assert len(columns["/world/sensors/s1/skeleton/joints"]["Points3D:positions"][0]) == N_JOINTS
+    joints = columns["/world/fused/joints"]
+    np.testing.assert_allclose(np.array(joints["Points3D:positions"][0]), fused.reshape(-1, 3) / 1000.0, rtol=1e-6)
+    colors = np.array(joints["Points3D:colors"][0])
+    assert len(set(colors[:N_JOINTS].tolist())) == 1 and len(set(colors[N_JOINTS:].tolist())) == 1
+    assert colors[0] != colors[N_JOINTS]  # two track ids, two colours

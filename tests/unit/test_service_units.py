@@ -207,13 +207,17 @@ def test_core_groups_fuses_and_counts_rejects(rig: RigConfig, sim_frames: dict[s
 
 def test_core_emits_at_the_deadline_without_a_dead_sensor(rig: RigConfig, sim_frames: dict[str, SimSource]) -> None:
     core = FusionCore(rig)
-    now = 10**9
-    for sid in rig.sensor_ids[:3]:
-        frame = dataclasses.replace(sim_frames[sid].frame_at(200), host_time_ns=1)
-        assert core.receive(f"skelfuse/sim4/sensors/{sid}/skeletons", encode_sensor_frame(frame), now) == []
-    assert core.poll(now + 16_000_000) == []
-    [out] = core.poll(now + 17_000_000)
-    assert not out.complete and out.frame.contributors[0].tolist() == [True, True, True, False]
+    outs = []
+    for n in range(200, 203):  # three instants: the person is output once its track is confirmed
+        now = 10**9 + (n - 200) * 33_333_333
+        for sid in rig.sensor_ids[:3]:
+            frame = dataclasses.replace(sim_frames[sid].frame_at(n), host_time_ns=1)
+            assert core.receive(f"skelfuse/sim4/sensors/{sid}/skeletons", encode_sensor_frame(frame), now) == []
+        assert core.poll(now + 16_000_000) == []
+        outs += core.poll(now + 17_000_000)
+    assert len(outs) == 3 and not any(out.complete for out in outs)
+    assert outs[-1].frame.track_ids.tolist() == [1]
+    assert outs[-1].frame.contributors[0].tolist() == [True, True, True, False]
 
 
 def test_calibration_document_round_trips_the_poses(rig: RigConfig) -> None:

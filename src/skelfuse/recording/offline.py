@@ -3,12 +3,11 @@
 Cycle of :func:`fuse_recording`: read the recording's sensor frames in host-time order
 (:class:`~skelfuse.recording.mcap_io.RecordingReader`), group them into instants as the live fusion node
 does (:class:`skelfuse.service.grouping.FrameGrouper`, fed the recorded host time as its arrival clock),
-take the first body of each sensor's frame, map it to the world frame
-with the rig's calibration, and run one :class:`skelfuse.fusion.pipeline.Fuser` step per instant.
-
-Limitation (multi-person association is a later issue): every sensor frame contributes only its **first
-body** (slot 0, in the order the tracker reported them), and the output carries one person, track id 1.
-A recording of several people fuses whichever body each tracker listed first.
+and fuse each instant with the node's own per-instant adapter
+(:class:`skelfuse.service.fusion_step.GroupFuser`: every body of every sensor mapped to the world frame with
+the rig's calibration, associated across sensors and time by :class:`skelfuse.fusion.people.PeopleFuser`,
+one fused skeleton per person with a stable track id). Live and offline share that adapter, so the live
+stream of a set of frames equals the offline fusion of the same frames.
 
 :func:`replay_frames` paces recorded frames by their log time (host clock) and knows nothing of zenoh: the
 CLI's ``skelfuse replay FILE`` publishes each yielded ``record.payload`` on ``record.topic``.
@@ -27,21 +26,18 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.config import RigConfig, SyncConfig
+from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
 from skelfuse.errors import DataError
 from skelfuse.eval.progress import Progress
 from skelfuse.frames import FusedFrame
-from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import FusionParams, preset
-from skelfuse.fusion.transform import apply_transform
 from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
-from skelfuse.service.grouping import FrameGroup, FrameGrouper
+from skelfuse.service.fusion_step import RESET_GAP_S, GroupFuser
+from skelfuse.service.grouping import FrameGrouper
 from skelfuse.skeleton import JOINT_NAMES, N_JOINTS
 
-RESET_GAP_S = 1.0
-"""A gap longer than this between two instants restarts the fusion state (filters and previous position)."""
-FUSED_TRACK_ID = 1
-"""Track id of the single person fused until multi-person association exists."""
+__all__ = ["FUSED_COLUMNS", "FUSED_FORMATS", "RESET_GAP_S", "fuse_recording", "replay_frames", "resolve_poses",
+           "write_fused"]
 
 FUSED_COLUMNS = ("time_us", "track_id", "joint", "joint_name", "x_mm", "y_mm", "z_mm", "n_agree", "confidence")
 """Columns of :func:`write_fused`, one row per person x joint (see docs/recording.md)."""
@@ -54,11 +50,12 @@ FUSED_FORMATS = (".csv", ".parquet")
 
 
 def _params(rig_config: RigConfig | None, preset_name: str | None, eps_mm: float | None) -> FusionParams:
-    """Explicit preset / eps first, then the rig config's ``[fusion]`` (with its overrides), then A5 at 100 mm."""
+    """Explicit preset / eps first, then the rig config's ``[fusion]`` (with its overrides), then the default
+    preset (:data:`skelfuse.config.DEFAULT_PRESET`) at its own DBSCAN radius."""
     if preset_name is None and rig_config is not None:
         params = rig_config.fusion.fusion_params()
         return params if eps_mm is None else replace(params, eps_mm=float(eps_mm))
-    return preset(preset_name or "A5", eps_mm=100.0 if eps_mm is None else eps_mm)
+    return preset(preset_name or DEFAULT_PRESET, eps_mm=eps_mm)
 
 
 def resolve_poses(sensor_ids: Iterable[str], *, world_from_sensor: Mapping[str, Any] | None = None,
@@ -128,9 +125,11 @@ def fuse_recording(
     world_from_sensor : mapping sensor id -> (4, 4), optional
         Poses (mm); override the rig config's and the recording's.
     preset_name : str, optional
-        Fusion preset ("A1".."A5"). Default: the rig config's ``[fusion]`` (preset and overrides), else "A5".
+        Fusion preset ("skelfuse", or the paper's "A1".."A5"). Default: the rig config's ``[fusion]`` (preset
+        and overrides), else "skelfuse".
     eps_mm : float, optional
-        DBSCAN radius; default the rig config's, else 100 mm.
+        DBSCAN radius; default the rig config's, else the preset's own (75 mm for "skelfuse", 100 mm for
+        the paper's presets).
     by : {"device", "host"}, optional
         Group by device timestamps (hardware-synced rigs) or host timestamps. Default: the rig config's
         ``[sync] by``, else "device".
@@ -145,9 +144,10 @@ def fuse_recording(
     Returns
     -------
     iterator of FusedFrame
-        One per instant, in time order, with the recording's sensors as ``sensor_ids``; one person (track
-        id 1, first body of each sensor), or none when no sensor saw a body and the filter has no track.
-        Setup errors are raised by this call, before iterating.
+        One per instant, in time order, with the recording's sensors as ``sensor_ids``; one person per
+        confirmed track with an estimate (stable track ids, ascending; none before a track is confirmed,
+        ``birth_frames`` = 3 instants after a person first appears). Setup errors are raised by this call,
+        before iterating.
 
     Raises
     ------
@@ -176,47 +176,16 @@ def fuse_recording(
 
 def _fuse(reader: RecordingReader, sensor_ids: tuple[str, ...], poses: np.ndarray, params: FusionParams,
           grouper: FrameGrouper, start_ns: int | None, end_ns: int | None, progress: bool) -> Iterator[FusedFrame]:
-    fuser = Fuser(params, n_bodies=1)
-    column = {s: i for i, s in enumerate(sensor_ids)}
-    last_time_us: int | None = None
-
-    def fuse_group(group: FrameGroup) -> FusedFrame:
-        nonlocal last_time_us
-        time_us = int(group.time_us)
-        # Within one clock epoch the grouper's times strictly increase; a step back is a new epoch (a
-        # restarted rig), and a long gap leaves nothing worth carrying: both restart the fusion state.
-        dt_s = 1.0 / 30.0 if last_time_us is None else (time_us - last_time_us) / 1e6
-        if not 0 < dt_s <= RESET_GAP_S:
-            fuser.reset()
-            dt_s = 1.0 / 30.0
-        last_time_us = time_us
-        positions = np.full((1, len(sensor_ids), N_JOINTS, 3), np.nan)
-        confidence = np.zeros((1, len(sensor_ids), N_JOINTS), dtype=np.uint8)
-        for sensor_id, frame in group.frames.items():
-            if frame.n_bodies > 0:  # first body only: multi-person association is a later issue
-                positions[0, column[sensor_id]] = frame.positions[0]
-                confidence[0, column[sensor_id]] = frame.confidence[0]
-        result = fuser.step(apply_transform(poses, positions), confidence, dt_s)
-        keep = np.isfinite(result.positions).all(axis=-1).any(axis=-1)  # (1,): a person with any estimate
-        return FusedFrame(
-            time_us=time_us,
-            track_ids=np.full(int(keep.sum()), FUSED_TRACK_ID, dtype=np.int64),
-            positions=result.positions[keep],
-            n_agree=result.n_agree[keep].astype(np.int16, copy=False),
-            confidence=result.confidence[keep].astype(np.uint8, copy=False),
-            contributors=result.contributors[keep].astype(bool, copy=False),
-            sensor_ids=sensor_ids,
-        )
-
+    fuser = GroupFuser(sensor_ids, poses, params)
     bar = Progress(reader.message_count or 0, "fuse", enabled=None if progress else False)
     try:
         for frame in reader.frames(start_ns, end_ns):
             # The recorded host time stands in for the arrival clock, so deadlines behave as they did live.
             for group in grouper.push(frame, int(frame.host_time_ns)):
-                yield fuse_group(group)
+                yield fuser.step(group).frame
             bar.update()
         for group in grouper.flush():
-            yield fuse_group(group)
+            yield fuser.step(group).frame
     finally:
         bar.close()
 

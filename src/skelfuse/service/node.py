@@ -6,8 +6,9 @@ Data flow of one sensor frame::
       -> node loop (one thread)          FusionCore.receive: decode (rejects counted per sensor and reason,
                                          never raised, never reach fusion state)
       -> FrameGrouper.push(frame, now)   groups of one instant (complete, or at their deadline)
-      -> FusionCore._fuse                pick one body per sensor, map to the world with the rig's poses,
-                                         Fuser.step, FusedFrame, encode
+      -> FusionCore._fuse                GroupFuser.step (service/fusion_step.py, shared with offline
+                                         fusion): every body to the world with the rig's poses,
+                                         PeopleFuser.step (association, tracks), FusedFrame; encode
       -> publisher.put                   skelfuse/<rig>/fused/skeletons
       -> RerunView.submit (optional)     drawn on the view's own thread
 
@@ -16,11 +17,12 @@ stalls the output. Every ``status_period_s`` the node publishes its status on
 ``skelfuse/<rig>/status/<node>``; it answers ``get`` on ``skelfuse/<rig>/calibration`` with the rig's poses
 and holds a liveliness token on ``skelfuse/<rig>/alive/<node>``.
 
-One person, track id 1 (multi-person association is a later issue): every sensor contributes one body per
-instant, the one whose pelvis (in the world frame) is nearest the previous fused pelvis, else its first
-body. The fusion state restarts (``Fuser.reset``) when the instants' time steps back (a new clock epoch)
-or jumps by more than :data:`skelfuse.recording.offline.RESET_GAP_S`, exactly as offline fusion does, so
-the live stream of a recording equals ``skelfuse fuse --input`` of it.
+Everyone the sensors see is fused, one skeleton per person with a stable track id
+(:class:`skelfuse.fusion.people.PeopleFuser`). Each instant goes through the same
+:class:`skelfuse.service.fusion_step.GroupFuser` as offline fusion (the same clock rule too: the state
+restarts when the instants' time steps back or jumps by more than
+:data:`skelfuse.service.fusion_step.RESET_GAP_S`), so the live stream of a recording equals
+``skelfuse fuse --input`` of it by construction.
 """
 
 from __future__ import annotations
@@ -38,16 +40,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
-from skelfuse.frames import FusedFrame, SensorFrame
-from skelfuse.fusion.pipeline import Fuser
+from skelfuse.frames import FusedFrame
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.fusion.transform import apply_transform
-from skelfuse.recording.offline import FUSED_TRACK_ID, RESET_GAP_S
+from skelfuse.service.fusion_step import GroupFuser
 from skelfuse.service.grouping import FrameGroup, FrameGrouper
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
 from skelfuse.service.zenoh_io import SampleQueue, open_session
-from skelfuse.skeleton import N_JOINTS
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
 
@@ -87,8 +86,8 @@ class FusedOutput:
     frame : FusedFrame
     payload : bytes
         ``encode_fused_frame(frame)``.
-    sensors_world : (S, 32, 3) float64
-        The body each sensor contributed, in the world frame, mm (NaN: no frame / no body).
+    sensors_world : (S, B, 32, 3) float64
+        Every body of every sensor in the world frame, mm, NaN-padded (NaN: no frame / no body in the slot).
     fusion_ns : int
         Time of the fusion step plus encoding, ns.
     trigger_arrival_ns : int or None
@@ -129,7 +128,8 @@ class FusionCore:
     Attributes
     ----------
     grouper : FrameGrouper
-    fuser : Fuser
+    fuser : GroupFuser
+        The per-instant adapter shared with offline fusion (its ``people`` holds the tracks).
     frames_in, frames_out : int
         Payloads received, fused frames produced.
     rejects : dict[str, Counter]
@@ -146,7 +146,7 @@ class FusionCore:
         self.poses = np.asarray(poses, dtype=np.float64)
         self.params = params if params is not None else cfg.fusion.fusion_params()
         self.grouper = FrameGrouper.for_rig(cfg)
-        self.fuser = Fuser(self.params, n_bodies=1)
+        self.fuser = GroupFuser(self.sensor_ids, self.poses, self.params)
         self.frames_in = 0
         self.frames_out = 0
         self.groups_complete = 0
@@ -154,8 +154,6 @@ class FusionCore:
         self.deadline_emits = 0
         self.rejects: dict[str, Counter[str]] = {}
         self._sensors = {sid: _SensorWindow() for sid in self.sensor_ids}
-        self._last_time_us: int | None = None
-        self._previous_pelvis: np.ndarray | None = None
         self._logged_rejects: Counter[tuple[str, str]] = Counter()
 
     # -- input --------------------------------------------------------------------------------------------
@@ -215,54 +213,17 @@ class FusionCore:
             out.append(self._fuse(group, trigger))
         return out
 
-    def _pick_body(self, frame: SensorFrame, column: int) -> int:
-        """Index of the body this sensor contributes: nearest the previous fused pelvis, else the first."""
-        if frame.n_bodies == 1 or self._previous_pelvis is None:
-            return 0
-        pelvis = apply_transform(self.poses[column:column + 1], frame.positions[:, None, :1])[:, 0, 0]  # (B, 3)
-        return int(np.argmin(np.linalg.norm(pelvis - self._previous_pelvis, axis=-1)))
-
     def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
         tick = time.perf_counter_ns()
-        time_us = int(group.time_us)
-        # Same rule as offline fusion: a step back is a new clock epoch, a long gap leaves nothing to carry.
-        dt_s = 1.0 / 30.0 if self._last_time_us is None else (time_us - self._last_time_us) / 1e6
-        if not 0 < dt_s <= RESET_GAP_S:
-            self.fuser.reset()
-            self._previous_pelvis = None
-            dt_s = 1.0 / 30.0
-        self._last_time_us = time_us
-        n_sensors = len(self.sensor_ids)
-        positions = np.full((1, n_sensors, N_JOINTS, 3), np.nan)
-        confidence = np.zeros((1, n_sensors, N_JOINTS), dtype=np.uint8)
-        for sensor_id, frame in group.frames.items():
-            if frame.n_bodies > 0:
-                column = self.column[sensor_id]
-                body = self._pick_body(frame, column)
-                positions[0, column] = frame.positions[body]
-                confidence[0, column] = frame.confidence[body]
-        world = apply_transform(self.poses, positions)  # (1, S, 32, 3)
-        result = self.fuser.step(world, confidence, dt_s)
-        keep = np.isfinite(result.positions).all(axis=-1).any(axis=-1)
-        fused = FusedFrame(
-            time_us=time_us,
-            track_ids=np.full(int(keep.sum()), FUSED_TRACK_ID, dtype=np.int64),
-            positions=result.positions[keep],
-            n_agree=result.n_agree[keep].astype(np.int16, copy=False),
-            confidence=result.confidence[keep].astype(np.uint8, copy=False),
-            contributors=result.contributors[keep].astype(bool, copy=False),
-            sensor_ids=self.sensor_ids,
-        )
-        pelvis = result.positions[0, 0]
-        if np.isfinite(pelvis).all():
-            self._previous_pelvis = pelvis.copy()
+        instant = self.fuser.step(group)
+        fused = instant.frame
         payload = encode_fused_frame(fused)
         self.frames_out += 1
         if group.complete:
             self.groups_complete += 1
         else:
             self.groups_partial += 1
-        return FusedOutput(fused, payload, world[0], time.perf_counter_ns() - tick, trigger_arrival_ns,
+        return FusedOutput(fused, payload, instant.sensors_world, time.perf_counter_ns() - tick, trigger_arrival_ns,
                            group.complete)
 
     # -- status -------------------------------------------------------------------------------------------

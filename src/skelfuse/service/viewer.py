@@ -134,7 +134,8 @@ class RerunView:
 
     def submit(self, time_s: float, sensors_world: np.ndarray | None, fused: np.ndarray, track_ids: np.ndarray,
                fusion_ms: float | None, latency_ms: float | None, rate_hz: dict[str, float] | None) -> None:
-        """Queue one instant: (S, 32, 3) raw skeletons in the world, (P, 32, 3) fused, metrics."""
+        """Queue one instant: (S, B, 32, 3) raw skeletons (every body) in the world, (P, 32, 3) fused persons
+        with their (P,) track ids (one colour per id), metrics."""
         try:
             self._queue.put_nowait((time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz))
         except queue.Full:
@@ -163,7 +164,7 @@ class RerunView:
                 time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz = item
                 self.sink.set_time(time_s)
                 if self.log_sensors and sensors_world is not None:
-                    self.sink.log_sensor_skeletons(sensors_world[:, None])
+                    self.sink.log_sensor_skeletons(sensors_world)
                 self.sink.log_fused(fused, track_ids)
                 self.sink.log_metrics(fusion_ms=fusion_ms, rate_hz=rate_hz)
                 if latency_ms is not None:

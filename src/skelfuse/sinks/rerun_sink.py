@@ -4,8 +4,11 @@ The recording stream is injected (``rr.RecordingStream``), never a global, so th
 the tests each own theirs. Entities mirror the scene:
 
 - ``world``: static axes and a 1 m floor grid (world frame, z up; everything is drawn in metres);
-- ``world/sensors/{id}``: the sensor's pose and NFOV frustum (static), ``.../skeleton`` its raw skeleton
-  transformed into the world (own colour; hide one sensor by hiding its entity);
+- ``world/sensors/{id}/pose``: the sensor's pose and (``.../pose/frustum``) its NFOV frustum (static);
+  ``world/sensors/{id}/skeleton``: every body it reports, already in the world frame (own colour). The
+  skeleton is a sibling of the pose, not its child: a Rerun transform applies to the entity's whole
+  subtree, so world-frame points under the posed entity would be transformed twice. Hide one sensor by
+  hiding ``world/sensors/{id}``;
 - ``world/fused``: every fused person in one entity (joints + bones), one colour per track id;
 - ``metrics/...``: time series of fusion time and per-sensor rate.
 
@@ -128,12 +131,12 @@ class RerunSink:
         for index, sensor_id in enumerate(self.sensor_ids):
             pose = np.asarray(world_from_sensor[index], dtype=np.float64)
             rec.log(
-                f"world/sensors/{sensor_id}",
+                f"world/sensors/{sensor_id}/pose",
                 rr.Transform3D(translation=pose[:3, 3] * MM_TO_M, mat3x3=pose[:3, :3]),
                 static=True,
             )
             rec.log(
-                f"world/sensors/{sensor_id}/frustum",
+                f"world/sensors/{sensor_id}/pose/frustum",
                 rr.Pinhole(
                     fov_y=np.deg2rad(fov_v_deg),
                     aspect_ratio=aspect,

@@ -1,0 +1,175 @@
+"""One fused instant, shared by the live fusion node and offline fusion: FrameGroup -> PeopleFuser -> FusedFrame.
+
+Both :class:`skelfuse.service.node.FusionCore` (live) and :func:`skelfuse.recording.offline.fuse_recording`
+(offline) fuse every instant through one :class:`GroupFuser`, so "the live stream of a set of frames equals
+the offline fusion of the same frames" holds by construction. Cycle of :meth:`GroupFuser.step`:
+
+1. :func:`group_bodies`: the group's frames (dict sensor id -> SensorFrame, some sensors missing) become
+   ``(S, B, 32, 3)`` sensor-frame positions, NaN-padded to the most bodies any sensor reported, with
+   ``(S, B, 32)`` confidence and ``(S, B)`` valid; rows in the rig's sensor order.
+2. :func:`bodies_to_world`: one :func:`~skelfuse.fusion.transform.apply_transform` over every sensor block.
+3. Clock rule: a time step back (a new clock epoch, e.g. a restarted rig) or a gap over
+   :data:`RESET_GAP_S` restarts the fusion state (:meth:`PeopleFuser.reset
+   <skelfuse.fusion.people.PeopleFuser.reset>`: tracks forgotten, ids keep counting up, never reused).
+4. :meth:`PeopleFuser.step <skelfuse.fusion.people.PeopleFuser.step>` at the group's time in seconds:
+   association across sensors, stable track ids, per-track fusion.
+5. A :class:`~skelfuse.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
+   coasting past the filter's ``max_coast_frames`` has none and is left out), ascending track id.
+
+Only pure numpy and the fusion core: no zenoh, no clocks, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from skelfuse.frames import FusedFrame, SensorFrame
+from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
+from skelfuse.fusion.people import PeopleFuser, PeopleResult
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.fusion.transform import apply_transform
+from skelfuse.service.grouping import FrameGroup
+from skelfuse.skeleton import N_JOINTS
+
+RESET_GAP_S = 1.0
+"""A gap longer than this between two instants restarts the fusion state (tracks, filters)."""
+
+
+def group_bodies(frames: Mapping[str, SensorFrame],
+                 sensor_ids: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stack the bodies of one instant, sensor by sensor, NaN-padded.
+
+    Parameters
+    ----------
+    frames : mapping sensor id -> SensorFrame
+        The frames of the instant (a sensor without a frame is simply absent).
+    sensor_ids : sequence of str
+        The rig's sensors: row order of the output. Frames of other sensors are ignored.
+
+    Returns
+    -------
+    positions : (S, B, 32, 3) float64, mm, each sensor's own frame; NaN in empty slots.
+        ``B`` is the largest number of bodies any sensor reported (0 when none did).
+    confidence : (S, B, 32) uint8, 0 in empty slots.
+    valid : (S, B) bool, the slot holds a body.
+    """
+    S = len(sensor_ids)
+    present = [(row, frames[sid]) for row, sid in enumerate(sensor_ids) if sid in frames]
+    B = max((frame.n_bodies for _, frame in present), default=0)
+    positions = np.full((S, B, N_JOINTS, 3), np.nan)
+    confidence = np.zeros((S, B, N_JOINTS), dtype=np.uint8)
+    valid = np.zeros((S, B), dtype=bool)
+    for row, frame in present:
+        n = frame.n_bodies
+        if n:
+            positions[row, :n] = frame.positions
+            confidence[row, :n] = frame.confidence
+            valid[row, :n] = True
+    return positions, confidence, valid
+
+
+def bodies_to_world(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """(S, B, 32, 3) sensor-frame bodies -> world frame, mm, with the (S, 4, 4) poses; NaN stays NaN."""
+    # apply_transform wants the sensor axis third from the end: (B, S, 32, 3) in, swapped back out.
+    return np.swapaxes(apply_transform(world_from_sensor, np.swapaxes(positions, 0, 1)), 0, 1)
+
+
+def fused_frame(people: PeopleResult, time_us: int, sensor_ids: tuple[str, ...]) -> FusedFrame:
+    """The wire record of a :class:`PeopleResult`: persons with at least one finite joint, ascending id."""
+    keep = np.isfinite(people.positions).all(axis=-1).any(axis=-1)  # (P,)
+    return FusedFrame(
+        time_us=int(time_us),
+        track_ids=people.track_ids[keep].astype(np.int64, copy=False),
+        positions=people.positions[keep],
+        n_agree=people.n_agree[keep].astype(np.int16, copy=False),
+        confidence=people.confidence[keep].astype(np.uint8, copy=False),
+        contributors=people.contributors[keep].astype(bool, copy=False),
+        sensor_ids=sensor_ids,
+    )
+
+
+@dataclass(frozen=True)
+class FusedInstant:
+    """What :meth:`GroupFuser.step` made of one instant.
+
+    Attributes
+    ----------
+    frame : FusedFrame
+        One person per track with an estimate, ascending track id (what is published / written).
+    sensors_world : (S, B, 32, 3) float64, mm
+        Every body of every sensor in the world frame (NaN: no frame, no body in the slot).
+    valid : (S, B) bool
+        The slot holds a body.
+    people : PeopleResult
+        The core's full result (coasting tracks without an estimate included, association of the bodies).
+    reset : bool
+        The fusion state was restarted before this instant (first instant, step back, or long gap).
+    """
+
+    frame: FusedFrame
+    sensors_world: np.ndarray
+    valid: np.ndarray
+    people: PeopleResult
+    reset: bool
+
+
+class GroupFuser:
+    """Fuses frame groups of one rig into fused frames, one person per track (see the module docstring).
+
+    Parameters
+    ----------
+    sensor_ids : sequence of str
+        The rig's sensors, in the row order of ``world_from_sensor`` and of ``contributors``.
+    world_from_sensor : (S, 4, 4) float, mm
+        Sensor frame -> world.
+    params : FusionParams
+        The per-person pipeline's parameters.
+    gate_mm, birth_frames, timeout_s, duplicate_mm
+        Passed to :class:`~skelfuse.fusion.people.PeopleFuser`.
+    reset_gap_s : float
+        A longer gap between instants restarts the fusion state.
+
+    Attributes
+    ----------
+    people : PeopleFuser
+        The multi-person state (tracks, per-track filters).
+    last_time_us : int or None
+        Time of the previous instant.
+    """
+
+    def __init__(self, sensor_ids: Sequence[str], world_from_sensor: np.ndarray, params: FusionParams, *,
+                 gate_mm: float = DEFAULT_GATE_MM, birth_frames: int = 3, timeout_s: float = 1.0,
+                 duplicate_mm: float | None = DEFAULT_DUPLICATE_MM, reset_gap_s: float = RESET_GAP_S) -> None:
+        self.sensor_ids = tuple(sensor_ids)
+        poses = np.asarray(world_from_sensor, dtype=np.float64)
+        if poses.shape != (len(self.sensor_ids), 4, 4):
+            raise ValueError(f"world_from_sensor must have shape ({len(self.sensor_ids)}, 4, 4) for sensors "
+                             f"{', '.join(self.sensor_ids)}; got {poses.shape}")
+        self.world_from_sensor = poses
+        self.params = params
+        self.reset_gap_s = float(reset_gap_s)
+        self.people = PeopleFuser(params, gate_mm=gate_mm, birth_frames=birth_frames, timeout_s=timeout_s,
+                                  duplicate_mm=duplicate_mm)
+        self.last_time_us: int | None = None
+
+    def reset(self) -> None:
+        """Forget every track and filter (ids keep counting up)."""
+        self.people.reset()
+        self.last_time_us = None
+
+    def step(self, group: FrameGroup) -> FusedInstant:
+        """Fuse one instant (its ``time_us`` on the grouping clock)."""
+        time_us = int(group.time_us)
+        # Within one clock epoch the grouper's times strictly increase; a step back is a new epoch and a long
+        # gap leaves nothing worth carrying: both restart the fusion state.
+        reset = self.last_time_us is None or not 0 < (time_us - self.last_time_us) / 1e6 <= self.reset_gap_s
+        if reset:
+            self.people.reset()
+        self.last_time_us = time_us
+        positions, confidence, valid = group_bodies(group.frames, self.sensor_ids)
+        world = bodies_to_world(self.world_from_sensor, positions)
+        people = self.people.step(world, confidence, valid, time_us / 1e6)
+        return FusedInstant(fused_frame(people, time_us, self.sensor_ids), world, valid, people, reset)
