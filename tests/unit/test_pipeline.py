@@ -85,6 +85,32 @@ def test_temporal_equals_reference_with_cold_and_partial_anchors(params):
         _assert_same(fuser.step(cand, conf), oracle.step(cand, conf), f"frame {t}")
 
 
+@pytest.mark.parametrize("slow_rule", [True, False], ids=["slow-majority", "more-views"])
+def test_fuse_equals_reference_through_a_wrong_start_and_its_repair(slow_rule: bool):
+    # Two correct views and two mirrored ones. "more-views": the body is first seen by the mirrored pair
+    # alone, and starts cold again when the correct pair joins. "slow-majority": all four views from the
+    # start, but the mirrored pair holds more MEDIUM evidence at first (a wrong cold start); then the
+    # evidence turns and the simple-majority rule must repair it after 3 frames. Identical in both fusers.
+    rng = np.random.default_rng(SEED + 2)
+    params = replace(preset("A4"), realign="temporal", recovery_frames=50, majority_recovery_frames=3)
+    fuser, oracle = Fuser(params, 1), ReferenceFuser(params, 1)
+    truth = rng.normal(0.0, 300.0, (N_JOINTS, 3))
+    outputs_right = []
+    for t in range(8):
+        cand = truth[None, None] + rng.normal(0.0, 10.0, (1, 4, N_JOINTS, 3))
+        cand[0, 2:] = cand[0, 2:][:, MIRROR]
+        conf = np.full((1, 4, N_JOINTS), 2, dtype=np.uint8)
+        weak = slice(0, 2) if slow_rule and t < 2 else slice(2, 4)
+        conf[0, weak, ::2] = 1
+        if not slow_rule and t < 2:
+            cand[0, :2] = np.nan
+        fused = fuser.step(cand, conf)
+        _assert_same(fused, oracle.step(cand, conf), f"frame {t}")
+        outputs_right.append(bool(np.nanmax(np.abs(fused.positions[0] - truth)) < 60.0))
+    assert not outputs_right[0], "the wrong start did not happen: the test proves nothing"
+    assert outputs_right[-1], "the wrong start was never repaired"
+
+
 def test_fuse_equals_reference_with_exact_ties():
     # Two sensors on each of two spots (2 vs 2): ties broken by the previous position, then confidence,
     # then centroid; the oracle breaks them independently with tuple comparison.

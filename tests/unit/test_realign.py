@@ -169,18 +169,22 @@ def _rig_views(truth, facing_deg, rng, noise=8.0, sensors_deg=(45.0, 135.0, 225.
     return pos, conf, away
 
 
+FOUR_VIEW_ANCHOR = np.array([[0, 0, 4]], dtype=np.int32)
+"""Counters of a body whose anchor was built from four views: no disagreement streak yet."""
+
+
 def test_temporal_cold_start_two_versus_two_picks_the_group_with_more_medium_evidence():
     rng = np.random.default_rng(RNG_SEED + 7)
     truth = _facing_skeleton(rng, 0.0)  # views at 135 and 225 deg see the back
     pos, conf, away = _rig_views(truth, 0.0, rng)
     assert away.tolist() == [False, True, True, False]
     no_previous = np.full((1, N_JOINTS, 3), np.nan)
-    _, _, mirrored, streak = realign_temporal(pos, conf, no_previous, np.zeros(1, np.int32))
-    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [0]
+    _, _, mirrored, streak = realign_temporal(pos, conf, no_previous, np.zeros((1, 3), np.int32))
+    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4]]
     # Same views, but the mirrored pair now holds more MEDIUM joints: evidence sides with them (documented
     # limit of a cold start; the anchor then keeps that choice until a clear majority disagrees).
     conf_swapped = conf[:, [1, 0, 3, 2]]
-    _, _, mirrored, _ = realign_temporal(pos, conf_swapped, no_previous, np.zeros(1, np.int32))
+    _, _, mirrored, _ = realign_temporal(pos, conf_swapped, no_previous, np.zeros((1, 3), np.int32))
     assert mirrored[0].tolist() == [True, False, False, True]
 
 
@@ -189,11 +193,11 @@ def test_temporal_anchor_decides_a_two_versus_two_split_the_static_vote_cannot()
     truth = _facing_skeleton(rng, 0.0)
     pos, conf, away = _rig_views(truth, 0.0, rng)
     conf[:] = int(Confidence.MEDIUM)  # no confidence hint at all
-    _, _, mirrored, _ = realign_temporal(pos, conf, truth[None] + 20.0, np.zeros(1, np.int32))
+    _, _, mirrored, _ = realign_temporal(pos, conf, truth[None] + 20.0, FOUR_VIEW_ANCHOR)
     assert mirrored[0].tolist() == away.tolist()
     # The anchor mirrored: every view is realigned to it (the recovery counter does not move on 2 vs 2).
-    _, _, mirrored, streak = realign_temporal(pos, conf, truth[MIRROR][None], np.zeros(1, np.int32))
-    assert mirrored[0].tolist() == (~away).tolist() and streak.tolist() == [0]
+    _, _, mirrored, streak = realign_temporal(pos, conf, truth[MIRROR][None], FOUR_VIEW_ANCHOR)
+    assert mirrored[0].tolist() == (~away).tolist() and streak.tolist() == [[0, 0, 4]]
 
 
 def test_temporal_falls_back_to_the_static_reference_for_pairs_the_previous_lacks():
@@ -202,7 +206,7 @@ def test_temporal_falls_back_to_the_static_reference_for_pairs_the_previous_lack
     pos, conf, away = _rig_views(truth, 45.0, rng)
     previous = np.full((1, N_JOINTS, 3), np.nan)
     previous[0, PAPER_REALIGN_PAIRS[0]] = truth[PAPER_REALIGN_PAIRS[0]]  # only the shoulders are known
-    _, _, mirrored, _ = realign_temporal(pos, conf, previous, np.zeros(1, np.int32))
+    _, _, mirrored, _ = realign_temporal(pos, conf, previous, FOUR_VIEW_ANCHOR)
     assert mirrored[0].tolist() == away.tolist()
 
 
@@ -213,6 +217,7 @@ def test_temporal_recovers_from_a_mirrored_anchor_after_recovery_frames():
     params = replace(preset("A4"), realign="temporal", recovery_frames=4)
     state = init_state(1, params)
     state.previous = truth[MIRROR][None].astype(np.float64)
+    state.flip_counters = FOUR_VIEW_ANCHOR.copy()
     for frame in range(1, 8):
         pos, conf, away = _rig_views(truth, 45.0, rng)
         assert away.sum() == 1
@@ -221,10 +226,50 @@ def test_temporal_recovers_from_a_mirrored_anchor_after_recovery_frames():
         assert n_valid.all()
         if frame < params.recovery_frames:
             assert n_swapped.all(), f"frame {frame}: followed the majority too early"
-            assert state.flip_streak.tolist() == [frame]
+            assert state.flip_counters.tolist() == [[frame, frame, 4]]
         else:
             assert not n_swapped.any(), f"frame {frame}: still mirrored"
-            assert state.flip_streak.tolist() == [0]
+            assert state.flip_counters.tolist() == [[0, 0, 4]]
+
+
+def test_temporal_undoes_a_wrong_start_in_a_two_versus_two_split_after_majority_frames():
+    # A body first seen only from behind leaves a mirrored anchor; then the two front views join. The
+    # clear-majority rule never fires on 2 against 2, but the front views hold more MEDIUM evidence, so
+    # the slow simple-majority rule follows them on frame N.
+    rng = np.random.default_rng(RNG_SEED + 13)
+    truth = _facing_skeleton(rng, 0.0)
+    params = replace(preset("A4"), realign="temporal", recovery_frames=10, majority_recovery_frames=5)
+    state = init_state(1, params)
+    state.previous = truth[MIRROR][None].astype(np.float64)
+    state.flip_counters = FOUR_VIEW_ANCHOR.copy()
+    for frame in range(1, 8):
+        pos, conf, away = _rig_views(truth, 0.0, rng)
+        assert away.tolist() == [False, True, True, False]
+        result, state = fuse(pos, conf, state, params)
+        n_swapped, n_valid = swap_counts(result.positions, truth[None], PAPER_REALIGN_PAIRS)
+        assert n_valid.all()
+        if frame < params.majority_recovery_frames:
+            assert n_swapped.all(), f"frame {frame}: followed the majority too early"
+            assert state.flip_counters.tolist() == [[0, frame, 4]]
+        else:
+            assert not n_swapped.any(), f"frame {frame}: still mirrored"
+
+
+def test_temporal_starts_cold_again_when_more_views_see_the_body_than_built_its_anchor():
+    # First seen by the two rear views only (both mirrored, so the anchor is mirrored); when the two front
+    # views join, the body starts cold again and the group with more MEDIUM evidence (the front) wins.
+    rng = np.random.default_rng(RNG_SEED + 14)
+    truth = _facing_skeleton(rng, 0.0)
+    params = replace(preset("A4"), realign="temporal", recovery_frames=10, majority_recovery_frames=None)
+    state = init_state(1, params)
+    for frame in range(4):
+        pos, conf, away = _rig_views(truth, 0.0, rng)
+        if frame < 2:
+            pos[:, ~away] = np.nan
+        result, state = fuse(pos, conf, state, params)
+        n_swapped, _ = swap_counts(result.positions, truth[None], PAPER_REALIGN_PAIRS)
+        assert n_swapped.all() == (frame < 2), f"frame {frame}"
+        assert state.flip_counters[0, 2] == (2 if frame < 2 else 4)
 
 
 def test_temporal_follows_a_person_turning_around():
@@ -251,6 +296,6 @@ def test_temporal_follows_a_person_turning_around():
 def test_temporal_without_mirrored_views_changes_nothing():
     rng = np.random.default_rng(RNG_SEED + 12)
     _, pos, conf = _views(rng)
-    out, out_conf, mirrored, streak = realign_temporal(pos, conf, np.full((1, N_JOINTS, 3), np.nan), np.zeros(1))
-    assert not mirrored.any() and streak.tolist() == [0]
+    out, out_conf, mirrored, streak = realign_temporal(pos, conf, np.full((1, N_JOINTS, 3), np.nan), np.zeros((1, 3)))
+    assert not mirrored.any() and streak.tolist() == [[0, 0, 5]]  # five views
     assert out is pos and out_conf is conf

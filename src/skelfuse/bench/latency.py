@@ -91,8 +91,20 @@ class LatencyResult:
 def _rig_toml(directory: Path, n_sensors: int) -> Path:
     from skelfuse.sim.rig import paper_rig
 
-    lines = ["[rig]", 'name = "bench"', "", "[sync]", 'by = "device"', f"fps = {FPS}", "tolerance_ms = 10.0",
-             "deadline_ms = 17.0", "", "[zenoh]", "multicast_scouting = false", ""]
+    lines = [
+        "[rig]",
+        'name = "bench"',
+        "",
+        "[sync]",
+        'by = "device"',
+        f"fps = {FPS}",
+        "tolerance_ms = 10.0",
+        "deadline_ms = 17.0",
+        "",
+        "[zenoh]",
+        "multicast_scouting = false",
+        "",
+    ]
     for sensor in paper_rig(n_sensors):
         rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
         lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"world_from_sensor = [{rows}]", ""]
@@ -116,8 +128,21 @@ def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0) -> list[lis
     orientations[..., 0] = 1.0
     confidence = np.full((1, N_JOINTS), 2, np.uint8)
     for t in range(n_instants):
-        out.append([SensorFrame(s.sensor_id, 0, 0, 0, np.array([1], np.uint32), views[i][t][None].astype(np.float32),
-                                orientations, confidence) for i, s in enumerate(sensors)])
+        out.append(
+            [
+                SensorFrame(
+                    s.sensor_id,
+                    0,
+                    0,
+                    0,
+                    np.array([1], np.uint32),
+                    views[i][t][None].astype(np.float32),
+                    orientations,
+                    confidence,
+                )
+                for i, s in enumerate(sensors)
+            ]
+        )
     return out
 
 
@@ -129,8 +154,11 @@ def _merge_windows(windows: list[dict[str, Any]]) -> dict[str, float | None]:
     windows = [w for w in windows if w.get("n")]
     if not windows:
         return {"p50": None, "p99": None, "max": None}
-    return {"p50": round(float(np.median([w["p50"] for w in windows])), 4),
-            "p99": max(w["p99"] for w in windows), "max": max(w["max"] for w in windows)}
+    return {
+        "p50": round(float(np.median([w["p50"] for w in windows])), 4),
+        "p99": max(w["p99"] for w in windows),
+        "max": max(w["max"] for w in windows),
+    }
 
 
 def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
@@ -145,11 +173,24 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
 
     config = _rig_toml(workdir, n_sensors)
     port = free_port()
-    node = subprocess.Popen([sys.executable, "-m", "skelfuse", "fuse", "--config", str(config), "--no-view",
-                             "--status-period", "0.5", *loopback_args(listen_port=port)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=open(workdir / f"node-{n_sensors}.log", "wb"),
-                            start_new_session=True)
+    node = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "skelfuse",
+            "fuse",
+            "--config",
+            str(config),
+            "--no-view",
+            "--status-period",
+            "0.5",
+            *loopback_args(listen_port=port),
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=open(workdir / f"node-{n_sensors}.log", "wb"),
+        start_new_session=True,
+    )
     period_ns = int(1e9 / FPS)
     n_instants = int((WARMUP_S + duration_s) * FPS)
     frames = synthetic_frames(n_sensors, min(n_instants, 300))
@@ -188,8 +229,9 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
             if not ready.wait(60.0):
                 log = (workdir / f"node-{n_sensors}.log").read_text(errors="replace")[-2000:]
                 raise RuntimeError(f"the fusion node did not come up within 60 s:\n{log}")
-            publishers = [session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True)
-                          for f in frames[0]]
+            publishers = [
+                session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True) for f in frames[0]
+            ]
             time.sleep(0.3)  # let the node's subscriber see the publishers
             start = time.monotonic_ns() + period_ns
             base_us = time.time_ns() // 1000
@@ -199,9 +241,12 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
                 if delay > 0:
                     time.sleep(delay / 1e9)
                 device_us = base_us + round(k * 1e6 / FPS)
-                batch = [encode_sensor_frame(dataclasses.replace(f, sequence=k, device_time_us=device_us,
-                                                                 host_time_ns=time.time_ns()))
-                         for f in frames[k % len(frames)]]
+                batch = [
+                    encode_sensor_frame(
+                        dataclasses.replace(f, sequence=k, device_time_us=device_us, host_time_ns=time.time_ns())
+                    )
+                    for f in frames[k % len(frames)]
+                ]
                 for publisher, payload in zip(publishers[:-1], batch[:-1], strict=True):
                     publisher.put(payload)
                 last = time.monotonic_ns()
@@ -216,8 +261,11 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
             try:
                 node.wait(15.0)
             except subprocess.TimeoutExpired:
-                print(f"bench latency: the node did not stop within 15 s of SIGTERM; killing it (log: "
-                      f"{workdir / f'node-{n_sensors}.log'})", file=sys.stderr)
+                print(
+                    f"bench latency: the node did not stop within 15 s of SIGTERM; killing it (log: "
+                    f"{workdir / f'node-{n_sensors}.log'})",
+                    file=sys.stderr,
+                )
     finally:
         if node.poll() is None:
             os.killpg(node.pid, signal.SIGKILL)
@@ -228,25 +276,37 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
         # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up.
         # Percentiles of windows do not merge exactly: p50 = median of the windows' p50, p99 and max = the
         # largest window p99 / max (conservative).
-        windows = [st.info for t, st in statuses
-                   if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"]
+        windows = [
+            st.info for t, st in statuses if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"
+        ]
     added = _merge_windows([w.get("node_added_ms") or {} for w in windows])
     fusion = _merge_windows([w.get("fusion_ms") or {} for w in windows])
     sent = len(published)
     complete_fraction = n_complete / sent if sent else 0.0
     p99 = _percentile(e2e, 99)
-    sustained = bool(sent and len(e2e) >= 0.95 * sent and complete_fraction >= 0.95 and p99 is not None
-                     and p99 < 1e3 / FPS)
+    sustained = bool(
+        sent and len(e2e) >= 0.95 * sent and complete_fraction >= 0.95 and p99 is not None and p99 < 1e3 / FPS
+    )
     return LatencyCase(
-        n_sensors=n_sensors, instants_sent=sent, fused_received=len(e2e), complete_fraction=round(complete_fraction, 4),
-        e2e_p50_ms=_percentile(e2e, 50), e2e_p99_ms=p99, e2e_max_ms=round(max(e2e), 4) if e2e else None,
-        node_added_p50_ms=added.get("p50"), node_added_p99_ms=added.get("p99"), node_added_max_ms=added.get("max"),
-        fusion_p50_ms=fusion.get("p50"), fusion_p99_ms=fusion.get("p99"), sustained=sustained,
+        n_sensors=n_sensors,
+        instants_sent=sent,
+        fused_received=len(e2e),
+        complete_fraction=round(complete_fraction, 4),
+        e2e_p50_ms=_percentile(e2e, 50),
+        e2e_p99_ms=p99,
+        e2e_max_ms=round(max(e2e), 4) if e2e else None,
+        node_added_p50_ms=added.get("p50"),
+        node_added_p99_ms=added.get("p99"),
+        node_added_max_ms=added.get("max"),
+        fusion_p50_ms=fusion.get("p50"),
+        fusion_p99_ms=fusion.get("p99"),
+        sustained=sustained,
     )
 
 
-def run_latency_bench(*, sensor_counts: Sequence[int] = (4, 5, 8), duration_s: float = 5.0, sweep: bool = True,
-                      progress: bool = True) -> LatencyResult:
+def run_latency_bench(
+    *, sensor_counts: Sequence[int] = (4, 5, 8), duration_s: float = 5.0, sweep: bool = True, progress: bool = True
+) -> LatencyResult:
     """Measure every sensor count, then (``sweep``) the largest count sustained at 30 Hz."""
     for n in sensor_counts:
         if not 1 <= n <= 64:
@@ -286,10 +346,12 @@ def format_table(result: LatencyResult) -> str:
         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
     ]
     for c in [*result.cases, *result.sweep]:
-        lines.append(f"| {c.n_sensors} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
-                     f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
-                     f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
-                     f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} |")
+        lines.append(
+            f"| {c.n_sensors} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
+            f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
+            f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
+            f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} |"
+        )
     lines += [
         "",
         "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",

@@ -92,7 +92,7 @@ class ReferenceFuser:
     def reset(self) -> None:
         self.previous: list[list[np.ndarray | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
         self.tracks: list[list[_Track | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
-        self.flip_streak: list[int] = [0] * self.n_bodies
+        self.flip_counters: list[tuple[int, int, int]] = [(0, 0, 0)] * self.n_bodies
 
     def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
         # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
@@ -113,8 +113,8 @@ class ReferenceFuser:
             elif self.params.realign == "body":
                 pos, conf = _realign_body(pos, conf, self.params.realign_passes)
             elif self.params.realign == "temporal":
-                pos, conf, self.flip_streak[b] = _realign_temporal(
-                    pos, conf, previous, self.flip_streak[b], self.params
+                pos, conf, self.flip_counters[b] = _realign_temporal(
+                    pos, conf, previous, self.flip_counters[b], self.params
                 )
             for j in range(J):
                 merged, members, best_conf = self._merge_joint(pos, conf, j, previous[j])
@@ -286,12 +286,23 @@ def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[
 
 
 def _realign_temporal(
-    pos: list[list], conf: list[list[int]], previous: list[np.ndarray | None], streak: int, params: FusionParams
-) -> tuple[list[list], list[list[int]], int]:
+    pos: list[list],
+    conf: list[list[int]],
+    previous: list[np.ndarray | None],
+    counters: tuple[int, int, int],
+    params: FusionParams,
+) -> tuple[list[list], list[list[int]], tuple[int, int, int]]:
     """Whole-body flip per sensor against the previous skeleton (seed view on a cold start), with recovery."""
     S = len(pos)
     pairs = PAPER_REALIGN_PAIRS.tolist()
-    prev_has = [previous[left] is not None and previous[right] is not None for left, right in pairs]
+    clear, simple, views_seen = counters
+    n_views = sum(
+        1 for s in range(S) if any(pos[s][left] is not None and pos[s][right] is not None for left, right in pairs)
+    )
+    if n_views > views_seen:  # more views than built the anchor: start cold, forget the previous skeleton
+        prev_has = [False] * len(pairs)
+    else:
+        prev_has = [previous[left] is not None and previous[right] is not None for left, right in pairs]
     cold = not any(prev_has)
     evidence = []
     present = []
@@ -328,19 +339,19 @@ def _realign_temporal(
     invert = False
     if cold:
         invert = against > weight - against  # the flipped group holds more MEDIUM evidence
-        streak = 0
+        clear = simple = 0
+        views_seen = n_views
     else:
-        if weight > 0 and against >= params.recovery_share * weight:
-            streak += 1
-        else:
-            streak = 0
-        if streak >= params.recovery_frames:
+        clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight else 0
+        simple = simple + 1 if against > weight - against else 0
+        slow = params.majority_recovery_frames
+        if clear >= params.recovery_frames or (slow is not None and simple >= slow):
             invert = True
-            streak = 0
+            clear = simple = 0
     pos = [row[:] for row in pos]
     conf = [row[:] for row in conf]
     for s in range(S):
         if flipped[s] != (invert and decided[s]):
             for left, right in MIRROR_PAIRS.tolist():
                 _swap(pos, conf, s, left, right)
-    return pos, conf, streak
+    return pos, conf, (clear, simple, views_seen)

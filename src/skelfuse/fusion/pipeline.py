@@ -68,15 +68,16 @@ class FusionState:
     x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
     P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
     coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
-    flip_streak : (B,) int32 or None, "temporal" realignment: frames in a row a clear majority of views
-        disagreed with the anchor (None reads as all 0).
+    flip_counters : (B, 3) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
+        and a simple majority (column 1) of the evidence disagreed with the anchor, and (column 2) the most
+        views that saw the body since its last cold start (None reads as all 0).
     """
 
     previous: np.ndarray
     x: np.ndarray
     P: np.ndarray
     coast: np.ndarray
-    flip_streak: np.ndarray | None = None
+    flip_counters: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -100,7 +101,7 @@ def init_state(n_bodies: int, params: FusionParams) -> FusionState:
         x=x.reshape(B, N_JOINTS, 2, 3),
         P=P.reshape(B, N_JOINTS, 3),
         coast=coast.reshape(B, N_JOINTS),
-        flip_streak=np.zeros(B, dtype=np.int32),
+        flip_counters=np.zeros((B, 3), dtype=np.int32),
     )
 
 
@@ -169,7 +170,7 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    positions, conf, reference, streak = _realign(positions, conf, params, previous, state.flip_streak)
+    positions, conf, reference, streak = _realign(positions, conf, params, previous, state.flip_counters)
     merged = _merge(positions, conf, reference, previous, params)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
@@ -191,7 +192,7 @@ def fuse(
         x=x.reshape(B, J, 2, 3),
         P=P.reshape(B, J, 3),
         coast=coast.reshape(B, J),
-        flip_streak=streak,
+        flip_counters=streak,
     )
     return result, new_state
 
@@ -216,13 +217,19 @@ def _realign(
     and the new flip counters."""
     B = positions.shape[0]
     if streak is None:
-        streak = np.zeros(B, dtype=np.int32)
+        streak = np.zeros((B, 3), dtype=np.int32)
     if params.realign is None:
         return positions, conf, None, streak
     if params.realign == "temporal":
         # The static reference is needed only where the anchor lacks a pair: computed there, on demand.
         out_positions, out_conf, _, streak = realign_temporal(
-            positions, conf, previous, streak, params.recovery_frames, params.recovery_share
+            positions,
+            conf,
+            previous,
+            streak,
+            params.recovery_frames,
+            params.recovery_share,
+            majority_recovery_frames=params.majority_recovery_frames,
         )
         return out_positions, out_conf, None, streak
     reference = reference_positions(positions, conf)

@@ -68,6 +68,10 @@ class FusionParams:
         body follows the majority (see :func:`skelfuse.fusion.realign.realign_temporal`).
     recovery_share : float
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
+    majority_recovery_frames : int or None
+        "temporal" only: frames in a row more than half of the evidence must disagree with the anchor before
+        the body follows it: the slow rule that undoes a wrong start in a 2-against-2 split (for example a
+        body first seen only by the two rear sensors). None: off.
     merge : {"dbscan", "average"}
         "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
         mean of the valid sensor candidates (the paper's A1/A2).
@@ -112,6 +116,7 @@ class FusionParams:
     realign_passes: int = 2
     recovery_frames: int = 10
     recovery_share: float = 0.75
+    majority_recovery_frames: int | None = 30
     merge: MergeMode = "dbscan"
     eps_mm: float = 100.0
     reference_weight: float | None = 2.0
@@ -138,6 +143,10 @@ class FusionParams:
         _one_of("previous_candidate", self.previous_candidate, ("merged", "predicted"))
         if int(self.recovery_frames) < 1:
             raise ValueError(f"FusionParams.recovery_frames must be >= 1, got {self.recovery_frames!r}")
+        if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
+            raise ValueError(
+                f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"
+            )
         if not 0.5 < float(self.recovery_share) <= 1.0:
             raise ValueError(f"FusionParams.recovery_share must be in (0.5, 1], got {self.recovery_share!r}")
         if int(self.realign_passes) < 1:

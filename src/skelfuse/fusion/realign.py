@@ -137,6 +137,11 @@ def realign_paper(
         (left, right) joint indices to check.
     reference : (B, J, 3) float, mm, or None
         :func:`reference_positions` of these same candidates, if the caller already has it.
+    majority_recovery_frames : int or None
+        Disagreement frames in a row after which the body follows a simple majority (more than half the
+        evidence). This slower rule undoes a wrong start in a 2-against-2 split, which the clear-majority
+        rule never sees: an anchor set from the first frames of a body seen only from behind, or a cold
+        start that picked the wrong group. None: off.
 
     Returns
     -------
@@ -177,6 +182,11 @@ def realign_body(
         Number of decide-then-recompute-the-reference rounds (>= 1).
     reference : (B, J, 3) float, mm, or None
         :func:`reference_positions` of these same candidates, if the caller already has it.
+    majority_recovery_frames : int or None
+        Disagreement frames in a row after which the body follows a simple majority (more than half the
+        evidence). This slower rule undoes a wrong start in a 2-against-2 split, which the clear-majority
+        rule never sees: an anchor set from the first frames of a body seen only from behind, or a cold
+        start that picked the wrong group. None: off.
 
     Returns
     -------
@@ -220,6 +230,7 @@ def realign_temporal(
     recovery_frames: int = 10,
     recovery_share: float = 0.75,
     reference: np.ndarray | None = None,
+    majority_recovery_frames: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -229,15 +240,21 @@ def realign_temporal(
     confidence : (B, S, J) int
     previous : (B, J, 3) float, mm
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
-    streak : (B,) int
-        Frames in a row in which the views disagreeing with the anchor held ``recovery_share`` of the
-        evidence (0 for a new body).
+    streak : (B, 3) int
+        Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
+        ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
+        that have seen the body's left/right pairs since its last cold start. All 0 for a new body.
     recovery_frames : int
         Disagreement frames in a row after which the body follows the majority (>= 1).
     recovery_share : float
         Share of the evidence, in (0.5, 1], that counts as a clear majority against the anchor.
     reference : (B, J, 3) float, mm, or None
         :func:`reference_positions` of these same candidates, if the caller already has it.
+    majority_recovery_frames : int or None
+        Disagreement frames in a row after which the body follows a simple majority (more than half the
+        evidence). This slower rule undoes a wrong start in a 2-against-2 split, which the clear-majority
+        rule never sees: an anchor set from the first frames of a body seen only from behind, or a cold
+        start that picked the wrong group. None: off.
 
     Returns
     -------
@@ -245,7 +262,7 @@ def realign_temporal(
         themselves when no sensor is mirrored; do not modify them in place).
     confidence : (B, S, J), permuted along with the positions.
     mirrored : (B, S) bool, which sensors were mirrored.
-    streak : (B,) int32, the new disagreement counters.
+    streak : (B, 3) int32, the new counters.
     """
     B = positions.shape[0]
     # Evidence of a view: its MEDIUM-or-better joints, all 32 (a rear view sees face, hands and arms in
@@ -253,11 +270,18 @@ def realign_temporal(
     evidence = (confidence >= int(Confidence.MEDIUM)) @ _ONES_J  # (B, S), float: whole counts
     anchor = previous[:, _PAIR_ANCHOR]  # (B, 4P, 3): the pair joints twice, facing the labels of ``both``
     both = positions[:, :, _PAIR_BOTH]  # (B, S, 4P, 3): left, right, then the swapped labels
-    warm = not math.isnan(anchor.sum())  # the usual case: every pair anchored on the previous skeleton
+    streak = np.asarray(streak, dtype=np.int32)
+    # Views that see at least one whole pair. An anchor only knows the views it was built from: once more
+    # views see the body than ever did since its cold start, the body starts cold again, so a start seen
+    # by the rear sensors alone is re-decided when the front ones join.
+    n_views = (~np.isnan(both[:, :, :_N_PAIRS, 0] + both[:, :, _N_PAIRS : 2 * _N_PAIRS, 0])).any(axis=2).sum(axis=1)
+    more_views = n_views > streak[:, 2]
+    warm = not (math.isnan(anchor.sum()) or more_views.any())  # usual: every pair anchored, no new view
     if warm:
         has_prev = None
     else:
         prev_ok = ~np.isnan(anchor[:, :_N_PAIRS, 0] + anchor[:, _N_PAIRS : 2 * _N_PAIRS, 0])  # (B, P)
+        prev_ok &= ~more_views[:, None]
         has_prev = prev_ok.any(axis=1)  # (B,)
         if reference is None:
             reference = reference_positions(positions, confidence)
@@ -277,18 +301,29 @@ def realign_temporal(
     margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
-        return positions, confidence, flips, np.zeros(B, dtype=np.int32)
+        counters = np.zeros((B, 3), dtype=np.int32)
+        counters[:, 2] = streak[:, 2]
+        return positions, confidence, flips, counters
     decided = decidable.any(axis=2)
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
     total = (evidence * decided).sum(axis=1)
     # Recovery: a clear majority against the anchor for recovery_frames frames in a row wins. Evidence
     # counts are whole numbers and the share exceeds 1/2, so the 0.5 floor only rules out total == 0.
     majority = against >= np.maximum(recovery_share * total, 0.5)
+    simple = 2.0 * against > total
     if has_prev is not None:
         majority &= has_prev
-    new_streak = (np.asarray(streak, dtype=np.int32) + 1) * majority
-    follow = new_streak >= recovery_frames
-    new_streak[follow] = 0
+        simple &= has_prev
+    # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
+    # have started cold), this frame's count after a cold start.
+    views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
+    new_streak = np.stack([(streak[:, 0] + 1) * majority, (streak[:, 1] + 1) * simple, views_seen], axis=1).astype(
+        np.int32
+    )
+    follow = new_streak[:, 0] >= recovery_frames
+    if majority_recovery_frames is not None:
+        follow |= new_streak[:, 1] >= majority_recovery_frames
+    new_streak[follow, :2] = 0
     if has_prev is not None:  # cold start: the group with more MEDIUM evidence wins (the seed's on a tie)
         follow = np.where(has_prev, follow, 2 * against > total)
     mirrored = flips ^ (follow[:, None] & decided) if follow.any() else flips
