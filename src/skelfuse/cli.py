@@ -390,8 +390,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
         help="what the simulated person does (default: %(default)s)",
     )
-    demo.add_argument("--preset", default=DEFAULT_PRESET,
-                      help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)")
+    demo.add_argument(
+        "--preset", default=DEFAULT_PRESET, help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)"
+    )
     demo.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
     demo.add_argument(
         "--rrd", type=Path, default=None, metavar="FILE", help="save the recording to FILE instead of spawning a viewer"
@@ -458,7 +459,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=_default_data_dir(),
         help="folder with joints_gen_{master,sub1,sub2,sync}.csv (default: %(default)s)",
     )
-    real.add_argument("--eps", type=float, default=100.0, help="DBSCAN radius in mm (default: %(default)s)")
+    real.add_argument(
+        "--eps", type=float, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
+    )
     real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     real.add_argument("--out", type=Path, default=None, help="also write report.md into this folder")
     real.set_defaults(func=_cmd_eval_real)
@@ -626,8 +629,12 @@ def _add_service_commands(commands: Any) -> None:
     fuse.add_argument(
         "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
     )
-    fuse.add_argument("--preset", default=None, help=f"offline: fusion preset, {DEFAULT_PRESET} or the paper's A1..A5 "
-                      f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})")
+    fuse.add_argument(
+        "--preset",
+        default=None,
+        help=f"offline: fusion preset, {DEFAULT_PRESET} or the paper's A1..A5 "
+        f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})",
+    )
     fuse.add_argument(
         "--node",
         default=None,

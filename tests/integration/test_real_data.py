@@ -114,7 +114,7 @@ def test_every_preset_fuses_the_take(take: real.RealTake, preset_name: str) -> N
 
 @needs_fusion
 def test_report_end_to_end(report: real.RealEvalResult) -> None:
-    assert report.n_frames == N_FRAMES and report.presets == ["A1", "A2", "A3", "A4", "A5"]
+    assert report.n_frames == N_FRAMES and report.presets == ["A1", "A2", "A3", "A4", "A5", "skelfuse"]
     for method in [*report.presets, "authors"]:
         assert report.mirrored[method]["mirrored"] == 0 and report.mirrored[method]["undecided"] == 0
     for held_out, table in report.leave_one_out.items():

@@ -314,7 +314,9 @@ def group_bone_cv(cv: np.ndarray, joints: Sequence[int] | np.ndarray) -> float:
 # ----------------------------------------------------------------------------------------------- fusion
 
 
-def fuse_views(positions: np.ndarray, confidence: np.ndarray, preset_name: str, eps_mm: float = 100.0) -> np.ndarray:
+def fuse_views(
+    positions: np.ndarray, confidence: np.ndarray, preset_name: str, eps_mm: float | None = None
+) -> np.ndarray:
     """Run one fusion preset frame by frame over already-aligned views of one person.
 
     Parameters
@@ -322,7 +324,7 @@ def fuse_views(positions: np.ndarray, confidence: np.ndarray, preset_name: str, 
     positions : (S, T, J, 3) mm, all views in one frame (world_from_sensor = identity)
     confidence : (S, T, J) uint8
     preset_name : a name of :data:`skelfuse.fusion.presets.PAPER_PRESETS`
-    eps_mm : DBSCAN radius
+    eps_mm : DBSCAN radius, mm; None keeps the preset's own
 
     Returns
     -------
@@ -379,7 +381,7 @@ class RealEvalResult:
     n_frames: int
     views: list[str]
     presets: list[str]
-    eps_mm: float
+    eps_mm: float | None
     groups: list[str]
     data_facts: dict[str, Any] = field(default_factory=dict)
     disagreement: dict[str, Any] = field(default_factory=dict)
@@ -414,7 +416,7 @@ def _jsonable(value: Any) -> Any:
 
 
 def run_real_eval(
-    data_dir: Path, *, presets: Sequence[str] = ("A1", "A2", "A3", "A4", "A5"), eps_mm: float = 100.0
+    data_dir: Path, *, presets: Sequence[str] = ("A1", "A2", "A3", "A4", "A5", "skelfuse"), eps_mm: float | None = None
 ) -> RealEvalResult:
     """Run every preset over the real 3-sensor take and compute the report's tables.
 
@@ -422,7 +424,7 @@ def run_real_eval(
     ----------
     data_dir : the shared data root (holding ``azure-kinect-andyj1/``), the andyj1 folder or the take folder.
     presets : fusion presets to run (names of ``skelfuse.fusion.presets``).
-    eps_mm : DBSCAN radius for every preset.
+    eps_mm : DBSCAN radius for every preset, mm; None keeps each preset's own (100 mm for A3-A5, 75 for skelfuse).
 
     Raises
     ------
@@ -439,7 +441,7 @@ def run_real_eval(
         n_frames=take.n_frames,
         views=names,
         presets=list(presets),
-        eps_mm=float(eps_mm),
+        eps_mm=None if eps_mm is None else float(eps_mm),
         groups=list(groups),
     )
 
@@ -586,11 +588,12 @@ def format_markdown(result: RealEvalResult) -> str:
     """Render the report as markdown: a heading and one table per measure, then the notes."""
     groups = result.groups
     views = result.views
+    eps = "each preset's own (100 mm for A3-A5, 75 for skelfuse)" if result.eps_mm is None else f"{result.eps_mm:g} mm"
     lines = [
         f"# Real 3-sensor take: {Path(result.data_dir).name}",
         "",
         f"{result.n_frames} frames, views {', '.join(views)}, presets {', '.join(result.presets)}, "
-        f"eps {result.eps_mm:g} mm. Distances in mm.",
+        f"eps {eps}. Distances in mm.",
         "",
         "## Data: share of MEDIUM joints per group",
         "",
