@@ -237,3 +237,101 @@ def test_kinect_source_without_pyk4a_names_the_extra(monkeypatch: pytest.MonkeyP
     source = make_source(cfg, "000123", WorkerOptions())
     with pytest.raises(ServiceError, match=r"skelfuse\[kinect\]"):
         next(iter(source.frames()))
+
+
+# -- kinect start order across workers ---------------------------------------------------------------------
+
+
+class _FakeKinect:
+    def __init__(self, events: list[str], sensor_id: str) -> None:
+        self.events, self.sensor_id = events, sensor_id
+
+    def open(self) -> None:
+        self.events.append(f"open {self.sensor_id}")
+
+    def read(self, timeout_s: float) -> None:
+        return None
+
+    def close(self) -> None:
+        self.events.append(f"close {self.sensor_id}")
+
+
+class _FakeToken:
+    def __init__(self, events: list[str], key: str) -> None:
+        self.events, self.key = events, key
+        events.append(f"declare {key}")
+
+    def undeclare(self) -> None:
+        self.events.append(f"undeclare {self.key}")
+
+
+class _FakeSession:
+    def __init__(self, events: list[str]) -> None:
+        self.events = events
+
+    def liveliness(self) -> _FakeSession:
+        return self
+
+    def declare_token(self, key: str) -> _FakeToken:
+        return _FakeToken(self.events, key)
+
+
+_KINECT_RIG = {"rig": {"name": "k"}, "sync": {"by": "host"}, "sensors": [
+    {"id": "m1", "source": "kinect", "sync": {"role": "master"}},
+    {"id": "s1", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 160}},
+    {"id": "s2", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 320}},
+    {"id": "x1", "source": "kinect"},
+]}
+
+
+@pytest.fixture
+def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    from skelfuse.service import worker
+    from skelfuse.sources import kinect
+
+    events: list[str] = []
+    monkeypatch.setattr(kinect.KinectSource, "from_config",
+                        classmethod(lambda cls, cfg, sensor_id, **kw: _FakeKinect(events, sensor_id)))
+
+    def fake_wait(session: object, rig: str, ids: list[str], *, timeout_s: float, should_exit: object) -> list[str]:
+        events.append(f"wait {rig} {','.join(ids)} {timeout_s:g}")
+        return ["s2"]
+
+    monkeypatch.setattr(worker, "wait_for_subordinates", fake_wait)
+    return events
+
+
+def test_kinect_master_waits_for_subordinates_before_opening(kinect_events: list[str],
+                                                              caplog: pytest.LogCaptureFixture) -> None:
+    cfg = RigConfig.from_dict(_KINECT_RIG)
+    source = make_source(cfg, "m1", WorkerOptions(subordinate_wait_s=7.0))
+    source.attach(_FakeSession(kinect_events), should_exit=lambda: False)  # type: ignore[attr-defined]
+    with caplog.at_level(logging.INFO, logger="skelfuse.service.worker"):
+        frames = source.frames()
+        assert next(frames)[1] is None
+        frames.close()
+    assert kinect_events == ["wait k s1,s2 7", "open m1", "close m1"]
+    assert "s2 not started after 7 s" in caplog.text and "starting the master anyway" in caplog.text
+
+
+def test_kinect_subordinate_declares_its_camera_token_after_opening(kinect_events: list[str]) -> None:
+    from skelfuse.service.worker import KinectFrameSource
+
+    cfg = RigConfig.from_dict(_KINECT_RIG)
+    source = KinectFrameSource(cfg, "s1", session=_FakeSession(kinect_events))
+    frames = source.frames()
+    next(frames)
+    frames.close()
+    key = "skelfuse/k/alive/camera-s1"
+    assert kinect_events == ["open s1", f"declare {key}", f"undeclare {key}", "close s1"]
+
+
+def test_kinect_standalone_and_sessionless_sources_do_not_wait(kinect_events: list[str]) -> None:
+    from skelfuse.service.worker import KinectFrameSource
+
+    cfg = RigConfig.from_dict(_KINECT_RIG)
+    for source in (KinectFrameSource(cfg, "x1", session=_FakeSession(kinect_events)), KinectFrameSource(cfg, "m1")):
+        frames = source.frames()
+        next(frames)
+        frames.close()
+    assert kinect_events == ["open x1", "close x1", "open m1", "close m1"]

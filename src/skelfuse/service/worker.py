@@ -33,6 +33,8 @@ Sources
     An Azure Kinect / Femto Bolt through :class:`skelfuse.sources.kinect.KinectSource` (pyk4a + k4abt, the
     ``kinect`` extra): frames as the tracker delivers them, host time stamped on receipt; a failing device
     is reopened with backoff; without pyk4a or the SDKs the worker stops with a message naming them.
+    Subordinates announce their running camera (liveliness ``alive/camera-<id>``) and the master waits for
+    them before starting its camera (:func:`wait_for_subordinates`, ``WorkerOptions.subordinate_wait_s``).
 """
 
 from __future__ import annotations
@@ -40,8 +42,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -91,6 +94,9 @@ class WorkerOptions:
         Default ``capture-<sensor id>``.
     limits : RunLimits
         ``max_frames`` counts published frames.
+    subordinate_wait_s : float
+        Kinect master only: how long to wait for every subordinate's camera token
+        (:func:`wait_for_subordinates`) before starting the master's camera anyway.
     """
 
     gesture: str = DEFAULT_GESTURE
@@ -101,6 +107,7 @@ class WorkerOptions:
     node_name: str | None = None
     status_period_s: float | None = None
     limits: RunLimits = field(default_factory=RunLimits)
+    subordinate_wait_s: float = 30.0
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -254,6 +261,67 @@ class ReplaySource:
             pass_offset_ns += 0 if self.speed is None else int((last_log - first_log + 33_333_333) / self.speed)
 
 
+def camera_node(sensor_id: str) -> str:
+    """``camera-<sensor id>``: the liveliness node name a subordinate Kinect worker declares once its camera runs."""
+    return keys.validate_name(f"camera-{sensor_id}", "node")
+
+
+def wait_for_subordinates(session: Any, rig: str, subordinate_ids: Sequence[str], *, timeout_s: float,
+                          should_exit: Callable[[], bool] = lambda: False, poll_s: float = 0.1,
+                          log_every_s: float = 5.0) -> list[str]:
+    """Wait until the camera token (``keys.alive(rig, camera_node(id))``) of every subordinate exists.
+
+    A liveliness subscriber with history sees the tokens already declared and those declared later.
+    Returns the ids still missing: ``[]`` once all are up, the missing ones on timeout or when
+    ``should_exit()`` turns true (checked every ``poll_s``). Logs the ones still awaited every
+    ``log_every_s`` seconds.
+    """
+    wanted = {camera_node(sid): sid for sid in subordinate_ids}
+    if not wanted:
+        return []
+    present: set[str] = set()
+    lock = threading.Lock()
+    changed = threading.Event()
+
+    def on_sample(sample: Any) -> None:
+        try:
+            node = keys.parse_alive_key(sample.key_expr, rig)
+        except ValueError:
+            return
+        if node not in wanted:
+            return
+        with lock:
+            if str(sample.kind).endswith("DELETE"):
+                present.discard(node)
+            else:
+                present.add(node)
+        changed.set()
+
+    def missing() -> list[str]:
+        with lock:
+            return [sid for node, sid in wanted.items() if node not in present]
+
+    subscriber = session.liveliness().declare_subscriber(keys.all_alive(rig), on_sample, history=True)
+    try:
+        start = time.monotonic()
+        next_log = start + log_every_s
+        while True:
+            left = missing()
+            if not left or should_exit():
+                return left
+            now = time.monotonic()
+            if now - start >= timeout_s:
+                return left
+            if now >= next_log:
+                log.info("kinect master of rig %s: waiting for subordinate camera(s) %s (%.0f s of %.0f s)",
+                         rig, ", ".join(left), now - start, timeout_s)
+                next_log = now + log_every_s
+            changed.wait(min(poll_s, max(timeout_s - (now - start), 0.0)))
+            changed.clear()
+    finally:
+        subscriber.undeclare()
+
+
 class KinectFrameSource:
     """An Azure Kinect / Femto Bolt (``skelfuse.sources.kinect.KinectSource``) as a worker source.
 
@@ -262,24 +330,75 @@ class KinectFrameSource:
     flag while the device is silent. Device failures (unplugged, tracker stalled) raise out of ``frames()``
     and the worker restarts the source with backoff; pyk4a or the SDKs missing raise ``KinectUnavailable``
     (a ServiceError), which stops the worker with a message naming the ``kinect`` extra.
+
+    Start order across processes (wired sync needs the subordinates' cameras running before the master's):
+    with a zenoh session (constructor or :meth:`attach`), a subordinate declares the liveliness token
+    ``skelfuse/<rig>/alive/camera-<sensor id>`` once its camera is open (undeclared when it closes), and a
+    master waits for the tokens of every subordinate of the rig (:func:`wait_for_subordinates`) before
+    opening its camera. After ``subordinate_wait_s`` the master logs an error naming the missing
+    subordinates and starts anyway: a master that never starts would stall the whole rig, while a late
+    subordinate only loses sync until it is restarted. Standalone sensors, and sources without a session,
+    do not wait.
     """
 
     stamps_host_time = True
 
-    def __init__(self, cfg: RigConfig, sensor_id: str, *, read_timeout_s: float = 0.1) -> None:
+    def __init__(self, cfg: RigConfig, sensor_id: str, *, read_timeout_s: float = 0.1, session: Any = None,
+                 subordinate_wait_s: float = 30.0, should_exit: Callable[[], bool] = lambda: False) -> None:
         self.cfg = cfg
         self.sensor_id = sensor_id
         self.read_timeout_s = read_timeout_s
+        self.session = session
+        self.subordinate_wait_s = subordinate_wait_s
+        self.should_exit = should_exit
+
+    def attach(self, session: Any, *, should_exit: Callable[[], bool] | None = None) -> None:
+        """Give the source the worker's zenoh session (and exit flag) for the start-order handshake."""
+        self.session = session
+        if should_exit is not None:
+            self.should_exit = should_exit
+
+    @property
+    def role(self) -> str:
+        return self.cfg.sensor(self.sensor_id).sync.role
+
+    def subordinate_ids(self) -> list[str]:
+        """The rig's kinect subordinates (other than this sensor)."""
+        return [s.id for s in self.cfg.sensors
+                if s.source == "kinect" and s.sync.role == "subordinate" and s.id != self.sensor_id]
+
+    def _wait_for_subordinates(self) -> None:
+        subs = self.subordinate_ids()
+        if self.session is None or self.role != "master" or not subs:
+            return
+        log.info("kinect master %s: waiting for subordinate camera(s) %s before starting (up to %.0f s)",
+                 self.sensor_id, ", ".join(subs), self.subordinate_wait_s)
+        missing = wait_for_subordinates(self.session, self.cfg.name, subs, timeout_s=self.subordinate_wait_s,
+                                        should_exit=self.should_exit)
+        if missing and not self.should_exit():
+            log.error("kinect master %s: subordinate camera(s) %s not started after %.0f s; starting the master "
+                      "anyway (those subordinates stay unsynchronised until restarted)", self.sensor_id,
+                      ", ".join(missing), self.subordinate_wait_s)
+        elif not missing:
+            log.info("kinect master %s: every subordinate camera is running; starting", self.sensor_id)
 
     def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
         from skelfuse.sources.kinect import KinectSource
 
         source = KinectSource.from_config(self.cfg, self.sensor_id)
+        self._wait_for_subordinates()
+        if self.should_exit():
+            return
         source.open()
+        token = None
         try:
+            if self.session is not None and self.role == "subordinate":
+                token = self.session.liveliness().declare_token(keys.alive(self.cfg.name, camera_node(self.sensor_id)))
             while True:
                 yield time.monotonic_ns(), source.read(self.read_timeout_s)
         finally:
+            if token is not None:
+                token.undeclare()
             source.close()
 
 
@@ -315,7 +434,7 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
         return ReplaySource(sensor.replay.file, sensor_id, recorded_sensor=sensor.replay.sensor, loop=loop,
                             speed=options.speed)
     if sensor.source == "kinect":
-        return KinectFrameSource(cfg, sensor_id)
+        return KinectFrameSource(cfg, sensor_id, subordinate_wait_s=options.subordinate_wait_s)
     raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has unknown source {sensor.source!r}")  # pragma: no cover
 
 
@@ -372,6 +491,8 @@ def _publish_loop(cfg: RigConfig, sensor_id: str, name: str, source: FrameSource
     backoff = BACKOFF_FIRST_S
     last_error = ""
     stamps_host_time = bool(getattr(source, "stamps_host_time", False))
+    if hasattr(source, "attach"):  # a kinect source orders camera starts across workers over this session
+        source.attach(session, should_exit=lambda: lifecycle.should_exit)
     log.info("capture worker %s: publishing sensor %s (%s) on %s", name, sensor_id, type(source).__name__, key)
 
     def status(state: str) -> None:
