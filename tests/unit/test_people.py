@@ -34,7 +34,7 @@ def test_one_person_equals_the_pipeline(name: str) -> None:
 
 def test_bystander_is_never_merged_into_the_subject() -> None:
     observations = simulate_scenario(bystander_scenario(duration_s=2.0, seed=0), load_profile(), seed=0)
-    world = observations.positions_world()
+    world = observations.positions_world(calibrated=True)
     fuser = PeopleFuser(preset("skelfuse"))
     owner: dict[int, set[int]] = {0: set(), 1: set()}
     for t in range(observations.n_frames):

@@ -140,7 +140,7 @@ def test_slow_error_matches_the_profile_over_a_long_run() -> None:
     rig = [best_view_sensor(angle, sensor_id=f"front_{angle:+.0f}") for angle in (-40.0, -15.0, 15.0, 40.0)]
     obs = simulate(standing_still(4000), rig, profile, seed=3)
     assert obs.tracked.all() and not obs.occluded[:, :, J["PELVIS"]].any()
-    world = obs.positions_world()[:, :, J["PELVIS"]]  # the root: untouched by the body-model refit
+    world = obs.positions_world(calibrated=False)[:, :, J["PELVIS"]]  # the root: untouched by the body-model refit
     error = world - obs.truth[:, None, J["PELVIS"]]
     error = error - error.mean(axis=0)  # the constant per-view offsets
     series = error.reshape(error.shape[0], -1)  # 4 views x 3 axes, independent
@@ -181,7 +181,7 @@ def test_error_in_sensor_frame_and_typical_sizes(walking_obs) -> None:
     obs = walking_obs
     front = obs.sensor_ids.index("best_view")
     ok = obs.tracked[:, front] & ~obs.mirrored[:, front]
-    error = np.linalg.norm(obs.positions_world()[ok, front] - obs.truth[ok], axis=-1)
+    error = np.linalg.norm(obs.positions_world(calibrated=False)[ok, front] - obs.truth[ok], axis=-1)
     medium = obs.confidence[ok, front] == Confidence.MEDIUM
     torso = [J["SPINE_NAVEL"], J["NECK"], J["SHOULDER_LEFT"], J["HIP_RIGHT"]]
     assert 3.0 < np.median(error[:, torso][medium[:, torso]]) < 40.0
@@ -220,7 +220,7 @@ def test_rear_view_is_mirrored_in_bursts_with_new_body_ids() -> None:
     assert len(np.unique(obs.body_ids[:, 0])) == 1
     # a mirrored view's "left wrist" is the subject's right wrist
     frames = obs.mirrored[:, 1]
-    seen = obs.positions_world()[frames, 1]
+    seen = obs.positions_world(calibrated=False)[frames, 1]
     truth = obs.truth[frames]
     wrist = J["WRIST_LEFT"]
     to_right = np.linalg.norm(seen[:, wrist] - truth[:, MIRROR[wrist]], axis=-1)
@@ -250,7 +250,7 @@ def test_arm_behind_the_torso_is_low_and_guessed() -> None:
     low = np.mean(obs.confidence[:, 0, hidden] == Confidence.LOW)
     assert low == pytest.approx(PROFILE.occluded_low_prob, abs=0.08)
     assert np.all(obs.confidence[:, 0, hidden] >= Confidence.LOW)  # LOW or still MEDIUM
-    error = np.linalg.norm(obs.positions_world()[:, 0] - obs.truth, axis=-1)
+    error = np.linalg.norm(obs.positions_world(calibrated=False)[:, 0] - obs.truth, axis=-1)
     assert np.median(error[:, hidden]) > 2.0 * np.median(error[:, visible])
     jumps = np.linalg.norm(np.diff(obs.positions[:, 0, hidden], axis=0), axis=-1)
     assert (jumps > 100.0).mean() > 0.02  # the guess jumps around
@@ -320,5 +320,5 @@ def test_calibration_error_on_subordinates_only(walking_obs) -> None:
 def test_convergence_over_the_first_frames() -> None:
     profile = PROFILE.replace(convergence_sigma_mm=200.0, dropped_frame_prob=0.0)
     obs = simulate(standing_still(120), [best_view_sensor(0.0)], profile, seed=1)
-    error = np.linalg.norm(obs.positions_world()[:, 0] - obs.truth, axis=-1).mean(axis=1)
+    error = np.linalg.norm(obs.positions_world(calibrated=False)[:, 0] - obs.truth, axis=-1).mean(axis=1)
     assert error[:3].mean() > 3 * error[60:].mean()

@@ -99,8 +99,9 @@ class CrowdObservations:
     def n_people(self) -> int:
         return int(self.truth.shape[1])
 
-    def positions_world(self, *, calibrated: bool = True) -> np.ndarray:
-        """(T, S, B, 32, 3) float64 positions in the world (calibrated extrinsics by default, as a rig)."""
+    def positions_world(self, *, calibrated: bool) -> np.ndarray:
+        """(T, S, B, 32, 3) float64 world positions: ``calibrated`` picks the extrinsics with calibration error
+        (what a real rig fuses with) or the true ones; no default, so every caller says which."""
         poses = self.world_from_sensor_calibrated if calibrated else self.world_from_sensor
         rotation, translation = poses[:, :3, :3], poses[:, :3, 3]
         return (

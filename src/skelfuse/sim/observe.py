@@ -405,8 +405,9 @@ class Observations:
     def n_sensors(self) -> int:
         return int(self.positions.shape[1])
 
-    def positions_world(self, *, calibrated: bool = False) -> np.ndarray:
-        """(T, S, 32, 3) float64 positions mapped to the world with the true (or calibrated) extrinsics."""
+    def positions_world(self, *, calibrated: bool) -> np.ndarray:
+        """(T, S, 32, 3) float64 world positions: ``calibrated`` picks the extrinsics with the profile's calibration
+        error (what a real rig fuses with) or the true ones; no default, so every caller says which."""
         poses = self.world_from_sensor_calibrated if calibrated else self.world_from_sensor
         rotation, translation = poses[:, :3, :3], poses[:, :3, 3]
         return np.einsum("sij,tsnj->tsni", rotation, self.positions.astype(np.float64)) + translation[None, :, None]
