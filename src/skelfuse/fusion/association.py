@@ -136,11 +136,14 @@ def nanmedian_axis(values: np.ndarray, axis: int) -> np.ndarray:
     values = np.moveaxis(np.asarray(values, dtype=np.float64), axis, -1)
     if values.shape[-1] == 0:
         return np.full(values.shape[:-1], np.nan)
-    count = np.isfinite(values).sum(axis=-1)
-    ordered = np.sort(np.where(np.isfinite(values), values, np.inf), axis=-1)  # missing sort last
-    lo = np.maximum((count - 1) // 2, 0)[..., None]
-    hi = np.minimum(count // 2, values.shape[-1] - 1)[..., None]
-    median = 0.5 * (np.take_along_axis(ordered, lo, -1) + np.take_along_axis(ordered, hi, -1))[..., 0]
+    n = values.shape[-1]
+    finite = np.isfinite(values)
+    count = finite.sum(axis=-1)
+    ordered = np.sort(np.where(finite, values, np.inf), axis=-1).reshape(-1, n)  # missing sort last
+    lo = np.maximum((count - 1) // 2, 0).ravel()
+    hi = np.minimum(count // 2, n - 1).ravel()
+    lane = np.arange(ordered.shape[0])
+    median = (0.5 * (ordered[lane, lo] + ordered[lane, hi])).reshape(count.shape)
     return np.where(count > 0, median, np.nan)
 
 
@@ -228,18 +231,26 @@ def associate(
 
     person = np.full((S, B), -1, dtype=np.int64)
     assigned_cost = np.full((S, B), np.nan)
-    for stage in (confirmed, ~confirmed):  # cascade; Python loop over sensors only (a handful)
+    stages = (confirmed,) if confirmed.all() else (confirmed, ~confirmed)
+    for stage in stages:  # cascade; Python loop over sensors only (a handful)
         cols = np.nonzero(stage)[0]
         if cols.size == 0:
             continue
-        for s in range(S):
+        sub = allowed[:, :, cols] if cols.size < K else allowed
+        sub = sub & (person < 0)[:, :, None]  # (S, B, len(cols)): the stage's gated pairs of free bodies
+        # Fast path, exactly the Hungarian result: in a sensor where every body has at most one gated
+        # track and every track at most one gated body, any optimal assignment holds every gated pair
+        # (leaving one out costs _BIG more), and only the gated pairs are kept.
+        simple = (sub.sum(axis=2) <= 1).all(axis=1) & (sub.sum(axis=1) <= 1).all(axis=1)
+        s_idx, b_idx, c_idx = np.nonzero(sub & simple[:, None, None])
+        if s_idx.size:
+            k_idx = cols[c_idx]
+            person[s_idx, b_idx] = k_idx
+            assigned_cost[s_idx, b_idx] = cost[s_idx, b_idx, k_idx]
+        for s in np.nonzero(~simple)[0]:
             rows = np.nonzero(usable[s] & (person[s] < 0))[0]
-            if rows.size == 0:
-                continue
-            ok = allowed[s][np.ix_(rows, cols)]
-            if not ok.any():
-                continue
-            matrix = np.where(ok, cost[s][np.ix_(rows, cols)], _BIG)
+            ok = allowed[s][rows[:, None], cols]
+            matrix = np.where(ok, cost[s][rows[:, None], cols], _BIG)
             r, c = linear_sum_assignment(matrix)
             keep = ok[r, c]
             person[s, rows[r[keep]]] = cols[c[keep]]
@@ -304,7 +315,7 @@ def _cluster_leftovers(
         if a == b:
             continue
         ma, mb = members[a], members[b]
-        if not (dist[np.ix_(ma, mb)] <= gate_mm).all():  # complete linkage; also rejects a shared sensor
+        if not (dist[np.asarray(ma)[:, None], mb] <= gate_mm).all():  # complete linkage; also rejects a shared sensor
             continue
         members[a] = ma + mb
         label[mb] = a

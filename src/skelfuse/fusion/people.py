@@ -19,15 +19,16 @@ Only confirmed tracks appear in the output, in ascending track id order.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM, associate
-from skelfuse.fusion.pipeline import fuse, init_state
+from skelfuse.fusion.pipeline import FusionState, fuse, init_state
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.fusion.tracks import TrackParams, TrackTable, split_state, stack_states
+from skelfuse.fusion.tracks import TrackParams, TrackTable, stack_states
 from skelfuse.skeleton import N_JOINTS
 
 DEFAULT_DT_S = 1.0 / 30.0
@@ -104,11 +105,15 @@ class PeopleFuser:
         self.duplicate_mm = duplicate_mm
         self.table = TrackTable(track_params)
         self.last_time_s: float | None = None
+        # Last fused state of all output tracks and its 1-row views (one per track, in output order): when
+        # the next frame fuses exactly these tracks, the stacked state is reused instead of re-stacked.
+        self._stacked: tuple[FusionState, list[FusionState]] | None = None
 
     def reset(self) -> None:
         """Forget every track (ids keep counting up: an id is never reused)."""
         self.table = TrackTable(self.track_params, next_id=self.table.next_id)
         self.last_time_s = None
+        self._stacked = None
 
     def step(
         self, world_positions: np.ndarray, confidence: np.ndarray, valid: np.ndarray, time_s: float
@@ -180,10 +185,20 @@ class PeopleFuser:
         for track in tracks:
             if track.fusion is None:
                 track.fusion = init_state(1, self.params)
-        state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
+        cached = self._stacked
+        if (
+            cached is not None
+            and len(cached[1]) == P
+            and all(t.fusion is row for t, row in zip(tracks, cached[1], strict=True))
+        ):
+            state = cached[0]  # the same tracks in the same order, their states untouched since last frame
+        else:
+            state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
         result, new_state = fuse(association.candidates[rows], association.confidence[rows], state, self.params, dt_s)
-        for track, row_state in zip(tracks, split_state(new_state), strict=True):
+        row_states = _row_views(new_state)
+        for track, row_state in zip(tracks, row_states, strict=True):
             track.fusion = row_state
+        self._stacked = (new_state, row_states)
         return PeopleResult(
             time_s=time_s,
             track_ids=np.array(out_ids, dtype=np.int64),
@@ -195,3 +210,13 @@ class PeopleFuser:
             assignment=assignment,
             body_track_ids=body_track_ids,
         )
+
+
+def _row_views(state: FusionState) -> list[FusionState]:
+    """The rows of a FusionState as 1-row states that view (not copy) its arrays; :func:`fuse` never mutates
+    a state, so the views stay valid (the counterpart of :func:`~skelfuse.fusion.tracks.split_state`)."""
+    fields = [(f.name, getattr(state, f.name)) for f in dataclasses.fields(FusionState)]
+    return [
+        FusionState(**{name: None if value is None else value[row : row + 1] for name, value in fields})
+        for row in range(state.n_bodies)
+    ]

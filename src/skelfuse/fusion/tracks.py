@@ -191,12 +191,15 @@ class TrackTable:
         if association.n_tracks != K:
             raise ValueError(f"association was made for {association.n_tracks} tracks, the prediction holds {K}")
         row_ids = np.full(association.n_persons, -1, dtype=np.int64)
-        for row in range(K):  # bookkeeping over a handful of tracks
-            track_id = int(prediction.track_ids[row])
+        n_seen_rows = association.n_sensors_seen.tolist()
+        hit_rows: list[int] = []
+        hit_tracks: list[TrackState] = []
+        for row, track_id in enumerate(prediction.track_ids.tolist()):  # bookkeeping over a handful of tracks
             track = self.tracks[track_id]
-            n_seen = int(association.n_sensors_seen[row])
+            n_seen = n_seen_rows[row]
             if n_seen > 0:
-                self._hit(track, prediction.descriptors[row], association.descriptors[row], n_seen, time_s)
+                hit_rows.append(row)
+                hit_tracks.append(track)
                 row_ids[row] = track_id
             else:
                 track.hits = 0
@@ -205,6 +208,14 @@ class TrackTable:
                     del self.tracks[track_id]
                 else:
                     row_ids[row] = track_id
+        if hit_tracks:
+            self._hit_many(
+                hit_tracks,
+                prediction.descriptors[hit_rows],
+                association.descriptors[hit_rows],
+                [n_seen_rows[row] for row in hit_rows],
+                time_s,
+            )
         for row in range(K, association.n_persons):
             track_id = self.next_id
             self.next_id += 1
@@ -220,29 +231,47 @@ class TrackTable:
             row_ids[row] = track_id
         return row_ids
 
-    def _hit(self, track: TrackState, predicted: np.ndarray, measured: np.ndarray, n_seen: int, time_s: float) -> None:
+    def _hit_many(
+        self,
+        tracks: list[TrackState],
+        predicted: np.ndarray,
+        measured: np.ndarray,
+        n_seen: list[int],
+        time_s: float,
+    ) -> None:
+        """Update the tracks that were seen this frame: velocity from the mean step of their common
+        descriptor points (smoothed, capped at ``max_speed_mm_s``), the descriptor (a point the sensors
+        miss keeps its prediction), and the counters that confirm a tentative track."""
         p = self.params
-        dt = time_s - track.last_seen_s
-        if dt > 0:
-            step = measured - track.descriptor
-            ok = np.isfinite(step).all(axis=-1)
-            if ok.any():
-                v_meas = step[ok].mean(axis=0) / dt
-                v = (
-                    v_meas
-                    if track.n_frames_seen < 2
-                    else (p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * track.velocity)
-                )
-                speed = float(np.linalg.norm(v))
-                track.velocity = v * min(1.0, p.max_speed_mm_s / speed) if speed > 0 else v
+        time_s = float(time_s)
+        dt = np.array([time_s - t.last_seen_s for t in tracks])  # (H,)
+        step = measured - np.stack([t.descriptor for t in tracks])  # (H, D, 3)
+        ok = np.isfinite(step).all(axis=-1)  # (H, D)
+        count = ok.sum(axis=-1)
+        moved = (dt > 0) & (count > 0)
+        if moved.any():
+            # Sum over the common points in point order (adding exact zeros elsewhere), then / count / dt,
+            # as step[ok].mean(axis=0) / dt does.
+            total = np.where(ok[..., None], step, 0.0).sum(axis=-2)  # (H, 3)
+            v_meas = total / np.maximum(count, 1)[:, None] / np.where(moved, dt, 1.0)[:, None]
+            old_v = np.stack([t.velocity for t in tracks])
+            smoothed = p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * old_v
+            first = np.array([t.n_frames_seen < 2 for t in tracks])
+            v = np.where(first[:, None], v_meas, smoothed)
+            for i in np.nonzero(moved)[0].tolist():
+                row = v[i]
+                speed = math.sqrt(float(row.dot(row)))
+                tracks[i].velocity = row * min(1.0, p.max_speed_mm_s / speed) if speed > 0 else row
         # A point the sensors miss this frame keeps its prediction.
-        track.descriptor = np.where(np.isfinite(measured), measured, predicted)
-        track.last_seen_s = float(time_s)
-        track.hits += 1
-        track.n_frames_seen += 1
-        track.n_sensors_seen = n_seen
-        if not track.confirmed and track.hits >= p.birth_frames:
-            track.status = CONFIRMED
+        descriptors = np.where(np.isfinite(measured), measured, predicted)
+        for i, track in enumerate(tracks):
+            track.descriptor = descriptors[i]
+            track.last_seen_s = time_s
+            track.hits += 1
+            track.n_frames_seen += 1
+            track.n_sensors_seen = n_seen[i]
+            if not track.confirmed and track.hits >= p.birth_frames:
+                track.status = CONFIRMED
 
 
 def stack_states(states: list[FusionState]) -> FusionState:
