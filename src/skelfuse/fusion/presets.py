@@ -70,8 +70,11 @@ class FusionParams:
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
     majority_recovery_frames : int or None
         "temporal" only: frames in a row more than half of the evidence must disagree with the anchor before
-        the body follows it: the slow rule that undoes a wrong start in a 2-against-2 split (for example a
-        body first seen only by the two rear sensors). None: off.
+        the body follows it: a slow rule that undoes a wrong start in a 2-against-2 split. Off (None) by
+        default: wherever rear views outnumber front ones (three sensors, one in front) the mirrored views
+        ARE the majority, and the rule overturned correct anchors (eval paper, 3 sensors with rear
+        mirroring: upper limb 36 -> 379 mm). Wrong starts from too few views are undone by the restart rule
+        instead (see :func:`skelfuse.fusion.realign.realign_temporal`).
     merge : {"dbscan", "average"}
         "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
         mean of the valid sensor candidates (the paper's A1/A2).
@@ -116,7 +119,7 @@ class FusionParams:
     realign_passes: int = 2
     recovery_frames: int = 10
     recovery_share: float = 0.75
-    majority_recovery_frames: int | None = 30
+    majority_recovery_frames: int | None = None
     merge: MergeMode = "dbscan"
     eps_mm: float = 100.0
     reference_weight: float | None = 2.0

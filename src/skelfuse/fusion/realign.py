@@ -64,9 +64,10 @@ Two modes:
         the body follows the majority: every decided view's decision is inverted in that frame (the anchor
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4.
-        A slow rule repairs 2-vs-2 misses: when the disagreeing views hold MORE than half of the evidence
-        for ``majority_recovery_frames`` frames in a row (30 by default; 10-15 overturned correct anchors
-        while people turned), the body follows them too.
+        An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
+        than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
+        rear views outnumber front ones the mirrored views are the majority and it overturns correct
+        anchors (3-sensor rigs in the paper evaluation), so it is off unless a rig's layout rules that out.
         A share of 2/3 also fired on correct anchors while a person turned (a rear view stays mirrored a
         little past 110 deg, so three views can be mirrored for a while); longer windows only delayed the
         fix of wrong cold starts.
