@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.transform import apply_transform
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 from skelfuse.sim.observe import (
@@ -103,11 +104,9 @@ class CrowdObservations:
         """(T, S, B, 32, 3) float64 world positions: ``calibrated`` picks the extrinsics with calibration error
         (what a real rig fuses with) or the true ones; no default, so every caller says which."""
         poses = self.world_from_sensor_calibrated if calibrated else self.world_from_sensor
-        rotation, translation = poses[:, :3, :3], poses[:, :3, 3]
-        return (
-            np.einsum("sij,tsbnj->tsbni", rotation, self.positions.astype(np.float64))
-            + translation[None, :, None, None]
-        )
+        # apply_transform wants the sensor axis third from last: (T, B, S, 32, 3) there and back.
+        by_body = np.swapaxes(self.positions.astype(np.float64), 1, 2)
+        return np.swapaxes(apply_transform(poses, by_body), 1, 2)
 
 
 @dataclass(frozen=True)

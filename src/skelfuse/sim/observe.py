@@ -34,6 +34,7 @@ from scipy.signal import lfilter
 from scipy.special import ndtri
 
 from skelfuse.errors import ConfigError
+from skelfuse.fusion.transform import apply_transform
 from skelfuse.sim.motion import Motion, body_facing
 from skelfuse.sim.rig import VirtualSensor
 from skelfuse.skeleton import BONES, MIRROR, N_JOINTS, PARENTS, Confidence, J
@@ -409,8 +410,7 @@ class Observations:
         """(T, S, 32, 3) float64 world positions: ``calibrated`` picks the extrinsics with the profile's calibration
         error (what a real rig fuses with) or the true ones; no default, so every caller says which."""
         poses = self.world_from_sensor_calibrated if calibrated else self.world_from_sensor
-        rotation, translation = poses[:, :3, :3], poses[:, :3, 3]
-        return np.einsum("sij,tsnj->tsni", rotation, self.positions.astype(np.float64)) + translation[None, :, None]
+        return apply_transform(poses, self.positions.astype(np.float64))
 
 
 # ----------------------------------------------------------------------------------------------------------
