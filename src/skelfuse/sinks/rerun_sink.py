@@ -50,11 +50,11 @@ TRACK_COLORS = np.array(
 )
 
 
-def _bone_segments(positions_m: np.ndarray) -> np.ndarray:
-    """(..., 32, 3) skeletons -> (N, 2, 3) bone segments with both ends finite."""
-    segments = np.stack([positions_m[..., BONES[:, 0], :], positions_m[..., BONES[:, 1], :]], axis=-2)
-    segments = segments.reshape(-1, 2, 3)
-    return segments[np.isfinite(segments).all(axis=(1, 2))]
+def _bone_segments(skeletons_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 32, 3) skeletons -> (N, 2, 3) bone segments with both ends finite, and (N,) the skeleton of each."""
+    segments = np.stack([skeletons_m[:, BONES[:, 0]], skeletons_m[:, BONES[:, 1]]], axis=-2)  # (K, 31, 2, 3)
+    drawable = np.isfinite(segments).all(axis=(-2, -1))
+    return segments[drawable], np.nonzero(drawable)[0]
 
 
 def default_blueprint() -> rrb.Blueprint:
@@ -168,7 +168,8 @@ class RerunSink:
                     radii=0.012,
                 ),
             )
-            self.recording.log(f"{path}/bones", rr.LineStrips3D(_bone_segments(skeletons), colors=color, radii=0.005))
+            bones, _ = _bone_segments(skeletons)
+            self.recording.log(f"{path}/bones", rr.LineStrips3D(bones, colors=color, radii=0.005))
 
     def log_fused(self, positions_mm: np.ndarray, track_ids: np.ndarray) -> None:
         """All fused persons in one entity: (P, 32, 3) mm world, one colour per track id."""
@@ -186,17 +187,8 @@ class RerunSink:
                 radii=0.025,
             ),
         )
-        segments = np.stack([skeletons[:, BONES[:, 0]], skeletons[:, BONES[:, 1]]], axis=-2)  # (P, 31, 2, 3)
-        bone_ok = np.isfinite(segments).all(axis=(-2, -1))
-        self.recording.log(
-            "world/fused/bones",
-            rr.LineStrips3D(
-                segments[bone_ok],
-                colors=colors[np.nonzero(bone_ok)[0]],
-                radii=0.012,
-                labels=None,
-            ),
-        )
+        segments, owner = _bone_segments(skeletons)
+        self.recording.log("world/fused/bones", rr.LineStrips3D(segments, colors=colors[owner], radii=0.012))
 
     def log_metrics(
         self,
