@@ -84,16 +84,24 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise DataError(f"{path} not found: every sensor folder needs {INTRINSICS_FILE} with the depth camera's "
-                        "fx, fy, cx, cy, width, height (px)") from None
+        raise DataError(
+            f"{path} not found: every sensor folder needs {INTRINSICS_FILE} with the depth camera's "
+            "fx, fy, cx, cy, width, height (px)"
+        ) from None
     except (OSError, json.JSONDecodeError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
     keys = ("fx", "fy", "cx", "cy", "width", "height")
     if not isinstance(data, dict) or any(k not in data for k in keys):
         raise DataError(f"{path}: expected a JSON object with keys {', '.join(keys)}, found {data!r:.200}")
     try:
-        return Intrinsics(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                          int(data["width"]), int(data["height"]))
+        return Intrinsics(
+            float(data["fx"]),
+            float(data["fy"]),
+            float(data["cx"]),
+            float(data["cy"]),
+            int(data["width"]),
+            int(data["height"]),
+        )
     except (TypeError, ValueError) as exc:
         raise DataError(f"{path}: {exc}") from None
 
@@ -109,8 +117,10 @@ def save_rgbd_frame(sensor_dir: str | Path, index: int, color_bgr: np.ndarray, d
     if color.ndim != 3 or color.shape[2] != 3:
         raise ValueError(f"color_bgr must be (H, W, 3) BGR, got shape {color.shape}")
     if depth.dtype != np.uint16 or depth.shape != color.shape[:2]:
-        raise ValueError(f"depth_mm must be uint16 (H, W) matching the colour image {color.shape[:2]}, "
-                         f"got {depth.dtype} {depth.shape}")
+        raise ValueError(
+            f"depth_mm must be uint16 (H, W) matching the colour image {color.shape[:2]}, "
+            f"got {depth.dtype} {depth.shape}"
+        )
     for name, image in ((COLOR_NAME.format(index), color), (DEPTH_NAME.format(index), depth)):
         if not cv2.imwrite(str(sensor_dir / name), image):
             raise DataError(f"cannot write {sensor_dir / name}; check the folder is writable")
@@ -185,13 +195,17 @@ class RgbdFrames(Sequence[tuple[np.ndarray, np.ndarray]]):
             raise DataError(f"cannot read {depth_path} as an image; check the file")
         size = (self.intrinsics.height, self.intrinsics.width)
         if depth.dtype != np.uint16 or depth.ndim != 2:
-            raise DataError(f"{depth_path}: expected a 16-bit single-channel PNG (depth in mm), found "
-                            f"{depth.dtype} with shape {depth.shape}")
+            raise DataError(
+                f"{depth_path}: expected a 16-bit single-channel PNG (depth in mm), found "
+                f"{depth.dtype} with shape {depth.shape}"
+            )
         for path, image in ((color_path, color), (depth_path, depth)):
             if image.shape[:2] != size:
-                raise DataError(f"{path} is {image.shape[1]}x{image.shape[0]} (W x H), {INTRINSICS_FILE} says "
-                                f"{self.intrinsics.width}x{self.intrinsics.height}; colour must be registered to "
-                                "depth (pyk4a capture.transformed_color) and the intrinsics be the depth camera's")
+                raise DataError(
+                    f"{path} is {image.shape[1]}x{image.shape[0]} (W x H), {INTRINSICS_FILE} says "
+                    f"{self.intrinsics.width}x{self.intrinsics.height}; colour must be registered to "
+                    "depth (pyk4a capture.transformed_color) and the intrinsics be the depth camera's"
+                )
         return color, depth
 
 
@@ -232,8 +246,10 @@ def load_rgbd_folder(
     """
     directory = Path(directory)
     if not directory.is_dir():
-        raise DataError(f"RGB-D folder {directory} not found; record one with `skelfuse calibrate capture` "
-                        "(layout: <dir>/<sensor_id>/intrinsics.json, color_%06d.png, depth_%06d.png)")
+        raise DataError(
+            f"RGB-D folder {directory} not found; record one with `skelfuse calibrate capture` "
+            "(layout: <dir>/<sensor_id>/intrinsics.json, color_%06d.png, depth_%06d.png)"
+        )
     available = sorted(p.name for p in directory.iterdir() if (p / INTRINSICS_FILE).is_file())
     if sensors is None:
         selected = available
@@ -241,11 +257,15 @@ def load_rgbd_folder(
         selected = list(sensors)
         missing = [s for s in selected if s not in available]
         if missing:
-            raise DataError(f"{directory}: no folder with {INTRINSICS_FILE} for sensor(s) {', '.join(missing)}; "
-                            f"found {', '.join(available) or 'none'}")
+            raise DataError(
+                f"{directory}: no folder with {INTRINSICS_FILE} for sensor(s) {', '.join(missing)}; "
+                f"found {', '.join(available) or 'none'}"
+            )
     if not selected:
-        raise DataError(f"{directory} holds no sensor folder (<sensor_id>/{INTRINSICS_FILE}); is it the RGB-D "
-                        "folder written by `skelfuse calibrate capture`?")
+        raise DataError(
+            f"{directory} holds no sensor folder (<sensor_id>/{INTRINSICS_FILE}); is it the RGB-D "
+            "folder written by `skelfuse calibrate capture`?"
+        )
     intrinsics = {s: read_intrinsics(directory / s / INTRINSICS_FILE) for s in selected}
     numbers = {s: _frame_numbers(directory / s) for s in selected}
     if frames is not None:
@@ -262,8 +282,10 @@ def load_rgbd_folder(
         common = sorted(common_set)
         if not common:
             counts = ", ".join(f"{s}: {len(n)}" for s, n in numbers.items())
-            raise DataError(f"{directory}: no frame number has colour and depth in every sensor folder (frames per "
-                            f"sensor: {counts}); frames with the same number must be the same instant")
+            raise DataError(
+                f"{directory}: no frame number has colour and depth in every sensor folder (frames per "
+                f"sensor: {counts}); frames with the same number must be the same instant"
+            )
     return ({s: RgbdFrames(directory / s, common, intrinsics[s]) for s in selected}, intrinsics)
 
 
@@ -287,8 +309,10 @@ def _output_path(args: argparse.Namespace, cfg: Any) -> Path:
     if cfg is not None and cfg.calibration.file is not None:
         return Path(cfg.calibration.file)
     if cfg is not None:
-        _say(f"note: {cfg.source} has no [calibration] file; writing {DEFAULT_OUTPUT} (set [calibration] "
-             f"file = \"{DEFAULT_OUTPUT}\" so that fusion uses it)")
+        _say(
+            f"note: {cfg.source} has no [calibration] file; writing {DEFAULT_OUTPUT} (set [calibration] "
+            f'file = "{DEFAULT_OUTPUT}" so that fusion uses it)'
+        )
     return DEFAULT_OUTPUT
 
 
@@ -297,8 +321,9 @@ def _stored_calibration_path(args: argparse.Namespace, cfg: Any, what: str) -> P
         return Path(args.calibration)
     if cfg is not None and cfg.calibration.file is not None:
         return Path(cfg.calibration.file)
-    raise ConfigError(f"{what} needs the stored calibration: --calibration FILE, or --config RIG.toml with a "
-                      "[calibration] file")
+    raise ConfigError(
+        f"{what} needs the stored calibration: --calibration FILE, or --config RIG.toml with a [calibration] file"
+    )
 
 
 def _default_master(candidates: Sequence[str], cfg: Any, stored_master: str | None = None) -> str:
@@ -329,8 +354,10 @@ def _check_known_sensors(ids: Sequence[str], cfg: Any, where: str) -> None:
         return
     unknown = [s for s in ids if s not in cfg.sensor_ids]
     if unknown:
-        raise ConfigError(f"{where} holds sensor(s) {', '.join(unknown)} that rig {cfg.name!r} ({cfg.source}) does "
-                          f"not have (its sensors: {', '.join(cfg.sensor_ids)}); check the serials")
+        raise ConfigError(
+            f"{where} holds sensor(s) {', '.join(unknown)} that rig {cfg.name!r} ({cfg.source}) does "
+            f"not have (its sensors: {', '.join(cfg.sensor_ids)}); check the serials"
+        )
     absent = [s for s in cfg.sensor_ids if s not in ids]
     if absent:
         _say(f"note: {where} has no data of sensor(s) {', '.join(absent)}: they will not be calibrated")
@@ -390,8 +417,10 @@ def _cmd_capture(args: argparse.Namespace) -> int:
             raise ConfigError(f"--sensors {', '.join(unknown)}: not in rig {cfg.name!r} ({', '.join(cfg.sensor_ids)})")
         kinects = [s for s in kinects if s.id in args.sensors]
     if not kinects:
-        raise ConfigError(f"{cfg.source}: no sensor with source = \"kinect\" to capture from (sensors: "
-                          f"{', '.join(f'{s.id} ({s.source})' for s in cfg.sensors)})")
+        raise ConfigError(
+            f'{cfg.source}: no sensor with source = "kinect" to capture from (sensors: '
+            f"{', '.join(f'{s.id} ({s.source})' for s in cfg.sensors)})"
+        )
     pyk4a = import_pyk4a()  # KinectUnavailable names the extra and the SDK
     out = Path(args.out)
     devices: list[tuple[str, Any]] = []
@@ -403,8 +432,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
             device = _open_by_serial(pyk4a, settings)
             devices.append((sensor.id, device))
             device.start()
-            _say(f"started {sensor.id} ({settings.depth_mode}, colour {settings.color_resolution}, "
-                 f"{sensor.sync.role})")
+            _say(f"started {sensor.id} ({settings.depth_mode}, colour {settings.color_resolution}, {sensor.sync.role})")
         _capture_frames(pyk4a, devices, out, args)
     finally:
         for _, device in reversed(devices):
@@ -421,8 +449,10 @@ def _grab(pyk4a: Any, sensor_id: str, device: Any, timeout_ms: int) -> tuple[Any
     try:
         capture = device.get_capture(timeout=timeout_ms)
     except pyk4a.K4AException as exc:
-        raise DataError(f"sensor {sensor_id}: no capture within {timeout_ms} ms ({exc}); check its cable, power "
-                        "and, on a synced rig, the sync cables (subordinates wait for the master)") from None
+        raise DataError(
+            f"sensor {sensor_id}: no capture within {timeout_ms} ms ({exc}); check its cable, power "
+            "and, on a synced rig, the sync cables (subordinates wait for the master)"
+        ) from None
     return capture, int(capture.depth_timestamp_usec)
 
 
@@ -434,8 +464,9 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
         matrix = np.asarray(device.calibration.get_camera_matrix(pyk4a.CalibrationType.DEPTH), dtype=np.float64)
         capture, _ = _grab(pyk4a, sensor_id, device, timeout_ms)
         height, width = np.asarray(capture.depth).shape[:2]
-        write_intrinsics(out / sensor_id, Intrinsics(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2],
-                                                     int(width), int(height)))
+        write_intrinsics(
+            out / sensor_id, Intrinsics(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], int(width), int(height))
+        )
     for _ in range(args.warmup):  # auto exposure settles
         for sensor_id, device in devices:
             _grab(pyk4a, sensor_id, device, timeout_ms)
@@ -453,16 +484,20 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
                     grabbed[sid] = _grab(pyk4a, sid, dev, timeout_ms)
         else:
             times = {sid: t for sid, (_, t) in grabbed.items()}
-            raise DataError(f"the sensors' device times never came within {args.tolerance_ms:g} ms of each other "
-                            f"({times}); wired sync is needed for sphere calibration (check the sync cables)")
+            raise DataError(
+                f"the sensors' device times never came within {args.tolerance_ms:g} ms of each other "
+                f"({times}); wired sync is needed for sphere calibration (check the sync cables)"
+            )
         rounds += 1
         if (rounds - 1) % args.every:
             continue
         for sid, (capture, _) in grabbed.items():
             color = capture.transformed_color
             if color is None:
-                raise DataError(f"sensor {sid}: the capture has no colour image; enable the colour camera "
-                                "(--color-resolution or sensors.kinect.color_resolution)")
+                raise DataError(
+                    f"sensor {sid}: the capture has no colour image; enable the colour camera "
+                    "(--color-resolution or sensors.kinect.color_resolution)"
+                )
             save_rgbd_frame(out / sid, written, np.asarray(color)[..., :3], np.asarray(capture.depth, dtype=np.uint16))
         written += 1
         if written % 10 == 0 or written == args.frames:
@@ -491,16 +526,24 @@ def _cmd_sphere(args: argparse.Namespace) -> int:
 
         sample = cv2.imread(str(args.ball_sample), cv2.IMREAD_COLOR)
         if sample is None:
-            raise DataError(f"cannot read --ball-sample {args.ball_sample} as an image; give a crop showing only "
-                            "the ball")
+            raise DataError(
+                f"cannot read --ball-sample {args.ball_sample} as an image; give a crop showing only the ball"
+            )
         hist = sphere_histogram(sample)
     else:
         hist = red_histogram()
     n_frames = len(next(iter(frames.values())))
     _say(f"sphere calibration: {len(ids)} sensors, {n_frames} frames, master {master}, radius {args.radius_mm:g} mm")
-    result = calibrate_from_sphere(frames, intrinsics, args.radius_mm, master, hist=hist,
-                                   threshold_mm=args.ransac_threshold_mm, min_points=args.min_frames,
-                                   progress=not args.quiet)
+    result = calibrate_from_sphere(
+        frames,
+        intrinsics,
+        args.radius_mm,
+        master,
+        hist=hist,
+        threshold_mm=args.ransac_threshold_mm,
+        min_points=args.min_frames,
+        progress=not args.quiet,
+    )
     path = write_calibration(_output_path(args, cfg), result)
     _print_result(result, path)
     print("next: put the marker plate on the floor in the master's view and run `skelfuse calibrate marker`")
@@ -523,11 +566,15 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     stored_path = Path(args.calibration) if args.calibration is not None else output
     if not args.fresh and stored_path.exists():
         stored = read_calibration(stored_path)
-        _say(f"re-anchoring the {stored.method} calibration in {stored_path} ({len(stored.sensors)} sensors, "
-             f"master {stored.master})")
+        _say(
+            f"re-anchoring the {stored.method} calibration in {stored_path} ({len(stored.sensors)} sensors, "
+            f"master {stored.master})"
+        )
     elif args.calibration is not None and not args.fresh:
-        raise DataError(f"--calibration {stored_path} not found; run `skelfuse calibrate sphere` (or skeleton) "
-                        "first, or leave it out to calibrate the master alone")
+        raise DataError(
+            f"--calibration {stored_path} not found; run `skelfuse calibrate sphere` (or skeleton) "
+            "first, or leave it out to calibrate the master alone"
+        )
     folder = Path(args.folder)
     if not folder.is_dir():
         load_rgbd_folder(folder)  # raises the folder's DataError
@@ -537,24 +584,35 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     else:
         master = _default_master(available, cfg, stored.master if stored is not None else None)
     if stored is not None and stored.master != master:
-        raise CalibrationError(f"the stored calibration {stored_path} was fitted to master {stored.master!r} but the "
-                               f"plate is read from {master!r}; use {stored.master!r}'s view of the plate "
-                               "(--master), or --fresh to calibrate the master alone")
-    frames, intrinsics = load_rgbd_folder(folder, sensors=[master],
-                                          frames=None if args.frame is None else [args.frame])
+        raise CalibrationError(
+            f"the stored calibration {stored_path} was fitted to master {stored.master!r} but the "
+            f"plate is read from {master!r}; use {stored.master!r}'s view of the plate "
+            "(--master), or --fresh to calibrate the master alone"
+        )
+    frames, intrinsics = load_rgbd_folder(folder, sensors=[master], frames=None if args.frame is None else [args.frame])
     sequence = frames[master]
     number = sequence.numbers[0]
     color, depth = sequence.read(number)
     _say(f"marker calibration: master {master}, frame {number} of {folder / master}")
     result, observations = calibrate_world_from_marker(
-        color, depth, intrinsics[master], master, calibration=stored, ids=tuple(args.ids), dictionary=args.dictionary,
-        marker_mm=args.marker_mm, centre_method=args.centre_method)
+        color,
+        depth,
+        intrinsics[master],
+        master,
+        calibration=stored,
+        ids=tuple(args.ids),
+        dictionary=args.dictionary,
+        marker_mm=args.marker_mm,
+        centre_method=args.centre_method,
+    )
     path = write_calibration(output, result)
     for marker_id, obs in sorted(observations.items()):
         x, y, z = obs.center
         pnp = "" if obs.pnp_discrepancy_mm is None else f", {obs.pnp_discrepancy_mm:.1f} mm from the PnP centre"
-        print(f"marker {marker_id}: centre ({x:.0f}, {y:.0f}, {z:.0f}) mm in {master}'s frame, "
-              f"{obs.n_pixels} depth pixels{pnp}")
+        print(
+            f"marker {marker_id}: centre ({x:.0f}, {y:.0f}, {z:.0f}) mm in {master}'s frame, "
+            f"{obs.n_pixels} depth pixels{pnp}"
+        )
     _print_result(result, path)
     if args.rrd is not None:
         _save_rrd(Path(args.rrd), result)
@@ -613,9 +671,15 @@ def load_recording_take(
     if not ids:
         raise DataError(f"recording {reader.path} holds no sensor-frame channels; record with `skelfuse record`")
     sync = sync if sync is not None else SyncConfig()
-    grouper = FrameGrouper(ids, by=by, tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
-                           deadline_us=sync.deadline_us, fps=sync.fps, resync_after=sync.resync_after_frames,
-                           resync_horizon_us=sync.resync_horizon_us)
+    grouper = FrameGrouper(
+        ids,
+        by=by,
+        tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
+        deadline_us=sync.deadline_us,
+        fps=sync.fps,
+        resync_after=sync.resync_after_frames,
+        resync_horizon_us=sync.resync_horizon_us,
+    )
     column = {s: i for i, s in enumerate(ids)}
     positions: list[np.ndarray] = []
     confidence: list[np.ndarray] = []
@@ -647,13 +711,17 @@ def load_recording_take(
     pos_arr, conf_arr = np.stack(positions), np.stack(confidence)
     seen = np.isfinite(pos_arr).all(axis=-1).any(axis=-1)  # (T, S)
     if not seen.any():
-        raise DataError(f"recording {reader.path}: no sensor saw a body in {len(positions)} instants; record a "
-                        "person walking through the shared space")
+        raise DataError(
+            f"recording {reader.path}: no sensor saw a body in {len(positions)} instants; record a "
+            "person walking through the shared space"
+        )
     if progress:
         per_sensor = ", ".join(f"{s}: {int(seen[:, i].sum())}" for i, s in enumerate(ids))
         rejects = f", {sum(reader.rejects.values())} unreadable messages skipped" if reader.rejects else ""
-        _say(f"read {reader.path.name}: {n_read} frames -> {len(positions)} instants (frames with a body per "
-             f"sensor: {per_sensor}){rejects}")
+        _say(
+            f"read {reader.path.name}: {n_read} frames -> {len(positions)} instants (frames with a body per "
+            f"sensor: {per_sensor}){rejects}"
+        )
     return pos_arr, conf_arr, ids
 
 
@@ -679,8 +747,10 @@ def load_file_takes(
         elif suffix == ".json":
             recording = load_offline_processor_json(path, sensor_id=sensor_id)
         else:
-            raise DataError(f"--take {sensor_id}={path}: unknown file type {suffix or '(none)'!r}; expected an "
-                            "andyj1 .csv or an offline_processor .json (or give an MCAP with --recording)")
+            raise DataError(
+                f"--take {sensor_id}={path}: unknown file type {suffix or '(none)'!r}; expected an "
+                "andyj1 .csv or an offline_processor .json (or give an MCAP with --recording)"
+            )
         per_sensor[sensor_id] = recording.single_body()
     lengths = {s: len(p) for s, (p, _) in per_sensor.items()}
     if len(set(lengths.values())) > 1:
@@ -693,13 +763,16 @@ def load_file_takes(
 
 def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     if (args.recording is None) == (not args.take):
-        raise ConfigError("give the walking take either as --recording REC.mcap (from `skelfuse record`) or as "
-                          "--take SENSOR=FILE per sensor (andyj1 .csv / offline_processor .json), not both")
+        raise ConfigError(
+            "give the walking take either as --recording REC.mcap (from `skelfuse record`) or as "
+            "--take SENSOR=FILE per sensor (andyj1 .csv / offline_processor .json), not both"
+        )
     if args.recording is not None:
         sync = cfg.sync if cfg is not None else None
         by = args.by or (sync.by if sync is not None else "device")
-        positions, confidence, ids = load_recording_take(args.recording, by=by, sync=sync, max_frames=args.max_frames,
-                                                         progress=not args.quiet)
+        positions, confidence, ids = load_recording_take(
+            args.recording, by=by, sync=sync, max_frames=args.max_frames, progress=not args.quiet
+        )
     else:
         positions, confidence, ids = load_file_takes(args.take, max_frames=args.max_frames)
     if len(ids) < 2:
@@ -731,8 +804,9 @@ def skeleton_calibration_result(cal: Any) -> CalibrationResult:
             notes += f"; half-take {q.half_rotation_deg:.2f} deg / {q.half_translation_mm:.0f} mm"
         if q.reasons:
             notes += f"; {'; '.join(q.reasons)}"
-        sensors[sensor_id] = SensorCalibration(cal.world_from_sensor[sensor_id], "skeleton",
-                                               _finite_or_none(q.residual_mm), int(q.n_points), date, notes)
+        sensors[sensor_id] = SensorCalibration(
+            cal.world_from_sensor[sensor_id], "skeleton", _finite_or_none(q.residual_mm), int(q.n_points), date, notes
+        )
     verdicts = ", ".join(f"{s} {cal.quality[s].verdict}" for s in cal.sensor_ids)
     world = "ArUco plate (master pose given)" if cal.world_source == "plate" else "floor from the feet"
     notes = f"skeleton walk of {cal.n_frames} frames; world: {world}; verdicts: {verdicts}"
@@ -752,25 +826,32 @@ def _cmd_skeleton(args: argparse.Namespace) -> int:
     master = _check_master(args.master, ids, "the take") if args.master else _default_master(ids, cfg, master_default)
     if anchor is not None:
         if master not in anchor.sensors:
-            raise CalibrationError(f"--anchor {args.anchor} has no pose for the master {master!r} (it has "
-                                   f"{', '.join(anchor.sensors)}); give --master one of those")
+            raise CalibrationError(
+                f"--anchor {args.anchor} has no pose for the master {master!r} (it has "
+                f"{', '.join(anchor.sensors)}); give --master one of those"
+            )
         anchor_pose = anchor.sensors[master].world_from_sensor
     _say(f"skeleton calibration: {len(ids)} sensors, {len(positions)} frames, master {master}")
-    cal = calibrate_from_skeletons(positions, confidence, ids, master, master_world_from_sensor=anchor_pose,
-                                   progress=not args.quiet)
+    cal = calibrate_from_skeletons(
+        positions, confidence, ids, master, master_world_from_sensor=anchor_pose, progress=not args.quiet
+    )
     print(cal.report())
     bad = [s for s in cal.sensor_ids if cal.quality[s].verdict == "bad"]
     result = skeleton_calibration_result(cal)
     output = _output_path(args, cfg)
     if bad and not args.force:
-        print(f"\nnot written: sensor(s) {', '.join(bad)} are 'bad' ({output} is left as it was; --force writes "
-              "it anyway)")
+        print(
+            f"\nnot written: sensor(s) {', '.join(bad)} are 'bad' ({output} is left as it was; --force writes "
+            "it anyway)"
+        )
     else:
         write_calibration(output, result)
         print(f"\nwritten to {output}" + (" (with bad sensors: do not fuse with them)" if bad else ""))
     if bad:
-        print("hint: record a longer walk (~30 s or more) that crosses the space every pair of sensors shares, one "
-              "person only, feet visible; a bad sensor with few points did not see the person often enough")
+        print(
+            "hint: record a longer walk (~30 s or more) that crosses the space every pair of sensors shares, one "
+            "person only, feet visible; a bad sensor with few points did not see the person often enough"
+        )
         return EXIT_ATTENTION
     if any(cal.quality[s].verdict == "check" for s in cal.sensor_ids):
         print("hint: 'check' verdicts are usable but not stable; a longer walk through every shared view helps")
@@ -788,24 +869,39 @@ def _cmd_check(args: argparse.Namespace) -> int:
     cfg = _rig(args)
     path = _stored_calibration_path(args, cfg, "calibrate check")
     if not path.is_file():
-        raise CalibrationError(f"calibration file {path} not found; make one first with `skelfuse calibrate skeleton` "
-                               "(or sphere, then marker)")
+        raise CalibrationError(
+            f"calibration file {path} not found; make one first with `skelfuse calibrate skeleton` "
+            "(or sphere, then marker)"
+        )
     stored = read_calibration(path)
     positions, confidence, ids = _load_take(args, cfg)
     master = _check_master(args.master, ids, "the take") if args.master else _default_master(ids, cfg, stored.master)
     # Only residuals of a skeleton calibration measure the same thing as the check's (sphere centres do not).
-    reference = {s: c.residual_mm for s, c in stored.sensors.items()
-                 if c.method == "skeleton" and c.residual_mm is not None}
-    _say(f"checking {path} ({stored.method}, {stored.date or 'undated'}) on a take of {len(positions)} frames, "
-         f"master {master}")
-    result = check_calibration(stored.world_from_sensor, positions, confidence, ids, master,
-                               reference_residual_mm=reference or None, max_rotation_deg=args.max_rotation_deg,
-                               max_translation_mm=args.max_translation_mm,
-                               max_residual_growth_mm=args.max_residual_growth_mm, progress=not args.quiet)
+    reference = {
+        s: c.residual_mm for s, c in stored.sensors.items() if c.method == "skeleton" and c.residual_mm is not None
+    }
+    _say(
+        f"checking {path} ({stored.method}, {stored.date or 'undated'}) on a take of {len(positions)} frames, "
+        f"master {master}"
+    )
+    result = check_calibration(
+        stored.world_from_sensor,
+        positions,
+        confidence,
+        ids,
+        master,
+        reference_residual_mm=reference or None,
+        max_rotation_deg=args.max_rotation_deg,
+        max_translation_mm=args.max_translation_mm,
+        max_residual_growth_mm=args.max_residual_growth_mm,
+        progress=not args.quiet,
+    )
     print(result.report())
     if result.moved:
-        print(f"hint: recalibrate ({', '.join(result.moved)} moved): `skelfuse calibrate skeleton` with a new walk, "
-              "or sphere + marker")
+        print(
+            f"hint: recalibrate ({', '.join(result.moved)} moved): `skelfuse calibrate skeleton` with a new walk, "
+            "or sphere + marker"
+        )
         return EXIT_ATTENTION
     return EXIT_OK
 
@@ -816,29 +912,62 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _add_output(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
-                        help="the rig config: its sensors are checked, its sync master is the default master and "
-                        "its [calibration] file the default output")
-    parser.add_argument("--output", "-o", type=Path, default=None, metavar="FILE",
-                        help=f"calibration TOML to write (default: the rig config's [calibration] file, else "
-                        f"{DEFAULT_OUTPUT})")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="the rig config: its sensors are checked, its sync master is the default master and "
+        "its [calibration] file the default output",
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help=f"calibration TOML to write (default: the rig config's [calibration] file, else {DEFAULT_OUTPUT})",
+    )
 
 
 def _add_take(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--recording", type=Path, default=None, metavar="REC.mcap",
-                        help="a `skelfuse record` MCAP of one person walking; frames grouped by time, first body "
-                        "per sensor")
-    parser.add_argument("--take", type=_parse_take, action="append", default=[], metavar="SENSOR=FILE",
-                        help="instead of --recording: one skeleton file per sensor (andyj1 .csv or "
-                        "offline_processor .json), frames matched by index; repeat per sensor")
-    parser.add_argument("--by", choices=["device", "host"], default=None,
-                        help="--recording: group frames by device time (wired sync) or host time (default: the "
-                        "rig config's [sync] by, else device)")
-    parser.add_argument("--master", default=None, metavar="ID",
-                        help="sensor whose pose anchors the others (default: the stored calibration's master, else "
-                        "the rig's sync master, else the first sensor)")
-    parser.add_argument("--max-frames", type=_positive(int), default=None, metavar="N",
-                        help="use only the first N frames of the take (default: all)")
+    parser.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        metavar="REC.mcap",
+        help="a `skelfuse record` MCAP of one person walking; frames grouped by time, first body per sensor",
+    )
+    parser.add_argument(
+        "--take",
+        type=_parse_take,
+        action="append",
+        default=[],
+        metavar="SENSOR=FILE",
+        help="instead of --recording: one skeleton file per sensor (andyj1 .csv or "
+        "offline_processor .json), frames matched by index; repeat per sensor",
+    )
+    parser.add_argument(
+        "--by",
+        choices=["device", "host"],
+        default=None,
+        help="--recording: group frames by device time (wired sync) or host time (default: the "
+        "rig config's [sync] by, else device)",
+    )
+    parser.add_argument(
+        "--master",
+        default=None,
+        metavar="ID",
+        help="sensor whose pose anchors the others (default: the stored calibration's master, else "
+        "the rig's sync master, else the first sensor)",
+    )
+    parser.add_argument(
+        "--max-frames",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="use only the first N frames of the take (default: all)",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -865,22 +994,55 @@ def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type:
     )
     capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
     capture.add_argument("--out", type=Path, required=True, metavar="DIR", help="RGB-D folder to write")
-    capture.add_argument("--frames", type=_positive(int), default=300, metavar="N",
-                         help="frames to write per sensor (default: %(default)s; the paper used 1000 ball positions)")
-    capture.add_argument("--every", type=_positive(int), default=3, metavar="K",
-                         help="keep every K-th synchronized capture, so the ball moves between frames "
-                         "(default: %(default)s: 10 frames/s at 30 fps)")
-    capture.add_argument("--sensors", nargs="+", default=None, metavar="ID",
-                         help="only these sensors (default: every kinect sensor of the rig)")
-    capture.add_argument("--color-resolution", default="720P",
-                         choices=["720P", "1080P", "1440P", "1536P", "2160P", "3072P"],
-                         help="colour camera mode where the rig config leaves colour off (default: %(default)s)")
-    capture.add_argument("--warmup", type=int, default=30, metavar="N",
-                         help="captures dropped first while auto exposure settles (default: %(default)s)")
-    capture.add_argument("--timeout-s", type=_positive(float), default=2.0, metavar="SECONDS",
-                         help="longest wait for one capture (default: %(default)s)")
-    capture.add_argument("--tolerance-ms", type=_positive(float), default=5.0, metavar="MS",
-                         help="device times of one synchronized frame may differ by this much (default: %(default)s)")
+    capture.add_argument(
+        "--frames",
+        type=_positive(int),
+        default=300,
+        metavar="N",
+        help="frames to write per sensor (default: %(default)s; the paper used 1000 ball positions)",
+    )
+    capture.add_argument(
+        "--every",
+        type=_positive(int),
+        default=3,
+        metavar="K",
+        help="keep every K-th synchronized capture, so the ball moves between frames "
+        "(default: %(default)s: 10 frames/s at 30 fps)",
+    )
+    capture.add_argument(
+        "--sensors",
+        nargs="+",
+        default=None,
+        metavar="ID",
+        help="only these sensors (default: every kinect sensor of the rig)",
+    )
+    capture.add_argument(
+        "--color-resolution",
+        default="720P",
+        choices=["720P", "1080P", "1440P", "1536P", "2160P", "3072P"],
+        help="colour camera mode where the rig config leaves colour off (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--warmup",
+        type=int,
+        default=30,
+        metavar="N",
+        help="captures dropped first while auto exposure settles (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--timeout-s",
+        type=_positive(float),
+        default=2.0,
+        metavar="SECONDS",
+        help="longest wait for one capture (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--tolerance-ms",
+        type=_positive(float),
+        default=5.0,
+        metavar="MS",
+        help="device times of one synchronized frame may differ by this much (default: %(default)s)",
+    )
     capture.set_defaults(func=_cmd_capture)
 
     # sphere ----------------------------------------------------------------------------------------
@@ -892,25 +1054,61 @@ def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type:
         "calibration (world = the master's frame until `calibrate marker` puts it on the floor). Prints the "
         "residual per sensor (RMS distance of the fitted trajectories, mm).",
     )
-    sphere.add_argument("folder", type=Path, metavar="DIR",
-                        help="RGB-D folder: DIR/<sensor_id>/intrinsics.json, color_%%06d.png, depth_%%06d.png")
+    sphere.add_argument(
+        "folder",
+        type=Path,
+        metavar="DIR",
+        help="RGB-D folder: DIR/<sensor_id>/intrinsics.json, color_%%06d.png, depth_%%06d.png",
+    )
     _add_output(sphere)
-    sphere.add_argument("--master", default=None, metavar="ID",
-                        help="reference sensor (default: the rig's sync master, else its first sensor, else the "
-                        "first folder)")
-    sphere.add_argument("--radius-mm", type=_positive(float), default=240.0, metavar="MM",
-                        help="the ball's radius, mm (default: %(default)s, the paper's red ball)")
-    sphere.add_argument("--ball-sample", type=Path, default=None, metavar="IMAGE",
-                        help="a crop showing only the ball, to learn its colour (default: a red ball model)")
-    sphere.add_argument("--ransac-threshold-mm", type=_positive(float), default=30.0, metavar="MM",
-                        help="ball centres farther than this from the fit are dropped as wrong detections "
-                        "(default: %(default)s)")
-    sphere.add_argument("--min-frames", type=_positive(int), default=10, metavar="N",
-                        help="fewest frames in which every sensor found the ball (default: %(default)s)")
-    sphere.add_argument("--max-frames", type=_positive(int), default=None, metavar="N",
-                        help="use only the first N frames (default: all)")
-    sphere.add_argument("--rrd", type=Path, default=None, metavar="FILE",
-                        help="also save the poses and ball centres as a Rerun .rrd to look at")
+    sphere.add_argument(
+        "--master",
+        default=None,
+        metavar="ID",
+        help="reference sensor (default: the rig's sync master, else its first sensor, else the first folder)",
+    )
+    sphere.add_argument(
+        "--radius-mm",
+        type=_positive(float),
+        default=240.0,
+        metavar="MM",
+        help="the ball's radius, mm (default: %(default)s, the paper's red ball)",
+    )
+    sphere.add_argument(
+        "--ball-sample",
+        type=Path,
+        default=None,
+        metavar="IMAGE",
+        help="a crop showing only the ball, to learn its colour (default: a red ball model)",
+    )
+    sphere.add_argument(
+        "--ransac-threshold-mm",
+        type=_positive(float),
+        default=30.0,
+        metavar="MM",
+        help="ball centres farther than this from the fit are dropped as wrong detections (default: %(default)s)",
+    )
+    sphere.add_argument(
+        "--min-frames",
+        type=_positive(int),
+        default=10,
+        metavar="N",
+        help="fewest frames in which every sensor found the ball (default: %(default)s)",
+    )
+    sphere.add_argument(
+        "--max-frames",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="use only the first N frames (default: all)",
+    )
+    sphere.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="also save the poses and ball centres as a Rerun .rrd to look at",
+    )
     sphere.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     sphere.set_defaults(func=_cmd_sphere)
 
@@ -924,29 +1122,67 @@ def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type:
         "existing sensor-to-sensor calibration (by default the output file, if it exists) is re-anchored so every "
         "sensor moves into that world.",
     )
-    marker.add_argument("folder", type=Path, metavar="DIR",
-                        help="RGB-D folder holding the master's view of the plate (DIR/<master>/...)")
+    marker.add_argument(
+        "folder",
+        type=Path,
+        metavar="DIR",
+        help="RGB-D folder holding the master's view of the plate (DIR/<master>/...)",
+    )
     _add_output(marker)
-    marker.add_argument("--calibration", type=Path, default=None, metavar="FILE",
-                        help="sensor-to-sensor calibration to re-anchor (default: the output file when it exists)")
-    marker.add_argument("--fresh", action="store_true",
-                        help="ignore any existing calibration: write the master's pose alone")
-    marker.add_argument("--master", default=None, metavar="ID",
-                        help="sensor that sees the plate (default: the calibration's master, else the rig's sync "
-                        "master, else the first folder)")
-    marker.add_argument("--frame", type=int, default=None, metavar="N",
-                        help="frame number to use (default: the first one of the master's folder)")
-    marker.add_argument("--ids", type=int, nargs=4, default=[0, 1, 2, 3], metavar=("ID0", "ID1", "ID2", "ID3"),
-                        help="ArUco ids playing the paper's markers 0, 1 (origin), 2, 3 (default: 0 1 2 3)")
-    marker.add_argument("--dictionary", default="DICT_4X4_50",
-                        help="OpenCV ArUco dictionary of the printed markers (default: %(default)s)")
-    marker.add_argument("--marker-mm", type=_positive(float), default=None, metavar="MM",
-                        help="printed marker side, mm: enables the PnP cross-check of the depth centres")
-    marker.add_argument("--centre-method", choices=["plane", "mean"], default="plane",
-                        help="marker centre from depth: plane fit ∩ centre ray (unbiased) or the paper's pixel mean "
-                        "(default: %(default)s)")
-    marker.add_argument("--rrd", type=Path, default=None, metavar="FILE",
-                        help="also save the poses as a Rerun .rrd to look at")
+    marker.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="sensor-to-sensor calibration to re-anchor (default: the output file when it exists)",
+    )
+    marker.add_argument(
+        "--fresh", action="store_true", help="ignore any existing calibration: write the master's pose alone"
+    )
+    marker.add_argument(
+        "--master",
+        default=None,
+        metavar="ID",
+        help="sensor that sees the plate (default: the calibration's master, else the rig's sync "
+        "master, else the first folder)",
+    )
+    marker.add_argument(
+        "--frame",
+        type=int,
+        default=None,
+        metavar="N",
+        help="frame number to use (default: the first one of the master's folder)",
+    )
+    marker.add_argument(
+        "--ids",
+        type=int,
+        nargs=4,
+        default=[0, 1, 2, 3],
+        metavar=("ID0", "ID1", "ID2", "ID3"),
+        help="ArUco ids playing the paper's markers 0, 1 (origin), 2, 3 (default: 0 1 2 3)",
+    )
+    marker.add_argument(
+        "--dictionary",
+        default="DICT_4X4_50",
+        help="OpenCV ArUco dictionary of the printed markers (default: %(default)s)",
+    )
+    marker.add_argument(
+        "--marker-mm",
+        type=_positive(float),
+        default=None,
+        metavar="MM",
+        help="printed marker side, mm: enables the PnP cross-check of the depth centres",
+    )
+    marker.add_argument(
+        "--centre-method",
+        choices=["plane", "mean"],
+        default="plane",
+        help="marker centre from depth: plane fit ∩ centre ray (unbiased) or the paper's pixel mean "
+        "(default: %(default)s)",
+    )
+    marker.add_argument(
+        "--rrd", type=Path, default=None, metavar="FILE", help="also save the poses as a Rerun .rrd to look at"
+    )
     marker.set_defaults(func=_cmd_marker)
 
     # skeleton --------------------------------------------------------------------------------------
@@ -960,9 +1196,13 @@ def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type:
     )
     _add_take(skeleton)
     _add_output(skeleton)
-    skeleton.add_argument("--anchor", type=Path, default=None, metavar="FILE",
-                          help="a calibration (e.g. from `calibrate marker`) whose master pose defines the world "
-                          "instead of the floor")
+    skeleton.add_argument(
+        "--anchor",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="a calibration (e.g. from `calibrate marker`) whose master pose defines the world instead of the floor",
+    )
     skeleton.add_argument("--force", action="store_true", help="write the file even when a verdict is bad")
     skeleton.set_defaults(func=_cmd_skeleton)
 
@@ -975,15 +1215,39 @@ def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type:
         "(rotation, translation at the subject) and the residual. Exit 3 when a sensor moved.",
     )
     _add_take(check)
-    check.add_argument("--config", type=Path, default=None, metavar="RIG.toml",
-                       help="the rig config (its [calibration] file is the default --calibration)")
-    check.add_argument("--calibration", type=Path, default=None, metavar="FILE",
-                       help="the stored calibration (default: the rig config's [calibration] file)")
-    check.add_argument("--max-rotation-deg", type=_positive(float), default=2.0, metavar="DEG",
-                       help="a sensor whose correction rotates more than this moved (default: %(default)s)")
-    check.add_argument("--max-translation-mm", type=_positive(float), default=30.0, metavar="MM",
-                       help="... or shifts the subject by more than this (default: %(default)s)")
-    check.add_argument("--max-residual-growth-mm", type=_positive(float), default=15.0, metavar="MM",
-                       help="warn when a residual grew by more than this since a skeleton calibration "
-                       "(default: %(default)s)")
+    check.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="the rig config (its [calibration] file is the default --calibration)",
+    )
+    check.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the stored calibration (default: the rig config's [calibration] file)",
+    )
+    check.add_argument(
+        "--max-rotation-deg",
+        type=_positive(float),
+        default=2.0,
+        metavar="DEG",
+        help="a sensor whose correction rotates more than this moved (default: %(default)s)",
+    )
+    check.add_argument(
+        "--max-translation-mm",
+        type=_positive(float),
+        default=30.0,
+        metavar="MM",
+        help="... or shifts the subject by more than this (default: %(default)s)",
+    )
+    check.add_argument(
+        "--max-residual-growth-mm",
+        type=_positive(float),
+        default=15.0,
+        metavar="MM",
+        help="warn when a residual grew by more than this since a skeleton calibration (default: %(default)s)",
+    )
     check.set_defaults(func=_cmd_check)

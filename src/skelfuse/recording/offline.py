@@ -36,8 +36,15 @@ from skelfuse.service.fusion_step import RESET_GAP_S, GroupFuser
 from skelfuse.service.grouping import FrameGrouper
 from skelfuse.skeleton import JOINT_NAMES, N_JOINTS
 
-__all__ = ["FUSED_COLUMNS", "FUSED_FORMATS", "RESET_GAP_S", "fuse_recording", "replay_frames", "resolve_poses",
-           "write_fused"]
+__all__ = [
+    "FUSED_COLUMNS",
+    "FUSED_FORMATS",
+    "RESET_GAP_S",
+    "fuse_recording",
+    "replay_frames",
+    "resolve_poses",
+    "write_fused",
+]
 
 FUSED_COLUMNS = ("time_us", "track_id", "joint", "joint_name", "x_mm", "y_mm", "z_mm", "n_agree", "confidence")
 """Columns of :func:`write_fused`, one row per person x joint (see docs/recording.md)."""
@@ -58,8 +65,13 @@ def _params(rig_config: RigConfig | None, preset_name: str | None, eps_mm: float
     return preset(preset_name or DEFAULT_PRESET, eps_mm=eps_mm)
 
 
-def resolve_poses(sensor_ids: Iterable[str], *, world_from_sensor: Mapping[str, Any] | None = None,
-                  rig_config: RigConfig | None = None, recording: RecordingReader | None = None) -> np.ndarray:
+def resolve_poses(
+    sensor_ids: Iterable[str],
+    *,
+    world_from_sensor: Mapping[str, Any] | None = None,
+    rig_config: RigConfig | None = None,
+    recording: RecordingReader | None = None,
+) -> np.ndarray:
     """(S, 4, 4) ``world_from_sensor`` of ``sensor_ids``, from the first source that has them.
 
     Order: the explicit ``world_from_sensor`` mapping, the rig config, the recording's calibration metadata.
@@ -86,8 +98,11 @@ def resolve_poses(sensor_ids: Iterable[str], *, world_from_sensor: Mapping[str, 
                 raise DataError(f"the {name} holds a pose that is not a finite 4x4 matrix")
             return out
         tried.append(f"the {name} lacks {', '.join(missing)}")
-    where = "; ".join(tried) if tried else "no rig config or world_from_sensor was given and the recording " \
-        "holds no calibration metadata"
+    where = (
+        "; ".join(tried)
+        if tried
+        else "no rig config or world_from_sensor was given and the recording holds no calibration metadata"
+    )
     raise DataError(
         f"no calibration (world_from_sensor) for every sensor of the recording ({', '.join(sensor_ids)}): "
         f"{where}. Pass the rig config that holds the poses "
@@ -174,8 +189,16 @@ def fuse_recording(
     return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
 
 
-def _fuse(reader: RecordingReader, sensor_ids: tuple[str, ...], poses: np.ndarray, params: FusionParams,
-          grouper: FrameGrouper, start_ns: int | None, end_ns: int | None, progress: bool) -> Iterator[FusedFrame]:
+def _fuse(
+    reader: RecordingReader,
+    sensor_ids: tuple[str, ...],
+    poses: np.ndarray,
+    params: FusionParams,
+    grouper: FrameGrouper,
+    start_ns: int | None,
+    end_ns: int | None,
+    progress: bool,
+) -> Iterator[FusedFrame]:
     fuser = GroupFuser(sensor_ids, poses, params)
     bar = Progress(reader.message_count or 0, "fuse", enabled=None if progress else False)
     try:
@@ -199,8 +222,17 @@ def _rows(frame: FusedFrame) -> Iterator[tuple[Any, ...]]:
         track_id = int(frame.track_ids[p])
         for j in range(N_JOINTS):
             x, y, z = (float(v) for v in frame.positions[p, j])
-            yield (int(frame.time_us), track_id, j, JOINT_NAMES[j], x, y, z, int(frame.n_agree[p, j]),
-                   int(frame.confidence[p, j]))
+            yield (
+                int(frame.time_us),
+                track_id,
+                j,
+                JOINT_NAMES[j],
+                x,
+                y,
+                z,
+                int(frame.n_agree[p, j]),
+                int(frame.confidence[p, j]),
+            )
 
 
 def write_fused(frames: Iterable[FusedFrame], output_path: str | os.PathLike[str]) -> int:
@@ -229,8 +261,10 @@ def write_fused(frames: Iterable[FusedFrame], output_path: str | os.PathLike[str
     path = Path(output_path)
     suffix = path.suffix.lower()
     if suffix not in FUSED_FORMATS:
-        raise ValueError(f"cannot write fused frames to {path}: unknown extension {path.suffix!r}; "
-                         f"supported: {', '.join(FUSED_FORMATS)}")
+        raise ValueError(
+            f"cannot write fused frames to {path}: unknown extension {path.suffix!r}; "
+            f"supported: {', '.join(FUSED_FORMATS)}"
+        )
     if suffix == ".csv":
         return _write_csv(frames, path)
     return _write_parquet(frames, path)
@@ -243,8 +277,12 @@ def _write_csv(frames: Iterable[FusedFrame], path: Path) -> int:
         writer.writerow(FUSED_COLUMNS)
         for frame in frames:
             for row in _rows(frame):
-                writer.writerow([("" if isinstance(v, float) and math.isnan(v) else repr(v) if isinstance(v, float)
-                                  else v) for v in row])
+                writer.writerow(
+                    [
+                        ("" if isinstance(v, float) and math.isnan(v) else repr(v) if isinstance(v, float) else v)
+                        for v in row
+                    ]
+                )
                 n += 1
     return n
 
@@ -255,11 +293,19 @@ def _write_parquet(frames: Iterable[FusedFrame], path: Path, batch_frames: int =
         import pyarrow.parquet as pq
     except ImportError as exc:
         raise ModuleNotFoundError("writing .parquet needs pyarrow (pip install pyarrow); or write .csv") from exc
-    schema = pa.schema([
-        ("time_us", pa.int64()), ("track_id", pa.int64()), ("joint", pa.int16()), ("joint_name", pa.string()),
-        ("x_mm", pa.float64()), ("y_mm", pa.float64()), ("z_mm", pa.float64()), ("n_agree", pa.int16()),
-        ("confidence", pa.uint8()),
-    ])
+    schema = pa.schema(
+        [
+            ("time_us", pa.int64()),
+            ("track_id", pa.int64()),
+            ("joint", pa.int16()),
+            ("joint_name", pa.string()),
+            ("x_mm", pa.float64()),
+            ("y_mm", pa.float64()),
+            ("z_mm", pa.float64()),
+            ("n_agree", pa.int16()),
+            ("confidence", pa.uint8()),
+        ]
+    )
     n = 0
     pending: list[FusedFrame] = []
 
@@ -274,11 +320,20 @@ def _write_parquet(frames: Iterable[FusedFrame], path: Path, batch_frames: int =
         conf = np.concatenate([np.asarray(f.confidence, np.uint8).reshape(-1) for f in pending])
         names = np.asarray(JOINT_NAMES, dtype=object)[joints]
         nan = np.isnan(xyz)
-        table = pa.Table.from_arrays([
-            pa.array(time_us), pa.array(track), pa.array(joints), pa.array(names.tolist(), pa.string()),
-            pa.array(xyz[:, 0], mask=nan[:, 0]), pa.array(xyz[:, 1], mask=nan[:, 1]),
-            pa.array(xyz[:, 2], mask=nan[:, 2]), pa.array(n_agree), pa.array(conf),
-        ], schema=schema)
+        table = pa.Table.from_arrays(
+            [
+                pa.array(time_us),
+                pa.array(track),
+                pa.array(joints),
+                pa.array(names.tolist(), pa.string()),
+                pa.array(xyz[:, 0], mask=nan[:, 0]),
+                pa.array(xyz[:, 1], mask=nan[:, 1]),
+                pa.array(xyz[:, 2], mask=nan[:, 2]),
+                pa.array(n_agree),
+                pa.array(conf),
+            ],
+            schema=schema,
+        )
         writer.write_table(table)
         pending.clear()
         return table.num_rows

@@ -229,15 +229,18 @@ class FrameGrouper:
             raise ValueError(f"FrameGrouper fps must be > 0, got {fps!r}")
         half_period_us = 0.5e6 / fps
         if not 0 < tolerance_us < half_period_us:
-            raise ValueError(f"FrameGrouper tolerance_us must be in (0, {half_period_us:.0f}) (half a frame period "
-                             f"at {fps:g} fps), got {tolerance_us!r}")
+            raise ValueError(
+                f"FrameGrouper tolerance_us must be in (0, {half_period_us:.0f}) (half a frame period "
+                f"at {fps:g} fps), got {tolerance_us!r}"
+            )
         if not deadline_us > 0:
             raise ValueError(f"FrameGrouper deadline_us must be > 0, got {deadline_us!r}")
         if int(resync_after) < 1:
             raise ValueError(f"FrameGrouper resync_after must be >= 1, got {resync_after!r}")
         if not resync_horizon_us > tolerance_us:
-            raise ValueError(f"FrameGrouper resync_horizon_us must exceed tolerance_us ({tolerance_us}), "
-                             f"got {resync_horizon_us!r}")
+            raise ValueError(
+                f"FrameGrouper resync_horizon_us must exceed tolerance_us ({tolerance_us}), got {resync_horizon_us!r}"
+            )
         self.expected_sensor_ids = ids
         self.by: GroupBy = by
         self.tolerance_us = int(tolerance_us)
@@ -255,9 +258,15 @@ class FrameGrouper:
     def for_rig(cls, cfg: RigConfig) -> FrameGrouper:
         """A grouper for a rig: its sensors, and the ``[sync]`` section of its config."""
         sync = cfg.sync
-        return cls(cfg.sensor_ids, by=sync.by, tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
-                   deadline_us=sync.deadline_us, fps=sync.fps, resync_after=sync.resync_after_frames,
-                   resync_horizon_us=sync.resync_horizon_us)
+        return cls(
+            cfg.sensor_ids,
+            by=sync.by,
+            tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
+            deadline_us=sync.deadline_us,
+            fps=sync.fps,
+            resync_after=sync.resync_after_frames,
+            resync_horizon_us=sync.resync_horizon_us,
+        )
 
     # -- public -------------------------------------------------------------------------------------------
 
@@ -366,8 +375,9 @@ class FrameGrouper:
             return
         group = self._nearest_open(time_us)
         if group is None:
-            group = _OpenGroup(anchor_us=time_us, deadline_ns=int(arrival_ns) + self.deadline_us * 1000,
-                               min_time_us=time_us)
+            group = _OpenGroup(
+                anchor_us=time_us, deadline_ns=int(arrival_ns) + self.deadline_us * 1000, min_time_us=time_us
+            )
             anchors = [g.anchor_us for g in self._open]
             self._open.insert(bisect.bisect_right(anchors, time_us), group)
         elif sensor_id in group.frames:
