@@ -663,6 +663,7 @@ def load_recording_take(
     """
     from skelfuse.config import SyncConfig
     from skelfuse.recording.mcap_io import RecordingReader
+    from skelfuse.service.fusion_step import group_bodies
     from skelfuse.service.grouping import FrameGrouper
     from skelfuse.skeleton import N_JOINTS
 
@@ -671,29 +672,17 @@ def load_recording_take(
     if not ids:
         raise DataError(f"recording {reader.path} holds no sensor-frame channels; record with `skelfuse record`")
     sync = sync if sync is not None else SyncConfig()
-    grouper = FrameGrouper(
-        ids,
-        by=by,
-        tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
-        deadline_us=sync.deadline_us,
-        fps=sync.fps,
-        resync_after=sync.resync_after_frames,
-        resync_horizon_us=sync.resync_horizon_us,
-    )
-    column = {s: i for i, s in enumerate(ids)}
+    grouper = FrameGrouper.from_sync(ids, sync, by=by)
     positions: list[np.ndarray] = []
     confidence: list[np.ndarray] = []
 
     def take(groups: Sequence[Any]) -> None:
         for group in groups:
-            pos = np.full((len(ids), N_JOINTS, 3), np.nan)
-            conf = np.zeros((len(ids), N_JOINTS), dtype=np.uint8)
-            for sensor_id, frame in group.frames.items():
-                if frame.n_bodies > 0:
-                    pos[column[sensor_id]] = frame.positions[0]
-                    conf[column[sensor_id]] = frame.confidence[0]
-            positions.append(pos)
-            confidence.append(conf)
+            pos, conf, _ = group_bodies(group.frames, ids)  # (S, B, 32, 3): every sensor's bodies, padded
+            if pos.shape[1] == 0:
+                pos, conf = np.full((len(ids), 1, N_JOINTS, 3), np.nan), np.zeros((len(ids), 1, N_JOINTS), np.uint8)
+            positions.append(pos[:, 0])  # the first body of each sensor: one person walking
+            confidence.append(conf[:, 0])
 
     n_read = 0
     for frame in reader.frames():

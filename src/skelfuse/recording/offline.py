@@ -177,15 +177,7 @@ def fuse_recording(
     poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
     params = _params(rig_config, preset_name, eps_mm)
     sync = rig_config.sync if rig_config is not None else SyncConfig()
-    grouper = FrameGrouper(
-        sensor_ids,
-        by=by if by is not None else sync.by,  # type: ignore[arg-type]
-        tolerance_us=int(tolerance_us) if tolerance_us is not None else sync.tolerance_us,
-        deadline_us=int(deadline_us) if deadline_us is not None else sync.deadline_us,
-        fps=sync.fps,
-        resync_after=sync.resync_after_frames,
-        resync_horizon_us=sync.resync_horizon_us,
-    )
+    grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
     return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
 
 

@@ -68,7 +68,7 @@ from typing import TYPE_CHECKING, Literal
 from skelfuse.frames import SensorFrame
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
-    from skelfuse.config import RigConfig
+    from skelfuse.config import RigConfig, SyncConfig
 
 GroupBy = Literal["device", "host"]
 
@@ -257,12 +257,24 @@ class FrameGrouper:
     @classmethod
     def for_rig(cls, cfg: RigConfig) -> FrameGrouper:
         """A grouper for a rig: its sensors, and the ``[sync]`` section of its config."""
-        sync = cfg.sync
+        return cls.from_sync(cfg.sensor_ids, cfg.sync)
+
+    @classmethod
+    def from_sync(
+        cls,
+        sensor_ids: Iterable[str],
+        sync: SyncConfig,
+        *,
+        by: str | None = None,
+        tolerance_us: int | None = None,
+        deadline_us: int | None = None,
+    ) -> FrameGrouper:
+        """A grouper from a ``[sync]`` section; ``by`` and the two times override it where given."""
         return cls(
-            cfg.sensor_ids,
-            by=sync.by,
-            tolerance_us=sync.tolerance_us,  # type: ignore[arg-type]
-            deadline_us=sync.deadline_us,
+            sensor_ids,
+            by=by if by is not None else sync.by,  # type: ignore[arg-type]
+            tolerance_us=int(tolerance_us) if tolerance_us is not None else sync.tolerance_us,
+            deadline_us=int(deadline_us) if deadline_us is not None else sync.deadline_us,
             fps=sync.fps,
             resync_after=sync.resync_after_frames,
             resync_horizon_us=sync.resync_horizon_us,
