@@ -332,24 +332,6 @@ def realign_temporal(
     return out_positions, out_confidence, mirrored, new_streak
 
 
-def realign(
-    positions: np.ndarray, confidence: np.ndarray, mode: str | None, passes: int = 2
-) -> tuple[np.ndarray, np.ndarray]:
-    """Dispatch on ``mode`` ("paper", "body" or None = unchanged); returns (positions, confidence).
-
-    "temporal" needs a previous skeleton and counters: call :func:`realign_temporal` (the pipeline does).
-    """
-    if mode is None:
-        return positions, confidence
-    if mode == "paper":
-        out_positions, out_confidence, _ = realign_paper(positions, confidence)
-    elif mode == "body":
-        out_positions, out_confidence, _ = realign_body(positions, confidence, passes)
-    else:
-        raise ValueError(f"realign mode must be 'paper', 'body' or None, got {mode!r}")
-    return out_positions, out_confidence
-
-
 def _swap_pairs(
     positions: np.ndarray, confidence: np.ndarray, swapped: np.ndarray, left: np.ndarray, right: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
