@@ -53,8 +53,9 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     """
     if len(payload) < FUSED_HEADER.size:
         raise PayloadError(f"{len(payload)} bytes, shorter than the {FUSED_HEADER.size}-byte header")
-    (magic, major, minor, kind, _flags, header_size, n_joints, n_persons, n_sensors, time_us, table_size,
-     _reserved) = FUSED_HEADER.unpack_from(payload, 0)
+    (magic, major, minor, kind, _flags, header_size, n_joints, n_persons, n_sensors, time_us, table_size, _reserved) = (
+        FUSED_HEADER.unpack_from(payload, 0)
+    )
     if magic != MAGIC:
         raise PayloadError(f"magic {magic!r}, expected {MAGIC!r}")
     if major != SUPPORTED_MAJOR:
@@ -81,7 +82,7 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     at = table_at
     for _ in range(n_sensors):
         (size,) = struct.unpack_from("<H", payload, at)
-        sensor_ids.append(payload[at + 2: at + 2 + size].decode("utf-8"))
+        sensor_ids.append(payload[at + 2 : at + 2 + size].decode("utf-8"))
         at += 2 + size
     if at != end:
         raise PayloadError("sensor id table does not match its declared size")
@@ -95,13 +96,15 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     persons = []
     for p in range(n_persons):
         first = p * per_person
-        persons.append({
-            "track_id": track_ids[p],
-            "positions": [list(coords[3 * (first + j): 3 * (first + j) + 3]) for j in range(per_person)],
-            "n_agree": list(n_agree[first: first + per_person]),
-            "confidence": list(confidence[first: first + per_person]),
-            "contributors": [sensor_ids[s] for s in range(n_sensors) if contributors[p * n_sensors + s]],
-        })
+        persons.append(
+            {
+                "track_id": track_ids[p],
+                "positions": [list(coords[3 * (first + j) : 3 * (first + j) + 3]) for j in range(per_person)],
+                "n_agree": list(n_agree[first : first + per_person]),
+                "confidence": list(confidence[first : first + per_person]),
+                "contributors": [sensor_ids[s] for s in range(n_sensors) if contributors[p * n_sensors + s]],
+            }
+        )
     return {"version": (major, minor), "time_us": time_us, "sensor_ids": sensor_ids, "persons": persons}
 
 

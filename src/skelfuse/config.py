@@ -315,8 +315,10 @@ class RigConfig:
         for s in self.sensors:
             if s.id == sensor_id:
                 return s
-        raise ConfigError(f"{self.source}: rig {self.name!r} has no sensor {sensor_id!r}"
-                          f"{_did_you_mean(sensor_id, self.sensor_ids)}; its sensors: {', '.join(self.sensor_ids)}")
+        raise ConfigError(
+            f"{self.source}: rig {self.name!r} has no sensor {sensor_id!r}"
+            f"{_did_you_mean(sensor_id, self.sensor_ids)}; its sensors: {', '.join(self.sensor_ids)}"
+        )
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], *, source: str = "<dict>", base_dir: Path | None = None) -> RigConfig:
@@ -361,8 +363,9 @@ class RigConfig:
                 poses[s.id] = pose
         missing = [s for s in self.sensor_ids if s not in poses]
         if required and missing:
-            raise ConfigError(f"{self.source}: no pose for sensor(s) {', '.join(missing)}{calibration_note}; "
-                              f"{_CALIBRATE_HINT}")
+            raise ConfigError(
+                f"{self.source}: no pose for sensor(s) {', '.join(missing)}{calibration_note}; {_CALIBRATE_HINT}"
+            )
         return poses
 
 
@@ -413,14 +416,17 @@ def load_calibration(path: str | Path) -> dict[str, np.ndarray]:
         raise ConfigError(f"calibration {path} is not valid TOML: {exc}") from None
     sensors = data.get("sensors")
     if not isinstance(sensors, dict) or not sensors:
-        raise ConfigError(f"{path}: key sensors: expected a table [sensors.<id>] with world_from_sensor per "
-                          f"sensor, found {_describe(sensors)}")
+        raise ConfigError(
+            f"{path}: key sensors: expected a table [sensors.<id>] with world_from_sensor per "
+            f"sensor, found {_describe(sensors)}"
+        )
     poses = {}
     for sensor_id, table in sensors.items():
         where = f"sensors.{sensor_id}"
         if not isinstance(table, dict) or "world_from_sensor" not in table:
-            raise ConfigError(f"{path}: key {where}: expected a table with world_from_sensor (4x4), "
-                              f"found {_describe(table)}")
+            raise ConfigError(
+                f"{path}: key {where}: expected a table with world_from_sensor (4x4), found {_describe(table)}"
+            )
         poses[sensor_id] = np.array(_rigid_4x4(table["world_from_sensor"], f"{where}.world_from_sensor", str(path)))
     return poses
 
@@ -470,8 +476,10 @@ def zenoh_config(
         try:
             conf.insert_json5(key, value_json5)
         except Exception as exc:  # zenoh raises its own ZError
-            raise ConfigError(f"{origin}: zenoh rejected {key} = {value_json5}: {exc}; check the key path and "
-                              f"value type against zenoh's DEFAULT_CONFIG.json5") from None
+            raise ConfigError(
+                f"{origin}: zenoh rejected {key} = {value_json5}: {exc}; check the key path and "
+                f"value type against zenoh's DEFAULT_CONFIG.json5"
+            ) from None
 
     for key, value in cfg.zenoh.config:
         insert(key, json.dumps(value), f'{cfg.source}: zenoh.config."{key}"')
@@ -497,8 +505,7 @@ def zenoh_config(
     for item in overrides:
         key, sep, value = str(item).partition(":")
         if not sep or not key.strip() or not value.strip():
-            raise ConfigError(f"--zenoh-cfg: expected KEY:VALUE (e.g. 'transport/unicast/max_links:2'), "
-                              f"found {item!r}")
+            raise ConfigError(f"--zenoh-cfg: expected KEY:VALUE (e.g. 'transport/unicast/max_links:2'), found {item!r}")
         insert(key.strip(), value.strip(), f"--zenoh-cfg {item!r}")
     return conf
 
@@ -507,15 +514,29 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the zenoh flags every long-running command shares (read back by :func:`zenoh_flags`)."""
     group = parser.add_argument_group("zenoh (override the config file's [zenoh])")
     group.add_argument("--zenoh-mode", choices=ZENOH_MODES, default=None, help="session mode")
-    group.add_argument("--zenoh-connect", metavar="ENDPOINT", action="append", default=None,
-                       help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.2:7447")
-    group.add_argument("--zenoh-listen", metavar="ENDPOINT", action="append", default=None,
-                       help="endpoint to listen on (repeatable)")
-    group.add_argument("--no-multicast-scouting", action="store_true", default=False,
-                       help="disable multicast scouting (recommended with explicit endpoints)")
-    group.add_argument("--zenoh-cfg", metavar="KEY:VALUE", action="append", default=[],
-                       help="raw zenoh config change, VALUE in JSON5, e.g. 'transport/unicast/max_links:2' "
-                            "(applied last)")
+    group.add_argument(
+        "--zenoh-connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=None,
+        help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.2:7447",
+    )
+    group.add_argument(
+        "--zenoh-listen", metavar="ENDPOINT", action="append", default=None, help="endpoint to listen on (repeatable)"
+    )
+    group.add_argument(
+        "--no-multicast-scouting",
+        action="store_true",
+        default=False,
+        help="disable multicast scouting (recommended with explicit endpoints)",
+    )
+    group.add_argument(
+        "--zenoh-cfg",
+        metavar="KEY:VALUE",
+        action="append",
+        default=[],
+        help="raw zenoh config change, VALUE in JSON5, e.g. 'transport/unicast/max_links:2' (applied last)",
+    )
 
 
 def zenoh_flags(args: argparse.Namespace) -> dict[str, Any]:
@@ -575,8 +596,14 @@ class _Table:
             raise ConfigError(f"{self.source}: key {self.key(name)} is required ({expected}) but missing")
         return default
 
-    def string(self, name: str, default: Any = _REQUIRED, *, choices: Sequence[str] | None = None,
-               check: Callable[[str], str] | None = None) -> Any:
+    def string(
+        self,
+        name: str,
+        default: Any = _REQUIRED,
+        *,
+        choices: Sequence[str] | None = None,
+        check: Callable[[str], str] | None = None,
+    ) -> Any:
         expected = f"one of {', '.join(repr(c) for c in choices)}" if choices else "a string"
         value = self.raw(name, default, expected)
         if value is default and name not in self.data:
@@ -592,19 +619,32 @@ class _Table:
                 raise ConfigError(f"{self.source}: key {self.key(name)}: {exc}") from None
         return value
 
-    def integer(self, name: str, default: Any = _REQUIRED, *, lo: int | None = None, hi: int | None = None,
-                unit: str = "") -> Any:
+    def integer(
+        self, name: str, default: Any = _REQUIRED, *, lo: int | None = None, hi: int | None = None, unit: str = ""
+    ) -> Any:
         expected = _range_text("an integer", lo, hi, unit)
         value = self.raw(name, default, expected)
         if value is default and name not in self.data:
             return value
-        if isinstance(value, bool) or not isinstance(value, int) or (lo is not None and value < lo) or (
-                hi is not None and value > hi):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int)
+            or (lo is not None and value < lo)
+            or (hi is not None and value > hi)
+        ):
             raise self.error(self.key(name), expected, value)
         return value
 
-    def number(self, name: str, default: Any = _REQUIRED, *, lo: float | None = None, hi: float | None = None,
-               lo_open: bool = False, unit: str = "") -> Any:
+    def number(
+        self,
+        name: str,
+        default: Any = _REQUIRED,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+        unit: str = "",
+    ) -> Any:
         expected = _range_text("a number", lo, hi, unit, lo_open=lo_open)
         value = self.raw(name, default, expected)
         if value is default and name not in self.data:
@@ -657,8 +697,10 @@ class _Table:
             if name not in self.used:
                 known = sorted(self.used)
                 where = f"[{self.path}]" if self.path else "the top level"
-                raise ConfigError(f"{self.source}: unknown key {self.key(name)}{_did_you_mean(name, known)}; "
-                                  f"keys allowed in {where}: {', '.join(known)}")
+                raise ConfigError(
+                    f"{self.source}: unknown key {self.key(name)}{_did_you_mean(name, known)}; "
+                    f"keys allowed in {where}: {', '.join(known)}"
+                )
 
 
 def _range_text(what: str, lo: float | None, hi: float | None, unit: str, *, lo_open: bool = False) -> str:
@@ -674,8 +716,12 @@ def _range_text(what: str, lo: float | None, hi: float | None, unit: str, *, lo_
 
 def _rigid_4x4(value: Any, key: str, source: str) -> tuple[tuple[float, ...], ...]:
     expected = "a 4x4 list of numbers (rigid transform: rotation, translation in mm, last row 0 0 0 1)"
-    if not (isinstance(value, list) and len(value) == 4 and all(isinstance(r, list) and len(r) == 4 for r in value)
-            and all(isinstance(v, int | float) and not isinstance(v, bool) for r in value for v in r)):
+    if not (
+        isinstance(value, list)
+        and len(value) == 4
+        and all(isinstance(r, list) and len(r) == 4 for r in value)
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for r in value for v in r)
+    ):
         raise ConfigError(f"{source}: key {key}: expected {expected}, found {_describe(value)}")
     matrix = np.array(value, dtype=np.float64)
     if not np.isfinite(matrix).all():
@@ -685,9 +731,11 @@ def _rigid_4x4(value: Any, key: str, source: str) -> tuple[tuple[float, ...], ..
     rotation = matrix[:3, :3]
     error = float(np.abs(rotation @ rotation.T - np.eye(3)).max())
     if error > 1e-4 or np.linalg.det(rotation) < 0:
-        raise ConfigError(f"{source}: key {key}: expected a rotation in the upper-left 3x3 (orthonormal, det +1, "
-                          f"to 1e-4), found max |R R^T - I| = {error:.3g}, det = {np.linalg.det(rotation):.4f}; "
-                          f"write at least 6 decimals, or re-run `skelfuse calibrate ...`")
+        raise ConfigError(
+            f"{source}: key {key}: expected a rotation in the upper-left 3x3 (orthonormal, det +1, "
+            f"to 1e-4), found max |R R^T - I| = {error:.3g}, det = {np.linalg.det(rotation):.4f}; "
+            f"write at least 6 decimals, or re-run `skelfuse calibrate ...`"
+        )
     return tuple(tuple(float(v) for v in row) for row in value)
 
 
@@ -732,8 +780,18 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
     top.done()
 
     _check_rig(sensors, sync, source)
-    return RigConfig(name=name, sensors=sensors, sync=sync, calibration=calibration, fusion=fusion, zenoh=zenoh,
-                     node=node, rerun=rerun, record=record, source=source)
+    return RigConfig(
+        name=name,
+        sensors=sensors,
+        sync=sync,
+        calibration=calibration,
+        fusion=fusion,
+        zenoh=zenoh,
+        node=node,
+        rerun=rerun,
+        record=record,
+        source=source,
+    )
 
 
 def _parse_sync(t: _Table | None) -> SyncConfig:
@@ -749,16 +807,22 @@ def _parse_sync(t: _Table | None) -> SyncConfig:
         by=by,
         fps=fps,
         # Above half a frame period, consecutive instants would fall into one group.
-        tolerance_ms=t.number("tolerance_ms", default_tolerance_ms, lo=0.0, lo_open=True,
-                              hi=round(half_period_ms, 3) - 0.001, unit="ms (below half a frame period)"),
-        deadline_ms=t.number("deadline_ms", max(17.0, half_period_ms), lo=0.0, lo_open=True, hi=10_000.0,
-                             unit="ms"),
+        tolerance_ms=t.number(
+            "tolerance_ms",
+            default_tolerance_ms,
+            lo=0.0,
+            lo_open=True,
+            hi=round(half_period_ms, 3) - 0.001,
+            unit="ms (below half a frame period)",
+        ),
+        deadline_ms=t.number("deadline_ms", max(17.0, half_period_ms), lo=0.0, lo_open=True, hi=10_000.0, unit="ms"),
         resync_after_frames=t.integer("resync_after_frames", 8, lo=1, hi=10_000),
         resync_horizon_ms=t.number("resync_horizon_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
     )
     if sync.resync_horizon_ms <= sync.tolerance_ms:
-        raise t.error(t.key("resync_horizon_ms"), f"a number > tolerance_ms ({sync.tolerance_ms:g})",
-                      sync.resync_horizon_ms)
+        raise t.error(
+            t.key("resync_horizon_ms"), f"a number > tolerance_ms ({sync.tolerance_ms:g})", sync.resync_horizon_ms
+        )
     t.done()
     return sync
 
@@ -787,16 +851,18 @@ def _parse_sensors(top: _Table, source: str, base_dir: Path | None) -> tuple[Sen
         options: dict[str, Any] = {}
         for other in SOURCE_KINDS:
             if other != kind and other in t.data:
-                raise ConfigError(f"{source}: key {t.key(other)}: a [{t.key(other)}] table belongs to source = "
-                                  f"{other!r} sensors, but this sensor has source = {kind!r}")
+                raise ConfigError(
+                    f"{source}: key {t.key(other)}: a [{t.key(other)}] table belongs to source = "
+                    f"{other!r} sensors, but this sensor has source = {kind!r}"
+                )
         if kind == "kinect":
             options["kinect"] = _parse_kinect(t.table("kinect"), t, sensor_id)
         elif kind == "replay":
             r = t.table("replay", required=True)
             assert r is not None
-            options["replay"] = ReplayConfig(file=r.path_value("file"),
-                                             sensor=r.string("sensor", None),
-                                             loop=r.boolean("loop", False))
+            options["replay"] = ReplayConfig(
+                file=r.path_value("file"), sensor=r.string("sensor", None), loop=r.boolean("loop", False)
+            )
             r.done()
         else:
             s_t = t.table("sim")
@@ -807,15 +873,19 @@ def _parse_sensors(top: _Table, source: str, base_dir: Path | None) -> tuple[Sen
             options["sim"] = sim
         for name in ("tracker",):
             if name in t.data:
-                raise ConfigError(f"{source}: unknown key {t.key(name)}; did you mean {t.key('kinect.' + name)}? "
-                                  "(tracker settings live under [sensors.kinect.tracker])")
+                raise ConfigError(
+                    f"{source}: unknown key {t.key(name)}; did you mean {t.key('kinect.' + name)}? "
+                    "(tracker settings live under [sensors.kinect.tracker])"
+                )
         t.done()
         sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, **options))
     ids = [s.id for s in sensors]
     for idx, sensor_id in enumerate(ids):
         if sensor_id in ids[:idx]:
-            raise ConfigError(f"{source}: key sensors[{idx}].id: expected a sensor id not used before, found "
-                              f"{sensor_id!r} again (also sensors[{ids.index(sensor_id)}].id)")
+            raise ConfigError(
+                f"{source}: key sensors[{idx}].id: expected a sensor id not used before, found "
+                f"{sensor_id!r} again (also sensors[{ids.index(sensor_id)}].id)"
+            )
     return tuple(sensors)
 
 
@@ -852,11 +922,15 @@ def _check_rig(sensors: tuple[SensorConfig, ...], sync: SyncConfig, source: str)
     masters = [i for i, s in roles if s.sync.role == "master"]
     subordinates = [(i, s) for i, s in roles if s.sync.role == "subordinate"]
     if len(masters) > 1:
-        raise ConfigError(f"{source}: key sensors[{masters[1]}].sync.role: expected one master per sync chain, "
-                          f"found a second master (sensors[{masters[0]}] is one already)")
+        raise ConfigError(
+            f"{source}: key sensors[{masters[1]}].sync.role: expected one master per sync chain, "
+            f"found a second master (sensors[{masters[0]}] is one already)"
+        )
     if subordinates and not masters:
-        raise ConfigError(f"{source}: key sensors[{subordinates[0][0]}].sync.role: a subordinate needs a master "
-                          f"in the rig, found none; set sync.role = \"master\" on the sensor at the head of the chain")
+        raise ConfigError(
+            f"{source}: key sensors[{subordinates[0][0]}].sync.role: a subordinate needs a master "
+            f'in the rig, found none; set sync.role = "master" on the sensor at the head of the chain'
+        )
     taken: list[tuple[int, str]] = [(0, f"sensors[{masters[0]}] (master)")] if masters else []
     for i, s in subordinates:
         for delay, owner in taken:
@@ -864,39 +938,50 @@ def _check_rig(sensors: tuple[SensorConfig, ...], sync: SyncConfig, source: str)
                 raise ConfigError(
                     f"{source}: key sensors[{i}].sync.delay_us: expected a delay at least {MIN_DELAY_SPACING_US} µs "
                     f"away from every other sensor's (IR interference), found {s.sync.delay_us} µs, "
-                    f"{abs(s.sync.delay_us - delay)} µs from {owner} at {delay} µs")
+                    f"{abs(s.sync.delay_us - delay)} µs from {owner} at {delay} µs"
+                )
         taken.append((s.sync.delay_us, f"sensors[{i}]"))
     if sync.by == "device" and subordinates:
         spread = max(s.sync.delay_us for _, s in subordinates)
         if spread >= sync.tolerance_us:
-            raise ConfigError(f"{source}: key sync.tolerance_ms: expected more than the largest subordinate delay "
-                              f"({spread} µs) so a master's and its subordinates' frames group together, found "
-                              f"{sync.tolerance_ms:g} ms")
+            raise ConfigError(
+                f"{source}: key sync.tolerance_ms: expected more than the largest subordinate delay "
+                f"({spread} µs) so a master's and its subordinates' frames group together, found "
+                f"{sync.tolerance_ms:g} ms"
+            )
     kinects = [(i, s) for i, s in enumerate(sensors) if s.kinect is not None]
     if kinects and not any(abs(sync.fps - f) < 1e-9 for f in KINECT_FPS):
-        raise ConfigError(f"{source}: key sync.fps: expected one of {KINECT_FPS} for an Azure Kinect rig, "
-                          f"found {sync.fps:g}")
+        raise ConfigError(
+            f"{source}: key sync.fps: expected one of {KINECT_FPS} for an Azure Kinect rig, found {sync.fps:g}"
+        )
     for i, s in kinects:
         assert s.kinect is not None
         if sync.fps > 15 and s.kinect.depth_mode == "WFOV_UNBINNED":
-            raise ConfigError(f"{source}: key sensors[{i}].kinect.depth_mode: WFOV_UNBINNED runs at 15 fps at most, "
-                              f"found sync.fps = {sync.fps:g}; use WFOV_2X2BINNED or NFOV_UNBINNED, or fps 15")
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.depth_mode: WFOV_UNBINNED runs at 15 fps at most, "
+                f"found sync.fps = {sync.fps:g}; use WFOV_2X2BINNED or NFOV_UNBINNED, or fps 15"
+            )
         if sync.fps > 15 and s.kinect.color_resolution == "3072P":
-            raise ConfigError(f"{source}: key sensors[{i}].kinect.color_resolution: 3072P runs at 15 fps at most, "
-                              f"found sync.fps = {sync.fps:g}")
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.color_resolution: 3072P runs at 15 fps at most, "
+                f"found sync.fps = {sync.fps:g}"
+            )
     if sync.by == "device" and len(kinects) > 1:
         unsynced = [i for i, s in kinects if s.sync.role == "standalone"]
         if unsynced:
             raise ConfigError(
-                f"{source}: key sensors[{unsynced[0]}].sync.role: [sync] by = \"device\" needs every kinect on one "
-                f"wired sync chain (independent devices' clocks do not share an epoch), found \"standalone\"; "
-                f"set master/subordinate roles, or use [sync] by = \"host\"")
+                f'{source}: key sensors[{unsynced[0]}].sync.role: [sync] by = "device" needs every kinect on one '
+                f'wired sync chain (independent devices\' clocks do not share an epoch), found "standalone"; '
+                f'set master/subordinate roles, or use [sync] by = "host"'
+            )
     serials = [(i, s.kinect.serial) for i, s in kinects if s.kinect is not None]
     for n, (i, serial) in enumerate(serials):
         earlier = [j for j, other in serials[:n] if other == serial]
         if earlier:
-            raise ConfigError(f"{source}: key sensors[{i}].kinect.serial: expected a serial not used before, "
-                              f"found {serial!r} again (also sensors[{earlier[0]}])")
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.serial: expected a serial not used before, "
+                f"found {serial!r} again (also sensors[{earlier[0]}])"
+            )
 
 
 def _parse_fusion(t: _Table | None) -> FusionConfig:
@@ -909,8 +994,12 @@ def _parse_fusion(t: _Table | None) -> FusionConfig:
         presets_module = None  # type: ignore[assignment]
     canonical = {name.upper(): name for name in FUSION_PRESETS}
     if preset.strip().upper() not in canonical:
-        raise t.error(t.key("preset"), f"one of {', '.join(FUSION_PRESETS)}", preset,
-                      _did_you_mean(preset.strip(), FUSION_PRESETS))
+        raise t.error(
+            t.key("preset"),
+            f"one of {', '.join(FUSION_PRESETS)}",
+            preset,
+            _did_you_mean(preset.strip(), FUSION_PRESETS),
+        )
     preset = canonical[preset.strip().upper()]
     eps_mm = t.number("eps_mm", None, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
     params: dict[str, Any] = {}
@@ -921,11 +1010,14 @@ def _parse_fusion(t: _Table | None) -> FusionConfig:
             p.used.add(name)
             key = p.key(name)
             if name == "eps_mm":
-                raise ConfigError(f"{p.source}: key {key}: set the DBSCAN radius with fusion.eps_mm, not in "
-                                  "[fusion.params]")
+                raise ConfigError(
+                    f"{p.source}: key {key}: set the DBSCAN radius with fusion.eps_mm, not in [fusion.params]"
+                )
             if fields and name not in fields:
-                raise ConfigError(f"{p.source}: unknown key {key}{_did_you_mean(name, list(fields))}; "
-                                  f"[fusion.params] takes FusionParams fields: {', '.join(sorted(fields))}")
+                raise ConfigError(
+                    f"{p.source}: unknown key {key}{_did_you_mean(name, list(fields))}; "
+                    f"[fusion.params] takes FusionParams fields: {', '.join(sorted(fields))}"
+                )
             params[name] = _fusion_value(value, fields.get(name), key, p.source)
         p.done()
     fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())))
@@ -984,8 +1076,10 @@ def _parse_zenoh(t: _Table | None) -> ZenohSection:
             c.used.add(key)
             normalized = key.strip("/")
             if normalized in _ZENOH_DEDICATED:
-                raise ConfigError(f'{c.source}: key zenoh.config."{key}": set this with zenoh.'
-                                  f"{_ZENOH_DEDICATED[normalized]} instead of the raw passthrough")
+                raise ConfigError(
+                    f'{c.source}: key zenoh.config."{key}": set this with zenoh.'
+                    f"{_ZENOH_DEDICATED[normalized]} instead of the raw passthrough"
+                )
             if not normalized or " " in normalized:
                 raise c.error(f'zenoh.config."{key}"', "a zenoh config path like 'transport/unicast/max_links'", key)
             raw[normalized] = value
@@ -1006,8 +1100,8 @@ def _parse_rerun(t: _Table | None) -> RerunConfig:
         log_sensors=t.boolean("log_sensors", True),
     )
     if mode == "save" and rerun.file is None:
-        raise ConfigError(f"{t.source}: key rerun.file is required when rerun.mode = \"save\" (an .rrd path)")
+        raise ConfigError(f'{t.source}: key rerun.file is required when rerun.mode = "save" (an .rrd path)')
     if mode != "save" and rerun.file is not None:
-        raise ConfigError(f"{t.source}: key rerun.file: only used with rerun.mode = \"save\", found mode {mode!r}")
+        raise ConfigError(f'{t.source}: key rerun.file: only used with rerun.mode = "save", found mode {mode!r}')
     t.done()
     return rerun

@@ -210,11 +210,15 @@ def format_summary(summary: DemoSummary) -> str:
         )
     lines += ["", f"Fusion time per frame: p50 {summary.fusion_p50_ms:.3f} ms, p99 {summary.fusion_p99_ms:.3f} ms."]
     if summary.latency_p50_ms is not None and summary.latency_p99_ms is not None:
-        lines.append(f"Latency, sensor publish -> fused frame received over zenoh: "
-                     f"p50 {summary.latency_p50_ms:.2f} ms, p99 {summary.latency_p99_ms:.2f} ms.")
+        lines.append(
+            f"Latency, sensor publish -> fused frame received over zenoh: "
+            f"p50 {summary.latency_p50_ms:.2f} ms, p99 {summary.latency_p99_ms:.2f} ms."
+        )
     if summary.node_added_p50_ms is not None and summary.node_added_p99_ms is not None:
-        lines.append(f"Added by the fusion node (last frame in -> fused frame out): p50 "
-                     f"{summary.node_added_p50_ms:.3f} ms, p99 {summary.node_added_p99_ms:.3f} ms.")
+        lines.append(
+            f"Added by the fusion node (last frame in -> fused frame out): p50 "
+            f"{summary.node_added_p50_ms:.3f} ms, p99 {summary.node_added_p99_ms:.3f} ms."
+        )
     if summary.recording:
         lines.append(f"Recording saved to {summary.recording}; open it with:  rerun {summary.recording}")
     return "\n".join(lines)
@@ -238,17 +242,37 @@ def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> 
 
     lines = [
         "# skelfuse demo rig, written by `skelfuse demo` (the paper's 4-sensor layout, simulated).",
-        "[rig]", f'name = "{DEMO_RIG}"', "",
-        "[sync]", 'by = "device"', "fps = 30.0", "tolerance_ms = 10.0", "deadline_ms = 17.0", "",
-        "[calibration]", 'file = "calibration.toml"', "",
-        "[fusion]", f'preset = "{preset_name}"', "",
-        "[zenoh]", 'mode = "peer"', "multicast_scouting = false", "",
+        "[rig]",
+        f'name = "{DEMO_RIG}"',
+        "",
+        "[sync]",
+        'by = "device"',
+        "fps = 30.0",
+        "tolerance_ms = 10.0",
+        "deadline_ms = 17.0",
+        "",
+        "[calibration]",
+        'file = "calibration.toml"',
+        "",
+        "[fusion]",
+        f'preset = "{preset_name}"',
+        "",
+        "[zenoh]",
+        'mode = "peer"',
+        "multicast_scouting = false",
+        "",
     ]
     for index, sensor in enumerate(paper_rig(n_sensors)):
         sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
         rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"sync = {sync}",
-                  f"world_from_sensor = [{rows}]", ""]
+        lines += [
+            "[[sensors]]",
+            f'id = "{sensor.sensor_id}"',
+            'source = "sim"',
+            f"sync = {sync}",
+            f"world_from_sensor = [{rows}]",
+            "",
+        ]
     path = directory / "rig.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
@@ -268,8 +292,9 @@ class _Scorer:
     Zenoh callbacks (several threads) only decode and store under a lock; scores are computed at the end.
     """
 
-    def __init__(self, truth: np.ndarray, fps: float, poses_calibrated: np.ndarray,
-                 sensor_ids: tuple[str, ...]) -> None:
+    def __init__(
+        self, truth: np.ndarray, fps: float, poses_calibrated: np.ndarray, sensor_ids: tuple[str, ...]
+    ) -> None:
         import threading
 
         self.truth = truth
@@ -298,7 +323,7 @@ class _Scorer:
         column = self.column.get(frame.sensor_id)
         world = None
         if column is not None and frame.n_bodies:
-            world = apply_transform(self.poses[column:column + 1], frame.positions[:1])[0]
+            world = apply_transform(self.poses[column : column + 1], frame.positions[:1])[0]
         with self.lock:
             self.published_ns[n] = max(self.published_ns.get(n, 0), frame.host_time_ns)
             if world is not None:
@@ -435,14 +460,21 @@ def run_demo(
     if serve:
         recording, server = open_recording(ViewOptions(mode="serve", application_id="skelfuse_demo"))
     else:
-        recording, server = open_recording(ViewOptions(mode="spawn" if spawn else "save", file=rrd_path,
-                                                       application_id="skelfuse_demo"))
+        recording, server = open_recording(
+            ViewOptions(mode="spawn" if spawn else "save", file=rrd_path, application_id="skelfuse_demo")
+        )
     workers: list[subprocess.Popen[bytes]] = []
     logs = []
     node_lifecycle = Lifecycle("fusion")
     session = zenoh.open(loopback_config(listen_port=port))
-    node = FusionNode(cfg, None, options=NodeOptions(node_name="fusion"), lifecycle=node_lifecycle, session=session,
-                      recording=recording)
+    node = FusionNode(
+        cfg,
+        None,
+        options=NodeOptions(node_name="fusion"),
+        lifecycle=node_lifecycle,
+        session=session,
+        recording=recording,
+    )
     scorer.on_error = lambda time_us, error: node.log_error(time_us, error)
     node_thread = threading.Thread(target=node.run, name="skelfuse-fusion-node", daemon=True)
     started = None
@@ -455,14 +487,38 @@ def run_demo(
             for sensor_id in cfg.sensor_ids:
                 log_file = open(workdir / f"capture-{sensor_id}.log", "wb")
                 logs.append(log_file)
-                command = [sys.executable, "-m", "skelfuse", "capture", "--config", str(rig_path), "--sensor",
-                           sensor_id, "--gesture", gesture, "--take-duration", str(take_duration_s), "--seed",
-                           str(seed), *loopback_args(connect_ports=[port])]
-                workers.append(subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log_file,
-                                                stderr=subprocess.STDOUT, start_new_session=True))
+                command = [
+                    sys.executable,
+                    "-m",
+                    "skelfuse",
+                    "capture",
+                    "--config",
+                    str(rig_path),
+                    "--sensor",
+                    sensor_id,
+                    "--gesture",
+                    gesture,
+                    "--take-duration",
+                    str(take_duration_s),
+                    "--seed",
+                    str(seed),
+                    *loopback_args(connect_ports=[port]),
+                ]
+                workers.append(
+                    subprocess.Popen(
+                        command,
+                        stdin=subprocess.DEVNULL,
+                        stdout=log_file,
+                        stderr=subprocess.STDOUT,
+                        start_new_session=True,
+                    )
+                )
             if progress:
-                print(f"skelfuse demo: starting 4 capture workers and the fusion node on tcp/127.0.0.1:{port} ...",
-                      file=sys.stderr, flush=True)
+                print(
+                    f"skelfuse demo: starting 4 capture workers and the fusion node on tcp/127.0.0.1:{port} ...",
+                    file=sys.stderr,
+                    flush=True,
+                )
             deadline = time.monotonic() + STARTUP_TIMEOUT_S
             while scorer.first_fused is None and not lifecycle.should_exit:
                 _check_workers(workers, workdir)
@@ -475,8 +531,13 @@ def run_demo(
                 _check_workers(workers, workdir)
                 lifecycle.wait(min(1.0, max(0.0, end - time.monotonic())))
                 if progress:
-                    print(f"\rskelfuse demo: {len(scorer.fused)} frames fused, {time.monotonic() - started:.0f}/"
-                          f"{duration_s:.0f} s", end="", file=sys.stderr, flush=True)
+                    print(
+                        f"\rskelfuse demo: {len(scorer.fused)} frames fused, {time.monotonic() - started:.0f}/"
+                        f"{duration_s:.0f} s",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
             if progress:
                 print("", file=sys.stderr)
     finally:
@@ -526,5 +587,7 @@ def _check_workers(workers: list[Any], workdir: Path) -> None:
         if process.poll() is not None:
             log_path = workdir / f"capture-{process.args[process.args.index('--sensor') + 1]}.log"
             tail = log_path.read_text(errors="replace").strip().splitlines()[-5:] if log_path.exists() else []
-            raise ServiceError(f"capture worker {' '.join(process.args[3:7])} exited with status {process.returncode}:"
-                               f"\n  " + "\n  ".join(tail))
+            raise ServiceError(
+                f"capture worker {' '.join(process.args[3:7])} exited with status {process.returncode}:"
+                f"\n  " + "\n  ".join(tail)
+            )

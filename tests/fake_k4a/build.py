@@ -37,8 +37,22 @@ def _compile(source: str, output: Path, abi: str) -> None:
     gcc = gcc_path()
     if gcc is None:
         raise RuntimeError("gcc is not on PATH: cannot build the fake Azure Kinect libraries")
-    command = [gcc, "-shared", "-fPIC", "-O1", "-std=c11", "-D_POSIX_C_SOURCE=200809L", "-Wall", "-Wextra", "-Werror",
-               f"-DFAKE_K4ABT_ABI={ABI_FLAGS[abi]}", f"-I{HERE}", str(HERE / source), "-o", str(output)]
+    command = [
+        gcc,
+        "-shared",
+        "-fPIC",
+        "-O1",
+        "-std=c11",
+        "-D_POSIX_C_SOURCE=200809L",
+        "-Wall",
+        "-Wextra",
+        "-Werror",
+        f"-DFAKE_K4ABT_ABI={ABI_FLAGS[abi]}",
+        f"-I{HERE}",
+        str(HERE / source),
+        "-o",
+        str(output),
+    ]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     if result.returncode != 0:
         raise RuntimeError(f"gcc failed building {source}:\n{' '.join(command)}\n{result.stderr}")

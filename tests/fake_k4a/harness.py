@@ -51,11 +51,29 @@ DEVICE_NAME = b"pyk4a device handle"
 
 
 class FakeStats(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_int32) for name in (
-        "created", "destroyed", "shutdowns", "frames_alive", "infinite_waits", "enqueued", "popped", "bad_captures",
-        "config_sensor_orientation", "config_processing_mode", "config_gpu_device_id")] + [
-        ("smoothing", ctypes.c_float), ("smoothing_calls", ctypes.c_int32), ("abi", ctypes.c_int32),
-        ("last_calibration", ctypes.c_void_p), ("last_capture", ctypes.c_void_p), ("model_path", ctypes.c_char * 512)]
+    _fields_ = [
+        (name, ctypes.c_int32)
+        for name in (
+            "created",
+            "destroyed",
+            "shutdowns",
+            "frames_alive",
+            "infinite_waits",
+            "enqueued",
+            "popped",
+            "bad_captures",
+            "config_sensor_orientation",
+            "config_processing_mode",
+            "config_gpu_device_id",
+        )
+    ] + [
+        ("smoothing", ctypes.c_float),
+        ("smoothing_calls", ctypes.c_int32),
+        ("abi", ctypes.c_int32),
+        ("last_calibration", ctypes.c_void_p),
+        ("last_capture", ctypes.c_void_p),
+        ("model_path", ctypes.c_char * 512),
+    ]
 
 
 class FakeK4abt:
@@ -66,8 +84,13 @@ class FakeK4abt:
         self.lib = ctypes.CDLL(str(path))
         self.lib.fake_k4abt_layout.restype = ctypes.c_size_t
         self.lib.fake_k4abt_layout.argtypes = [ctypes.c_char_p]
-        self.lib.fake_k4abt_script_frame.argtypes = [ctypes.c_uint64, ctypes.c_uint64, ctypes.c_uint32,
-                                                     ctypes.c_void_p, ctypes.c_void_p]
+        self.lib.fake_k4abt_script_frame.argtypes = [
+            ctypes.c_uint64,
+            ctypes.c_uint64,
+            ctypes.c_uint32,
+            ctypes.c_void_p,
+            ctypes.c_void_p,
+        ]
         self.lib.fake_k4abt_script_event.argtypes = [ctypes.c_int]
 
     def reset(self) -> None:
@@ -78,8 +101,15 @@ class FakeK4abt:
         assert value != ctypes.c_size_t(-1).value, f"fake knows no layout {name!r}"
         return value
 
-    def script_frame(self, device_us: int, system_ns: int, body_ids: np.ndarray, positions: np.ndarray,
-                     orientations: np.ndarray, confidence: np.ndarray) -> None:
+    def script_frame(
+        self,
+        device_us: int,
+        system_ns: int,
+        body_ids: np.ndarray,
+        positions: np.ndarray,
+        orientations: np.ndarray,
+        confidence: np.ndarray,
+    ) -> None:
         n = len(body_ids)
         raw = np.zeros((n, 32), dtype=[("position", "<f4", (3,)), ("orientation", "<f4", (4,)), ("confidence", "<i4")])
         raw["position"], raw["orientation"], raw["confidence"] = positions, orientations, confidence
@@ -303,9 +333,16 @@ def make_fake_pyk4a(world: FakeWorld) -> types.ModuleType:
     device_cls = type("PyK4A", (PyK4AConfigured,), {"world": world})
     playback_cls = type("PyK4APlayback", (FakePlayback,), {"world": world})
     module.__dict__.update(
-        K4AException=K4AException, K4ATimeoutException=K4ATimeoutException, ColorResolution=ColorResolution,
-        DepthMode=DepthMode, FPS=FPS, WiredSyncMode=WiredSyncMode, ImageFormat=ImageFormat, Config=Config,
-        PyK4A=device_cls, PyK4APlayback=playback_cls,
+        K4AException=K4AException,
+        K4ATimeoutException=K4ATimeoutException,
+        ColorResolution=ColorResolution,
+        DepthMode=DepthMode,
+        FPS=FPS,
+        WiredSyncMode=WiredSyncMode,
+        ImageFormat=ImageFormat,
+        Config=Config,
+        PyK4A=device_cls,
+        PyK4APlayback=playback_cls,
         connected_device_count=lambda: 0 if world.unplugged.is_set() else len(world.serials),
     )
     return module

@@ -24,17 +24,44 @@ from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_f
 RIG = "svc"
 
 
-def write_rig(directory: Path, *, by: str = "device", deadline_ms: float = 17.0, tolerance_ms: float | None = None,
-              status_period_s: float = 0.25, n_sensors: int = 4) -> Path:
+def write_rig(
+    directory: Path,
+    *,
+    by: str = "device",
+    deadline_ms: float = 17.0,
+    tolerance_ms: float | None = None,
+    status_period_s: float = 0.25,
+    n_sensors: int = 4,
+) -> Path:
     tolerance = tolerance_ms if tolerance_ms is not None else (10.0 if by == "device" else 13.0)
-    lines = ["[rig]", f'name = "{RIG}"', "", "[sync]", f'by = "{by}"', "fps = 30.0", f"tolerance_ms = {tolerance}",
-             f"deadline_ms = {deadline_ms}", "", "[node]", f"status_period_s = {status_period_s}", "",
-             "[zenoh]", "multicast_scouting = false", ""]
+    lines = [
+        "[rig]",
+        f'name = "{RIG}"',
+        "",
+        "[sync]",
+        f'by = "{by}"',
+        "fps = 30.0",
+        f"tolerance_ms = {tolerance}",
+        f"deadline_ms = {deadline_ms}",
+        "",
+        "[node]",
+        f"status_period_s = {status_period_s}",
+        "",
+        "[zenoh]",
+        "multicast_scouting = false",
+        "",
+    ]
     for index, sensor in enumerate(paper_rig(n_sensors)):
         sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
         rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += ["[[sensors]]", f'id = "{sensor.sensor_id}"', 'source = "sim"', f"sync = {sync}",
-                  f"world_from_sensor = [{rows}]", ""]
+        lines += [
+            "[[sensors]]",
+            f'id = "{sensor.sensor_id}"',
+            'source = "sim"',
+            f"sync = {sync}",
+            f"world_from_sensor = [{rows}]",
+            "",
+        ]
     path = directory / f"rig-{by}.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
@@ -49,8 +76,13 @@ class Processes:
 
     def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
         log = open(self.log_dir / f"{name}.log", "ab")
-        process = subprocess.Popen([sys.executable, "-m", "skelfuse", *args], stdin=subprocess.DEVNULL,
-                                   stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        process = subprocess.Popen(
+            [sys.executable, "-m", "skelfuse", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         process.log_file = log  # type: ignore[attr-defined]
         process.log_path = self.log_dir / f"{name}.log"  # type: ignore[attr-defined]
         self.started.append(process)
@@ -126,8 +158,9 @@ class Listener:
             found = [s for s in self.statuses if s.role == "fusion"]
         return found[-1] if found else None
 
-    def wait_for(self, predicate: Callable[[], bool], timeout_s: float, what: str,
-                 logs: Callable[[], str] = str) -> None:
+    def wait_for(
+        self, predicate: Callable[[], bool], timeout_s: float, what: str, logs: Callable[[], str] = str
+    ) -> None:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if predicate():
@@ -144,14 +177,22 @@ class Listener:
 
 
 def node_args(config: Path, port: int, *extra: str) -> list[str]:
-    return ["fuse", "--config", str(config), "--no-view", "--duration", "120", *extra,
-            *loopback_args(listen_port=port)]
+    return ["fuse", "--config", str(config), "--no-view", "--duration", "120", *extra, *loopback_args(listen_port=port)]
 
 
 def worker_args(config: Path, port: int, sensor_id: str, *extra: str, listener: Listener | None = None) -> list[str]:
     ports = [port] if listener is None else [port, listener.port]
-    return ["capture", "--config", str(config), "--sensor", sensor_id, "--take-duration", "4", *extra,
-            *loopback_args(connect_ports=ports)]
+    return [
+        "capture",
+        "--config",
+        str(config),
+        "--sensor",
+        sensor_id,
+        "--take-duration",
+        "4",
+        *extra,
+        *loopback_args(connect_ports=ports),
+    ]
 
 
 def start_node(processes: Processes, config: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Listener]:
@@ -159,6 +200,10 @@ def start_node(processes: Processes, config: Path, port: int, *extra: str) -> tu
     node = processes.start("node", *node_args(config, port, *extra))
     assert wait_for_port(port, timeout_s=60.0), f"the node never listened on {port}:\n{processes.log(node)}"
     listener = Listener(port)
-    listener.wait_for(lambda: listener.fusion_status() is not None, 60.0, "the fusion node's first status",
-                      lambda: processes.log(node))
+    listener.wait_for(
+        lambda: listener.fusion_status() is not None,
+        60.0,
+        "the fusion node's first status",
+        lambda: processes.log(node),
+    )
     return node, listener

@@ -31,21 +31,26 @@ BIRTH_FRAMES = 3
 """PeopleFuser's default: instants a person must be seen before it is output."""
 
 
-def test_live_rig_equals_offline_fusion_of_the_same_frames(tmp_path: Path, processes: Processes,
-                                                           node_port: int) -> None:
+def test_live_rig_equals_offline_fusion_of_the_same_frames(
+    tmp_path: Path, processes: Processes, node_port: int
+) -> None:
     """4 sim workers -> node; the fused stream equals fuse_recording() of the frames the workers published."""
     # A long deadline: a frame delayed by a loaded CI machine is still grouped live as offline would group it.
     config = write_rig(tmp_path, deadline_ms=200.0)
     node, listener = start_node(processes, config, node_port)
     try:
-        workers = [processes.start(f"w{i}", *worker_args(config, node_port, sid, "--duration", "3.5",
-                                                         listener=listener))
-                   for i, sid in enumerate(SENSORS)]
+        workers = [
+            processes.start(f"w{i}", *worker_args(config, node_port, sid, "--duration", "3.5", listener=listener))
+            for i, sid in enumerate(SENSORS)
+        ]
         for worker in workers:
             worker.wait(60.0)
             assert worker.returncode == 0, processes.log(worker)
-        listener.wait_for(lambda: bool(listener.fused) and time.monotonic() - listener.fused[-1][0] > 0.5, 10.0,
-                          "the fused stream to settle")
+        listener.wait_for(
+            lambda: bool(listener.fused) and time.monotonic() - listener.fused[-1][0] > 0.5,
+            10.0,
+            "the fused stream to settle",
+        )
         assert processes.stop(node) == 0, processes.log(node)
         time.sleep(0.3)
         frames = listener.sensor_frames()
@@ -78,8 +83,9 @@ def test_live_rig_equals_offline_fusion_of_the_same_frames(tmp_path: Path, proce
     assert complete >= 30, f"only {complete} instants fused all four sensors"
 
 
-def test_kill_9_one_worker_fusion_goes_on_and_takes_it_back(tmp_path: Path, processes: Processes,
-                                                          node_port: int) -> None:
+def test_kill_9_one_worker_fusion_goes_on_and_takes_it_back(
+    tmp_path: Path, processes: Processes, node_port: int
+) -> None:
     """kill -9 a capture worker: 3-sensor fusion at full rate within a deadline; a restart is taken back."""
     config = write_rig(tmp_path)
     node, listener = start_node(processes, config, node_port)
@@ -114,8 +120,12 @@ def test_kill_9_one_worker_fusion_goes_on_and_takes_it_back(tmp_path: Path, proc
 
         restarted_at = time.monotonic()
         workers["capture_3"] = processes.start("capture_3-again", *worker_args(config, node_port, "capture_3"))
-        listener.wait_for(lambda: with_all_four() and listener.fused[-1][0] > restarted_at, 60.0,
-                          "the restarted sensor fused again", lambda: processes.log(workers["capture_3"]))
+        listener.wait_for(
+            lambda: with_all_four() and listener.fused[-1][0] > restarted_at,
+            60.0,
+            "the restarted sensor fused again",
+            lambda: processes.log(workers["capture_3"]),
+        )
         status = listener.fusion_status()
         assert status.info["sensors"]["capture_3"]["last_seen_s"] < 1.0
         for worker in workers.values():
@@ -127,6 +137,7 @@ def test_kill_9_one_worker_fusion_goes_on_and_takes_it_back(tmp_path: Path, proc
 
 def _corrupt(good: bytes) -> list[tuple[str, bytes]]:
     """(expected reject reason, payload) for every kind of corruption; ``good`` is a one-body sensor frame."""
+
     def patched(offset: int, fmt: str, value: object) -> bytes:
         data = bytearray(good)
         struct.pack_into(fmt, data, offset, value)
@@ -146,8 +157,9 @@ def _corrupt(good: bytes) -> list[tuple[str, bytes]]:
     ]
 
 
-def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(tmp_path: Path, processes: Processes,
-                                                                          node_port: int) -> None:
+def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(
+    tmp_path: Path, processes: Processes, node_port: int
+) -> None:
     # capture_3 never delivers a valid frame, so every instant waits for its deadline; 100 ms keeps a good
     # frame delayed by a loaded CI machine from counting as late.
     config = write_rig(tmp_path, deadline_ms=100.0)
@@ -164,17 +176,28 @@ def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(tmp_p
             delay = start + k / 30.0 - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            stamped = [dataclasses.replace(f, sequence=k, device_time_us=base_us + round(k * 1e6 / 30) + 160 * i,
-                                           host_time_ns=time.time_ns()) for i, f in enumerate(frames[k])]
+            stamped = [
+                dataclasses.replace(
+                    f, sequence=k, device_time_us=base_us + round(k * 1e6 / 30) + 160 * i, host_time_ns=time.time_ns()
+                )
+                for i, f in enumerate(frames[k])
+            ]
             for frame in stamped[:3]:
                 publishers[frame.sensor_id].put(encode_sensor_frame(frame))
             reason, payload = _corrupt(encode_sensor_frame(stamped[3]))[k % 9]
             publishers["capture_3"].put(payload)
             sent_reasons[reason] = sent_reasons.get(reason, 0) + 1
         total = sum(sent_reasons.values())
-        listener.wait_for(lambda: (s := listener.fusion_status()) is not None and s.counters.get("invalid") == total
-                          and s.counters["frames_out"] >= n_instants, 10.0, "the rejects counted",
-                          lambda: str(listener.fusion_status()))
+        listener.wait_for(
+            lambda: (
+                (s := listener.fusion_status()) is not None
+                and s.counters.get("invalid") == total
+                and s.counters["frames_out"] >= n_instants
+            ),
+            10.0,
+            "the rejects counted",
+            lambda: str(listener.fusion_status()),
+        )
         status = listener.fusion_status()
         assert node.poll() is None, "the node died"
         for reason, count in sent_reasons.items():
@@ -188,17 +211,18 @@ def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(tmp_p
         fused = [f for _, f in listener.fused]
         assert len(fused) == n_instants
         # The person is output once its track is confirmed (BIRTH_FRAMES instants), then in every instant.
-        assert [f.n_persons for f in fused[:BIRTH_FRAMES - 1]] == [0] * (BIRTH_FRAMES - 1)
-        assert all(f.n_persons == 1 and f.track_ids.tolist() == [1] for f in fused[BIRTH_FRAMES - 1:])
-        assert all(f.contributors[0].tolist() == [True, True, True, False] for f in fused[BIRTH_FRAMES - 1:])
+        assert [f.n_persons for f in fused[: BIRTH_FRAMES - 1]] == [0] * (BIRTH_FRAMES - 1)
+        assert all(f.n_persons == 1 and f.track_ids.tolist() == [1] for f in fused[BIRTH_FRAMES - 1 :])
+        assert all(f.contributors[0].tolist() == [True, True, True, False] for f in fused[BIRTH_FRAMES - 1 :])
         assert processes.stop(node) == 0, processes.log(node)
     finally:
         listener.close()
 
 
 @pytest.mark.parametrize("by", ["device", "host"])
-def test_grouping_with_constant_offsets_and_jitter(tmp_path: Path, processes: Processes, node_port: int,
-                                                   by: str) -> None:
+def test_grouping_with_constant_offsets_and_jitter(
+    tmp_path: Path, processes: Processes, node_port: int, by: str
+) -> None:
     """Per-sensor clock offsets, jitter and shuffled arrival: every instant fused once, all four sensors in it.
 
     device: subordinate delays 0/160/320/480 us plus +-60 us jitter. host: per-sensor host latency offsets
@@ -227,15 +251,19 @@ def test_grouping_with_constant_offsets_and_jitter(tmp_path: Path, processes: Pr
                     host = time.time_ns()
                 else:
                     device = 10**12 * (i + 1) + k * 33_333  # unrelated device clocks
-                    host = instant_us * 1000 + [0, 4_000_000, -3_000_000, 2_000_000][i] + rng.randint(-10**6, 10**6)
+                    host = instant_us * 1000 + [0, 4_000_000, -3_000_000, 2_000_000][i] + rng.randint(-(10**6), 10**6)
                 stamped.append(dataclasses.replace(frame, sequence=k, device_time_us=device, host_time_ns=host))
             expected_times.append(min(f.device_time_us if by == "device" else f.host_time_ns // 1000 for f in stamped))
             rng.shuffle(stamped)
             for frame in stamped:
                 publishers[frame.sensor_id].put(encode_sensor_frame(frame))
                 time.sleep(rng.uniform(0, 0.002))
-        listener.wait_for(lambda: len(listener.fused) >= n_instants, 10.0, f"{n_instants} fused frames",
-                          lambda: str(listener.fusion_status()))
+        listener.wait_for(
+            lambda: len(listener.fused) >= n_instants,
+            10.0,
+            f"{n_instants} fused frames",
+            lambda: str(listener.fusion_status()),
+        )
         time.sleep(0.3)
         fused = [f for _, f in listener.fused]
         assert [f.time_us for f in fused] == expected_times

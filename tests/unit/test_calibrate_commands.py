@@ -46,8 +46,10 @@ def _run(argv: list[str]) -> int:
 
 
 def _pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    return (rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
-            float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])))
+    return (
+        rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
+        float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])),
+    )
 
 
 # ------------------------------------------------------------------------------------------ RGB-D takes
@@ -78,8 +80,9 @@ def plate_folder(tmp_path_factory, rig) -> Path:
     scene = Scene(quads=[*room(floor_z_mm=-5.0), plate])
     master = rig[0]
     view = render(master.world_from_sensor, FULL, scene, rng=np.random.default_rng(SEED + 1))
-    return save_rgbd_folder(tmp_path_factory.mktemp("plate"), {master.sensor_id: [view]}, {master.sensor_id: FULL},
-                            start_index=7)
+    return save_rgbd_folder(
+        tmp_path_factory.mktemp("plate"), {master.sensor_id: [view]}, {master.sensor_id: FULL}, start_index=7
+    )
 
 
 def test_rgbd_folder_round_trip(ball_folder: Path, rig) -> None:
@@ -110,8 +113,9 @@ def test_rgbd_folder_errors_name_what_is_missing(tmp_path: Path, ball_folder: Pa
         load_rgbd_folder(tmp_path / "bad")
 
 
-def test_sphere_then_marker_put_the_rig_in_the_world(tmp_path: Path, ball_folder: Path, plate_folder: Path, rig,
-                                                     capsys) -> None:
+def test_sphere_then_marker_put_the_rig_in_the_world(
+    tmp_path: Path, ball_folder: Path, plate_folder: Path, rig, capsys
+) -> None:
     out = tmp_path / "calibration.toml"
     rrd = tmp_path / "sphere.rrd"
     assert _run(["sphere", str(ball_folder), "--output", str(out), "--rrd", str(rrd), "-q"]) == 0
@@ -159,8 +163,21 @@ def test_sphere_bad_inputs(tmp_path: Path, ball_folder: Path, plate_folder: Path
     with pytest.raises(DataError, match="at least two sensors"):
         _run(["sphere", str(plate_folder), "-o", str(tmp_path / "a.toml"), "-q"])
     with pytest.raises(CalibrationError, match="frames show the ball to every sensor"):
-        _run(["sphere", str(ball_folder), "-o", str(tmp_path / "a.toml"), "--radius-mm", "100", "--min-frames", "8",
-              "--max-frames", "4", "-q"])
+        _run(
+            [
+                "sphere",
+                str(ball_folder),
+                "-o",
+                str(tmp_path / "a.toml"),
+                "--radius-mm",
+                "100",
+                "--min-frames",
+                "8",
+                "--max-frames",
+                "4",
+                "-q",
+            ]
+        )
     with pytest.raises(SystemExit):
         _run(["sphere", str(ball_folder), "--radius-mm", "-3"])
     config = tmp_path / "rig.toml"
@@ -187,12 +204,20 @@ def walk(tmp_path_factory):
                 n = 1 if tracked else 0
                 orientations = np.zeros((n, N_JOINTS, 4), np.float32)
                 orientations[..., 0] = 1.0
-                writer.write(SensorFrame(
-                    sensor_id=sensor_id, sequence=t, device_time_us=int(obs.device_time_us[t, s]),
-                    host_time_ns=int(obs.host_time_ns[t, s]), body_ids=np.arange(n, dtype=np.uint32),
-                    positions=(pos[None] if tracked else np.zeros((0, N_JOINTS, 3))).astype(np.float32),
-                    orientations=orientations,
-                    confidence=(obs.confidence[t, s][None] if tracked else np.zeros((0, N_JOINTS))).astype(np.uint8)))
+                writer.write(
+                    SensorFrame(
+                        sensor_id=sensor_id,
+                        sequence=t,
+                        device_time_us=int(obs.device_time_us[t, s]),
+                        host_time_ns=int(obs.host_time_ns[t, s]),
+                        body_ids=np.arange(n, dtype=np.uint32),
+                        positions=(pos[None] if tracked else np.zeros((0, N_JOINTS, 3))).astype(np.float32),
+                        orientations=orientations,
+                        confidence=(obs.confidence[t, s][None] if tracked else np.zeros((0, N_JOINTS))).astype(
+                            np.uint8
+                        ),
+                    )
+                )
     return obs, path
 
 
@@ -207,8 +232,10 @@ def _relative_errors(poses: dict, obs, subject_world: np.ndarray = SUBJECT_WORLD
         true_rel = truth_master @ obs.world_from_sensor[s]
         est_rel = est_master @ poses[sensor_id]
         subject = invert_transform(obs.world_from_sensor[s]) @ np.r_[subject_world, 1.0]
-        out[sensor_id] = (rotation_angle_deg(est_rel[:3, :3] @ true_rel[:3, :3].T),
-                          float(np.linalg.norm((est_rel @ subject)[:3] - (true_rel @ subject)[:3])))
+        out[sensor_id] = (
+            rotation_angle_deg(est_rel[:3, :3] @ true_rel[:3, :3].T),
+            float(np.linalg.norm((est_rel @ subject)[:3] - (true_rel @ subject)[:3])),
+        )
     return out
 
 
@@ -239,8 +266,23 @@ def test_skeleton_command_recovers_the_rig(walk, skeleton_file: Path) -> None:
 def test_skeleton_report_is_printed(walk, tmp_path: Path, capsys) -> None:
     _, recording = walk
     out = tmp_path / "c.toml"
-    assert _run(["skeleton", "--recording", str(recording), "-o", str(out), "--max-frames", "400",
-                 "--master", "capture_1", "-q"]) == 0
+    assert (
+        _run(
+            [
+                "skeleton",
+                "--recording",
+                str(recording),
+                "-o",
+                str(out),
+                "--max-frames",
+                "400",
+                "--master",
+                "capture_1",
+                "-q",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "Skeleton calibration: 4 sensors, master capture_1" in printed
     assert f"written to {out}" in printed
@@ -256,8 +298,10 @@ def test_bad_verdict_exits_3_and_keeps_the_file(walk, tmp_path: Path, capsys) ->
     printed = capsys.readouterr().out
     assert "bad" in printed and "not written" in printed and "record a longer walk" in printed
     assert out.read_text() == "# the good calibration\n"
-    assert _run(["skeleton", "--recording", str(recording), "-o", str(out), "--max-frames", "15", "-q",
-                 "--force"]) == EXIT_ATTENTION
+    assert (
+        _run(["skeleton", "--recording", str(recording), "-o", str(out), "--max-frames", "15", "-q", "--force"])
+        == EXIT_ATTENTION
+    )
     assert read_calibration(out).method == "skeleton"
     # 4 frames: nothing links the sensors; the library says what to record.
     with pytest.raises(CalibrationError, match="could not link sensors"):
@@ -273,8 +317,12 @@ def test_check_passes_then_flags_a_moved_sensor(walk, skeleton_file: Path, tmp_p
     bump = np.eye(4)
     bump[:3, :3] = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
     moved = dict(stored.sensors)
-    moved["capture_2"] = type(moved["capture_2"])(moved["capture_2"].world_from_sensor @ bump, "skeleton",
-                                                  moved["capture_2"].residual_mm, moved["capture_2"].n_points)
+    moved["capture_2"] = type(moved["capture_2"])(
+        moved["capture_2"].world_from_sensor @ bump,
+        "skeleton",
+        moved["capture_2"].residual_mm,
+        moved["capture_2"].n_points,
+    )
     knocked = write_calibration(tmp_path / "knocked.toml", type(stored)(moved, "skeleton", stored.master))
     assert _run(["check", "--recording", str(recording), "--calibration", str(knocked), "-q"]) == EXIT_ATTENTION
     printed = capsys.readouterr().out
@@ -312,13 +360,30 @@ def test_takes_from_per_sensor_json_files(tmp_path: Path, walk) -> None:
         frames = []
         for t in range(300):  # 10 s
             pos = obs.positions[t, s]
-            bodies = [] if not np.isfinite(pos).all() else [{
-                "body_id": 1, "joint_positions": pos.astype(float).tolist(),
-                "joint_orientations": [[1.0, 0.0, 0.0, 0.0]] * N_JOINTS}]
+            bodies = (
+                []
+                if not np.isfinite(pos).all()
+                else [
+                    {
+                        "body_id": 1,
+                        "joint_positions": pos.astype(float).tolist(),
+                        "joint_orientations": [[1.0, 0.0, 0.0, 0.0]] * N_JOINTS,
+                    }
+                ]
+            )
             frames.append({"timestamp_usec": t * 33333, "frame_id": t, "num_bodies": len(bodies), "bodies": bodies})
         path = tmp_path / f"{sensor_id}.json"
-        path.write_text(json.dumps({"k4abt_sdk_version": "1.1.2", "source_file": "x.mkv",
-                                    "joint_names": list(JOINT_NAMES), "bone_list": [], "frames": frames}))
+        path.write_text(
+            json.dumps(
+                {
+                    "k4abt_sdk_version": "1.1.2",
+                    "source_file": "x.mkv",
+                    "joint_names": list(JOINT_NAMES),
+                    "bone_list": [],
+                    "frames": frames,
+                }
+            )
+        )
         takes += ["--take", f"{sensor_id}={path}"]
     out = tmp_path / "c.toml"
     assert _run(["skeleton", *takes, "-o", str(out), "-q"]) == 0
@@ -334,7 +399,8 @@ def _rig_config(tmp_path: Path) -> Path:
     path.write_text(
         '[rig]\nname = "lab"\n[calibration]\nfile = "cal.toml"\n'
         '[[sensors]]\nid = "111"\nsource = "kinect"\nsync = { role = "master" }\n'
-        '[[sensors]]\nid = "222"\nsource = "kinect"\nsync = { role = "subordinate", delay_us = 160 }\n')
+        '[[sensors]]\nid = "222"\nsource = "kinect"\nsync = { role = "subordinate", delay_us = 160 }\n'
+    )
     return path
 
 
@@ -393,9 +459,19 @@ def _fake_pyk4a(scene_frames: dict[str, list], intrinsics: Intrinsics) -> types.
         return types.SimpleNamespace(**kwargs)
 
     module = types.ModuleType("pyk4a")
-    module.__dict__.update(K4AException=K4AException, PyK4A=PyK4A, Config=config, connected_device_count=lambda: 2,
-                           ColorResolution=Enum(), ImageFormat=Enum(), DepthMode=Enum(), FPS=Enum(),
-                           WiredSyncMode=Enum(), CalibrationType=Enum(), started=started)
+    module.__dict__.update(
+        K4AException=K4AException,
+        PyK4A=PyK4A,
+        Config=config,
+        connected_device_count=lambda: 2,
+        ColorResolution=Enum(),
+        ImageFormat=Enum(),
+        DepthMode=Enum(),
+        FPS=Enum(),
+        WiredSyncMode=Enum(),
+        CalibrationType=Enum(),
+        started=started,
+    )
     return module
 
 
@@ -405,8 +481,24 @@ def test_capture_writes_the_folder_layout(tmp_path: Path, monkeypatch, ball_fold
     fake = _fake_pyk4a(scene, BINNED)
     monkeypatch.setitem(sys.modules, "pyk4a", fake)
     out = tmp_path / "rgbd"
-    assert _run(["capture", "--config", str(_rig_config(tmp_path)), "--out", str(out), "--frames", "4",
-                 "--every", "1", "--warmup", "0"]) == 0
+    assert (
+        _run(
+            [
+                "capture",
+                "--config",
+                str(_rig_config(tmp_path)),
+                "--out",
+                str(out),
+                "--frames",
+                "4",
+                "--every",
+                "1",
+                "--warmup",
+                "0",
+            ]
+        )
+        == 0
+    )
     assert fake.started == ["222", "111"]  # subordinates first
     loaded, intrinsics = load_rgbd_folder(out)
     assert sorted(loaded) == ["111", "222"] and len(loaded["111"]) == 4
@@ -429,7 +521,7 @@ def test_capture_without_pyk4a_names_the_extra_and_the_sdk(tmp_path: Path, monke
 def test_capture_needs_kinect_sensors(tmp_path: Path) -> None:
     config = tmp_path / "sim.toml"
     config.write_text('[rig]\nname = "lab"\n[[sensors]]\nid = "a"\nsource = "sim"\n')
-    with pytest.raises(ConfigError, match="no sensor with source = \"kinect\""):
+    with pytest.raises(ConfigError, match='no sensor with source = "kinect"'):
         _run(["capture", "--config", str(config), "--out", str(tmp_path / "o")])
 
 

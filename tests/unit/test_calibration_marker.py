@@ -20,8 +20,10 @@ MARKER_MM = 200.0
 
 
 def _pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    return (rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
-            float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])))
+    return (
+        rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
+        float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +33,18 @@ def plate_scene() -> Scene:
 
 
 @pytest.mark.parametrize("centre_method", ["plane", "mean"])
-@pytest.mark.parametrize("sensor", [paper_rig(4)[0], look_at("high", (1300.0, -1000.0, 1700.0), (-200.0, -200.0, 0.0))],
-                         ids=["paper-rig", "high"])
+@pytest.mark.parametrize(
+    "sensor",
+    [paper_rig(4)[0], look_at("high", (1300.0, -1000.0, 1700.0), (-200.0, -200.0, 0.0))],
+    ids=["paper-rig", "high"],
+)
 def test_world_from_master_is_recovered(plate_scene: Scene, sensor, centre_method: str) -> None:
-    color, depth = render(sensor.world_from_sensor, INTRINSICS, plate_scene, rng=np.random.default_rng(SEED),
-                          depth_noise_mm=2.5)
-    result, observations = calibrate_world_from_marker(color, depth, INTRINSICS, sensor.sensor_id,
-                                                       marker_mm=MARKER_MM, centre_method=centre_method)
+    color, depth = render(
+        sensor.world_from_sensor, INTRINSICS, plate_scene, rng=np.random.default_rng(SEED), depth_noise_mm=2.5
+    )
+    result, observations = calibrate_world_from_marker(
+        color, depth, INTRINSICS, sensor.sensor_id, marker_mm=MARKER_MM, centre_method=centre_method
+    )
     entry = result.sensors[sensor.sensor_id]
     angle_deg, offset_mm = _pose_error(entry.world_from_sensor, sensor.world_from_sensor)
     assert angle_deg < 0.5
@@ -56,7 +63,9 @@ def test_marker_calibration_reanchors_a_sphere_calibration(plate_scene: Scene) -
     master_from_world = invert_transform(master.world_from_sensor)
     sphere = CalibrationResult(
         {s.sensor_id: SensorCalibration(master_from_world @ s.world_from_sensor, "sphere", 1.0, 50) for s in rig},
-        "sphere", master.sensor_id)
+        "sphere",
+        master.sensor_id,
+    )
     color, depth = render(master.world_from_sensor, INTRINSICS, plate_scene, rng=np.random.default_rng(SEED + 1))
     result, _ = calibrate_world_from_marker(color, depth, INTRINSICS, master.sensor_id, calibration=sphere)
     for sensor in rig:
@@ -90,8 +99,12 @@ def test_wrong_dictionary_says_nothing_was_detected(plate_scene: Scene) -> None:
 
 def test_axes_follow_the_paper_and_are_orthonormal() -> None:
     """Centres in a sensor frame: x from 2 to 1, y from 0 to 1, z up, origin at 1; a skewed y is split evenly."""
-    centres = {1: np.array([100.0, 200.0, 2000.0]), 2: np.array([-300.0, 200.0, 2000.0]),
-               0: np.array([100.0, 200.0 + 400.0, 2000.0 + 4.0]), 3: np.array([-300.0, 600.0, 2004.0])}
+    centres = {
+        1: np.array([100.0, 200.0, 2000.0]),
+        2: np.array([-300.0, 200.0, 2000.0]),
+        0: np.array([100.0, 200.0 + 400.0, 2000.0 + 4.0]),
+        3: np.array([-300.0, 600.0, 2004.0]),
+    }
     world_from_sensor, residual = world_from_marker_centres(centres)
     R = world_from_sensor[:3, :3]
     assert np.linalg.det(R) == pytest.approx(1.0)

@@ -30,14 +30,18 @@ HIDDEN = (0, 1, 2)  # frames in which capture_1 does not see the ball
 def _trajectory(n: int) -> np.ndarray:
     """A person carrying the ball through the capture area: a wobbly loop, 0.6-1.6 m high."""
     theta = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    return np.stack([650 * np.cos(theta), 500 * np.sin(2 * theta) + 100 * np.cos(3 * theta),
-                     1100 + 450 * np.sin(1.5 * theta)], axis=1)
+    return np.stack(
+        [650 * np.cos(theta), 500 * np.sin(2 * theta) + 100 * np.cos(3 * theta), 1100 + 450 * np.sin(1.5 * theta)],
+        axis=1,
+    )
 
 
 def _pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(rotation error deg, translation error mm) between two 4x4 poses."""
-    return (rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
-            float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])))
+    return (
+        rotation_angle_deg(estimate[:3, :3] @ truth[:3, :3].T),
+        float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +49,10 @@ def sphere_take() -> tuple[list, dict, np.ndarray]:
     rng = np.random.default_rng(SEED)
     rig = paper_rig(3)
     background = room(floor_z_mm=-5.0)
-    distractors = [Sphere((-900.0, 700.0, 250.0), 150.0, (40, 160, 40)),
-                   Sphere((900.0, -800.0, 200.0), 120.0, (180, 90, 30))]
+    distractors = [
+        Sphere((-900.0, 700.0, 250.0), 150.0, (40, 160, 40)),
+        Sphere((900.0, -800.0, 200.0), 120.0, (180, 90, 30)),
+    ]
     centres = _trajectory(N_FRAMES)
     frames: dict[str, list] = {s.sensor_id: [] for s in rig}
     for i, centre in enumerate(centres):
@@ -54,8 +60,9 @@ def sphere_take() -> tuple[list, dict, np.ndarray]:
         without = Scene(spheres=distractors, quads=background)
         for sensor in rig:
             scene = without if (sensor.sensor_id == "capture_1" and i in HIDDEN) else with_ball
-            frames[sensor.sensor_id].append(render(sensor.world_from_sensor, INTRINSICS, scene, rng=rng,
-                                                   depth_noise_mm=2.5))
+            frames[sensor.sensor_id].append(
+                render(sensor.world_from_sensor, INTRINSICS, scene, rng=rng, depth_noise_mm=2.5)
+            )
     return rig, frames, centres
 
 
@@ -78,7 +85,7 @@ def test_histogram_from_a_sample_of_the_ball_finds_it_too(sphere_take) -> None:
     u, v = INTRINSICS.project(in_sensor).round().astype(int)
     half = int(0.6 * INTRINSICS.fx * PAPER_RADIUS_MM / in_sensor[2])  # a box inside the ball's disc
     roi = np.zeros(depth.shape, np.uint8)
-    roi[v - half:v + half + 1, u - half:u + half + 1] = 1
+    roi[v - half : v + half + 1, u - half : u + half + 1] = 1
     hist = sphere_histogram(color, roi)
     found = detect_sphere_center(*frames["capture_0"][10], INTRINSICS, PAPER_RADIUS_MM, hist)
     assert found is not None
@@ -87,8 +94,9 @@ def test_histogram_from_a_sample_of_the_ball_finds_it_too(sphere_take) -> None:
 
 def test_sphere_calibration_recovers_the_rig(sphere_take) -> None:
     rig, frames, _ = sphere_take
-    result = calibrate_from_sphere(frames, dict.fromkeys(frames, INTRINSICS), PAPER_RADIUS_MM, "capture_0",
-                                   progress=False)
+    result = calibrate_from_sphere(
+        frames, dict.fromkeys(frames, INTRINSICS), PAPER_RADIUS_MM, "capture_0", progress=False
+    )
     assert result.master == "capture_0" and result.method == "sphere"
     master_from_world = invert_transform(rig[0].world_from_sensor)
     for sensor in rig:
@@ -129,8 +137,12 @@ def test_ransac_ignores_a_red_poster_touching_the_ball() -> None:
 def test_no_ball_gives_none() -> None:
     rng = np.random.default_rng(SEED + 2)
     sensor = paper_rig(1)[0]
-    color, depth = render(sensor.world_from_sensor, INTRINSICS,
-                          Scene(spheres=[Sphere((0.0, 0.0, 800.0), 200.0, (40, 160, 40))], quads=room()), rng=rng)
+    color, depth = render(
+        sensor.world_from_sensor,
+        INTRINSICS,
+        Scene(spheres=[Sphere((0.0, 0.0, 800.0), 200.0, (40, 160, 40))], quads=room()),
+        rng=rng,
+    )
     assert detect_sphere_center(color, depth, INTRINSICS, PAPER_RADIUS_MM, red_histogram()) is None
 
 
@@ -204,12 +216,17 @@ def test_sphere_then_marker_puts_the_rig_in_the_plate_world(sphere_take) -> None
     from skelfuse.calibration.render import aruco_plate
 
     rig, frames, _ = sphere_take
-    sphere = calibrate_from_sphere(frames, dict.fromkeys(frames, INTRINSICS), PAPER_RADIUS_MM, "capture_0",
-                                   progress=False)
+    sphere = calibrate_from_sphere(
+        frames, dict.fromkeys(frames, INTRINSICS), PAPER_RADIUS_MM, "capture_0", progress=False
+    )
     plate, _ = aruco_plate(marker_mm=200.0, spacing_mm=400.0)  # defines the true world: marker 1 at the origin
     full = Intrinsics.azure_kinect_nfov()
-    color, depth = render(rig[0].world_from_sensor, full, Scene(quads=[*room(floor_z_mm=-5.0), plate]),
-                          rng=np.random.default_rng(SEED + 9))
+    color, depth = render(
+        rig[0].world_from_sensor,
+        full,
+        Scene(quads=[*room(floor_z_mm=-5.0), plate]),
+        rng=np.random.default_rng(SEED + 9),
+    )
     result, _ = calibrate_world_from_marker(color, depth, full, "capture_0", calibration=sphere)
     for sensor in rig:
         angle_deg, offset_mm = _pose_error(result.sensors[sensor.sensor_id].world_from_sensor, sensor.world_from_sensor)

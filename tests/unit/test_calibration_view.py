@@ -50,5 +50,6 @@ def test_centres_are_logged_in_the_world_with_residual_labels(tmp_path: Path) ->
         translation = np.array(columns[f"/world/calibration/{sensor.sensor_id}"]["Transform3D:translation"][0])
         np.testing.assert_allclose(translation.reshape(3), sensor.position_mm / 1000.0, rtol=1e-6)
     assert columns["/world/calibration/centres/capture_1"]["Points3D:labels"][0] == [
-        "capture_1: rms 2.5 mm, 20 pts (sphere)"]
+        "capture_1: rms 2.5 mm, 20 pts (sphere)"
+    ]
     assert columns["/world/calibration/centres/capture_0"]["Points3D:labels"][0][0].startswith("capture_0: master")

@@ -44,8 +44,12 @@ def kinect_rig() -> dict[str, Any]:
         "rig": {"name": "lab"},
         "sensors": [
             {"id": "000111", "source": "kinect", "sync": {"role": "master"}},
-            {"id": "000222", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 160},
-             "kinect": {"depth_mode": "NFOV_2X2BINNED", "tracker": {"processing_mode": "cpu"}}},
+            {
+                "id": "000222",
+                "source": "kinect",
+                "sync": {"role": "subordinate", "delay_us": 160},
+                "kinect": {"depth_mode": "NFOV_2X2BINNED", "tracker": {"processing_mode": "cpu"}},
+            },
         ],
     }
 
@@ -144,66 +148,162 @@ def test_kinect_defaults() -> None:
 @pytest.mark.parametrize(
     ("path", "value", "expected"),
     [
-        pytest.param("sensors.2.sync.delay_us", -5, r"key sensors\[2\]\.sync\.delay_us: expected an integer in "
-                     r"\[160, 1e\+06\] µs, found -5 \(int\)", id="delay-out-of-range"),
-        pytest.param("sensors.2.sync.delay_us", "320", r"sensors\[2\]\.sync\.delay_us: expected an integer.*"
-                     r"found '320' \(str\)", id="delay-wrong-type"),
-        pytest.param("sensors.2.sync.delay_us", 250, r"sensors\[2\]\.sync\.delay_us: expected a delay at least "
-                     r"160 µs away.*found 250 µs, 90 µs from sensors\[1\]", id="delays-too-close"),
-        pytest.param("sensors.1.sync.delay_us", ..., r"key sensors\[1\]\.sync\.delay_us is required",
-                     id="delay-missing"),
-        pytest.param("sensors.0.sync.delay_us", 100, r"sensors\[0\]\.sync\.delay_us: expected an integer in "
-                     r"\[0, 0\].*only subordinates", id="master-with-delay"),
-        pytest.param("sync.tolerance_ms", 20.0, r"key sync\.tolerance_ms: expected a number in \(0, 16\.\d+\]",
-                     id="tolerance-over-half-period"),
-        pytest.param("sync.tolerance_ms", 0.2, r"sync\.tolerance_ms: expected more than the largest subordinate "
-                     r"delay \(320 µs\)", id="tolerance-below-delays"),
+        pytest.param(
+            "sensors.2.sync.delay_us",
+            -5,
+            r"key sensors\[2\]\.sync\.delay_us: expected an integer in "
+            r"\[160, 1e\+06\] µs, found -5 \(int\)",
+            id="delay-out-of-range",
+        ),
+        pytest.param(
+            "sensors.2.sync.delay_us",
+            "320",
+            r"sensors\[2\]\.sync\.delay_us: expected an integer.*"
+            r"found '320' \(str\)",
+            id="delay-wrong-type",
+        ),
+        pytest.param(
+            "sensors.2.sync.delay_us",
+            250,
+            r"sensors\[2\]\.sync\.delay_us: expected a delay at least "
+            r"160 µs away.*found 250 µs, 90 µs from sensors\[1\]",
+            id="delays-too-close",
+        ),
+        pytest.param(
+            "sensors.1.sync.delay_us", ..., r"key sensors\[1\]\.sync\.delay_us is required", id="delay-missing"
+        ),
+        pytest.param(
+            "sensors.0.sync.delay_us",
+            100,
+            r"sensors\[0\]\.sync\.delay_us: expected an integer in "
+            r"\[0, 0\].*only subordinates",
+            id="master-with-delay",
+        ),
+        pytest.param(
+            "sync.tolerance_ms",
+            20.0,
+            r"key sync\.tolerance_ms: expected a number in \(0, 16\.\d+\]",
+            id="tolerance-over-half-period",
+        ),
+        pytest.param(
+            "sync.tolerance_ms",
+            0.2,
+            r"sync\.tolerance_ms: expected more than the largest subordinate "
+            r"delay \(320 µs\)",
+            id="tolerance-below-delays",
+        ),
         pytest.param("sync.by", "gps", r"sync\.by: expected one of 'device', 'host', found 'gps'", id="sync-by"),
-        pytest.param("sync.deadline_ms", True, r"sync\.deadline_ms: expected a number.*found True \(bool\)",
-                     id="bool-is-not-a-number"),
+        pytest.param(
+            "sync.deadline_ms",
+            True,
+            r"sync\.deadline_ms: expected a number.*found True \(bool\)",
+            id="bool-is-not-a-number",
+        ),
         pytest.param("rig.name", "a/b", r"key rig\.name: rig name 'a/b' holds '/'", id="rig-name-chunk"),
         pytest.param("rig.name", ..., r"key rig\.name is required", id="rig-name-missing"),
         pytest.param("sensors.0.id", "*", r"sensors\[0\]\.id: sensor name '\*'", id="sensor-id-wildcard"),
-        pytest.param("sensors.1.id", "a", r"sensors\[1\]\.id: expected a sensor id not used before, found 'a'",
-                     id="duplicate-ids"),
-        pytest.param("sensors.0.source", "kinnect", r"sensors\[0\]\.source: expected one of 'sim', 'replay', "
-                     r"'kinect', found 'kinnect' \(str\); did you mean 'kinect'\?", id="source-did-you-mean"),
-        pytest.param("sensors.0.world_from_sensor", [[1, 0, 0], [0, 1, 0]], r"sensors\[0\]\.world_from_sensor: "
-                     r"expected a 4x4 list", id="pose-shape"),
-        pytest.param("sensors.0.world_from_sensor", [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
-                     r"expected a rotation", id="pose-not-rigid"),
-        pytest.param("sensors.0.world_from_sensor", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]],
-                     r"expected last row \[0, 0, 0, 1\]", id="pose-last-row"),
-        pytest.param("sensors.1.sync", {"role": "master"}, r"sensors\[1\]\.sync\.role: expected one master",
-                     id="two-masters"),
+        pytest.param(
+            "sensors.1.id",
+            "a",
+            r"sensors\[1\]\.id: expected a sensor id not used before, found 'a'",
+            id="duplicate-ids",
+        ),
+        pytest.param(
+            "sensors.0.source",
+            "kinnect",
+            r"sensors\[0\]\.source: expected one of 'sim', 'replay', "
+            r"'kinect', found 'kinnect' \(str\); did you mean 'kinect'\?",
+            id="source-did-you-mean",
+        ),
+        pytest.param(
+            "sensors.0.world_from_sensor",
+            [[1, 0, 0], [0, 1, 0]],
+            r"sensors\[0\]\.world_from_sensor: "
+            r"expected a 4x4 list",
+            id="pose-shape",
+        ),
+        pytest.param(
+            "sensors.0.world_from_sensor",
+            [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+            r"expected a rotation",
+            id="pose-not-rigid",
+        ),
+        pytest.param(
+            "sensors.0.world_from_sensor",
+            [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]],
+            r"expected last row \[0, 0, 0, 1\]",
+            id="pose-last-row",
+        ),
+        pytest.param(
+            "sensors.1.sync", {"role": "master"}, r"sensors\[1\]\.sync\.role: expected one master", id="two-masters"
+        ),
         pytest.param("sensors", [], r"key sensors: expected at least one \[\[sensors\]\] table", id="no-sensors"),
-        pytest.param("sensors.0.sim", {"seed": -1}, r"sensors\[0\]\.sim\.seed: expected an integer >= 0",
-                     id="sim-seed"),
-        pytest.param("sensors.0.kinect", {"serial": "x"}, r"sensors\[0\]\.kinect: a \[sensors\[0\]\.kinect\] table "
-                     r"belongs to source = 'kinect' sensors, but this sensor has source = 'sim'",
-                     id="wrong-kind-table"),
-        pytest.param("fusion.preset", "A9", r"fusion\.preset: expected one of skelfuse, A1, A2, A3, A4, A5, found 'A9'",
-                     id="fusion-preset"),
-        pytest.param("fusion.eps_mm", 0, r"fusion\.eps_mm: expected a number in \(0, 10000\] mm, found 0",
-                     id="fusion-eps"),
-        pytest.param("fusion.params", {"filtre": "cv_kalman"}, r"unknown key fusion\.params\.filtre; did you mean "
-                     r"'filter'\?", id="fusion-params-did-you-mean"),
-        pytest.param("fusion.params", {"filter": "kalman"}, r"key fusion\.params: FusionParams\.filter must be one of",
-                     id="fusion-params-bad-value"),
-        pytest.param("fusion.params", {"merge": "off"}, r"fusion\.params\.merge: this field cannot be switched off",
-                     id="fusion-params-off-not-optional"),
-        pytest.param("fusion.params", {"max_coast_frames": 1.5}, r"fusion\.params\.max_coast_frames: expected an "
-                     r"integer, found 1\.5", id="fusion-params-type"),
-        pytest.param("zenoh.mode", "server", r"zenoh\.mode: expected one of 'peer', 'client', 'router'",
-                     id="zenoh-mode"),
-        pytest.param("zenoh.connect", "tcp/1.2.3.4:7447", r"zenoh\.connect: expected a list of non-empty strings",
-                     id="zenoh-connect-not-list"),
-        pytest.param("zenoh.config", {"scouting/multicast/enabled": False}, r'zenoh\.config\."scouting/multicast/'
-                     r'enabled": set this with zenoh\.multicast_scouting', id="zenoh-raw-duplicates-dedicated"),
+        pytest.param(
+            "sensors.0.sim", {"seed": -1}, r"sensors\[0\]\.sim\.seed: expected an integer >= 0", id="sim-seed"
+        ),
+        pytest.param(
+            "sensors.0.kinect",
+            {"serial": "x"},
+            r"sensors\[0\]\.kinect: a \[sensors\[0\]\.kinect\] table "
+            r"belongs to source = 'kinect' sensors, but this sensor has source = 'sim'",
+            id="wrong-kind-table",
+        ),
+        pytest.param(
+            "fusion.preset",
+            "A9",
+            r"fusion\.preset: expected one of skelfuse, A1, A2, A3, A4, A5, found 'A9'",
+            id="fusion-preset",
+        ),
+        pytest.param(
+            "fusion.eps_mm", 0, r"fusion\.eps_mm: expected a number in \(0, 10000\] mm, found 0", id="fusion-eps"
+        ),
+        pytest.param(
+            "fusion.params",
+            {"filtre": "cv_kalman"},
+            r"unknown key fusion\.params\.filtre; did you mean "
+            r"'filter'\?",
+            id="fusion-params-did-you-mean",
+        ),
+        pytest.param(
+            "fusion.params",
+            {"filter": "kalman"},
+            r"key fusion\.params: FusionParams\.filter must be one of",
+            id="fusion-params-bad-value",
+        ),
+        pytest.param(
+            "fusion.params",
+            {"merge": "off"},
+            r"fusion\.params\.merge: this field cannot be switched off",
+            id="fusion-params-off-not-optional",
+        ),
+        pytest.param(
+            "fusion.params",
+            {"max_coast_frames": 1.5},
+            r"fusion\.params\.max_coast_frames: expected an "
+            r"integer, found 1\.5",
+            id="fusion-params-type",
+        ),
+        pytest.param(
+            "zenoh.mode", "server", r"zenoh\.mode: expected one of 'peer', 'client', 'router'", id="zenoh-mode"
+        ),
+        pytest.param(
+            "zenoh.connect",
+            "tcp/1.2.3.4:7447",
+            r"zenoh\.connect: expected a list of non-empty strings",
+            id="zenoh-connect-not-list",
+        ),
+        pytest.param(
+            "zenoh.config",
+            {"scouting/multicast/enabled": False},
+            r'zenoh\.config\."scouting/multicast/'
+            r'enabled": set this with zenoh\.multicast_scouting',
+            id="zenoh-raw-duplicates-dedicated",
+        ),
         pytest.param("rerun.mode", "save", r"rerun\.file is required when rerun\.mode = \"save\"", id="rerun-save"),
         pytest.param("rerun.grpc_port", 70000, r"rerun\.grpc_port: expected an integer in \[1, 65535\]", id="port"),
-        pytest.param("node.status_period_s", 0, r"node\.status_period_s: expected a number in \(0, 3600\] s",
-                     id="status-period"),
+        pytest.param(
+            "node.status_period_s", 0, r"node\.status_period_s: expected a number in \(0, 3600\] s", id="status-period"
+        ),
     ],
 )
 def test_invalid_values_name_key_expected_and_found(path: str, value: Any, expected: str) -> None:
@@ -215,24 +315,60 @@ def test_invalid_values_name_key_expected_and_found(path: str, value: Any, expec
 @pytest.mark.parametrize(
     ("path", "value", "expected"),
     [
-        pytest.param("sensors.0.kinect", {"depth_mod": "NFOV_UNBINNED"}, r"unknown key sensors\[0\]\.kinect\."
-                     r"depth_mod; did you mean 'depth_mode'\?", id="kinect-did-you-mean"),
-        pytest.param("sensors.0.kinect", {"tracker": {"procesing_mode": "cpu"}}, r"unknown key sensors\[0\]\.kinect"
-                     r"\.tracker\.procesing_mode; did you mean 'processing_mode'\?", id="tracker-did-you-mean"),
-        pytest.param("sensors.0.tracker", {"processing_mode": "cpu"}, r"did you mean sensors\[0\]\.kinect\.tracker",
-                     id="tracker-misplaced"),
+        pytest.param(
+            "sensors.0.kinect",
+            {"depth_mod": "NFOV_UNBINNED"},
+            r"unknown key sensors\[0\]\.kinect\."
+            r"depth_mod; did you mean 'depth_mode'\?",
+            id="kinect-did-you-mean",
+        ),
+        pytest.param(
+            "sensors.0.kinect",
+            {"tracker": {"procesing_mode": "cpu"}},
+            r"unknown key sensors\[0\]\.kinect"
+            r"\.tracker\.procesing_mode; did you mean 'processing_mode'\?",
+            id="tracker-did-you-mean",
+        ),
+        pytest.param(
+            "sensors.0.tracker",
+            {"processing_mode": "cpu"},
+            r"did you mean sensors\[0\]\.kinect\.tracker",
+            id="tracker-misplaced",
+        ),
         pytest.param("sensors.1.kinect", {"depth_mode": "PASSIVE_IR"}, r"depth_mode: expected one of", id="depth-mode"),
-        pytest.param("sensors.1.kinect", {"tracker": {"temporal_smoothing": 1.5}},
-                     r"tracker\.temporal_smoothing: expected a number in \[0, 1\]", id="smoothing"),
-        pytest.param("sensors.1.kinect", {"tracker": {"processing_mode": "GPU"}},
-                     r"processing_mode: expected one of 'gpu'.*did you mean 'gpu'", id="processing-mode-case"),
-        pytest.param("sensors.1.kinect", {"serial": "000111"}, r"sensors\[1\]\.kinect\.serial: expected a serial "
-                     r"not used before", id="duplicate-serial"),
-        pytest.param("sensors.1.kinect", {"depth_mode": "WFOV_UNBINNED"}, r"WFOV_UNBINNED runs at 15 fps at most",
-                     id="wfov-unbinned-fps"),
+        pytest.param(
+            "sensors.1.kinect",
+            {"tracker": {"temporal_smoothing": 1.5}},
+            r"tracker\.temporal_smoothing: expected a number in \[0, 1\]",
+            id="smoothing",
+        ),
+        pytest.param(
+            "sensors.1.kinect",
+            {"tracker": {"processing_mode": "GPU"}},
+            r"processing_mode: expected one of 'gpu'.*did you mean 'gpu'",
+            id="processing-mode-case",
+        ),
+        pytest.param(
+            "sensors.1.kinect",
+            {"serial": "000111"},
+            r"sensors\[1\]\.kinect\.serial: expected a serial "
+            r"not used before",
+            id="duplicate-serial",
+        ),
+        pytest.param(
+            "sensors.1.kinect",
+            {"depth_mode": "WFOV_UNBINNED"},
+            r"WFOV_UNBINNED runs at 15 fps at most",
+            id="wfov-unbinned-fps",
+        ),
         pytest.param("sync", {"fps": 25.0}, r"sync\.fps: expected one of \(5, 15, 30\)", id="kinect-fps"),
-        pytest.param("sensors.1.sync", {"role": "standalone"}, r"sensors\[1\]\.sync\.role: \[sync\] by = \"device\" "
-                     r"needs every kinect on one wired sync chain", id="device-sync-needs-wires"),
+        pytest.param(
+            "sensors.1.sync",
+            {"role": "standalone"},
+            r"sensors\[1\]\.sync\.role: \[sync\] by = \"device\" "
+            r"needs every kinect on one wired sync chain",
+            id="device-sync-needs-wires",
+        ),
         pytest.param("sensors.0.sync", {"role": "standalone"}, r"a subordinate needs a master", id="no-master"),
     ],
 )
@@ -262,8 +398,11 @@ def test_host_sync_allows_standalone_kinects() -> None:
 
 
 def test_fusion_params_overrides_and_off() -> None:
-    data = with_change(minimal(), "fusion", {"preset": "a4", "eps_mm": 150,
-                                              "params": {"previous_weight": "off", "max_coast_frames": 5}})
+    data = with_change(
+        minimal(),
+        "fusion",
+        {"preset": "a4", "eps_mm": 150, "params": {"previous_weight": "off", "max_coast_frames": 5}},
+    )
     cfg = RigConfig.from_dict(data)
     params = cfg.fusion.fusion_params()
     assert cfg.fusion.preset == "A4"
@@ -287,8 +426,9 @@ def test_file_errors_name_the_file(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=rf"rig config {bad} is not valid TOML"):
         load_rig_config(bad)
     wrong = tmp_path / "wrong.toml"
-    wrong.write_text('[rig]\nname = "x"\n[[sensors]]\nid = "a"\nsource = "sim"\n[sensors.sync]\nrole = 3\n',
-                     encoding="utf-8")
+    wrong.write_text(
+        '[rig]\nname = "x"\n[[sensors]]\nid = "a"\nsource = "sim"\n[sensors.sync]\nrole = 3\n', encoding="utf-8"
+    )
     with pytest.raises(ConfigError, match=rf"^{wrong}: key sensors\[0\]\.sync\.role: expected one of"):
         load_rig_config(wrong)
 
@@ -310,8 +450,9 @@ def write_rig(tmp_path: Path, extra: str = "", sensor_extra: str = "") -> Path:
 
 
 def test_relative_paths_resolve_against_the_config_file(tmp_path: Path) -> None:
-    cfg = load_rig_config(write_rig(tmp_path, extra='[calibration]\nfile = "cal.toml"\n'
-                                               '[rerun]\nmode = "save"\nfile = "out/live.rrd"\n'))
+    cfg = load_rig_config(
+        write_rig(tmp_path, extra='[calibration]\nfile = "cal.toml"\n[rerun]\nmode = "save"\nfile = "out/live.rrd"\n')
+    )
     assert cfg.sensors[1].replay is not None and cfg.sensors[1].replay.file == tmp_path / "takes" / "b.json"
     assert cfg.calibration.file == tmp_path / "cal.toml"
     assert cfg.rerun.file == tmp_path / "out" / "live.rrd"
@@ -321,9 +462,11 @@ def test_calibration_file_wins_over_inline_poses(tmp_path: Path) -> None:
     pose_b = [[0.0, -1.0, 0.0, 100.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 2000.0], [0.0, 0.0, 0.0, 1.0]]
     (tmp_path / "cal.toml").write_text(
         f'method = "skeleton"\n[sensors.b]\nworld_from_sensor = {json.dumps(pose_b)}\nresidual_mm = 12.5\n',
-        encoding="utf-8")
-    path = write_rig(tmp_path, extra='[calibration]\nfile = "cal.toml"\n',
-                     sensor_extra=f"world_from_sensor = {json.dumps(IDENTITY)}")
+        encoding="utf-8",
+    )
+    path = write_rig(
+        tmp_path, extra='[calibration]\nfile = "cal.toml"\n', sensor_extra=f"world_from_sensor = {json.dumps(IDENTITY)}"
+    )
     poses = load_rig_config(path).poses()
     np.testing.assert_array_equal(poses["a"], np.eye(4))
     np.testing.assert_array_equal(poses["b"], np.array(pose_b))
@@ -337,10 +480,10 @@ def test_missing_pose_without_calibration_says_what_to_do(tmp_path: Path) -> Non
 
 def test_malformed_calibration_file(tmp_path: Path) -> None:
     cal = tmp_path / "cal.toml"
-    cal.write_text('[sensors.a]\nworld_from_sensor = [[1, 0], [0, 1]]\n', encoding="utf-8")
+    cal.write_text("[sensors.a]\nworld_from_sensor = [[1, 0], [0, 1]]\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"cal\.toml: key sensors\.a\.world_from_sensor: expected a 4x4"):
         load_calibration(cal)
-    cal.write_text('[meta]\nx = 1\n', encoding="utf-8")
+    cal.write_text("[meta]\nx = 1\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"key sensors: expected a table \[sensors\.<id>\]"):
         load_calibration(cal)
 
@@ -359,8 +502,12 @@ def test_rig_sensor_lookup_suggests() -> None:
 
 def zenoh_rig() -> RigConfig:
     data = minimal()
-    data["zenoh"] = {"mode": "client", "connect": ["tcp/10.0.0.1:7447"], "multicast_scouting": False,
-                     "config": {"transport/unicast/max_links": 2, "scouting/gossip/enabled": False}}
+    data["zenoh"] = {
+        "mode": "client",
+        "connect": ["tcp/10.0.0.1:7447"],
+        "multicast_scouting": False,
+        "config": {"transport/unicast/max_links": 2, "scouting/gossip/enabled": False},
+    }
     return RigConfig.from_dict(data)
 
 
@@ -376,10 +523,20 @@ def test_zenoh_config_from_file() -> None:
 def test_zenoh_flags_override_file_and_passthrough_overrides_flags() -> None:
     parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
-    args = parser.parse_args(["--zenoh-mode", "peer", "--zenoh-connect", "tcp/127.0.0.1:7447",
-                              "--zenoh-listen", "tcp/127.0.0.1:7448",
-                              "--zenoh-cfg", "transport/unicast/max_links:4",
-                              "--zenoh-cfg", 'connect/endpoints:["tcp/127.0.0.1:9999"]'])
+    args = parser.parse_args(
+        [
+            "--zenoh-mode",
+            "peer",
+            "--zenoh-connect",
+            "tcp/127.0.0.1:7447",
+            "--zenoh-listen",
+            "tcp/127.0.0.1:7448",
+            "--zenoh-cfg",
+            "transport/unicast/max_links:4",
+            "--zenoh-cfg",
+            'connect/endpoints:["tcp/127.0.0.1:9999"]',
+        ]
+    )
     conf = zenoh_config(zenoh_rig(), **zenoh_flags(args))
     assert json.loads(conf.get_json("mode")) == "peer"  # flag over file
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7448"]
@@ -401,8 +558,9 @@ def test_no_multicast_scouting_flag() -> None:
         pytest.param(["max_links=2"], r"--zenoh-cfg: expected KEY:VALUE", id="no-colon"),
         pytest.param(["transport/unicast/max_links:"], r"expected KEY:VALUE", id="empty-value"),
         pytest.param(["no/such/key:1"], r"--zenoh-cfg 'no/such/key:1': zenoh rejected no/such/key = 1", id="bad-key"),
-        pytest.param(["transport/unicast/max_links:\"many\""], r"zenoh rejected transport/unicast/max_links",
-                     id="bad-value"),
+        pytest.param(
+            ['transport/unicast/max_links:"many"'], r"zenoh rejected transport/unicast/max_links", id="bad-value"
+        ),
     ],
 )
 def test_bad_zenoh_overrides_raise_config_error(overrides: list[str], expected: str) -> None:

@@ -29,7 +29,10 @@ BIRTH_FRAMES = 3
 
 def sensor_frame(sensor_id: str, n_bodies: int, rng: np.random.Generator, time_us: int = 1_000_000) -> SensorFrame:
     return SensorFrame(
-        sensor_id=sensor_id, sequence=0, device_time_us=time_us, host_time_ns=time_us * 1000,
+        sensor_id=sensor_id,
+        sequence=0,
+        device_time_us=time_us,
+        host_time_ns=time_us * 1000,
         body_ids=np.arange(n_bodies, dtype=np.uint32),
         positions=rng.normal(0.0, 800.0, (n_bodies, N_JOINTS, 3)).astype(np.float32),
         orientations=np.zeros((n_bodies, N_JOINTS, 4), np.float32),
@@ -48,11 +51,12 @@ def test_group_bodies_pads_and_orders_by_rig_and_maps_every_block_to_the_world()
     np.testing.assert_array_equal(confidence[0, 0], frames["a"].confidence[0])
     assert np.isnan(positions[~valid]).all() and (confidence[~valid] == 0).all()
 
-    poses = np.stack([make_transform(np.linalg.qr(rng.normal(size=(3, 3)))[0], rng.normal(0, 1000, 3))
-                      for _ in sensor_ids])
+    poses = np.stack(
+        [make_transform(np.linalg.qr(rng.normal(size=(3, 3)))[0], rng.normal(0, 1000, 3)) for _ in sensor_ids]
+    )
     world = bodies_to_world(poses, positions)
     for s in range(4):  # the vectorized transform equals one apply_transform per sensor
-        expected = apply_transform(poses[s:s + 1], positions[s][:, None])[:, 0]
+        expected = apply_transform(poses[s : s + 1], positions[s][:, None])[:, 0]
         np.testing.assert_allclose(world[s], expected, rtol=0, atol=1e-9, equal_nan=True)
 
     empty, _, none_valid = group_bodies({"b": sensor_frame("b", 0, rng)}, sensor_ids)
@@ -65,9 +69,19 @@ def test_a_step_back_in_time_restarts_the_tracks_with_new_ids() -> None:
     fuser = GroupFuser(("a", "b"), np.tile(np.eye(4), (2, 1, 1)), preset("A4"))
 
     def group(time_us: int) -> FrameGroup:
-        frames = {sid: SensorFrame(sid, 0, time_us, time_us * 1000, np.zeros(1, np.uint32), body,
-                                   np.zeros((1, N_JOINTS, 4), np.float32), np.full((1, N_JOINTS), 2, np.uint8))
-                  for sid in ("a", "b")}
+        frames = {
+            sid: SensorFrame(
+                sid,
+                0,
+                time_us,
+                time_us * 1000,
+                np.zeros(1, np.uint32),
+                body,
+                np.zeros((1, N_JOINTS, 4), np.float32),
+                np.full((1, N_JOINTS), 2, np.uint8),
+            )
+            for sid in ("a", "b")
+        }
         return FrameGroup(time_us, frames, (), True)
 
     first = [fuser.step(group(t)) for t in (0, 33_333, 66_666, 100_000)]
@@ -90,21 +104,29 @@ def crowd_frames(observations: CrowdObservations) -> list[SensorFrame]:
             slots = observations.valid[t, s]
             n = int(slots.sum())
             device_time_us = int(observations.device_time_us[t, s])
-            frames.append(SensorFrame(
-                sensor_id=sensor_id, sequence=t, device_time_us=device_time_us,
-                host_time_ns=device_time_us * 1000 + 2_000_000 + int(rng.integers(0, 3_000_000)),
-                body_ids=observations.body_ids[t, s][slots].astype(np.uint32),
-                positions=observations.positions[t, s][slots].astype(np.float32),
-                orientations=np.tile(np.array([1.0, 0, 0, 0], np.float32), (n, N_JOINTS, 1)),
-                confidence=observations.confidence[t, s][slots],
-            ))
+            frames.append(
+                SensorFrame(
+                    sensor_id=sensor_id,
+                    sequence=t,
+                    device_time_us=device_time_us,
+                    host_time_ns=device_time_us * 1000 + 2_000_000 + int(rng.integers(0, 3_000_000)),
+                    body_ids=observations.body_ids[t, s][slots].astype(np.uint32),
+                    positions=observations.positions[t, s][slots].astype(np.float32),
+                    orientations=np.tile(np.array([1.0, 0, 0, 0], np.float32), (n, N_JOINTS, 1)),
+                    confidence=observations.confidence[t, s][slots],
+                )
+            )
     return sorted(frames, key=lambda f: f.host_time_ns)
 
 
 def crowd_rig(observations: CrowdObservations) -> RigConfig:
-    return RigConfig(name=RIG, sensors=tuple(
-        SensorConfig(id=sid, source="sim", world_from_sensor=tuple(map(tuple, pose.tolist())))
-        for sid, pose in zip(observations.sensor_ids, observations.world_from_sensor_calibrated, strict=True)))
+    return RigConfig(
+        name=RIG,
+        sensors=tuple(
+            SensorConfig(id=sid, source="sim", world_from_sensor=tuple(map(tuple, pose.tolist())))
+            for sid, pose in zip(observations.sensor_ids, observations.world_from_sensor_calibrated, strict=True)
+        ),
+    )
 
 
 def assert_people_tracked(fused: list[FusedFrame], observations: CrowdObservations, tolerance_mm: float) -> None:
@@ -124,7 +146,10 @@ def assert_people_tracked(fused: list[FusedFrame], observations: CrowdObservatio
     assert sorted(person_of_track) == [1, 2] and sorted(person_of_track.values()) == [0, 1]
     errors = np.array(errors)
     assert np.median(errors) < 0.5 * tolerance_mm and np.percentile(errors, 95) < tolerance_mm, (
-        np.median(errors), np.percentile(errors, 95), errors.max())
+        np.median(errors),
+        np.percentile(errors, 95),
+        errors.max(),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -147,8 +172,9 @@ def test_a_bystander_only_one_sensor_sees_is_a_person_of_its_own() -> None:
     core = FusionCore(crowd_rig(observations))
     out = []
     for frame in crowd_frames(observations):
-        out += core.receive(f"skelfuse/{RIG}/sensors/{frame.sensor_id}/skeletons", encode_sensor_frame(frame),
-                            frame.host_time_ns)
+        out += core.receive(
+            f"skelfuse/{RIG}/sensors/{frame.sensor_id}/skeletons", encode_sensor_frame(frame), frame.host_time_ns
+        )
     out += core.flush()
     assert_people_tracked([o.frame for o in out], observations, tolerance_mm=50.0)
 
@@ -160,8 +186,9 @@ def test_node_core_publishes_every_person_and_equals_offline(tmp_path: Path, cro
     core = FusionCore(cfg)
     out = []
     for frame in frames:
-        out += core.receive(f"skelfuse/{RIG}/sensors/{frame.sensor_id}/skeletons", encode_sensor_frame(frame),
-                            frame.host_time_ns)
+        out += core.receive(
+            f"skelfuse/{RIG}/sensors/{frame.sensor_id}/skeletons", encode_sensor_frame(frame), frame.host_time_ns
+        )
     out += core.flush()
     live = [o.frame for o in out]
     assert_people_tracked(live, crossing, tolerance_mm=50.0)

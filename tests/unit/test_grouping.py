@@ -34,12 +34,18 @@ def frame(sensor_id: str, sequence: int, device_time_us: int, host_time_ns: int 
 
 
 def grouper(by: str = "device", sensors: tuple[str, ...] = SENSORS, **kwargs: int) -> FrameGrouper:
-    return FrameGrouper(sensors, by=by, tolerance_us=kwargs.pop("tolerance_us", TOL_US),  # type: ignore[arg-type]
-                        deadline_us=kwargs.pop("deadline_us", DEADLINE_US), **kwargs)
+    return FrameGrouper(
+        sensors,
+        by=by,
+        tolerance_us=kwargs.pop("tolerance_us", TOL_US),  # type: ignore[arg-type]
+        deadline_us=kwargs.pop("deadline_us", DEADLINE_US),
+        **kwargs,
+    )
 
 
-def synced_stream(n_frames: int, rng: np.random.Generator, *, start_us: int = 5_000_000,
-                  skip: set[tuple[str, int]] = frozenset()) -> list[tuple[int, SensorFrame]]:
+def synced_stream(
+    n_frames: int, rng: np.random.Generator, *, start_us: int = 5_000_000, skip: set[tuple[str, int]] = frozenset()
+) -> list[tuple[int, SensorFrame]]:
     """(arrival_ns, frame) of a hardware-synced rig, sorted by arrival.
 
     Device time: master period with ~12 µs jitter plus each subordinate's delay. Arrival: device time plus
@@ -195,8 +201,9 @@ def test_host_time_grouping_with_host_offsets_and_usb_jitter() -> None:
 def test_device_grouping_would_fail_without_a_shared_epoch_so_host_mode_exists() -> None:
     # Same stream as above, grouped by device time: unrelated epochs never meet within the tolerance.
     g = grouper(by="device")
-    events = [(k * 1000 + i, frame(sid, k, i * 10**8 + k * PERIOD_US)) for k in range(5) for i, sid in
-              enumerate(SENSORS)]
+    events = [
+        (k * 1000 + i, frame(sid, k, i * 10**8 + k * PERIOD_US)) for k in range(5) for i, sid in enumerate(SENSORS)
+    ]
     groups = run(g, events)
     assert not any(grp.complete for grp in groups)
 
@@ -282,11 +289,11 @@ def test_stats_is_a_snapshot_and_serializes() -> None:
 
 _stream = st.lists(
     st.tuples(
-        st.integers(0, 3),                 # sensor
-        st.integers(0, 40),                # instant
-        st.integers(-600, 600),            # device time error, µs (delays + jitter)
-        st.integers(0, 60_000),            # arrival delay, µs
-        st.booleans(),                     # poll before pushing
+        st.integers(0, 3),  # sensor
+        st.integers(0, 40),  # instant
+        st.integers(-600, 600),  # device time error, µs (delays + jitter)
+        st.integers(0, 60_000),  # arrival delay, µs
+        st.booleans(),  # poll before pushing
     ),
     max_size=120,
 )
@@ -299,8 +306,7 @@ def test_property_accounting_and_time_order(events: list[tuple[int, int, int, in
     g = grouper(sensors=sensors)
     pushed = []
     timeline = sorted(
-        ((instant * PERIOD_US + delay) * 1000, sid, instant, err, poll)
-        for sid, instant, err, delay, poll in events
+        ((instant * PERIOD_US + delay) * 1000, sid, instant, err, poll) for sid, instant, err, delay, poll in events
     )
     groups: list[FrameGroup] = []
     for arrival_ns, sid, instant, err, poll in timeline:

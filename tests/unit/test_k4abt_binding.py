@@ -173,9 +173,13 @@ def test_skeletons_pass_through_bit_exact(lib11):
 
 def test_configuration_is_passed_by_value_on_sdk_11(lib11):
     library, fake, _ = lib11
-    settings = TrackerSettings(processing_mode="tensorrt", gpu_device_id=3,
-                               model_path="/usr/bin/dnn_model_2_0_lite_op11.onnx", sensor_orientation="flip180",
-                               temporal_smoothing=0.25)
+    settings = TrackerSettings(
+        processing_mode="tensorrt",
+        gpu_device_id=3,
+        model_path="/usr/bin/dnn_model_2_0_lite_op11.onnx",
+        sensor_orientation="flip180",
+        temporal_smoothing=0.25,
+    )
     with Tracker(library, harness.FakeCalibration().address, settings):
         stats = fake.stats()
     assert (stats.config_sensor_orientation, stats.config_processing_mode, stats.config_gpu_device_id) == (3, 3, 3)
@@ -188,8 +192,11 @@ def test_configuration_is_passed_by_value_on_sdk_11(lib11):
 
 def test_sdk_10_gets_its_own_configuration_and_timestamps(lib10):
     library, fake, k4a = lib10
-    with Tracker(library, harness.FakeCalibration().address,
-                 TrackerSettings(processing_mode="cpu", gpu_device_id=1, sensor_orientation="clockwise90")) as tracker:
+    with Tracker(
+        library,
+        harness.FakeCalibration().address,
+        TrackerSettings(processing_mode="cpu", gpu_device_id=1, sensor_orientation="clockwise90"),
+    ) as tracker:
         stats = fake.stats()
         assert (stats.config_sensor_orientation, stats.config_processing_mode, stats.config_gpu_device_id) == (1, 1, 1)
         ids, positions, orientations, confidence = _random_bodies(np.random.default_rng(5), 1)
@@ -237,8 +244,9 @@ def test_capsules_are_checked_by_name(lib11):
     _, _, k4a = lib11
     capture = _capture(k4a)
     assert k4abt.capture_handle(capture) == capture._holder.value
-    wrong = type("C", (), {"_capture_handle": harness.make_capsule(ctypes.addressof(capture._holder),
-                                                                   harness.CALIBRATION_NAME)})()
+    wrong = type(
+        "C", (), {"_capture_handle": harness.make_capsule(ctypes.addressof(capture._holder), harness.CALIBRATION_NAME)}
+    )()
     with pytest.raises(k4abt.K4ABTError, match="pyk4a capture handle"):
         k4abt.capture_handle(wrong)
     with pytest.raises(k4abt.K4ABTError, match="PyCapsule"):

@@ -128,8 +128,14 @@ def test_subordinates_start_before_the_master():
         def close(self):
             self.closed = True
 
-    start_rig([("master", Recorder("m")), ("subordinate", Recorder("s1")), ("standalone", Recorder("x")),
-               ("subordinate", Recorder("s2"))])
+    start_rig(
+        [
+            ("master", Recorder("m")),
+            ("subordinate", Recorder("s1")),
+            ("standalone", Recorder("x")),
+            ("subordinate", Recorder("s2")),
+        ]
+    )
     assert opened == ["s1", "s2", "x", "m"]
     s1, bad = Recorder("s1"), Recorder("m", fail=True)
     with pytest.raises(SensorNotFound):
@@ -140,8 +146,12 @@ def test_subordinates_start_before_the_master():
 def test_device_source_opens_by_serial_and_streams_bit_exact(stack):
     world, pyk4a, library, fake = stack
     expected = _script(fake, 6, skip={3})  # a dropped frame: a sequence gap
-    settings = DeviceSettings(serial="000222", sync_role="subordinate", subordinate_delay_us=160,
-                              tracker=TrackerSettings(processing_mode="cuda", temporal_smoothing=0.1))
+    settings = DeviceSettings(
+        serial="000222",
+        sync_role="subordinate",
+        subordinate_delay_us=160,
+        tracker=TrackerSettings(processing_mode="cuda", temporal_smoothing=0.1),
+    )
     source = KinectSource(settings, sensor_id="left", pyk4a=pyk4a, k4abt=library)
     assert isinstance(source, SkeletonSource)
     source.open()
@@ -214,8 +224,14 @@ def test_reconnect_loop_recovers_from_an_unplug(stack):
     def open_source():
         return KinectSource(DeviceSettings(serial="000222"), pyk4a=pyk4a, k4abt=library)
 
-    report = run_with_reconnect(open_source, on_frame, stop.is_set, backoff=Backoff(initial_s=0.02, max_s=0.08),
-                                read_timeout_s=0.01, on_error=lambda exc, delay: errors.append(type(exc).__name__))
+    report = run_with_reconnect(
+        open_source,
+        on_frame,
+        stop.is_set,
+        backoff=Backoff(initial_s=0.02, max_s=0.08),
+        read_timeout_s=0.01,
+        on_error=lambda exc, delay: errors.append(type(exc).__name__),
+    )
     assert len(received) >= 12 and report.opens >= 2
     assert errors and set(errors) <= {"SensorDisconnected", "SensorNotFound"}
     assert report.delays[:3] == [0.02, 0.04, 0.08][: len(report.delays[:3])]
@@ -229,8 +245,12 @@ def test_should_exit_stops_promptly_even_while_backing_off(stack):
     stop = threading.Event()
     threading.Timer(0.2, stop.set).start()
     start = time.monotonic()
-    report = run_with_reconnect(lambda: KinectSource(DeviceSettings(serial="000222"), pyk4a=pyk4a, k4abt=library),
-                                lambda frame: None, stop.is_set, backoff=Backoff(initial_s=5.0, max_s=5.0))
+    report = run_with_reconnect(
+        lambda: KinectSource(DeviceSettings(serial="000222"), pyk4a=pyk4a, k4abt=library),
+        lambda frame: None,
+        stop.is_set,
+        backoff=Backoff(initial_s=5.0, max_s=5.0),
+    )
     assert time.monotonic() - start < 1.0
     assert report.failures == 1 and report.frames == 0
 
@@ -244,11 +264,32 @@ def test_fatal_errors_are_not_retried(monkeypatch):
 def _offline_json(path: Path, n_frames: int) -> Path:
     from skelfuse.skeleton import JOINT_NAMES
 
-    frames = [{"timestamp_usec": 1000 + i * 33_333, "frame_id": i, "num_bodies": 1,
-               "bodies": [{"body_id": 3, "joint_positions": [[float(i), 2.0, 3.0]] * 32,
-                           "joint_orientations": [[1.0, 0.0, 0.0, 0.0]] * 32}]} for i in range(n_frames)]
-    path.write_text(json.dumps({"k4abt_sdk_version": "1.1.2", "source_file": "x.mkv", "joint_names": list(JOINT_NAMES),
-                                "bone_list": [], "frames": frames}))
+    frames = [
+        {
+            "timestamp_usec": 1000 + i * 33_333,
+            "frame_id": i,
+            "num_bodies": 1,
+            "bodies": [
+                {
+                    "body_id": 3,
+                    "joint_positions": [[float(i), 2.0, 3.0]] * 32,
+                    "joint_orientations": [[1.0, 0.0, 0.0, 0.0]] * 32,
+                }
+            ],
+        }
+        for i in range(n_frames)
+    ]
+    path.write_text(
+        json.dumps(
+            {
+                "k4abt_sdk_version": "1.1.2",
+                "source_file": "x.mkv",
+                "joint_names": list(JOINT_NAMES),
+                "bone_list": [],
+                "frames": frames,
+            }
+        )
+    )
     return path
 
 
@@ -291,8 +332,11 @@ def test_worker_adapter_yields_frames_and_stops(stack):
     _, pyk4a, library, fake = stack
     _script(fake, 3)
     stop = threading.Event()
-    adapter = WorkerFrameSource(KinectSource(DeviceSettings(serial="000111"), pyk4a=pyk4a, k4abt=library),
-                                should_exit=stop.is_set, read_timeout_s=0.01)
+    adapter = WorkerFrameSource(
+        KinectSource(DeviceSettings(serial="000111"), pyk4a=pyk4a, k4abt=library),
+        should_exit=stop.is_set,
+        read_timeout_s=0.01,
+    )
     got = []
     for due_ns, frame in adapter.frames():
         assert due_ns <= time.monotonic_ns()

@@ -46,8 +46,9 @@ T0_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
 
 
-def make_frame(sensor_idx: int, i: int, *, n_bodies: int = 1, positions: np.ndarray | None = None,
-               seed: int = SEED) -> SensorFrame:
+def make_frame(
+    sensor_idx: int, i: int, *, n_bodies: int = 1, positions: np.ndarray | None = None, seed: int = SEED
+) -> SensorFrame:
     """Frame i of sensor ``SENSORS[sensor_idx]``: deterministic, host time ~30 fps, device time in us."""
     rng = np.random.default_rng([seed, sensor_idx, i])
     if positions is None:
@@ -82,8 +83,14 @@ def test_round_trip_several_sensors_bit_identical(tmp_path: Path) -> None:
     path = tmp_path / "take.mcap"
     frames = frames_of(60)
     poses = {sid: make_transform(np.eye(3), np.array([i * 1000.0, 0.0, 0.0])) for i, sid in enumerate(SENSORS)}
-    with RecordingWriter(path, rig=RIG, sensor_ids=SENSORS, metadata={"operator": "ana", "take": 3},
-                         world_from_sensor=poses, chunk_size=8 * 1024) as writer:
+    with RecordingWriter(
+        path,
+        rig=RIG,
+        sensor_ids=SENSORS,
+        metadata={"operator": "ana", "take": 3},
+        world_from_sensor=poses,
+        chunk_size=8 * 1024,
+    ) as writer:
         for frame in frames:
             writer.write(frame)
     reader = RecordingReader(path)
@@ -305,7 +312,7 @@ def test_corrupt_chunk_is_skipped_others_read(tmp_path: Path) -> None:
     victim = chunks[1]
     data = bytearray(path.read_bytes())
     middle = victim.chunk_start_offset + victim.chunk_length // 2
-    data[middle: middle + 64] = bytes(64)
+    data[middle : middle + 64] = bytes(64)
     path.write_bytes(bytes(data))
     reader = RecordingReader(path)
     got = list(reader.frames())
@@ -341,11 +348,18 @@ def truth_skeleton(i: int) -> np.ndarray:
     return base + np.array([100.0 * math.sin(i / 30.0), 0.0, 0.0])
 
 
-def write_synthetic(path: Path, poses: dict[str, np.ndarray], n_frames: int, *, store_calibration: bool,
-                    drop: set[tuple[int, int]] = frozenset()) -> None:
+def write_synthetic(
+    path: Path,
+    poses: dict[str, np.ndarray],
+    n_frames: int,
+    *,
+    store_calibration: bool,
+    drop: set[tuple[int, int]] = frozenset(),
+) -> None:
     rng = np.random.default_rng(SEED + 1)
-    with RecordingWriter(path, rig=RIG, sensor_ids=SENSORS,
-                         world_from_sensor=poses if store_calibration else None) as writer:
+    with RecordingWriter(
+        path, rig=RIG, sensor_ids=SENSORS, world_from_sensor=poses if store_calibration else None
+    ) as writer:
         for i in range(n_frames):
             world = truth_skeleton(i)
             for s, sid in enumerate(SENSORS):
@@ -362,8 +376,9 @@ def rig_poses() -> dict[str, np.ndarray]:
         a = math.radians(deg)
         return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1.0]])
 
-    return {sid: make_transform(rot_z(120.0 * s), np.array([100.0 * s, -50.0 * s, 900.0]))
-            for s, sid in enumerate(SENSORS)}
+    return {
+        sid: make_transform(rot_z(120.0 * s), np.array([100.0 * s, -50.0 * s, 900.0])) for s, sid in enumerate(SENSORS)
+    }
 
 
 def test_fuse_recording_is_within_the_noise_of_the_truth(tmp_path: Path) -> None:
@@ -390,8 +405,9 @@ def test_fuse_recording_is_within_the_noise_of_the_truth(tmp_path: Path) -> None
     # Without the filter (A4) the merge must be within the noise: one view's 3D error is about
     # sqrt(3) * 5 = 8.7 mm, the merge of three views about 5 mm.
     merged = list(fuse_recording(path, preset_name="A4", progress=False))
-    errors = np.array([np.linalg.norm(f.positions[0] - truth_skeleton(i), axis=-1) for i, f in enumerate(merged)
-                       if i >= born])
+    errors = np.array(
+        [np.linalg.norm(f.positions[0] - truth_skeleton(i), axis=-1) for i, f in enumerate(merged) if i >= born]
+    )
     assert np.median(errors) < NOISE_MM * math.sqrt(3) * 0.8, np.median(errors)
     assert errors.max() < 5 * NOISE_MM
 
@@ -418,9 +434,14 @@ def test_fuse_recording_with_rig_config_and_a_dropped_frame(tmp_path: Path) -> N
     path = tmp_path / "drop.mcap"
     poses = rig_poses()
     write_synthetic(path, poses, 30, store_calibration=False, drop={(2, 10)})
-    cfg = RigConfig(name=RIG, fusion=FusionConfig(preset="A4"), sensors=tuple(
-        SensorConfig(id=sid, source="sim", world_from_sensor=tuple(map(tuple, poses[sid].tolist())))
-        for sid in SENSORS))
+    cfg = RigConfig(
+        name=RIG,
+        fusion=FusionConfig(preset="A4"),
+        sensors=tuple(
+            SensorConfig(id=sid, source="sim", world_from_sensor=tuple(map(tuple, poses[sid].tolist())))
+            for sid in SENSORS
+        ),
+    )
     fused = list(fuse_recording(path, rig_config=cfg, progress=False))
     assert len(fused) == 30
     assert fused[10].contributors.tolist() == [[True, True, False]]
@@ -440,16 +461,35 @@ def fused_frames() -> list[FusedFrame]:
         positions = rng.normal(0, 1000, (persons, N_JOINTS, 3))
         if persons:
             positions[0, 5] = np.nan
-        out.append(FusedFrame(time_us=t, track_ids=np.arange(1, persons + 1, dtype=np.int64), positions=positions,
-                              n_agree=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.int16),
-                              confidence=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.uint8),
-                              contributors=np.ones((persons, 3), bool), sensor_ids=SENSORS))
+        out.append(
+            FusedFrame(
+                time_us=t,
+                track_ids=np.arange(1, persons + 1, dtype=np.int64),
+                positions=positions,
+                n_agree=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.int16),
+                confidence=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.uint8),
+                contributors=np.ones((persons, 3), bool),
+                sensor_ids=SENSORS,
+            )
+        )
     return out
 
 
 def expected_rows(frames: list[FusedFrame]) -> list[tuple]:
-    return [(f.time_us, int(f.track_ids[p]), j, JOINT_NAMES[j], *f.positions[p, j].tolist(), int(f.n_agree[p, j]),
-             int(f.confidence[p, j])) for f in frames for p in range(f.n_persons) for j in range(N_JOINTS)]
+    return [
+        (
+            f.time_us,
+            int(f.track_ids[p]),
+            j,
+            JOINT_NAMES[j],
+            *f.positions[p, j].tolist(),
+            int(f.n_agree[p, j]),
+            int(f.confidence[p, j]),
+        )
+        for f in frames
+        for p in range(f.n_persons)
+        for j in range(N_JOINTS)
+    ]
 
 
 def same_rows(got: list[tuple], expected: list[tuple]) -> None:
@@ -467,8 +507,10 @@ def test_write_fused_csv_round_trip(tmp_path: Path) -> None:
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == offline.FUSED_COLUMNS
-    got = [(int(r[0]), int(r[1]), int(r[2]), r[3], *(None if v == "" else float(v) for v in r[4:7]), int(r[7]),
-            int(r[8])) for r in rows[1:]]
+    got = [
+        (int(r[0]), int(r[1]), int(r[2]), r[3], *(None if v == "" else float(v) for v in r[4:7]), int(r[7]), int(r[8]))
+        for r in rows[1:]
+    ]
     same_rows(got, expected_rows(frames))
 
 

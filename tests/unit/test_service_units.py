@@ -106,23 +106,45 @@ def test_json_logs_are_one_object_per_line() -> None:
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        pytest.param(["capture", "--config", "r.toml", "--sensor", "s1", "--duration", "2"],
-                     {"config": Path("r.toml"), "sensor": "s1", "duration": 2.0, "max_frames": None}, id="capture"),
-        pytest.param(["fuse", "--config", "r.toml", "--rrd", "v.rrd", "--max-frames", "9"],
-                     {"rrd": Path("v.rrd"), "max_frames": 9, "input": None, "serve": False}, id="fuse-live"),
-        pytest.param(["fuse", "--input", "t.mcap", "--output", "f.csv"],
-                     {"input": Path("t.mcap"), "output": Path("f.csv"), "config": None}, id="fuse-offline"),
-        pytest.param(["fuse", "--config", "r.toml", "--serve", "--web-port", "9090", "--zenoh-connect", "tcp/h:1"],
-                     {"serve": True, "web_port": 9090, "zenoh_connect": ["tcp/h:1"]}, id="fuse-serve"),
-        pytest.param(["record", "--config", "r.toml", "--output", "x.mcap", "--duration", "1"],
-                     {"output": Path("x.mcap"), "duration": 1.0}, id="record"),
-        pytest.param(["replay", "t.mcap", "--fast", "--rig", "lab2"],
-                     {"file": Path("t.mcap"), "fast": True, "rig": "lab2", "speed": 1.0}, id="replay"),
-        pytest.param(["bench", "latency", "--sensors", "4", "8", "--json"],
-                     {"sensors": [4, 8], "json": True, "duration": 5.0}, id="bench-latency"),
+        pytest.param(
+            ["capture", "--config", "r.toml", "--sensor", "s1", "--duration", "2"],
+            {"config": Path("r.toml"), "sensor": "s1", "duration": 2.0, "max_frames": None},
+            id="capture",
+        ),
+        pytest.param(
+            ["fuse", "--config", "r.toml", "--rrd", "v.rrd", "--max-frames", "9"],
+            {"rrd": Path("v.rrd"), "max_frames": 9, "input": None, "serve": False},
+            id="fuse-live",
+        ),
+        pytest.param(
+            ["fuse", "--input", "t.mcap", "--output", "f.csv"],
+            {"input": Path("t.mcap"), "output": Path("f.csv"), "config": None},
+            id="fuse-offline",
+        ),
+        pytest.param(
+            ["fuse", "--config", "r.toml", "--serve", "--web-port", "9090", "--zenoh-connect", "tcp/h:1"],
+            {"serve": True, "web_port": 9090, "zenoh_connect": ["tcp/h:1"]},
+            id="fuse-serve",
+        ),
+        pytest.param(
+            ["record", "--config", "r.toml", "--output", "x.mcap", "--duration", "1"],
+            {"output": Path("x.mcap"), "duration": 1.0},
+            id="record",
+        ),
+        pytest.param(
+            ["replay", "t.mcap", "--fast", "--rig", "lab2"],
+            {"file": Path("t.mcap"), "fast": True, "rig": "lab2", "speed": 1.0},
+            id="replay",
+        ),
+        pytest.param(
+            ["bench", "latency", "--sensors", "4", "8", "--json"],
+            {"sensors": [4, 8], "json": True, "duration": 5.0},
+            id="bench-latency",
+        ),
         pytest.param(["status", "--config", "r.toml", "--max-frames", "3"], {"max_frames": 3}, id="status"),
-        pytest.param(["demo", "--duration", "5", "--json"], {"duration": 5.0, "offline": False, "serve": False},
-                     id="demo-live"),
+        pytest.param(
+            ["demo", "--duration", "5", "--json"], {"duration": 5.0, "offline": False, "serve": False}, id="demo-live"
+        ),
     ],
 )
 def test_parse_service_commands(argv: list[str], expected: dict[str, object]) -> None:
@@ -173,8 +195,9 @@ def sim_frames(rig: RigConfig) -> dict[str, SimSource]:
     return {sid: SimSource(rig, sid, take_duration_s=1.0) for sid in rig.sensor_ids}
 
 
-def test_sim_source_gives_each_worker_its_column_of_the_full_simulation(rig: RigConfig,
-                                                                       sim_frames: dict[str, SimSource]) -> None:
+def test_sim_source_gives_each_worker_its_column_of_the_full_simulation(
+    rig: RigConfig, sim_frames: dict[str, SimSource]
+) -> None:
     full = simulate_rig(rig, gesture="walking", take_duration_s=1.0, seed=0)
     for column, sid in enumerate(full.sensor_ids):
         frame = sim_frames[sid].frame_at(1_000_003)
@@ -276,12 +299,16 @@ class _FakeSession:
         return _FakeToken(self.events, key)
 
 
-_KINECT_RIG = {"rig": {"name": "k"}, "sync": {"by": "host"}, "sensors": [
-    {"id": "m1", "source": "kinect", "sync": {"role": "master"}},
-    {"id": "s1", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 160}},
-    {"id": "s2", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 320}},
-    {"id": "x1", "source": "kinect"},
-]}
+_KINECT_RIG = {
+    "rig": {"name": "k"},
+    "sync": {"by": "host"},
+    "sensors": [
+        {"id": "m1", "source": "kinect", "sync": {"role": "master"}},
+        {"id": "s1", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 160}},
+        {"id": "s2", "source": "kinect", "sync": {"role": "subordinate", "delay_us": 320}},
+        {"id": "x1", "source": "kinect"},
+    ],
+}
 
 
 @pytest.fixture
@@ -290,8 +317,11 @@ def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     from skelfuse.sources import kinect
 
     events: list[str] = []
-    monkeypatch.setattr(kinect.KinectSource, "from_config",
-                        classmethod(lambda cls, cfg, sensor_id, **kw: _FakeKinect(events, sensor_id)))
+    monkeypatch.setattr(
+        kinect.KinectSource,
+        "from_config",
+        classmethod(lambda cls, cfg, sensor_id, **kw: _FakeKinect(events, sensor_id)),
+    )
 
     def fake_wait(session: object, rig: str, ids: list[str], *, timeout_s: float, should_exit: object) -> list[str]:
         events.append(f"wait {rig} {','.join(ids)} {timeout_s:g}")
@@ -301,8 +331,9 @@ def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return events
 
 
-def test_kinect_master_waits_for_subordinates_before_opening(kinect_events: list[str],
-                                                              caplog: pytest.LogCaptureFixture) -> None:
+def test_kinect_master_waits_for_subordinates_before_opening(
+    kinect_events: list[str], caplog: pytest.LogCaptureFixture
+) -> None:
     cfg = RigConfig.from_dict(_KINECT_RIG)
     source = make_source(cfg, "m1", WorkerOptions(subordinate_wait_s=7.0))
     source.attach(_FakeSession(kinect_events), should_exit=lambda: False)  # type: ignore[attr-defined]

@@ -58,8 +58,9 @@ def sensor_frames(draw: st.DrawFn, max_bodies: int = 4) -> SensorFrame:
         sequence=draw(st.integers(0, 2**64 - 1)),
         device_time_us=draw(st.integers(-(2**63), 2**63 - 1)),
         host_time_ns=draw(st.integers(-(2**63), 2**63 - 1)),
-        body_ids=np.array(draw(st.lists(st.integers(0, 2**32 - 1), min_size=n, max_size=n, unique=True)),
-                          dtype=np.uint32),
+        body_ids=np.array(
+            draw(st.lists(st.integers(0, 2**32 - 1), min_size=n, max_size=n, unique=True)), dtype=np.uint32
+        ),
         positions=positions,
         orientations=orientations,
         confidence=rng.integers(0, 4, (n, N_JOINTS)).astype(np.uint8),
@@ -75,8 +76,9 @@ def fused_frames(draw: st.DrawFn, max_persons: int = 4, max_sensors: int = 5) ->
     positions[rng.random((n, N_JOINTS)) < draw(st.sampled_from([0.0, 0.2, 1.0]))] = np.nan  # whole joints
     return FusedFrame(
         time_us=draw(st.integers(-(2**63), 2**63 - 1)),
-        track_ids=np.array(draw(st.lists(st.integers(-(2**63), 2**63 - 1), min_size=n, max_size=n,
-                                         unique=True)), dtype=np.int64),
+        track_ids=np.array(
+            draw(st.lists(st.integers(-(2**63), 2**63 - 1), min_size=n, max_size=n, unique=True)), dtype=np.int64
+        ),
         positions=positions,
         n_agree=rng.integers(0, codec.MAX_SENSORS + 1, (n, N_JOINTS)).astype(np.int16),
         confidence=rng.integers(0, 4, (n, N_JOINTS)).astype(np.uint8),
@@ -92,17 +94,33 @@ statuses = st.builds(
     state=st.sampled_from(codec.STATUS_STATES),
     time_ns=st.integers(0, 2**63 - 1),
     counters=st.dictionaries(st.text(max_size=12), st.integers(0, 2**40), max_size=4),
-    info=st.dictionaries(st.text(max_size=12), st.one_of(st.none(), st.booleans(), st.integers(-100, 100),
-                                                          st.floats(allow_nan=False, allow_infinity=False),
-                                                          st.text(max_size=10)), max_size=4),
+    info=st.dictionaries(
+        st.text(max_size=12),
+        st.one_of(
+            st.none(),
+            st.booleans(),
+            st.integers(-100, 100),
+            st.floats(allow_nan=False, allow_infinity=False),
+            st.text(max_size=10),
+        ),
+        max_size=4,
+    ),
 )
 
 
 def assert_sensor_equal(got: SensorFrame, want: SensorFrame) -> None:
     assert (got.sensor_id, got.sequence, got.device_time_us, got.host_time_ns) == (
-        want.sensor_id, want.sequence, want.device_time_us, want.host_time_ns)
-    for name, dtype in (("body_ids", np.uint32), ("positions", np.float32), ("orientations", np.float32),
-                        ("confidence", np.uint8)):
+        want.sensor_id,
+        want.sequence,
+        want.device_time_us,
+        want.host_time_ns,
+    )
+    for name, dtype in (
+        ("body_ids", np.uint32),
+        ("positions", np.float32),
+        ("orientations", np.float32),
+        ("confidence", np.uint8),
+    ):
         array = getattr(got, name)
         assert array.dtype == dtype, name
         assert array.shape == getattr(want, name).shape, name
@@ -113,8 +131,13 @@ def assert_sensor_equal(got: SensorFrame, want: SensorFrame) -> None:
 def assert_fused_equal(got: FusedFrame, want: FusedFrame) -> None:
     assert got.time_us == want.time_us
     assert got.sensor_ids == want.sensor_ids
-    for name, dtype in (("track_ids", np.int64), ("positions", np.float64), ("n_agree", np.int16),
-                        ("confidence", np.uint8), ("contributors", np.bool_)):
+    for name, dtype in (
+        ("track_ids", np.int64),
+        ("positions", np.float64),
+        ("n_agree", np.int16),
+        ("confidence", np.uint8),
+        ("contributors", np.bool_),
+    ):
         array = getattr(got, name)
         assert array.dtype == dtype, name
         assert array.shape == getattr(want, name).shape, name
@@ -124,7 +147,10 @@ def assert_fused_equal(got: FusedFrame, want: FusedFrame) -> None:
 def make_sensor_frame(n_bodies: int = 2, sensor_id: str = "000123412512") -> SensorFrame:
     rng = np.random.default_rng(SEED)
     return SensorFrame(
-        sensor_id=sensor_id, sequence=41, device_time_us=1_000_000, host_time_ns=1_700_000_000_000_000_000,
+        sensor_id=sensor_id,
+        sequence=41,
+        device_time_us=1_000_000,
+        host_time_ns=1_700_000_000_000_000_000,
         body_ids=np.arange(1, n_bodies + 1, dtype=np.uint32),
         positions=rng.normal(0.0, 1000.0, (n_bodies, N_JOINTS, 3)).astype(np.float32),
         orientations=rng.normal(0.0, 1.0, (n_bodies, N_JOINTS, 4)).astype(np.float32),
@@ -138,10 +164,13 @@ def make_fused_frame(n_persons: int = 2, sensors: tuple[str, ...] = ("A1", "B2",
     if n_persons:
         positions[0, 9] = np.nan
     return FusedFrame(
-        time_us=1_000_000, track_ids=np.arange(7, 7 + n_persons, dtype=np.int64), positions=positions,
+        time_us=1_000_000,
+        track_ids=np.arange(7, 7 + n_persons, dtype=np.int64),
+        positions=positions,
         n_agree=np.full((n_persons, N_JOINTS), 2, dtype=np.int16),
         confidence=np.full((n_persons, N_JOINTS), 2, dtype=np.uint8),
-        contributors=np.ones((n_persons, len(sensors)), dtype=bool), sensor_ids=sensors,
+        contributors=np.ones((n_persons, len(sensors)), dtype=bool),
+        sensor_ids=sensors,
     )
 
 
@@ -152,8 +181,9 @@ def make_fused_frame(n_persons: int = 2, sensors: tuple[str, ...] = ("A1", "B2",
 @given(frame=sensor_frames())
 def test_sensor_frame_round_trip(frame: SensorFrame) -> None:
     payload = codec.encode_sensor_frame(frame)
-    assert len(payload) == (codec.SENSOR_HEADER_SIZE + frame.n_bodies * codec.SENSOR_BYTES_PER_BODY + 2
-                            + len(frame.sensor_id.encode()))
+    assert len(payload) == (
+        codec.SENSOR_HEADER_SIZE + frame.n_bodies * codec.SENSOR_BYTES_PER_BODY + 2 + len(frame.sensor_id.encode())
+    )
     assert_sensor_equal(codec.decode_sensor_frame(payload), frame)
 
 
@@ -161,8 +191,12 @@ def test_sensor_frame_round_trip(frame: SensorFrame) -> None:
 def test_fused_frame_round_trip(frame: FusedFrame) -> None:
     payload = codec.encode_fused_frame(frame)
     table = sum(2 + len(s.encode()) for s in frame.sensor_ids)
-    assert len(payload) == (codec.FUSED_HEADER_SIZE + frame.n_persons * codec.FUSED_BYTES_PER_PERSON
-                            + frame.n_persons * len(frame.sensor_ids) + table)
+    assert len(payload) == (
+        codec.FUSED_HEADER_SIZE
+        + frame.n_persons * codec.FUSED_BYTES_PER_PERSON
+        + frame.n_persons * len(frame.sensor_ids)
+        + table
+    )
     assert_fused_equal(codec.decode_fused_frame(payload), frame)
 
 
@@ -202,9 +236,16 @@ def test_frames_with_no_bodies_and_no_sensors() -> None:
 
 def test_encoder_converts_compatible_dtypes() -> None:
     frame = make_sensor_frame()
-    loose = SensorFrame(frame.sensor_id, frame.sequence, frame.device_time_us, frame.host_time_ns,
-                        frame.body_ids.astype(np.int64), frame.positions.astype(np.float64),
-                        frame.orientations.astype(np.float64), frame.confidence.astype(np.int32))
+    loose = SensorFrame(
+        frame.sensor_id,
+        frame.sequence,
+        frame.device_time_us,
+        frame.host_time_ns,
+        frame.body_ids.astype(np.int64),
+        frame.positions.astype(np.float64),
+        frame.orientations.astype(np.float64),
+        frame.confidence.astype(np.int32),
+    )
     assert codec.encode_sensor_frame(loose) == codec.encode_sensor_frame(frame)
 
 
@@ -223,8 +264,8 @@ def test_sensor_frame_layout_matches_the_doc() -> None:
     orientations_at = 48 + 2 * 32 * 3 * 4
     assert struct.unpack_from("<4f", payload, orientations_at) == tuple(frame.orientations[0, 0].tolist())
     confidence_at = orientations_at + 2 * 32 * 4 * 4
-    assert payload[confidence_at: confidence_at + 64] == bytes([2]) * 64
-    assert payload[confidence_at + 64:] == b"\x02\x00AB"
+    assert payload[confidence_at : confidence_at + 64] == bytes([2]) * 64
+    assert payload[confidence_at + 64 :] == b"\x02\x00AB"
 
 
 def test_fused_frame_layout_matches_the_doc() -> None:
@@ -232,8 +273,7 @@ def test_fused_frame_layout_matches_the_doc() -> None:
     payload = codec.encode_fused_frame(frame)
     table = b"\x02\x00A1\x03\x00B22"
     assert payload[0:4] == b"SKLF"
-    assert struct.unpack_from("<BBBBHHHHqII", payload, 4) == (1, 0, 2, 0, 32, 32, 2, 2, 1_000_000,
-                                                              len(table), 0)
+    assert struct.unpack_from("<BBBBHHHHqII", payload, 4) == (1, 0, 2, 0, 32, 32, 2, 2, 1_000_000, len(table), 0)
     assert struct.unpack_from("<2q", payload, 32) == (7, 8)
     pelvis = struct.unpack_from("<3d", payload, 48)
     assert pelvis == tuple(frame.positions[0, 0].tolist())
@@ -242,8 +282,8 @@ def test_fused_frame_layout_matches_the_doc() -> None:
     assert struct.unpack_from("<64h", payload, n_agree_at) == (2,) * 64
     confidence_at = n_agree_at + 2 * 64
     contributors_at = confidence_at + 64
-    assert payload[contributors_at: contributors_at + 4] == b"\x01\x01\x01\x01"
-    assert payload[contributors_at + 4:] == table
+    assert payload[contributors_at : contributors_at + 4] == b"\x01\x01\x01\x01"
+    assert payload[contributors_at + 4 :] == table
 
 
 def test_doc_lists_every_reject_reason_and_the_worked_example() -> None:
@@ -255,7 +295,7 @@ def test_doc_lists_every_reject_reason_and_the_worked_example() -> None:
     payload = codec.encode_fused_frame(worked_example_frame())
     assert _hex_lines(payload[:32]) in doc  # header
     assert _hex_lines(payload[40:64]) in doc  # pelvis position
-    assert _hex_lines(payload[40 + 9 * 24: 40 + 10 * 24]) in doc  # HANDTIP_LEFT: NaN
+    assert _hex_lines(payload[40 + 9 * 24 : 40 + 10 * 24]) in doc  # HANDTIP_LEFT: NaN
     assert _hex_lines(payload[904:]) in doc  # contributors and sensor id table
 
 
@@ -269,13 +309,19 @@ def worked_example_frame() -> FusedFrame:
     n_agree[0, 9] = 0
     confidence = np.full((1, N_JOINTS), 2, dtype=np.uint8)
     confidence[0, 9] = 0
-    return FusedFrame(time_us=1_234_567, track_ids=np.array([7]), positions=positions, n_agree=n_agree,
-                      confidence=confidence, contributors=np.array([[True, True]]),
-                      sensor_ids=("000123", "000456"))
+    return FusedFrame(
+        time_us=1_234_567,
+        track_ids=np.array([7]),
+        positions=positions,
+        n_agree=n_agree,
+        confidence=confidence,
+        contributors=np.array([[True, True]]),
+        sensor_ids=("000123", "000456"),
+    )
 
 
 def _hex_lines(data: bytes) -> str:
-    return "\n".join(data[i: i + 16].hex(" ") for i in range(0, len(data), 16))
+    return "\n".join(data[i : i + 16].hex(" ") for i in range(0, len(data), 16))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -309,8 +355,7 @@ REJECT_CASES = [
     ("sensor", SENSOR[:500], "truncated", "500 bytes"),
     ("fused", FUSED[:-3], "truncated", "need"),
     ("sensor", b"GARBAGE!" * 8, "bad_magic", "b'GARB'"),
-    ("sensor", _patch(SENSOR, "<B", 4, 2), "bad_version", "schema version 2.0, this reader supports major "
-                                                          "version 1"),
+    ("sensor", _patch(SENSOR, "<B", 4, 2), "bad_version", "schema version 2.0, this reader supports major version 1"),
     ("fused", _patch(FUSED, "<BB", 4, 0, 9), "bad_version", "schema version 0.9"),
     ("sensor", _patch(SENSOR, "<B", 6, 9), "bad_kind", "unknown message kind 9"),
     ("sensor", FUSED, "bad_kind", "message kind 2 (fused frame), expected 1"),
@@ -344,14 +389,21 @@ REJECT_CASES = [
     ("status", _status(b"{not json"), "bad_json", "Expecting"),
     ("status", _status(b"[1, 2]"), "bad_json", "expected a JSON object"),
     ("status", _status(b'{"node": "n", "role": "r", "state": "running"}'), "bad_json", "time_ns"),
-    ("status", _status(b'{"node": "n", "role": "r", "state": "x", "time_ns": 1, "counters": {"a": -1}}'),
-     "bad_json", "non-negative"),
-    ("status", _status(b'{"node": "n", "role": "r", "state": "x", "time_ns": 1, "info": {"v": NaN}}'),
-     "bad_json", "NaN"),
+    (
+        "status",
+        _status(b'{"node": "n", "role": "r", "state": "x", "time_ns": 1, "counters": {"a": -1}}'),
+        "bad_json",
+        "non-negative",
+    ),
+    (
+        "status",
+        _status(b'{"node": "n", "role": "r", "state": "x", "time_ns": 1, "info": {"v": NaN}}'),
+        "bad_json",
+        "NaN",
+    ),
     ("status", _status(b"[" * 50_000), "bad_json", ""),
 ]
-DECODERS = {"sensor": codec.decode_sensor_frame, "fused": codec.decode_fused_frame,
-            "status": codec.decode_status}
+DECODERS = {"sensor": codec.decode_sensor_frame, "fused": codec.decode_fused_frame, "status": codec.decode_status}
 
 
 @pytest.mark.parametrize(
@@ -413,26 +465,38 @@ def _with(frame: Any, **changes: Any) -> Any:
 @pytest.mark.parametrize(
     ("frame", "fragment"),
     [
-        pytest.param(_with(make_sensor_frame(1), positions=np.full((1, 32, 3), np.nan, np.float32)),
-                     "NaN or Inf", id="nan-position"),
-        pytest.param(_with(make_sensor_frame(1), positions=np.full((1, 32, 3), 1e39)), "NaN or Inf",
-                     id="float32-overflow"),
+        pytest.param(
+            _with(make_sensor_frame(1), positions=np.full((1, 32, 3), np.nan, np.float32)),
+            "NaN or Inf",
+            id="nan-position",
+        ),
+        pytest.param(
+            _with(make_sensor_frame(1), positions=np.full((1, 32, 3), 1e39)), "NaN or Inf", id="float32-overflow"
+        ),
         pytest.param(_with(make_sensor_frame(1), confidence=np.full((1, 32), 5)), "value 5", id="confidence"),
-        pytest.param(_with(make_sensor_frame(1), positions=np.zeros((1, 31, 3), np.float32)),
-                     "positions has shape (1, 31, 3), expected (1, 32, 3)", id="shape"),
-        pytest.param(_with(make_sensor_frame(1), body_ids=np.array([-1])), "body_ids spans -1..-1",
-                     id="neg-id"),
+        pytest.param(
+            _with(make_sensor_frame(1), positions=np.zeros((1, 31, 3), np.float32)),
+            "positions has shape (1, 31, 3), expected (1, 32, 3)",
+            id="shape",
+        ),
+        pytest.param(_with(make_sensor_frame(1), body_ids=np.array([-1])), "body_ids spans -1..-1", id="neg-id"),
         pytest.param(_with(make_sensor_frame(1), sensor_id=""), "sensor_id is empty", id="empty-id"),
         pytest.param(_with(make_sensor_frame(1), sequence=-1), "sequence = -1", id="sequence"),
         pytest.param(make_sensor_frame(65), "65 bodies, at most 64", id="too-many-bodies"),
-        pytest.param(_with(make_fused_frame(1), contributors=np.ones((1, 2), bool)),
-                     "contributors (P, S) has shape (1, 2), expected (1, 3)", id="contributors-shape"),
+        pytest.param(
+            _with(make_fused_frame(1), contributors=np.ones((1, 2), bool)),
+            "contributors (P, S) has shape (1, 2), expected (1, 3)",
+            id="contributors-shape",
+        ),
         pytest.param(_with(make_fused_frame(1), positions=np.full((1, 32, 3), np.inf)), "Inf", id="inf"),
         pytest.param(_with(make_fused_frame(1), n_agree=np.full((1, 32), 65)), "n_agree spans", id="n-agree"),
         pytest.param(_with(make_fused_frame(2), track_ids=np.array([3, 3])), "duplicates", id="dup-tracks"),
         pytest.param(make_fused_frame(1, ("A", "A")), "sensor_ids hold duplicates", id="dup-sensors"),
-        pytest.param(_with(make_fused_frame(1), positions=np.zeros((1, 32, 3), np.float32).astype(int)),
-                     "expected a float array", id="int-positions"),
+        pytest.param(
+            _with(make_fused_frame(1), positions=np.zeros((1, 32, 3), np.float32).astype(int)),
+            "expected a float array",
+            id="int-positions",
+        ),
     ],
 )
 def test_encode_refuses_invalid_frames(frame: Any, fragment: str) -> None:
@@ -480,8 +544,10 @@ def test_fuzz_valid_prefix_random_tail(prefix: bytes, tail: bytes) -> None:
 
 
 @FUZZ
-@given(payload=st.sampled_from([SENSOR, FUSED, STATUS]), flips=st.lists(st.integers(0, 8 * len(FUSED)),
-                                                                          min_size=1, max_size=4))
+@given(
+    payload=st.sampled_from([SENSOR, FUSED, STATUS]),
+    flips=st.lists(st.integers(0, 8 * len(FUSED)), min_size=1, max_size=4),
+)
 def test_fuzz_bit_flips(payload: bytes, flips: list[int]) -> None:
     data = bytearray(payload)
     for bit in flips:
@@ -490,8 +556,11 @@ def test_fuzz_bit_flips(payload: bytes, flips: list[int]) -> None:
 
 
 def test_every_truncation_is_rejected() -> None:
-    for payload, decode in ((SENSOR, codec.decode_sensor_frame), (FUSED, codec.decode_fused_frame),
-                            (STATUS, codec.decode_status)):
+    for payload, decode in (
+        (SENSOR, codec.decode_sensor_frame),
+        (FUSED, codec.decode_fused_frame),
+        (STATUS, codec.decode_status),
+    ):
         for end in range(len(payload)):
             with pytest.raises(DecodeError) as info:
                 decode(payload[:end])
@@ -539,8 +608,9 @@ def test_example_decoder_agrees_with_codec(frame: FusedFrame) -> None:
     assert tuple(theirs["sensor_ids"]) == ours.sensor_ids
     assert [p["track_id"] for p in theirs["persons"]] == ours.track_ids.tolist()
     for p, person in enumerate(theirs["persons"]):
-        np.testing.assert_array_equal(np.array(person["positions"], dtype=np.float64).reshape(N_JOINTS, 3),
-                                      ours.positions[p])
+        np.testing.assert_array_equal(
+            np.array(person["positions"], dtype=np.float64).reshape(N_JOINTS, 3), ours.positions[p]
+        )
         assert person["n_agree"] == ours.n_agree[p].tolist()
         assert person["confidence"] == ours.confidence[p].tolist()
         contributed = [s for s, on in zip(ours.sensor_ids, ours.contributors[p], strict=True) if on]
@@ -566,8 +636,7 @@ def test_example_subscriber_receives_over_zenoh(capsys: pytest.CaptureFixture[st
     endpoint = f"tcp/127.0.0.1:{port}"
     example = load_example()
     exit_codes: list[int] = []
-    argv = ["--rig", "testrig", "--listen", endpoint, "--no-scouting", "--max-messages", "2",
-            "--duration", "10"]
+    argv = ["--rig", "testrig", "--listen", endpoint, "--no-scouting", "--max-messages", "2", "--duration", "10"]
     runner = threading.Thread(target=lambda: exit_codes.append(example.main(argv)))
     runner.start()
     config = zenoh.Config()

@@ -24,8 +24,9 @@ valid_names = st.text(min_size=1, max_size=24).filter(_is_valid)
     ("built", "expected"),
     [
         pytest.param(keys.rig_prefix("lab"), "skelfuse/lab", id="prefix"),
-        pytest.param(keys.sensor_skeletons("lab", "000123412512"),
-                     "skelfuse/lab/sensors/000123412512/skeletons", id="sensor"),
+        pytest.param(
+            keys.sensor_skeletons("lab", "000123412512"), "skelfuse/lab/sensors/000123412512/skeletons", id="sensor"
+        ),
         pytest.param(keys.all_sensor_skeletons("lab"), "skelfuse/lab/sensors/*/skeletons", id="all-sensors"),
         pytest.param(keys.fused_skeletons("lab"), "skelfuse/lab/fused/skeletons", id="fused"),
         pytest.param(keys.status("lab", "fusion"), "skelfuse/lab/status/fusion", id="status"),
@@ -105,6 +106,12 @@ def test_keys_are_valid_zenoh_key_expressions() -> None:
     assert zenoh.KeyExpr(keys.all_sensor_skeletons("lab")).intersects(sensor)
     assert not zenoh.KeyExpr(keys.all_sensor_skeletons("studio")).intersects(sensor)
     assert keys.parse_sensor_key(sensor, rig="lab") == "000123412512"  # a KeyExpr, as on sample.key_expr
-    for key in (keys.fused_skeletons("lab"), keys.status("lab", "n"), keys.calibration("lab"),
-                keys.alive("lab", "n"), keys.all_status("lab"), keys.all_alive("lab")):
+    for key in (
+        keys.fused_skeletons("lab"),
+        keys.status("lab", "n"),
+        keys.calibration("lab"),
+        keys.alive("lab", "n"),
+        keys.all_status("lab"),
+        keys.all_alive("lab"),
+    ):
         assert str(zenoh.KeyExpr(key)) == key

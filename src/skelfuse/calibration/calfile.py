@@ -134,13 +134,21 @@ def reanchor(result: CalibrationResult, world_from_master: np.ndarray, *, note: 
     from skelfuse.fusion.transform import invert_transform
 
     if result.master is None or result.master not in result.sensors:
-        raise CalibrationError(f"cannot re-anchor a calibration without its master (master = {result.master!r}, "
-                               f"sensors: {', '.join(result.sensors)}); calibrate sensor to sensor first")
+        raise CalibrationError(
+            f"cannot re-anchor a calibration without its master (master = {result.master!r}, "
+            f"sensors: {', '.join(result.sensors)}); calibrate sensor to sensor first"
+        )
     correction = np.asarray(world_from_master, dtype=np.float64) @ invert_transform(
-        result.sensors[result.master].world_from_sensor)
-    sensors = {sid: replace(s, world_from_sensor=correction @ s.world_from_sensor,
-                            notes=(s.notes + ("; " if s.notes and note else "") + note))
-               for sid, s in result.sensors.items()}
+        result.sensors[result.master].world_from_sensor
+    )
+    sensors = {
+        sid: replace(
+            s,
+            world_from_sensor=correction @ s.world_from_sensor,
+            notes=(s.notes + ("; " if s.notes and note else "") + note),
+        )
+        for sid, s in result.sensors.items()
+    }
     return replace(result, sensors=sensors)
 
 
@@ -181,8 +189,13 @@ def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
     for sensor_id, sensor in result.sensors.items():
         pose = sensor.world_from_sensor
         rows = ", ".join("[" + ", ".join(_toml_float(v) for v in row) + "]" for row in pose)
-        lines += ["", f"[sensors.{_toml_str(sensor_id)}]", f"world_from_sensor = [{rows}]",
-                  f"method = {_toml_str(sensor.method)}", f"date = {_toml_str(sensor.date)}"]
+        lines += [
+            "",
+            f"[sensors.{_toml_str(sensor_id)}]",
+            f"world_from_sensor = [{rows}]",
+            f"method = {_toml_str(sensor.method)}",
+            f"date = {_toml_str(sensor.date)}",
+        ]
         if sensor.residual_mm is not None:
             lines.append(f"residual_mm = {_toml_float(sensor.residual_mm)}")
         if sensor.n_points is not None:
@@ -220,8 +233,10 @@ def read_calibration(path: str | Path) -> CalibrationResult:
         data = tomllib.load(handle)
     version = data.get("version", FORMAT_VERSION)
     if not isinstance(version, int) or isinstance(version, bool) or version > FORMAT_VERSION or version < 1:
-        raise CalibrationError(f"{path}: key version: expected an integer 1..{FORMAT_VERSION}, found {version!r}; "
-                               f"a newer skelfuse wrote this file, upgrade to read it")
+        raise CalibrationError(
+            f"{path}: key version: expected an integer 1..{FORMAT_VERSION}, found {version!r}; "
+            f"a newer skelfuse wrote this file, upgrade to read it"
+        )
     top_method = _meta(data, "method", str, path, "")
     default_method = top_method if top_method in METHODS else "manual"
     sensors = {}
@@ -230,19 +245,25 @@ def read_calibration(path: str | Path) -> CalibrationResult:
         where = f"sensors.{sensor_id}"
         method = _meta(table, "method", str, path, default_method, where)
         if method not in METHODS:
-            raise CalibrationError(f"{path}: key {where}.method: expected one of {', '.join(METHODS)}, "
-                                   f"found {method!r}")
+            raise CalibrationError(
+                f"{path}: key {where}.method: expected one of {', '.join(METHODS)}, found {method!r}"
+            )
         residual = _meta(table, "residual_mm", float, path, None, where)
         sensors[sensor_id] = SensorCalibration(
-            world_from_sensor=pose, method=method,
+            world_from_sensor=pose,
+            method=method,
             residual_mm=None if residual is None else float(residual),
             n_points=_meta(table, "n_points", int, path, None, where),
             date=_meta(table, "date", str, path, _meta(data, "date", str, path, "")),
             notes=_meta(table, "notes", str, path, ""),
         )
-    return CalibrationResult(sensors=sensors, method=top_method or default_method,
-                             master=_meta(data, "master", str, path, None), date=_meta(data, "date", str, path, ""),
-                             notes=_meta(data, "notes", str, path, ""))
+    return CalibrationResult(
+        sensors=sensors,
+        method=top_method or default_method,
+        master=_meta(data, "master", str, path, None),
+        date=_meta(data, "date", str, path, ""),
+        notes=_meta(data, "notes", str, path, ""),
+    )
 
 
 def _meta(table: Mapping[str, Any], key: str, kind: type, path: Path, default: Any, where: str = "") -> Any:

@@ -95,7 +95,9 @@ def lift_mask(depth_mm: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics) ->
     """
     depth = np.asarray(depth_mm)
     if depth.shape != (intrinsics.height, intrinsics.width):
-        raise ValueError(f"depth image is {depth.shape[1]}x{depth.shape[0]} (W x H), intrinsics are for "
-                         f"{intrinsics.width}x{intrinsics.height}; pass the depth camera's intrinsics")
+        raise ValueError(
+            f"depth image is {depth.shape[1]}x{depth.shape[0]} (W x H), intrinsics are for "
+            f"{intrinsics.width}x{intrinsics.height}; pass the depth camera's intrinsics"
+        )
     rows, cols = np.nonzero((np.asarray(mask) != 0) & (depth > 0))
     return intrinsics.lift(cols, rows, depth[rows, cols])

@@ -150,30 +150,38 @@ def detect_plate_markers(
     color = np.ascontiguousarray(color_bgr, dtype=np.uint8)
     depth = np.asarray(depth_mm)
     if color.shape[:2] != depth.shape:
-        raise DataError(f"colour {color.shape} and depth {depth.shape} must be registered (same H x W); warp "
-                        "colour into the depth camera first (k4a transformation)")
+        raise DataError(
+            f"colour {color.shape} and depth {depth.shape} must be registered (same H x W); warp "
+            "colour into the depth camera first (k4a transformation)"
+        )
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
     corners_list, found_ids, rejected = detector.detectMarkers(color)
     seen = [] if found_ids is None else [int(i) for i in np.asarray(found_ids).reshape(-1)]
-    context = (f"expected ArUco ids {list(ids)} (paper markers 0-3) from {dictionary}, detected "
-               f"{sorted(seen) if seen else 'none'} ({len(rejected)} rejected candidate squares)")
+    context = (
+        f"expected ArUco ids {list(ids)} (paper markers 0-3) from {dictionary}, detected "
+        f"{sorted(seen) if seen else 'none'} ({len(rejected)} rejected candidate squares)"
+    )
     required = ids[:3]
     missing = [i for i in required if i not in seen]
     if missing:
         raise CalibrationError(
             f"marker calibration: marker id(s) {missing} not found; {context}. Check that the whole plate is "
-            f"in the master's colour view, evenly lit, not mirrored, and printed from {dictionary}")
+            f"in the master's colour view, evenly lit, not mirrored, and printed from {dictionary}"
+        )
     duplicated = sorted({i for i in seen if i in ids and seen.count(i) > 1})
     if duplicated:
-        raise CalibrationError(f"marker calibration: id(s) {duplicated} detected more than once; {context}. "
-                               "Remove other plates or printed markers from the view")
+        raise CalibrationError(
+            f"marker calibration: id(s) {duplicated} detected more than once; {context}. "
+            "Remove other plates or printed markers from the view"
+        )
     object_points = None
     if marker_mm is not None:
         half = marker_mm / 2
-        object_points = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]],
-                                 dtype=np.float64)
+        object_points = np.array(
+            [[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]], dtype=np.float64
+        )
     out = {}
     for corners, marker_id in zip(corners_list, seen, strict=True):
         if marker_id not in ids:
@@ -184,12 +192,12 @@ def detect_plate_markers(
             if marker_id in required:
                 raise CalibrationError(
                     f"marker calibration: marker {marker_id} has only {n_pixels} valid depth pixels; {context}. "
-                    "Check the depth range (0.5-3.86 m in NFOV) and that colour is registered to depth")
+                    "Check the depth range (0.5-3.86 m in NFOV) and that colour is registered to depth"
+                )
             continue
         center_pnp = None
         if object_points is not None:
-            ok, _, tvec = cv2.solvePnP(object_points, quad, intrinsics.matrix(), None,
-                                       flags=cv2.SOLVEPNP_IPPE_SQUARE)
+            ok, _, tvec = cv2.solvePnP(object_points, quad, intrinsics.matrix(), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
             center_pnp = np.asarray(tvec, dtype=np.float64).reshape(3) if ok else None
         out[marker_id] = MarkerObservation(marker_id, quad, center, n_pixels, center_pnp)
     return out
@@ -221,8 +229,10 @@ def world_from_marker_centres(
     nx, ny = np.linalg.norm(x), np.linalg.norm(y)
     z = np.cross(x / max(nx, 1e-12), y / max(ny, 1e-12))
     if nx < 1.0 or ny < 1.0 or np.linalg.norm(z) < 0.1:
-        raise CalibrationError(f"marker calibration: marker centres 0, 1, 2 are degenerate (|x| = {nx:.1f} mm, "
-                               f"|y| = {ny:.1f} mm, sin(angle) = {np.linalg.norm(z):.2f}); check the detections")
+        raise CalibrationError(
+            f"marker calibration: marker centres 0, 1, 2 are degenerate (|x| = {nx:.1f} mm, "
+            f"|y| = {ny:.1f} mm, sin(angle) = {np.linalg.norm(z):.2f}); check the detections"
+        )
     axes = np.stack([x / nx, y / ny, z / np.linalg.norm(z)], axis=1)  # columns: world axes in the sensor frame
     U, _, Vt = np.linalg.svd(axes)
     rotation = U @ Vt  # nearest rotation; det +1 since x̂, ŷ, x̂×ŷ form a right-handed (near) basis
@@ -273,15 +283,24 @@ def calibrate_world_from_marker(
         plate (z = x × y must point from the floor towards the sensor: a mirrored or upside-down plate), or a
         ``calibration`` whose master differs.
     """
-    observations = detect_plate_markers(color_bgr, depth_mm, intrinsics, ids=ids, dictionary=dictionary,
-                                        marker_mm=marker_mm, centre_method=centre_method)
+    observations = detect_plate_markers(
+        color_bgr,
+        depth_mm,
+        intrinsics,
+        ids=ids,
+        dictionary=dictionary,
+        marker_mm=marker_mm,
+        centre_method=centre_method,
+    )
     centres = {i: obs.center for i, obs in observations.items()}
     world_from_master, residual = world_from_marker_centres(centres, ids)
     height = world_from_master[2, 3]
     if height <= 0:
-        raise CalibrationError(f"marker calibration: the master comes out {height:.0f} mm below the plate: z = x × y "
-                               "points away from the sensor. Check the marker ids' placement (x from 2 to 1, y from "
-                               "0 to 1) and that the plate lies face up")
+        raise CalibrationError(
+            f"marker calibration: the master comes out {height:.0f} mm below the plate: z = x × y "
+            "points away from the sensor. Check the marker ids' placement (x from 2 to 1, y from "
+            "0 to 1) and that the plate lies face up"
+        )
     pnp = [obs.pnp_discrepancy_mm for obs in observations.values() if obs.pnp_discrepancy_mm is not None]
     notes = f"plate markers {sorted(observations)} ({dictionary}, {centre_method} centres)"
     if pnp:
@@ -291,8 +310,10 @@ def calibrate_world_from_marker(
     if calibration is None:
         return CalibrationResult({master: entry}, "marker", master, date, notes), observations
     if calibration.master != master:
-        raise CalibrationError(f"marker calibration: the master is {master!r} but the sensor-to-sensor calibration "
-                               f"was fitted to {calibration.master!r}; use that sensor's view of the plate")
+        raise CalibrationError(
+            f"marker calibration: the master is {master!r} but the sensor-to-sensor calibration "
+            f"was fitted to {calibration.master!r}; use that sensor's view of the plate"
+        )
     moved = reanchor(calibration, world_from_master, note="re-anchored to the marker plate")
     sensors = dict(moved.sensors)
     sensors[master] = entry

@@ -116,7 +116,7 @@ def aruco_plate(
         image = cv2.aruco.generateImageMarker(aruco_dict, marker_id, side_px)
         col0 = round((mx - marker_mm / 2 - lo) * px_per_mm)
         row0 = round((hi - (my + marker_mm / 2)) * px_per_mm)  # rows grow along -y
-        texture[row0:row0 + side_px, col0:col0 + side_px] = image
+        texture[row0 : row0 + side_px, col0 : col0 + side_px] = image
     centre = ((lo + hi) / 2, (lo + hi) / 2, z_mm)
     quad = Quad(centre, (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), size_mm / 2, size_mm / 2, (255, 255, 255), texture=texture)
     return quad, {k: np.array([x, y, z_mm]) for k, (x, y) in centres_xy.items()}
@@ -216,10 +216,12 @@ def render(
         idx = np.nonzero(np.isfinite(s) & (s > 0) & (s < best))[0]
         s = s[idx]
         rel = origin - centre
-        a_coord = rel @ u_axis + s * (u_axis[0] * dirs_w[0][idx] + u_axis[1] * dirs_w[1][idx]
-                                      + u_axis[2] * dirs_w[2][idx])
-        b_coord = rel @ v_axis + s * (v_axis[0] * dirs_w[0][idx] + v_axis[1] * dirs_w[1][idx]
-                                      + v_axis[2] * dirs_w[2][idx])
+        a_coord = rel @ u_axis + s * (
+            u_axis[0] * dirs_w[0][idx] + u_axis[1] * dirs_w[1][idx] + u_axis[2] * dirs_w[2][idx]
+        )
+        b_coord = rel @ v_axis + s * (
+            v_axis[0] * dirs_w[0][idx] + v_axis[1] * dirs_w[1][idx] + v_axis[2] * dirs_w[2][idx]
+        )
         inside = (np.abs(a_coord) <= quad.half_u_mm) & (np.abs(b_coord) <= quad.half_v_mm)
         idx, s, a_coord, b_coord = idx[inside], s[inside], a_coord[inside], b_coord[inside]
         best[idx] = s

@@ -132,8 +132,10 @@ def _centres_from_triples(p: np.ndarray, radius: float) -> tuple[np.ndarray, np.
     ok = n2 > 1e-6
     n2 = np.where(ok, n2, 1.0)
     # Circumcentre of the triangle: a + (|ac|^2 (n x ab) + |ab|^2 (ac x n)) / (2 |n|^2)
-    circ = a + (np.einsum("ki,ki->k", ac, ac)[:, None] * np.cross(n, ab)
-                + np.einsum("ki,ki->k", ab, ab)[:, None] * np.cross(ac, n)) / (2 * n2[:, None])
+    circ = a + (
+        np.einsum("ki,ki->k", ac, ac)[:, None] * np.cross(n, ab)
+        + np.einsum("ki,ki->k", ab, ab)[:, None] * np.cross(ac, n)
+    ) / (2 * n2[:, None])
     rho2 = np.einsum("ki,ki->k", circ - a, circ - a)
     h2 = radius**2 - rho2
     ok &= h2 >= 0
@@ -195,8 +197,11 @@ def fit_sphere_known_radius(
     centres = centres[ok]
     score_pts = pts if n <= max_points else pts[rng.choice(n, max_points, replace=False)]
     # |p - c|^2 = |p|^2 - 2 c.p + |c|^2: one (K, 3) @ (3, N) product instead of a (K, N, 3) difference.
-    sq = (np.einsum("ni,ni->n", score_pts, score_pts)[None, :] - 2.0 * centres @ score_pts.T
-          + np.einsum("ki,ki->k", centres, centres)[:, None])
+    sq = (
+        np.einsum("ni,ni->n", score_pts, score_pts)[None, :]
+        - 2.0 * centres @ score_pts.T
+        + np.einsum("ki,ki->k", centres, centres)[:, None]
+    )
     resid = np.abs(np.sqrt(np.clip(sq, 0.0, None)) - radius_mm)
     # MSAC score: truncated residuals, so among hypotheses with equal support the tighter one wins.
     cost = np.minimum(resid, threshold_mm).sum(axis=1)
@@ -246,14 +251,17 @@ def detect_sphere_center(
     color = np.asarray(color_bgr)
     depth = np.asarray(depth_mm)
     if color.shape[:2] != depth.shape or color.ndim != 3:
-        raise DataError(f"colour {color.shape} and depth {depth.shape} must be registered (same H x W); warp "
-                        "colour into the depth camera first (k4a transformation)")
+        raise DataError(
+            f"colour {color.shape} and depth {depth.shape} must be registered (same H x W); warp "
+            "colour into the depth camera first (k4a transformation)"
+        )
     mask = sphere_mask(color, hist, threshold=backproject_threshold)
     points = lift_mask(depth, mask, intrinsics)
     if len(points) < min_inliers:
         return None
-    fit = fit_sphere_known_radius(points, radius_mm, rng=rng if rng is not None else np.random.default_rng(0),
-                                  threshold_mm=threshold_mm)
+    fit = fit_sphere_known_radius(
+        points, radius_mm, rng=rng if rng is not None else np.random.default_rng(0), threshold_mm=threshold_mm
+    )
     if fit is None:
         return None
     center, inliers, residual = fit
@@ -311,8 +319,9 @@ def sphere_trajectories(
     for sensor_id, frames in frames_by_sensor.items():
         centres = np.full((len(frames), 3), np.nan)
         for i, (color, depth) in enumerate(frames):
-            found = detect_sphere_center(color, depth, intrinsics_by_sensor[sensor_id], radius_mm, hist,
-                                         **detect_options)  # type: ignore[arg-type]
+            found = detect_sphere_center(
+                color, depth, intrinsics_by_sensor[sensor_id], radius_mm, hist, **detect_options
+            )  # type: ignore[arg-type]
             if found is not None:
                 centres[i] = found[0]
             done += 1
@@ -355,8 +364,9 @@ def calibrate_from_trajectories(
         Unknown master, too few frames where every sensor saw the ball, or a degenerate trajectory.
     """
     if master not in centres_by_sensor:
-        raise CalibrationError(f"master sensor {master!r} has no sphere trajectory; sensors: "
-                               f"{', '.join(centres_by_sensor)}")
+        raise CalibrationError(
+            f"master sensor {master!r} has no sphere trajectory; sensors: {', '.join(centres_by_sensor)}"
+        )
     ids = list(centres_by_sensor)
     stacked = np.stack([np.asarray(centres_by_sensor[sid], dtype=np.float64) for sid in ids])  # (S, F, 3)
     seen = np.isfinite(stacked).all(axis=2)  # (S, F)
@@ -366,7 +376,8 @@ def calibrate_from_trajectories(
         raise CalibrationError(
             f"sphere calibration: only {int(common.sum())} of {stacked.shape[1]} frames show the ball to every "
             f"sensor, need at least {min_points} (frames with the ball found per sensor: {per_sensor}); carry the "
-            "ball through the space every sensor sees, check the colour histogram and the radius")
+            "ball through the space every sensor sees, check the colour histogram and the radius"
+        )
     rng = rng if rng is not None else np.random.default_rng(0)
     base = np.eye(4) if world_from_master is None else np.asarray(world_from_master, dtype=np.float64)
     master_pts = stacked[ids.index(master)][common]
@@ -378,16 +389,23 @@ def calibrate_from_trajectories(
             sensors[sensor_id] = SensorCalibration(base, "sphere", None, int(common.sum()), date, "master")
             continue
         # No trimming: the RANSAC threshold already drops wrong detections, and good centres are all worth keeping.
-        fit = fit_rigid_ransac(pts, master_pts, threshold_mm=threshold_mm, rng=rng, min_inliers=min_points,
-                               trim_fraction=0.0)
+        fit = fit_rigid_ransac(
+            pts, master_pts, threshold_mm=threshold_mm, rng=rng, min_inliers=min_points, trim_fraction=0.0
+        )
         notes = f"fitted to master {master}"
         if fit.n < len(pts):
             notes += f"; {len(pts) - fit.n} of {len(pts)} frames rejected as outliers"
         sensors[sensor_id] = SensorCalibration(base @ fit.matrix, "sphere", fit.rms_mm, fit.n, date, notes)
     return CalibrationResult(
-        sensors=sensors, method="sphere", master=master, date=date,
-        notes=("world = master frame (run the marker calibration to put it on the floor)"
-               if world_from_master is None else ""),
+        sensors=sensors,
+        method="sphere",
+        master=master,
+        date=date,
+        notes=(
+            "world = master frame (run the marker calibration to put it on the floor)"
+            if world_from_master is None
+            else ""
+        ),
         points_by_sensor={sid: stacked[i][common] for i, sid in enumerate(ids)},
     )
 
@@ -410,7 +428,14 @@ def calibrate_from_sphere(
     :func:`sphere_trajectories` then :func:`calibrate_from_trajectories` (see them for the parameters);
     ``hist`` defaults to :func:`red_histogram`.
     """
-    centres = sphere_trajectories(frames_by_sensor, intrinsics_by_sensor, radius_mm,
-                                  red_histogram() if hist is None else hist, progress=progress, **detect_options)
-    return calibrate_from_trajectories(centres, master, world_from_master=world_from_master,
-                                       threshold_mm=threshold_mm, min_points=min_points)
+    centres = sphere_trajectories(
+        frames_by_sensor,
+        intrinsics_by_sensor,
+        radius_mm,
+        red_histogram() if hist is None else hist,
+        progress=progress,
+        **detect_options,
+    )
+    return calibrate_from_trajectories(
+        centres, master, world_from_master=world_from_master, threshold_mm=threshold_mm, min_points=min_points
+    )

@@ -16,8 +16,19 @@ import rerun as rr
 from skelfuse.calibration.calfile import CalibrationResult
 
 MM_TO_M = 1e-3
-_PALETTE = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180],
-                     [70, 240, 240], [240, 50, 230], [210, 245, 60]], dtype=np.uint8)
+_PALETTE = np.array(
+    [
+        [230, 25, 75],
+        [60, 180, 75],
+        [0, 130, 200],
+        [245, 130, 48],
+        [145, 30, 180],
+        [70, 240, 240],
+        [240, 50, 230],
+        [210, 245, 60],
+    ],
+    dtype=np.uint8,
+)
 
 
 def _label(sensor_id: str, residual_mm: float | None, n_points: int | None, method: str) -> str:
@@ -40,12 +51,18 @@ def log_calibration(recording: rr.RecordingStream, result: CalibrationResult) ->
         pose = sensor.world_from_sensor
         label = _label(sensor_id, sensor.residual_mm, sensor.n_points, sensor.method)
         color = _PALETTE[index % len(_PALETTE)]
-        recording.log(f"world/calibration/{sensor_id}",
-                      rr.Transform3D(translation=pose[:3, 3] * MM_TO_M, mat3x3=pose[:3, :3]),
-                      rr.TransformAxes3D(0.2), static=True)
+        recording.log(
+            f"world/calibration/{sensor_id}",
+            rr.Transform3D(translation=pose[:3, 3] * MM_TO_M, mat3x3=pose[:3, :3]),
+            rr.TransformAxes3D(0.2),
+            static=True,
+        )
         points = result.points_by_sensor.get(sensor_id)
         if points is None or len(points) == 0:
             continue
         world = (np.asarray(points, dtype=np.float64) @ pose[:3, :3].T + pose[:3, 3]) * MM_TO_M
-        recording.log(f"world/calibration/centres/{sensor_id}",
-                      rr.Points3D(world, colors=color, radii=0.01, labels=label), static=True)
+        recording.log(
+            f"world/calibration/centres/{sensor_id}",
+            rr.Points3D(world, colors=color, radii=0.01, labels=label),
+            static=True,
+        )

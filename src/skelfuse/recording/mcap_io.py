@@ -79,8 +79,7 @@ RECORDING_METADATA = "skelfuse.recording"
 """Name of the metadata record with rig, version, start time, sensors and the caller's keys."""
 CALIBRATION_METADATA = "skelfuse.calibration"
 """Name of the metadata record with ``world_from_sensor/<sensor>`` = JSON row-major 4x4 (mm)."""
-RESERVED_METADATA_KEYS = ("rig", "skelfuse_version", "wire_version", "start_time_ns", "start_time_utc",
-                          "sensor_ids")
+RESERVED_METADATA_KEYS = ("rig", "skelfuse_version", "wire_version", "start_time_ns", "start_time_utc", "sensor_ids")
 """Keys of :data:`RECORDING_METADATA` that the writer fills; the caller's metadata cannot use them."""
 
 _MAGIC = b"\x89MCAP0\r\n"
@@ -97,8 +96,10 @@ def _clamp_u64(value: int) -> int:
 def _as_pose(value: Any, sensor_id: str) -> np.ndarray:
     pose = np.asarray(value, dtype=np.float64)
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
-        raise ValueError(f"world_from_sensor[{sensor_id!r}] must be a finite 4x4 matrix, got shape {pose.shape}"
-                         + ("" if pose.shape != (4, 4) else " with NaN/Inf"))
+        raise ValueError(
+            f"world_from_sensor[{sensor_id!r}] must be a finite 4x4 matrix, got shape {pose.shape}"
+            + ("" if pose.shape != (4, 4) else " with NaN/Inf")
+        )
     return pose
 
 
@@ -170,8 +171,10 @@ class RecordingWriter:
         user = dict(metadata or {})
         clash = sorted(set(user) & set(RESERVED_METADATA_KEYS))
         if clash:
-            raise ValueError(f"metadata keys {clash} are reserved for the writer; rename them "
-                             f"(reserved: {', '.join(RESERVED_METADATA_KEYS)})")
+            raise ValueError(
+                f"metadata keys {clash} are reserved for the writer; rename them "
+                f"(reserved: {', '.join(RESERVED_METADATA_KEYS)})"
+            )
         sensors = [keys.validate_name(s, "sensor") for s in sensor_ids]
         poses = {sid: _as_pose(pose, sid) for sid, pose in (world_from_sensor or {}).items()}
 
@@ -179,8 +182,9 @@ class RecordingWriter:
         self._flush_interval_s = flush_interval_s
         self._fsync = bool(fsync)
         self._stream: IO[bytes] = open(self.path, "wb")  # closed in close()
-        self._writer = Writer(self._stream, chunk_size=int(chunk_size), compression=_COMPRESSIONS[compression],
-                              index_types=IndexType.ALL)
+        self._writer = Writer(
+            self._stream, chunk_size=int(chunk_size), compression=_COMPRESSIONS[compression], index_types=IndexType.ALL
+        )
         self._channels: dict[str, int] = {}
         self._closed = False
         self.frames_written = 0
@@ -189,14 +193,16 @@ class RecordingWriter:
         start_ns = time.time_ns()
         self._writer.start(profile=PROFILE, library=f"skelfuse/{skelfuse.__version__}")
         record = {str(k): v if isinstance(v, str) else json.dumps(v) for k, v in user.items()}
-        record.update({
-            "rig": self.rig,
-            "skelfuse_version": skelfuse.__version__,
-            "wire_version": f"{VERSION_MAJOR}.{VERSION_MINOR}",
-            "start_time_ns": str(start_ns),
-            "start_time_utc": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
-            "sensor_ids": json.dumps(sensors),
-        })
+        record.update(
+            {
+                "rig": self.rig,
+                "skelfuse_version": skelfuse.__version__,
+                "wire_version": f"{VERSION_MAJOR}.{VERSION_MINOR}",
+                "start_time_ns": str(start_ns),
+                "start_time_utc": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
+                "sensor_ids": json.dumps(sensors),
+            }
+        )
         self._writer.add_metadata(RECORDING_METADATA, record)
         if poses:
             calib = {"units": "mm", "convention": "world_from_sensor, row-major 4x4, p_world = T @ p_sensor"}
@@ -374,8 +380,10 @@ class RecordingReader:
         except OSError as exc:
             raise DataError(f"cannot read recording {self.path}: {exc}") from exc
         if magic != _MAGIC:
-            raise DataError(f"{self.path} is not an MCAP file: it starts with {magic[:8]!r}, expected the MCAP "
-                            f"magic {_MAGIC!r}; skelfuse recordings are written by `skelfuse record`")
+            raise DataError(
+                f"{self.path} is not an MCAP file: it starts with {magic[:8]!r}, expected the MCAP "
+                f"magic {_MAGIC!r}; skelfuse recordings are written by `skelfuse record`"
+            )
         self.rejects: Counter[str] = Counter()
         self.bad_chunks = 0
         self.problems: list[str] = []
@@ -429,8 +437,9 @@ class RecordingReader:
         self._schemas = dict(summary.schemas)
         self._channels = dict(summary.channels)
         self._metadata = metadata
-        self._chunks = [_ChunkRef(ci.message_start_time, ci.message_end_time, ci.chunk_start_offset)
-                        for ci in summary.chunk_indexes]
+        self._chunks = [
+            _ChunkRef(ci.message_start_time, ci.message_end_time, ci.chunk_start_offset) for ci in summary.chunk_indexes
+        ]
         if summary.statistics is not None:
             self._message_count = summary.statistics.message_count
         return True
@@ -534,14 +543,16 @@ class RecordingReader:
         """Messages in the file (all channels), from the statistics or the scan; None if unknown."""
         return self._message_count
 
-    def frames(self, start_ns: int | None = None, end_ns: int | None = None,
-               sensors: Iterable[str] | None = None) -> Iterator[SensorFrame]:
+    def frames(
+        self, start_ns: int | None = None, end_ns: int | None = None, sensors: Iterable[str] | None = None
+    ) -> Iterator[SensorFrame]:
         """Decoded sensor frames in log-time (host time) order; see :meth:`records` for the arguments."""
         for record in self.records(start_ns, end_ns, sensors):
             yield record.frame
 
-    def records(self, start_ns: int | None = None, end_ns: int | None = None,
-                sensors: Iterable[str] | None = None) -> Iterator[RecordedFrame]:
+    def records(
+        self, start_ns: int | None = None, end_ns: int | None = None, sensors: Iterable[str] | None = None
+    ) -> Iterator[RecordedFrame]:
         """Recorded frames with their envelope, in log-time order (ties: file order).
 
         Parameters
@@ -558,10 +569,16 @@ class RecordingReader:
             :attr:`bad_chunks`.
         """
         wanted = None if sensors is None else set(sensors)
-        channels = {cid: c for cid, c in self._channels.items() if c.message_encoding == MESSAGE_ENCODING
-                    and (wanted is None or self._sensor_of(c) in wanted)}
-        chunks = [c for c in self._chunks
-                  if (start_ns is None or c.end_ns >= start_ns) and (end_ns is None or c.start_ns < end_ns)]
+        channels = {
+            cid: c
+            for cid, c in self._channels.items()
+            if c.message_encoding == MESSAGE_ENCODING and (wanted is None or self._sensor_of(c) in wanted)
+        }
+        chunks = [
+            c
+            for c in self._chunks
+            if (start_ns is None or c.end_ns >= start_ns) and (end_ns is None or c.start_ns < end_ns)
+        ]
         if not channels or not chunks:
             return
         # k-way merge: every message of a later chunk is logged at or after that chunk's start, so messages
@@ -603,14 +620,21 @@ class RecordingReader:
         try:
             frame = decode_sensor_frame(message.data)
             if frame.sensor_id != sensor_id:
-                raise DecodeError("bad_value", f"payload of sensor {frame.sensor_id!r} on the channel of "
-                                  f"sensor {sensor_id!r}")
+                raise DecodeError(
+                    "bad_value", f"payload of sensor {frame.sensor_id!r} on the channel of sensor {sensor_id!r}"
+                )
         except DecodeError as exc:
             self.rejects[exc.reason] += 1
             self._note(f"message at log time {message.log_time} on {channel.topic}: {exc.reason}: {exc}")
             return
-        yield RecordedFrame(topic=channel.topic, sensor_id=sensor_id, log_time_ns=message.log_time,
-                            publish_time_ns=message.publish_time, payload=bytes(message.data), frame=frame)
+        yield RecordedFrame(
+            topic=channel.topic,
+            sensor_id=sensor_id,
+            log_time_ns=message.log_time,
+            publish_time_ns=message.publish_time,
+            payload=bytes(message.data),
+            frame=frame,
+        )
 
 
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)

@@ -38,8 +38,9 @@ RESET_GAP_S = 1.0
 """A gap longer than this between two instants restarts the fusion state (tracks, filters)."""
 
 
-def group_bodies(frames: Mapping[str, SensorFrame],
-                 sensor_ids: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def group_bodies(
+    frames: Mapping[str, SensorFrame], sensor_ids: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the bodies of one instant, sensor by sensor, NaN-padded.
 
     Parameters
@@ -140,19 +141,31 @@ class GroupFuser:
         Time of the previous instant.
     """
 
-    def __init__(self, sensor_ids: Sequence[str], world_from_sensor: np.ndarray, params: FusionParams, *,
-                 gate_mm: float = DEFAULT_GATE_MM, birth_frames: int = 3, timeout_s: float = 1.0,
-                 duplicate_mm: float | None = DEFAULT_DUPLICATE_MM, reset_gap_s: float = RESET_GAP_S) -> None:
+    def __init__(
+        self,
+        sensor_ids: Sequence[str],
+        world_from_sensor: np.ndarray,
+        params: FusionParams,
+        *,
+        gate_mm: float = DEFAULT_GATE_MM,
+        birth_frames: int = 3,
+        timeout_s: float = 1.0,
+        duplicate_mm: float | None = DEFAULT_DUPLICATE_MM,
+        reset_gap_s: float = RESET_GAP_S,
+    ) -> None:
         self.sensor_ids = tuple(sensor_ids)
         poses = np.asarray(world_from_sensor, dtype=np.float64)
         if poses.shape != (len(self.sensor_ids), 4, 4):
-            raise ValueError(f"world_from_sensor must have shape ({len(self.sensor_ids)}, 4, 4) for sensors "
-                             f"{', '.join(self.sensor_ids)}; got {poses.shape}")
+            raise ValueError(
+                f"world_from_sensor must have shape ({len(self.sensor_ids)}, 4, 4) for sensors "
+                f"{', '.join(self.sensor_ids)}; got {poses.shape}"
+            )
         self.world_from_sensor = poses
         self.params = params
         self.reset_gap_s = float(reset_gap_s)
-        self.people = PeopleFuser(params, gate_mm=gate_mm, birth_frames=birth_frames, timeout_s=timeout_s,
-                                  duplicate_mm=duplicate_mm)
+        self.people = PeopleFuser(
+            params, gate_mm=gate_mm, birth_frames=birth_frames, timeout_s=timeout_s, duplicate_mm=duplicate_mm
+        )
         self.last_time_us: int | None = None
 
     def reset(self) -> None:

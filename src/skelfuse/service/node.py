@@ -71,7 +71,7 @@ def calibration_document(cfg: RigConfig, poses: np.ndarray) -> dict[str, Any]:
         "rig": cfg.name,
         "units": "mm",
         "convention": "world_from_sensor: p_world = R @ p_sensor + t; row-major 4x4; sensor frame x right, "
-                      "y down, z forward; world right-handed, z up",
+        "y down, z forward; world right-handed, z up",
         "sensor_ids": list(cfg.sensor_ids),
         "world_from_sensor": {sid: poses[i].tolist() for i, sid in enumerate(cfg.sensor_ids)},
     }
@@ -172,8 +172,11 @@ class FusionCore:
             self._reject(key_sensor, exc.reason, str(exc))
             return self.poll(arrival_ns)
         if frame.sensor_id != key_sensor:
-            self._reject(key_sensor, KEY_MISMATCH,
-                         f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}")
+            self._reject(
+                key_sensor,
+                KEY_MISMATCH,
+                f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}",
+            )
             return self.poll(arrival_ns)
         window = self._sensors.get(key_sensor)
         if window is not None:
@@ -200,8 +203,14 @@ class FusionCore:
         seen = self._logged_rejects[(sensor_id, reason)]
         self._logged_rejects[(sensor_id, reason)] += 1
         if seen == 0 or (seen + 1) % 1000 == 0:  # first of a kind, then every 1000th: no log floods
-            log.warning("rejected a payload of sensor %s (%s, %d so far): %s", sensor_id, reason, seen + 1, message,
-                        extra={"sensor": sensor_id, "reason": reason})
+            log.warning(
+                "rejected a payload of sensor %s (%s, %d so far): %s",
+                sensor_id,
+                reason,
+                seen + 1,
+                message,
+                extra={"sensor": sensor_id, "reason": reason},
+            )
 
     # -- fusion -------------------------------------------------------------------------------------------
 
@@ -223,8 +232,9 @@ class FusionCore:
             self.groups_complete += 1
         else:
             self.groups_partial += 1
-        return FusedOutput(fused, payload, instant.sensors_world, time.perf_counter_ns() - tick, trigger_arrival_ns,
-                           group.complete)
+        return FusedOutput(
+            fused, payload, instant.sensors_world, time.perf_counter_ns() - tick, trigger_arrival_ns, group.complete
+        )
 
     # -- status -------------------------------------------------------------------------------------------
 
@@ -254,8 +264,12 @@ def _percentiles(values: Any) -> dict[str, float | int | None]:
     data = np.fromiter(values, dtype=np.float64)
     if data.size == 0:
         return {"p50": None, "p99": None, "max": None, "n": 0}
-    return {"p50": round(float(np.percentile(data, 50)), 4), "p99": round(float(np.percentile(data, 99)), 4),
-            "max": round(float(data.max()), 4), "n": int(data.size)}
+    return {
+        "p50": round(float(np.percentile(data, 50)), 4),
+        "p99": round(float(np.percentile(data, 99)), 4),
+        "max": round(float(data.max()), 4),
+        "n": int(data.size),
+    }
 
 
 @dataclass(frozen=True)
@@ -328,9 +342,17 @@ class FusionNode:
         Called on the loop thread with every :class:`FusedOutput` after it is published.
     """
 
-    def __init__(self, cfg: RigConfig, zenoh_conf: zenoh.Config | None, *, options: NodeOptions | None = None,
-                 lifecycle: Lifecycle | None = None, session: zenoh.Session | None = None, recording: Any = None,
-                 on_fused: Callable[[FusedOutput], None] | None = None) -> None:
+    def __init__(
+        self,
+        cfg: RigConfig,
+        zenoh_conf: zenoh.Config | None,
+        *,
+        options: NodeOptions | None = None,
+        lifecycle: Lifecycle | None = None,
+        session: zenoh.Session | None = None,
+        recording: Any = None,
+        on_fused: Callable[[FusedOutput], None] | None = None,
+    ) -> None:
         self.cfg = cfg
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
@@ -374,14 +396,24 @@ class FusionNode:
             status_pub = session.declare_publisher(keys.status(rig, self.name))
             calibration = json.dumps(calibration_document(self.cfg, self.core.poses)).encode()
             calibration_key = keys.calibration(rig)
-            queryable = session.declare_queryable(calibration_key,
-                                                  lambda query: query.reply(calibration_key, calibration))
+            queryable = session.declare_queryable(
+                calibration_key, lambda query: query.reply(calibration_key, calibration)
+            )
             token = session.liveliness().declare_token(keys.alive(rig, self.name))
             subscriber = session.declare_subscriber(keys.all_sensor_skeletons(rig), samples)
-            log.info("fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
-                     "%.1f ms, preset %s; publishing on %s", self.name, rig, len(self.cfg.sensors),
-                     ", ".join(self.cfg.sensor_ids), self.cfg.sync.by, self.cfg.sync.tolerance_ms,
-                     self.cfg.sync.deadline_ms, self.cfg.fusion.preset, keys.fused_skeletons(rig))
+            log.info(
+                "fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
+                "%.1f ms, preset %s; publishing on %s",
+                self.name,
+                rig,
+                len(self.cfg.sensors),
+                ", ".join(self.cfg.sensor_ids),
+                self.cfg.sync.by,
+                self.cfg.sync.tolerance_ms,
+                self.cfg.sync.deadline_ms,
+                self.cfg.fusion.preset,
+                keys.fused_skeletons(rig),
+            )
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
             # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
@@ -407,8 +439,12 @@ class FusionNode:
                 session.close()
         self.report.frames_in = self.core.frames_in
         self.report.frames_out = self.core.frames_out
-        log.info("fusion node %s stopped: %d payloads in, %d fused frames out", self.name, self.core.frames_in,
-                 self.core.frames_out)
+        log.info(
+            "fusion node %s stopped: %d payloads in, %d fused frames out",
+            self.name,
+            self.core.frames_in,
+            self.core.frames_out,
+        )
         return self.report
 
     def _open_view(self) -> tuple[RerunView | None, Any]:
@@ -468,8 +504,15 @@ class FusionNode:
             if view is not None:
                 if self._first_time_us is None:
                     self._first_time_us = out.frame.time_us
-                view.submit((out.frame.time_us - self._first_time_us) / 1e6, out.sensors_world, out.frame.positions,
-                            out.frame.track_ids, fusion_ms, added_ms, self._rates)
+                view.submit(
+                    (out.frame.time_us - self._first_time_us) / 1e6,
+                    out.sensors_world,
+                    out.frame.positions,
+                    out.frame.track_ids,
+                    fusion_ms,
+                    added_ms,
+                    self._rates,
+                )
             if self.on_fused is not None:
                 self.on_fused(out)
 
@@ -520,8 +563,9 @@ class FusionNode:
         }
         self._window_fusion.clear()
         self._window_added.clear()
-        status = NodeStatus(node=self.name, role="fusion", state=state, time_ns=time.time_ns(), counters=counters,
-                            info=info)
+        status = NodeStatus(
+            node=self.name, role="fusion", state=state, time_ns=time.time_ns(), counters=counters, info=info
+        )
         self.report.status = {"state": state, "counters": counters, "info": info}
         try:
             status_pub.put(encode_status(status))
@@ -529,8 +573,9 @@ class FusionNode:
             log.exception("fusion node %s: status could not be encoded", self.name)
 
 
-def run_fusion_node(cfg: RigConfig, zenoh_conf: zenoh.Config, *, options: NodeOptions,
-                    lifecycle: Lifecycle) -> NodeReport:
+def run_fusion_node(
+    cfg: RigConfig, zenoh_conf: zenoh.Config, *, options: NodeOptions, lifecycle: Lifecycle
+) -> NodeReport:
     """``skelfuse fuse --config RIG.toml``: run the node in this thread (signals via ``lifecycle``)."""
     node = FusionNode(cfg, zenoh_conf, options=options, lifecycle=lifecycle)
     with lifecycle.capture_signals():

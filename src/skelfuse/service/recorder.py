@@ -47,8 +47,9 @@ class RecordReport:
     rejects: Counter[str] = field(default_factory=Counter)
 
 
-def run_recorder(cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | None, limits: RunLimits,
-                 lifecycle: Lifecycle) -> RecordReport:
+def run_recorder(
+    cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | None, limits: RunLimits, lifecycle: Lifecycle
+) -> RecordReport:
     """Record every raw sensor frame of the rig to MCAP until a signal or the run limits."""
     from skelfuse.recording import RecordingWriter
 
@@ -61,9 +62,14 @@ def run_recorder(cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | Non
         if session is None:
             return report
         samples = SampleQueue()
-        writer = RecordingWriter(path, rig=cfg.name, sensor_ids=cfg.sensor_ids,
-                                 world_from_sensor=cfg.poses(required=False) or None, flush_interval_s=flush_s,
-                                 metadata={"recorder": "skelfuse record"})
+        writer = RecordingWriter(
+            path,
+            rig=cfg.name,
+            sensor_ids=cfg.sensor_ids,
+            world_from_sensor=cfg.poses(required=False) or None,
+            flush_interval_s=flush_s,
+            metadata={"recorder": "skelfuse record"},
+        )
         try:
             subscriber = session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples)
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
@@ -91,8 +97,9 @@ def run_recorder(cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | Non
             writer.close()
             session.close()
     report.frames_written = writer.frames_written
-    log.info("recorder: %d frames written to %s (%d rejected)", report.frames_written, path,
-             sum(report.rejects.values()))
+    log.info(
+        "recorder: %d frames written to %s (%d rejected)", report.frames_written, path, sum(report.rejects.values())
+    )
     return report
 
 
@@ -102,8 +109,15 @@ class ReplayReport:
     topics: set[str] = field(default_factory=set)
 
 
-def run_replay(path: Path, zenoh_conf: zenoh.Config, *, speed: float | None, rig: str | None, limits: RunLimits,
-               lifecycle: Lifecycle) -> ReplayReport:
+def run_replay(
+    path: Path,
+    zenoh_conf: zenoh.Config,
+    *,
+    speed: float | None,
+    rig: str | None,
+    limits: RunLimits,
+    lifecycle: Lifecycle,
+) -> ReplayReport:
     """Publish a recording's sensor frames at ``speed`` (None: as fast as possible)."""
     from skelfuse.recording import RecordingReader, replay_frames
 
@@ -116,8 +130,12 @@ def run_replay(path: Path, zenoh_conf: zenoh.Config, *, speed: float | None, rig
         publishers: dict[str, object] = {}
         try:
             start = time.monotonic()
-            log.info("replay: %s (%s) at %s", path, ", ".join(reader.sensors),
-                     "maximum speed" if speed is None else f"{speed:g}x")
+            log.info(
+                "replay: %s (%s) at %s",
+                path,
+                ", ".join(reader.sensors),
+                "maximum speed" if speed is None else f"{speed:g}x",
+            )
             for _, record in replay_frames(reader, speed=speed, sleep=lifecycle.wait):
                 if lifecycle.should_exit or limits.reached(report.frames_out, start):
                     break

@@ -24,9 +24,11 @@ def format_status(status: NodeStatus) -> str:
     c, info = status.counters, status.info
     parts = [f"{status.node} [{status.role}] {status.state}"]
     if status.role == "fusion":
-        parts.append(f"in {c.get('frames_in', 0)} out {c.get('frames_out', 0)} "
-                     f"({info.get('fused_rate_hz', 0):.1f} Hz) late {c.get('late', 0)} dropped {c.get('dropped', 0)} "
-                     f"invalid {c.get('invalid', 0)}")
+        parts.append(
+            f"in {c.get('frames_in', 0)} out {c.get('frames_out', 0)} "
+            f"({info.get('fused_rate_hz', 0):.1f} Hz) late {c.get('late', 0)} dropped {c.get('dropped', 0)} "
+            f"invalid {c.get('invalid', 0)}"
+        )
         added = info.get("node_added_ms") or {}
         if added.get("p50") is not None:
             parts.append(f"node latency p50 {added['p50']:.3f} p99 {added['p99']:.3f} ms")
@@ -34,8 +36,10 @@ def format_status(status: NodeStatus) -> str:
         rates = []
         for sid, s in sensors.items():
             seen = s.get("last_seen_s")
-            rates.append(f"{sid} {s.get('rate_hz') or 0:.1f} Hz" + (" (never seen)" if seen is None else
-                                                                      f" ({seen:.2f} s ago)" if seen > 1 else ""))
+            rates.append(
+                f"{sid} {s.get('rate_hz') or 0:.1f} Hz"
+                + (" (never seen)" if seen is None else f" ({seen:.2f} s ago)" if seen > 1 else "")
+            )
         if rates:
             parts.append("sensors: " + ", ".join(rates))
     else:
@@ -45,8 +49,9 @@ def format_status(status: NodeStatus) -> str:
     return " | ".join(parts)
 
 
-def watch_status(cfg: RigConfig, zenoh_conf: zenoh.Config, *, limits: RunLimits, lifecycle: Lifecycle,
-                 as_json: bool, out: TextIO) -> int:
+def watch_status(
+    cfg: RigConfig, zenoh_conf: zenoh.Config, *, limits: RunLimits, lifecycle: Lifecycle, as_json: bool, out: TextIO
+) -> int:
     """Print status messages until a signal or the limits (``max_frames``: messages); returns how many."""
     count = 0
     with lifecycle.capture_signals():
@@ -68,9 +73,14 @@ def watch_status(cfg: RigConfig, zenoh_conf: zenoh.Config, *, limits: RunLimits,
                     continue
                 count += 1
                 if as_json:
-                    doc: dict[str, Any] = {"node": status.node, "role": status.role, "state": status.state,
-                                           "time_ns": status.time_ns, "counters": status.counters,
-                                           "info": status.info}
+                    doc: dict[str, Any] = {
+                        "node": status.node,
+                        "role": status.role,
+                        "state": status.state,
+                        "time_ns": status.time_ns,
+                        "counters": status.counters,
+                        "info": status.info,
+                    }
                     out.write(json.dumps(doc) + "\n")
                 else:
                     out.write(format_status(status) + "\n")

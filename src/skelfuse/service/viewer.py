@@ -72,16 +72,20 @@ def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] |
     elif options.mode == "serve":
         exe = shutil.which("rerun")
         if exe is None:
-            raise ServiceError("--serve needs the `rerun` executable of rerun-sdk on PATH; install rerun-sdk "
-                               "into this environment or use --rrd FILE")
+            raise ServiceError(
+                "--serve needs the `rerun` executable of rerun-sdk on PATH; install rerun-sdk "
+                "into this environment or use --rrd FILE"
+            )
         command = [exe, "--bind", options.bind, "--port", str(options.grpc_port)]
         command += ["--serve-web", "--web-viewer-port", str(options.web_port)] if options.web_port else ["--serve-grpc"]
         server = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)
         host = "127.0.0.1" if options.bind in ("0.0.0.0", "::") else options.bind
         if not wait_for_port(options.grpc_port, host=host, timeout_s=15.0):
             stop_server(server)
-            raise ServiceError(f"the rerun server ({' '.join(command)}) did not start listening on "
-                               f"{host}:{options.grpc_port} within 15 s; is the port taken?")
+            raise ServiceError(
+                f"the rerun server ({' '.join(command)}) did not start listening on "
+                f"{host}:{options.grpc_port} within 15 s; is the port taken?"
+            )
         url = f"rerun+http://{host}:{options.grpc_port}/proxy"
         recording.connect_grpc(url, default_blueprint=default_blueprint())
         web = f", web viewer http://{host}:{options.web_port}" if options.web_port else ""
@@ -118,8 +122,15 @@ class RerunView:
         Frames waiting to be drawn before new ones are skipped.
     """
 
-    def __init__(self, recording: Any, sensor_ids: tuple[str, ...], world_from_sensor: np.ndarray, *,
-                 log_sensors: bool = True, max_pending: int = 64) -> None:
+    def __init__(
+        self,
+        recording: Any,
+        sensor_ids: tuple[str, ...],
+        world_from_sensor: np.ndarray,
+        *,
+        log_sensors: bool = True,
+        max_pending: int = 64,
+    ) -> None:
         from skelfuse.sinks.rerun_sink import RerunSink
 
         self.recording = recording
@@ -132,8 +143,16 @@ class RerunView:
         self._thread = threading.Thread(target=self._run, name="skelfuse-rerun", daemon=True)
         self._thread.start()
 
-    def submit(self, time_s: float, sensors_world: np.ndarray | None, fused: np.ndarray, track_ids: np.ndarray,
-               fusion_ms: float | None, latency_ms: float | None, rate_hz: dict[str, float] | None) -> None:
+    def submit(
+        self,
+        time_s: float,
+        sensors_world: np.ndarray | None,
+        fused: np.ndarray,
+        track_ids: np.ndarray,
+        fusion_ms: float | None,
+        latency_ms: float | None,
+        rate_hz: dict[str, float] | None,
+    ) -> None:
         """Queue one instant: (S, B, 32, 3) raw skeletons (every body) in the world, (P, 32, 3) fused persons
         with their (P,) track ids (one colour per id), metrics."""
         try:

@@ -120,8 +120,9 @@ def sim_rig_order(cfg: RigConfig) -> list[SensorConfig]:
     return sorted(sims, key=lambda s: s.sync.role != "master")
 
 
-def simulate_rig(cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: int,
-                 observation_seed: int | None = None) -> Any:
+def simulate_rig(
+    cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: int, observation_seed: int | None = None
+) -> Any:
     """Simulate the rig's sim sensors (:func:`sim_rig_order`) for one take: ``skelfuse.sim`` Observations."""
     from skelfuse.sim.gestures import make_gesture
     from skelfuse.sim.observe import load_profile, simulate
@@ -129,21 +130,25 @@ def simulate_rig(cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: 
 
     sensors = sim_rig_order(cfg)
     if not sensors:
-        raise ConfigError(f"{cfg.source}: rig {cfg.name!r} has no sensor with source = \"sim\"")
+        raise ConfigError(f'{cfg.source}: rig {cfg.name!r} has no sensor with source = "sim"')
     virtual = []
     for s in sensors:
         pose = s.pose()
         if pose is None:
-            raise ConfigError(f"{cfg.source}: sim sensor {s.id!r} needs sensors[i].world_from_sensor: the "
-                              "simulator observes the person from that (true) pose")
+            raise ConfigError(
+                f"{cfg.source}: sim sensor {s.id!r} needs sensors[i].world_from_sensor: the "
+                "simulator observes the person from that (true) pose"
+            )
         u, _, vt = np.linalg.svd(pose[:3, :3])  # TOML poses carry ~6 decimals: re-orthonormalize
         pose = pose.copy()
         pose[:3, :3] = u @ vt
         virtual.append(VirtualSensor(s.id, pose))
     profile_paths = {s.sim.profile for s in sensors if s.sim is not None and s.sim.profile is not None}
     if len(profile_paths) > 1:
-        raise ConfigError(f"{cfg.source}: sim sensors use different profiles ({', '.join(map(str, profile_paths))}); "
-                          "one simulation covers the whole rig, so give them one profile")
+        raise ConfigError(
+            f"{cfg.source}: sim sensors use different profiles ({', '.join(map(str, profile_paths))}); "
+            "one simulation covers the whole rig, so give them one profile"
+        )
     profile = load_profile(next(iter(profile_paths)) if profile_paths else None)
     motion = make_gesture(gesture, duration_s=take_duration_s, seed=seed)
     return simulate(motion, virtual, profile, seed=seed if observation_seed is None else observation_seed)
@@ -162,16 +167,25 @@ class SimSource:
         Host clock (Unix ns) used to align instants across workers; injected by tests.
     """
 
-    def __init__(self, cfg: RigConfig, sensor_id: str, *, gesture: str = DEFAULT_GESTURE,
-                 take_duration_s: float = DEFAULT_TAKE_S, seed: int = 0, loop: bool = True,
-                 clock_ns: Any = time.time_ns) -> None:
+    def __init__(
+        self,
+        cfg: RigConfig,
+        sensor_id: str,
+        *,
+        gesture: str = DEFAULT_GESTURE,
+        take_duration_s: float = DEFAULT_TAKE_S,
+        seed: int = 0,
+        loop: bool = True,
+        clock_ns: Any = time.time_ns,
+    ) -> None:
         sensor = cfg.sensor(sensor_id)
         if sensor.source != "sim":
             raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has source {sensor.source!r}, not 'sim'")
         observation_seed = sensor.sim.seed if sensor.sim is not None else None
         self.sensor_id = sensor_id
-        self.observations = simulate_rig(cfg, gesture=gesture, take_duration_s=take_duration_s, seed=seed,
-                                         observation_seed=observation_seed)
+        self.observations = simulate_rig(
+            cfg, gesture=gesture, take_duration_s=take_duration_s, seed=seed, observation_seed=observation_seed
+        )
         self.column = list(self.observations.sensor_ids).index(sensor_id)
         self.fps = float(cfg.sync.fps)
         self.loop = loop
@@ -198,9 +212,16 @@ class SimSource:
             confidence = np.zeros((0, N_JOINTS), dtype=np.uint8)
         orientations = np.zeros((len(body_ids), N_JOINTS, 4), dtype=np.float32)
         orientations[..., 0] = 1.0  # the simulator has no joint orientations: identity quaternions
-        return SensorFrame(sensor_id=self.sensor_id, sequence=n, device_time_us=device_time_us, host_time_ns=0,
-                           body_ids=body_ids, positions=positions, orientations=orientations,
-                           confidence=np.ascontiguousarray(confidence, dtype=np.uint8))
+        return SensorFrame(
+            sensor_id=self.sensor_id,
+            sequence=n,
+            device_time_us=device_time_us,
+            host_time_ns=0,
+            body_ids=body_ids,
+            positions=positions,
+            orientations=orientations,
+            confidence=np.ascontiguousarray(confidence, dtype=np.uint8),
+        )
 
     def frames(self) -> Iterator[tuple[int, SensorFrame]]:
         period_ns = 1e9 / self.fps
@@ -220,16 +241,25 @@ class SimSource:
 class ReplaySource:
     """One sensor's frames of an MCAP recording, paced by recorded host time (see the module docstring)."""
 
-    def __init__(self, path: Path, sensor_id: str, *, recorded_sensor: str | None = None, loop: bool = False,
-                 speed: float | None = 1.0) -> None:
+    def __init__(
+        self,
+        path: Path,
+        sensor_id: str,
+        *,
+        recorded_sensor: str | None = None,
+        loop: bool = False,
+        speed: float | None = 1.0,
+    ) -> None:
         from skelfuse.recording import RecordingReader
 
         self.sensor_id = sensor_id
         self.recorded_sensor = recorded_sensor or sensor_id
         self.reader = RecordingReader(path)
         if self.recorded_sensor not in self.reader.sensors:
-            raise DataError(f"recording {path} has no sensor {self.recorded_sensor!r}; it holds "
-                            f"{', '.join(self.reader.sensors) or 'no sensors'} (set sensors[i].replay.sensor)")
+            raise DataError(
+                f"recording {path} has no sensor {self.recorded_sensor!r}; it holds "
+                f"{', '.join(self.reader.sensors) or 'no sensors'} (set sensors[i].replay.sensor)"
+            )
         self.loop = loop
         self.speed = speed
 
@@ -251,8 +281,12 @@ class ReplaySource:
                 last_log, last_dev = record.log_time_ns, frame.device_time_us
                 offset = record.log_time_ns - first_log
                 due = start_ns + pass_offset_ns + (0 if self.speed is None else int(offset / self.speed))
-                yield due, dataclasses.replace(frame, sensor_id=self.sensor_id,
-                                               device_time_us=frame.device_time_us + shift_us)
+                yield (
+                    due,
+                    dataclasses.replace(
+                        frame, sensor_id=self.sensor_id, device_time_us=frame.device_time_us + shift_us
+                    ),
+                )
             if first_log is None or not self.loop:
                 return
             pass_index += 1
@@ -266,9 +300,16 @@ def camera_node(sensor_id: str) -> str:
     return keys.validate_name(f"camera-{sensor_id}", "node")
 
 
-def wait_for_subordinates(session: Any, rig: str, subordinate_ids: Sequence[str], *, timeout_s: float,
-                          should_exit: Callable[[], bool] = lambda: False, poll_s: float = 0.1,
-                          log_every_s: float = 5.0) -> list[str]:
+def wait_for_subordinates(
+    session: Any,
+    rig: str,
+    subordinate_ids: Sequence[str],
+    *,
+    timeout_s: float,
+    should_exit: Callable[[], bool] = lambda: False,
+    poll_s: float = 0.1,
+    log_every_s: float = 5.0,
+) -> list[str]:
     """Wait until the camera token (``keys.alive(rig, camera_node(id))``) of every subordinate exists.
 
     A liveliness subscriber with history sees the tokens already declared and those declared later.
@@ -313,8 +354,13 @@ def wait_for_subordinates(session: Any, rig: str, subordinate_ids: Sequence[str]
             if now - start >= timeout_s:
                 return left
             if now >= next_log:
-                log.info("kinect master of rig %s: waiting for subordinate camera(s) %s (%.0f s of %.0f s)",
-                         rig, ", ".join(left), now - start, timeout_s)
+                log.info(
+                    "kinect master of rig %s: waiting for subordinate camera(s) %s (%.0f s of %.0f s)",
+                    rig,
+                    ", ".join(left),
+                    now - start,
+                    timeout_s,
+                )
                 next_log = now + log_every_s
             changed.wait(min(poll_s, max(timeout_s - (now - start), 0.0)))
             changed.clear()
@@ -343,8 +389,16 @@ class KinectFrameSource:
 
     stamps_host_time = True
 
-    def __init__(self, cfg: RigConfig, sensor_id: str, *, read_timeout_s: float = 0.1, session: Any = None,
-                 subordinate_wait_s: float = 30.0, should_exit: Callable[[], bool] = lambda: False) -> None:
+    def __init__(
+        self,
+        cfg: RigConfig,
+        sensor_id: str,
+        *,
+        read_timeout_s: float = 0.1,
+        session: Any = None,
+        subordinate_wait_s: float = 30.0,
+        should_exit: Callable[[], bool] = lambda: False,
+    ) -> None:
         self.cfg = cfg
         self.sensor_id = sensor_id
         self.read_timeout_s = read_timeout_s
@@ -364,21 +418,33 @@ class KinectFrameSource:
 
     def subordinate_ids(self) -> list[str]:
         """The rig's kinect subordinates (other than this sensor)."""
-        return [s.id for s in self.cfg.sensors
-                if s.source == "kinect" and s.sync.role == "subordinate" and s.id != self.sensor_id]
+        return [
+            s.id
+            for s in self.cfg.sensors
+            if s.source == "kinect" and s.sync.role == "subordinate" and s.id != self.sensor_id
+        ]
 
     def _wait_for_subordinates(self) -> None:
         subs = self.subordinate_ids()
         if self.session is None or self.role != "master" or not subs:
             return
-        log.info("kinect master %s: waiting for subordinate camera(s) %s before starting (up to %.0f s)",
-                 self.sensor_id, ", ".join(subs), self.subordinate_wait_s)
-        missing = wait_for_subordinates(self.session, self.cfg.name, subs, timeout_s=self.subordinate_wait_s,
-                                        should_exit=self.should_exit)
+        log.info(
+            "kinect master %s: waiting for subordinate camera(s) %s before starting (up to %.0f s)",
+            self.sensor_id,
+            ", ".join(subs),
+            self.subordinate_wait_s,
+        )
+        missing = wait_for_subordinates(
+            self.session, self.cfg.name, subs, timeout_s=self.subordinate_wait_s, should_exit=self.should_exit
+        )
         if missing and not self.should_exit():
-            log.error("kinect master %s: subordinate camera(s) %s not started after %.0f s; starting the master "
-                      "anyway (those subordinates stay unsynchronised until restarted)", self.sensor_id,
-                      ", ".join(missing), self.subordinate_wait_s)
+            log.error(
+                "kinect master %s: subordinate camera(s) %s not started after %.0f s; starting the master "
+                "anyway (those subordinates stay unsynchronised until restarted)",
+                self.sensor_id,
+                ", ".join(missing),
+                self.subordinate_wait_s,
+            )
         elif not missing:
             log.info("kinect master %s: every subordinate camera is running; starting", self.sensor_id)
 
@@ -406,8 +472,10 @@ def check_source(cfg: RigConfig, sensor_id: str) -> None:
     """The cheap checks of :func:`make_source`, done before anything opens (same errors)."""
     sensor = cfg.sensor(sensor_id)
     if sensor.source == "sim" and sensor.pose() is None:
-        raise ConfigError(f"{cfg.source}: sim sensor {sensor_id!r} needs sensors[i].world_from_sensor: the "
-                          "simulator observes the person from that (true) pose")
+        raise ConfigError(
+            f"{cfg.source}: sim sensor {sensor_id!r} needs sensors[i].world_from_sensor: the "
+            "simulator observes the person from that (true) pose"
+        )
     if sensor.source == "replay" and sensor.replay is not None and not Path(sensor.replay.file).exists():
         raise DataError(f"{cfg.source}: sensors[{sensor_id!r}].replay.file {sensor.replay.file} does not exist")
 
@@ -426,13 +494,20 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
     """
     sensor = cfg.sensor(sensor_id)
     if sensor.source == "sim":
-        return SimSource(cfg, sensor_id, gesture=options.gesture, take_duration_s=options.take_duration_s,
-                         seed=options.seed, loop=True if options.loop is None else options.loop)
+        return SimSource(
+            cfg,
+            sensor_id,
+            gesture=options.gesture,
+            take_duration_s=options.take_duration_s,
+            seed=options.seed,
+            loop=True if options.loop is None else options.loop,
+        )
     if sensor.source == "replay":
         assert sensor.replay is not None
         loop = sensor.replay.loop if options.loop is None else options.loop
-        return ReplaySource(sensor.replay.file, sensor_id, recorded_sensor=sensor.replay.sensor, loop=loop,
-                            speed=options.speed)
+        return ReplaySource(
+            sensor.replay.file, sensor_id, recorded_sensor=sensor.replay.sensor, loop=loop, speed=options.speed
+        )
     if sensor.source == "kinect":
         return KinectFrameSource(cfg, sensor_id, subordinate_wait_s=options.subordinate_wait_s)
     raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has unknown source {sensor.source!r}")  # pragma: no cover
@@ -449,8 +524,15 @@ class WorkerReport:
     late_publishes: int = 0
 
 
-def run_capture_worker(cfg: RigConfig, sensor_id: str, zenoh_conf: zenoh.Config, *, options: WorkerOptions,
-                       lifecycle: Lifecycle, source: FrameSource | None = None) -> WorkerReport:
+def run_capture_worker(
+    cfg: RigConfig,
+    sensor_id: str,
+    zenoh_conf: zenoh.Config,
+    *,
+    options: WorkerOptions,
+    lifecycle: Lifecycle,
+    source: FrameSource | None = None,
+) -> WorkerReport:
     """Publish one sensor's frames until ``lifecycle.should_exit`` or the run limits.
 
     ``source`` (injected by tests) defaults to :func:`make_source`, which raises for a source that cannot
@@ -474,8 +556,16 @@ def run_capture_worker(cfg: RigConfig, sensor_id: str, zenoh_conf: zenoh.Config,
     return report
 
 
-def _publish_loop(cfg: RigConfig, sensor_id: str, name: str, source: FrameSource, session: Any,
-                  options: WorkerOptions, lifecycle: Lifecycle, report: WorkerReport) -> None:
+def _publish_loop(
+    cfg: RigConfig,
+    sensor_id: str,
+    name: str,
+    source: FrameSource,
+    session: Any,
+    options: WorkerOptions,
+    lifecycle: Lifecycle,
+    report: WorkerReport,
+) -> None:
     rig = cfg.name
     key = keys.sensor_skeletons(rig, sensor_id)
     publisher = session.declare_publisher(key, express=True)
@@ -499,12 +589,22 @@ def _publish_loop(cfg: RigConfig, sensor_id: str, name: str, source: FrameSource
         nonlocal window_frames, last_status
         now = time.monotonic_ns()
         window_s = max((now - last_status) / 1e9, 1e-9)
-        info = {"sensor": sensor_id, "source": type(source).__name__, "rate_hz": round(window_frames / window_s, 3),
-                "last_error": last_error or None}
-        counters = {"frames_out": report.frames_out, "restarts": report.restarts,
-                    "late_publishes": report.late_publishes}
-        status_pub.put(encode_status(NodeStatus(node=name, role="capture", state=state, time_ns=time.time_ns(),
-                                                counters=counters, info=info)))
+        info = {
+            "sensor": sensor_id,
+            "source": type(source).__name__,
+            "rate_hz": round(window_frames / window_s, 3),
+            "last_error": last_error or None,
+        }
+        counters = {
+            "frames_out": report.frames_out,
+            "restarts": report.restarts,
+            "late_publishes": report.late_publishes,
+        }
+        status_pub.put(
+            encode_status(
+                NodeStatus(node=name, role="capture", state=state, time_ns=time.time_ns(), counters=counters, info=info)
+            )
+        )
         window_frames = 0
         last_status = now
 
@@ -542,8 +642,13 @@ def _publish_loop(cfg: RigConfig, sensor_id: str, name: str, source: FrameSource
             except Exception as exc:  # the source failed at run time: log, back off, start it again
                 report.restarts += 1
                 last_error = f"{type(exc).__name__}: {exc}"
-                log.error("capture worker %s: source failed (%s); restarting it in %.1f s", name, last_error,
-                          backoff, exc_info=log.isEnabledFor(logging.DEBUG))
+                log.error(
+                    "capture worker %s: source failed (%s); restarting it in %.1f s",
+                    name,
+                    last_error,
+                    backoff,
+                    exc_info=log.isEnabledFor(logging.DEBUG),
+                )
                 status("degraded")
                 if lifecycle.wait(backoff):
                     return

@@ -86,8 +86,10 @@ def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: 
         try:
             return zenoh.open(conf)
         except Exception as exc:  # zenoh.ZError: endpoint in use, unreachable router, bad TLS files...
-            message = (f"{what}: cannot open the zenoh session: {exc}; check [zenoh] connect/listen endpoints "
-                       f"and that the port is free or the router is up")
+            message = (
+                f"{what}: cannot open the zenoh session: {exc}; check [zenoh] connect/listen endpoints "
+                f"and that the port is free or the router is up"
+            )
             if not retry:
                 raise ServiceError(message) from None
             log.error("%s (retrying in %.1f s)", message, delay)

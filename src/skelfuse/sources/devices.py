@@ -52,9 +52,14 @@ class FirmwareVersions:
         def name(names: tuple[str, ...], value: int) -> str:
             return names[value] if 0 <= value < len(names) else str(value)
 
-        return cls(rgb=text(version.rgb), depth=text(version.depth), audio=text(version.audio),
-                   depth_sensor=text(version.depth_sensor), build=name(FIRMWARE_BUILDS, version.firmware_build),
-                   signature=name(FIRMWARE_SIGNATURES, version.firmware_signature))
+        return cls(
+            rgb=text(version.rgb),
+            depth=text(version.depth),
+            audio=text(version.audio),
+            depth_sensor=text(version.depth_sensor),
+            build=name(FIRMWARE_BUILDS, version.firmware_build),
+            signature=name(FIRMWARE_SIGNATURES, version.firmware_signature),
+        )
 
 
 @dataclass(frozen=True)
@@ -105,8 +110,9 @@ def _list_with_pyk4a(pyk4a: Any, k4a: Any) -> list[DeviceInfo]:
         try:
             device.open()
         except pyk4a.K4AException as exc:
-            devices.append(DeviceInfo(index=index, serial=None,
-                                      note=f"cannot open ({exc or 'busy'}): in use by another process?"))
+            devices.append(
+                DeviceInfo(index=index, serial=None, note=f"cannot open ({exc or 'busy'}): in use by another process?")
+            )
             continue
         try:
             serial = str(device.serial)
@@ -117,8 +123,15 @@ def _list_with_pyk4a(pyk4a: Any, k4a: Any) -> list[DeviceInfo]:
                     firmware = _firmware(k4a, device_handle(device))
                 except K4ABTError:
                     firmware = None
-            devices.append(DeviceInfo(index=index, serial=serial, firmware=firmware, sync_in_connected=bool(jack_in),
-                                      sync_out_connected=bool(jack_out)))
+            devices.append(
+                DeviceInfo(
+                    index=index,
+                    serial=serial,
+                    firmware=firmware,
+                    sync_in_connected=bool(jack_in),
+                    sync_out_connected=bool(jack_out),
+                )
+            )
         finally:
             device.close()
     return devices
@@ -140,9 +153,15 @@ def _list_with_k4a(k4a: Any) -> list[DeviceInfo]:
                     serial = buffer.value.decode(errors="replace")
             jack_in, jack_out = ctypes.c_bool(), ctypes.c_bool()
             jacks_ok = k4a.k4a_device_get_sync_jack(handle, ctypes.byref(jack_in), ctypes.byref(jack_out)) == 0
-            devices.append(DeviceInfo(index=index, serial=serial, firmware=_firmware(k4a, int(handle.value)),
-                                      sync_in_connected=bool(jack_in.value) if jacks_ok else None,
-                                      sync_out_connected=bool(jack_out.value) if jacks_ok else None))
+            devices.append(
+                DeviceInfo(
+                    index=index,
+                    serial=serial,
+                    firmware=_firmware(k4a, int(handle.value)),
+                    sync_in_connected=bool(jack_in.value) if jacks_ok else None,
+                    sync_out_connected=bool(jack_out.value) if jacks_ok else None,
+                )
+            )
         finally:
             k4a.k4a_device_close(handle)
     return devices
@@ -179,8 +198,9 @@ def list_devices(*, pyk4a: Any = None, k4a: Any = None, k4a_path: str | None = N
         return _list_with_pyk4a(pyk4a, k4a)
     if k4a is not None:
         return _list_with_k4a(k4a)
-    raise KinectUnavailable("cannot list Azure Kinect devices: neither pyk4a nor libk4a is installed.\n"
-                            + describe_environment())
+    raise KinectUnavailable(
+        "cannot list Azure Kinect devices: neither pyk4a nor libk4a is installed.\n" + describe_environment()
+    )
 
 
 def format_devices(devices: list[DeviceInfo]) -> str:
@@ -190,11 +210,14 @@ def format_devices(devices: list[DeviceInfo]) -> str:
     lines = [f"{'#':>2}  {'serial':<14} {'sync in':<8} {'sync out':<8} {'role?':<12} firmware (rgb / depth / audio)"]
     for d in devices:
         fw = "?" if d.firmware is None else f"{d.firmware.rgb} / {d.firmware.depth} / {d.firmware.audio}"
+
         def jack(v: bool | None) -> str:
             return "?" if v is None else ("yes" if v else "no")
-        lines.append(f"{d.index:>2}  {d.serial or '-':<14} {jack(d.sync_in_connected):<8} "
-                     f"{jack(d.sync_out_connected):<8} {d.suggested_role or '?':<12} {fw}"
-                     + (f"  ({d.note})" if d.note else ""))
+
+        lines.append(
+            f"{d.index:>2}  {d.serial or '-':<14} {jack(d.sync_in_connected):<8} "
+            f"{jack(d.sync_out_connected):<8} {d.suggested_role or '?':<12} {fw}" + (f"  ({d.note})" if d.note else "")
+        )
     return "\n".join(lines)
 
 
@@ -225,27 +248,46 @@ def describe_environment(*, k4a_path: str | None = None, k4abt_path: str | None 
             lines.append("pyk4a (skelfuse[kinect] extra): installed")
         except ImportError as exc:
             ok = False
-            lines.append(f"pyk4a: installed but cannot load ({exc}); the Sensor SDK's libk4a must be on the "
-                         "library path (LD_LIBRARY_PATH / PATH)")
+            lines.append(
+                f"pyk4a: installed but cannot load ({exc}); the Sensor SDK's libk4a must be on the "
+                "library path (LD_LIBRARY_PATH / PATH)"
+            )
     if linux:
-        models = [p for p in ("/usr/bin/dnn_model_2_0_op11.onnx", "/usr/bin/dnn_model_2_0_lite_op11.onnx")
-                  if os.path.exists(p)]
-        lines.append("body tracking models: " + (", ".join(models) if models else "none in /usr/bin (they come with "
-                                                 "libk4abt1.1; set sensors[i].kinect.tracker.model_path)"))
+        models = [
+            p
+            for p in ("/usr/bin/dnn_model_2_0_op11.onnx", "/usr/bin/dnn_model_2_0_lite_op11.onnx")
+            if os.path.exists(p)
+        ]
+        lines.append(
+            "body tracking models: "
+            + (
+                ", ".join(models)
+                if models
+                else "none in /usr/bin (they come with libk4abt1.1; set sensors[i].kinect.tracker.model_path)"
+            )
+        )
         if not os.path.exists("/etc/udev/rules.d/99-k4a.rules"):
-            lines.append("udev rule: /etc/udev/rules.d/99-k4a.rules missing - without it only root can open the "
-                         "devices (copy scripts/99-k4a.rules from the Azure-Kinect-Sensor-SDK repository)")
+            lines.append(
+                "udev rule: /etc/udev/rules.d/99-k4a.rules missing - without it only root can open the "
+                "devices (copy scripts/99-k4a.rules from the Azure-Kinect-Sensor-SDK repository)"
+            )
     if not ok:
         if linux:
-            lines.append("to install on Ubuntu 18.04/20.04 (22.04: use the 18.04 packages or build from source): add "
-                         "https://packages.microsoft.com/ubuntu/18.04/prod, then `sudo apt install k4a-tools "
-                         "libk4a1.4-dev libk4abt1.1-dev`, then `pip install 'skelfuse[kinect]'`")
+            lines.append(
+                "to install on Ubuntu 18.04/20.04 (22.04: use the 18.04 packages or build from source): add "
+                "https://packages.microsoft.com/ubuntu/18.04/prod, then `sudo apt install k4a-tools "
+                "libk4a1.4-dev libk4abt1.1-dev`, then `pip install 'skelfuse[kinect]'`"
+            )
         elif sys.platform == "win32":
-            lines.append("to install on Windows: the Azure Kinect SDK 1.4.1 installer and the Body Tracking SDK 1.1.2 "
-                         "installer (Microsoft Download Center), add their bin folders to PATH, then "
-                         "`pip install 'skelfuse[kinect]'`")
+            lines.append(
+                "to install on Windows: the Azure Kinect SDK 1.4.1 installer and the Body Tracking SDK 1.1.2 "
+                "installer (Microsoft Download Center), add their bin folders to PATH, then "
+                "`pip install 'skelfuse[kinect]'`"
+            )
         else:
             lines.append("the Azure Kinect SDKs exist for Linux (x86_64) and Windows only")
-        lines.append("Femto Bolt / Mega: install Orbbec's OrbbecSDK-K4A-Wrapper (it provides libk4a) instead of the "
-                     "Sensor SDK. See docs/kinect.md")
+        lines.append(
+            "Femto Bolt / Mega: install Orbbec's OrbbecSDK-K4A-Wrapper (it provides libk4a) instead of the "
+            "Sensor SDK. See docs/kinect.md"
+        )
     return "\n".join(lines)

@@ -172,9 +172,14 @@ class K4aHardwareVersion(ctypes.Structure):
     ]
 
 
-JOINT_DTYPE = np.dtype({"names": ["position", "orientation", "confidence"],
-                        "formats": [("<f4", (3,)), ("<f4", (4,)), "<i4"],
-                        "offsets": [0, 12, 28], "itemsize": 32})
+JOINT_DTYPE = np.dtype(
+    {
+        "names": ["position", "orientation", "confidence"],
+        "formats": [("<f4", (3,)), ("<f4", (4,)), "<i4"],
+        "offsets": [0, 12, 28],
+        "itemsize": 32,
+    }
+)
 """numpy view of one ``k4abt_joint_t`` (little-endian, as every platform the SDK runs on)."""
 
 
@@ -190,8 +195,10 @@ def capsule_pointer(capsule: Any, name: bytes) -> int:
     try:
         pointer = _PyCapsule_GetPointer(capsule, name)
     except (ValueError, TypeError) as exc:
-        raise K4ABTError(f"expected a PyCapsule named {name.decode()!r} (a pyk4a handle), got "
-                         f"{type(capsule).__name__}: {exc}. Is the installed pyk4a >= 1.5?") from None
+        raise K4ABTError(
+            f"expected a PyCapsule named {name.decode()!r} (a pyk4a handle), got "
+            f"{type(capsule).__name__}: {exc}. Is the installed pyk4a >= 1.5?"
+        ) from None
     if not pointer:
         raise K4ABTError(f"the PyCapsule {name.decode()!r} holds a NULL pointer")
     return int(pointer)
@@ -252,9 +259,13 @@ def _load(names: list[str], what: str, hint: str) -> tuple[ctypes.CDLL, str]:
 
 def load_k4a(path: str | os.PathLike[str] | None = None) -> ctypes.CDLL:
     """Load libk4a (Azure Kinect Sensor SDK, or Orbbec's K4A wrapper) and declare what skelfuse calls."""
-    names = [os.fspath(path)] if path is not None else _candidates(
-        K4A_LIBRARY_ENV, ("libk4a.so.1.4", "libk4a.so"),
-        ("k4a.dll", str(Path(WINDOWS_K4A_DIR) / "k4a.dll")), "k4a")
+    names = (
+        [os.fspath(path)]
+        if path is not None
+        else _candidates(
+            K4A_LIBRARY_ENV, ("libk4a.so.1.4", "libk4a.so"), ("k4a.dll", str(Path(WINDOWS_K4A_DIR) / "k4a.dll")), "k4a"
+        )
+    )
     lib, _ = _load(names, "libk4a (Azure Kinect Sensor SDK)", K4A_INSTALL_HINT)
     try:
         lib.k4a_device_get_installed_count.restype = ctypes.c_uint32
@@ -268,11 +279,15 @@ def load_k4a(path: str | os.PathLike[str] | None = None) -> ctypes.CDLL:
         lib.k4a_device_get_version.restype = ctypes.c_int
         lib.k4a_device_get_version.argtypes = [ctypes.c_void_p, ctypes.POINTER(K4aHardwareVersion)]
         lib.k4a_device_get_sync_jack.restype = ctypes.c_int
-        lib.k4a_device_get_sync_jack.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_bool),
-                                                 ctypes.POINTER(ctypes.c_bool)]
+        lib.k4a_device_get_sync_jack.argtypes = [
+            ctypes.c_void_p,
+            ctypes.POINTER(ctypes.c_bool),
+            ctypes.POINTER(ctypes.c_bool),
+        ]
     except AttributeError as exc:
-        raise K4ABTLibraryError(f"the loaded libk4a lacks a function skelfuse needs ({exc}); "
-                                f"{K4A_INSTALL_HINT}") from None
+        raise K4ABTLibraryError(
+            f"the loaded libk4a lacks a function skelfuse needs ({exc}); {K4A_INSTALL_HINT}"
+        ) from None
     return lib
 
 
@@ -299,21 +314,28 @@ class TrackerSettings:
 
     def __post_init__(self) -> None:
         if self.processing_mode not in PROCESSING_MODES:
-            raise ConfigError(f"tracker processing_mode: expected one of {', '.join(PROCESSING_MODES)}, "
-                              f"found {self.processing_mode!r}")
+            raise ConfigError(
+                f"tracker processing_mode: expected one of {', '.join(PROCESSING_MODES)}, "
+                f"found {self.processing_mode!r}"
+            )
         if self.sensor_orientation not in SENSOR_ORIENTATIONS:
-            raise ConfigError(f"tracker sensor_orientation: expected one of {', '.join(SENSOR_ORIENTATIONS)}, "
-                              f"found {self.sensor_orientation!r}")
+            raise ConfigError(
+                f"tracker sensor_orientation: expected one of {', '.join(SENSOR_ORIENTATIONS)}, "
+                f"found {self.sensor_orientation!r}"
+            )
         if not 0.0 <= self.temporal_smoothing <= 1.0:
             raise ConfigError(f"tracker temporal_smoothing: expected 0..1, found {self.temporal_smoothing}")
 
     @classmethod
     def from_config(cls, tracker: Any) -> TrackerSettings:
         """From a :class:`skelfuse.config.TrackerConfig`."""
-        return cls(processing_mode=tracker.processing_mode, gpu_device_id=int(tracker.gpu_device_id),
-                   model_path=None if tracker.model_path is None else str(tracker.model_path),
-                   sensor_orientation=tracker.sensor_orientation,
-                   temporal_smoothing=float(tracker.temporal_smoothing))
+        return cls(
+            processing_mode=tracker.processing_mode,
+            gpu_device_id=int(tracker.gpu_device_id),
+            model_path=None if tracker.model_path is None else str(tracker.model_path),
+            sensor_orientation=tracker.sensor_orientation,
+            temporal_smoothing=float(tracker.temporal_smoothing),
+        )
 
 
 class K4abtLibrary:
@@ -334,9 +356,16 @@ class K4abtLibrary:
     """
 
     def __init__(self, path: str | os.PathLike[str] | None = None, *, abi: str = "auto") -> None:
-        names = [os.fspath(path)] if path is not None else _candidates(
-            K4ABT_LIBRARY_ENV, ("libk4abt.so.1.1", "libk4abt.so.1.0", "libk4abt.so"),
-            ("k4abt.dll", str(Path(WINDOWS_K4ABT_DIR) / "k4abt.dll")), "k4abt")
+        names = (
+            [os.fspath(path)]
+            if path is not None
+            else _candidates(
+                K4ABT_LIBRARY_ENV,
+                ("libk4abt.so.1.1", "libk4abt.so.1.0", "libk4abt.so"),
+                ("k4abt.dll", str(Path(WINDOWS_K4ABT_DIR) / "k4abt.dll")),
+                "k4abt",
+            )
+        )
         self.lib, self.path = _load(names, "libk4abt (Azure Kinect Body Tracking SDK)", K4ABT_INSTALL_HINT)
         abi = os.environ.get(K4ABT_ABI_ENV, abi) if abi == "auto" else abi
         if abi == "auto":
@@ -375,19 +404,25 @@ class K4abtLibrary:
             lib.k4abt_frame_get_num_bodies.restype = ctypes.c_uint32
             lib.k4abt_frame_get_num_bodies.argtypes = [ctypes.c_void_p]
             lib.k4abt_frame_get_body_skeleton.restype = ctypes.c_int
-            lib.k4abt_frame_get_body_skeleton.argtypes = [ctypes.c_void_p, ctypes.c_uint32,
-                                                          ctypes.POINTER(K4abtSkeleton)]
+            lib.k4abt_frame_get_body_skeleton.argtypes = [
+                ctypes.c_void_p,
+                ctypes.c_uint32,
+                ctypes.POINTER(K4abtSkeleton),
+            ]
             lib.k4abt_frame_get_body_id.restype = ctypes.c_uint32
             lib.k4abt_frame_get_body_id.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
-            device_ts = ("k4abt_frame_get_device_timestamp_usec" if self.abi == "1.1"
-                         else "k4abt_frame_get_timestamp_usec")
+            device_ts = (
+                "k4abt_frame_get_device_timestamp_usec" if self.abi == "1.1" else "k4abt_frame_get_timestamp_usec"
+            )
             self._device_timestamp = getattr(lib, device_ts)
             self._device_timestamp.restype = ctypes.c_uint64
             self._device_timestamp.argtypes = [ctypes.c_void_p]
         except AttributeError as exc:
-            raise K4ABTLibraryError(f"{self.path} lacks a function of the Body Tracking SDK {self.abi} ABI ({exc}); "
-                                    f"set {K4ABT_ABI_ENV} to the installed SDK's generation or reinstall it. "
-                                    f"{K4ABT_INSTALL_HINT}") from None
+            raise K4ABTLibraryError(
+                f"{self.path} lacks a function of the Body Tracking SDK {self.abi} ABI ({exc}); "
+                f"set {K4ABT_ABI_ENV} to the installed SDK's generation or reinstall it. "
+                f"{K4ABT_INSTALL_HINT}"
+            ) from None
         self._system_timestamp = getattr(lib, "k4abt_frame_get_system_timestamp_nsec", None)
         if self._system_timestamp is not None:
             self._system_timestamp.restype = ctypes.c_uint64
@@ -401,12 +436,15 @@ class K4abtLibrary:
             path = None if settings.model_path is None else os.fsencode(settings.model_path)
             return TrackerConfiguration11(orientation, mode, settings.gpu_device_id, path), path
         if settings.model_path is not None:
-            raise TrackerCreateError(f"model_path {settings.model_path!r} needs Body Tracking SDK 1.1 or newer, but "
-                                     f"{self.path} is a 1.0 SDK; upgrade (apt install libk4abt1.1-dev) or leave "
-                                     "model_path out")
+            raise TrackerCreateError(
+                f"model_path {settings.model_path!r} needs Body Tracking SDK 1.1 or newer, but "
+                f"{self.path} is a 1.0 SDK; upgrade (apt install libk4abt1.1-dev) or leave "
+                "model_path out"
+            )
         if settings.processing_mode not in ("gpu", "cpu"):
-            log.warning("Body Tracking SDK 1.0 knows only GPU or CPU processing: %r runs as GPU",
-                        settings.processing_mode)
+            log.warning(
+                "Body Tracking SDK 1.0 knows only GPU or CPU processing: %r runs as GPU", settings.processing_mode
+            )
         return TrackerConfiguration10(orientation, settings.processing_mode == "cpu", settings.gpu_device_id), None
 
 
@@ -469,7 +507,8 @@ class Tracker:
                 f"GPU {settings.gpu_device_id}, "
                 f"model {model}, SDK ABI {library.abi}); check that the model file exists, the GPU / CUDA / cuDNN "
                 "runtime the mode needs is installed (see the SDK's log: K4ABT_ENABLE_LOG_TO_A_FILE, "
-                "K4ABT_LOG_LEVEL=i), and that no other tracker runs in this process")
+                "K4ABT_LOG_LEVEL=i), and that no other tracker runs in this process"
+            )
         self._handle = int(handle.value)
         library.lib.k4abt_tracker_set_temporal_smoothing(self._handle, ctypes.c_float(settings.temporal_smoothing))
 
@@ -487,15 +526,18 @@ class Tracker:
 
         Raises TrackerFailedError on K4A_WAIT_RESULT_FAILED (a capture without depth, a dead tracker).
         """
-        result = self.library.lib.k4abt_tracker_enqueue_capture(self._require(), ctypes.c_void_p(capture),
-                                                                _bounded(timeout_ms))
+        result = self.library.lib.k4abt_tracker_enqueue_capture(
+            self._require(), ctypes.c_void_p(capture), _bounded(timeout_ms)
+        )
         if result == K4A_WAIT_RESULT_SUCCEEDED:
             self.pending += 1
             return True
         if result == K4A_WAIT_RESULT_TIMEOUT:
             return False
-        raise TrackerFailedError(f"k4abt_tracker_enqueue_capture failed (result {result}): the capture has no depth "
-                                 "image, or the tracker stopped working")
+        raise TrackerFailedError(
+            f"k4abt_tracker_enqueue_capture failed (result {result}): the capture has no depth "
+            "image, or the tracker stopped working"
+        )
 
     def pop(self, timeout_ms: int = 0) -> BodyFrameData | None:
         """The next result, copied out and released; None if none came within ``timeout_ms``."""
@@ -505,8 +547,9 @@ class Tracker:
             return None
         if result != K4A_WAIT_RESULT_SUCCEEDED:
             self.pending = max(0, self.pending - 1)
-            raise TrackerFailedError(f"k4abt_tracker_pop_result failed (result {result}): the tracker stopped "
-                                     "working (GPU lost, shut down)")
+            raise TrackerFailedError(
+                f"k4abt_tracker_pop_result failed (result {result}): the tracker stopped working (GPU lost, shut down)"
+            )
         self.pending = max(0, self.pending - 1)
         try:
             return self._read_frame(int(frame.value or 0))
@@ -522,7 +565,7 @@ class Tracker:
         for index in range(n):
             if lib.k4abt_frame_get_body_skeleton(frame, index, ctypes.byref(skeleton)) != K4A_RESULT_SUCCEEDED:
                 raise TrackerFailedError(f"k4abt_frame_get_body_skeleton failed for body {index} of {n}")
-            raw[index * N_JOINTS:(index + 1) * N_JOINTS] = np.frombuffer(bytes(skeleton), dtype=JOINT_DTYPE)
+            raw[index * N_JOINTS : (index + 1) * N_JOINTS] = np.frombuffer(bytes(skeleton), dtype=JOINT_DTYPE)
             ids[index] = lib.k4abt_frame_get_body_id(frame, index)
         raw = raw.reshape(n, N_JOINTS)
         confidence = raw["confidence"]

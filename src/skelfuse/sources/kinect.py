@@ -143,16 +143,24 @@ class DeviceSettings:
     @classmethod
     def from_sensor(cls, sensor: SensorConfig, fps: float) -> DeviceSettings:
         if sensor.kinect is None:
-            raise ConfigError(f"sensor {sensor.id!r} has source = {sensor.source!r}, not \"kinect\"")
-        return cls(serial=sensor.kinect.serial, depth_mode=sensor.kinect.depth_mode,
-                   color_resolution=sensor.kinect.color_resolution, fps=round(fps), sync_role=sensor.sync.role,
-                   subordinate_delay_us=sensor.sync.delay_us if sensor.sync.role == "subordinate" else 0,
-                   tracker=TrackerSettings.from_config(sensor.kinect.tracker))
+            raise ConfigError(f'sensor {sensor.id!r} has source = {sensor.source!r}, not "kinect"')
+        return cls(
+            serial=sensor.kinect.serial,
+            depth_mode=sensor.kinect.depth_mode,
+            color_resolution=sensor.kinect.color_resolution,
+            fps=round(fps),
+            sync_role=sensor.sync.role,
+            subordinate_delay_us=sensor.sync.delay_us if sensor.sync.role == "subordinate" else 0,
+            tracker=TrackerSettings.from_config(sensor.kinect.tracker),
+        )
 
     def pyk4a_config(self, pyk4a: Any) -> Any:
         """The ``pyk4a.Config`` these settings describe."""
-        color = pyk4a.ColorResolution.OFF if self.color_resolution is None else \
-            getattr(pyk4a.ColorResolution, f"RES_{self.color_resolution}")
+        color = (
+            pyk4a.ColorResolution.OFF
+            if self.color_resolution is None
+            else getattr(pyk4a.ColorResolution, f"RES_{self.color_resolution}")
+        )
         return pyk4a.Config(
             color_resolution=color,
             color_format=pyk4a.ImageFormat.COLOR_BGRA32,
@@ -178,8 +186,9 @@ def kinect_start_order(sensors: Sequence[SensorConfig]) -> list[SensorConfig]:
     return sorted(kinects, key=lambda s: (rank[s.sync.role], s.sync.delay_us))
 
 
-def start_rig(sources: Sequence[tuple[str, SkeletonSource]], *, settle_s: float = 0.0,
-              sleep: Callable[[float], None] = time.sleep) -> None:
+def start_rig(
+    sources: Sequence[tuple[str, SkeletonSource]], *, settle_s: float = 0.0, sleep: Callable[[float], None] = time.sleep
+) -> None:
     """Open ``(role, source)`` pairs in start order (subordinates, standalone, master); close all on failure.
 
     ``settle_s`` is waited between the last subordinate and the master (the SDK needs none: starting a
@@ -215,9 +224,16 @@ class _FrameAssembler:
         if self.first_us is None:
             self.first_us = body.device_time_us
         sequence = round((body.device_time_us - self.first_us) / self.period_us)  # a gap is a drop
-        return SensorFrame(sensor_id=self.sensor_id, sequence=int(sequence), device_time_us=int(body.device_time_us),
-                           host_time_ns=_host_time_ns(body.system_time_ns), body_ids=body.body_ids,
-                           positions=body.positions, orientations=body.orientations, confidence=body.confidence)
+        return SensorFrame(
+            sensor_id=self.sensor_id,
+            sequence=int(sequence),
+            device_time_us=int(body.device_time_us),
+            host_time_ns=_host_time_ns(body.system_time_ns),
+            body_ids=body.body_ids,
+            positions=body.positions,
+            orientations=body.orientations,
+            confidence=body.confidence,
+        )
 
 
 def _host_time_ns(system_ns: int | None) -> int:
@@ -255,9 +271,16 @@ class KinectSource:
         Counters since open().
     """
 
-    def __init__(self, settings: DeviceSettings, *, sensor_id: str | None = None, pyk4a: Any = None,
-                 k4abt: K4abtLibrary | str | Path | None = None, stall_timeout_s: float = 3.0,
-                 enqueue_timeout_ms: int = 5) -> None:
+    def __init__(
+        self,
+        settings: DeviceSettings,
+        *,
+        sensor_id: str | None = None,
+        pyk4a: Any = None,
+        k4abt: K4abtLibrary | str | Path | None = None,
+        stall_timeout_s: float = 3.0,
+        enqueue_timeout_ms: int = 5,
+    ) -> None:
         self.settings = settings
         self.sensor_id = sensor_id or settings.serial
         self._pyk4a = pyk4a
@@ -290,20 +313,29 @@ class KinectSource:
             self._tracker = Tracker(library, calibration_pointer(calibration), self.settings.tracker)
         except pyk4a.K4AException as exc:
             self.close()
-            raise SensorDisconnected(f"sensor {self.sensor_id} (serial {self.settings.serial}) opened but cannot "
-                                     f"start its cameras ({exc or type(exc).__name__}); check its power supply and "
-                                     "USB 3 port, and that k4aviewer can stream from it") from None
+            raise SensorDisconnected(
+                f"sensor {self.sensor_id} (serial {self.settings.serial}) opened but cannot "
+                f"start its cameras ({exc or type(exc).__name__}); check its power supply and "
+                "USB 3 port, and that k4aviewer can stream from it"
+            ) from None
         except BaseException:
             self.close()
             raise
         self._assemble = _FrameAssembler(self.sensor_id, self.settings.fps)
         self.captures = self.dropped_captures = self.results = 0
         self._last_capture = self._last_result = time.monotonic()
-        log.info("sensor %s: opened serial %s (%s, %d fps, colour %s, sync %s%s, tracker %s ABI %s)", self.sensor_id,
-                 self.settings.serial, self.settings.depth_mode, self.settings.fps,
-                 self.settings.color_resolution or "off", self.settings.sync_role,
-                 f" +{self.settings.subordinate_delay_us} us" if self.settings.sync_role == "subordinate" else "",
-                 self.settings.tracker.processing_mode, library.abi)
+        log.info(
+            "sensor %s: opened serial %s (%s, %d fps, colour %s, sync %s%s, tracker %s ABI %s)",
+            self.sensor_id,
+            self.settings.serial,
+            self.settings.depth_mode,
+            self.settings.fps,
+            self.settings.color_resolution or "off",
+            self.settings.sync_role,
+            f" +{self.settings.subordinate_delay_us} us" if self.settings.sync_role == "subordinate" else "",
+            self.settings.tracker.processing_mode,
+            library.abi,
+        )
 
     def read(self, timeout_s: float) -> SensorFrame | None:
         if self._device is None or self._tracker is None:
@@ -316,15 +348,18 @@ class KinectSource:
         except pyk4a.K4ATimeoutException:
             capture = None
         except pyk4a.K4AException as exc:
-            raise SensorDisconnected(f"sensor {self.sensor_id} (serial {self.settings.serial}) stopped delivering "
-                                     f"captures ({exc or type(exc).__name__}): unplugged or USB reset?") from None
+            raise SensorDisconnected(
+                f"sensor {self.sensor_id} (serial {self.settings.serial}) stopped delivering "
+                f"captures ({exc or type(exc).__name__}): unplugged or USB reset?"
+            ) from None
         now = time.monotonic()
         if capture is None:
             if now - self._last_capture > self.stall_timeout_s:
                 raise SensorDisconnected(
                     f"sensor {self.sensor_id} (serial {self.settings.serial}): no capture for "
                     f"{now - self._last_capture:.1f} s; unplugged, or a subordinate whose master is not running "
-                    "(start the master, check the sync cable)")
+                    "(start the master, check the sync cable)"
+                )
         else:
             self._last_capture = now
             self.captures += 1
@@ -340,9 +375,11 @@ class KinectSource:
         if body is not None:
             return self._emit(body, now)
         if self.captures and now - self._last_result > self.stall_timeout_s:
-            raise TrackerStalled(f"sensor {self.sensor_id}: the body tracker returned nothing for "
-                                 f"{now - self._last_result:.1f} s while captures arrived ({tracker.pending} pending); "
-                                 "GPU overloaded or lost?")
+            raise TrackerStalled(
+                f"sensor {self.sensor_id}: the body tracker returned nothing for "
+                f"{now - self._last_result:.1f} s while captures arrived ({tracker.pending} pending); "
+                "GPU overloaded or lost?"
+            )
         return None
 
     def _emit(self, body: BodyFrameData, now: float) -> SensorFrame:
@@ -388,9 +425,11 @@ def _open_by_serial(pyk4a: Any, settings: DeviceSettings) -> Any:
             return device
         seen.append(serial)
         _quietly(device.close, f"closing device #{device_id}")
-    raise SensorNotFound(f"no connected Azure Kinect has serial {settings.serial!r} (found {count} device(s): "
-                         f"{', '.join(seen) or 'none'}); check the cable and power, the serial in the rig config, "
-                         "and `skelfuse devices`")
+    raise SensorNotFound(
+        f"no connected Azure Kinect has serial {settings.serial!r} (found {count} device(s): "
+        f"{', '.join(seen) or 'none'}); check the cable and power, the serial in the rig config, "
+        "and `skelfuse devices`"
+    )
 
 
 # ------------------------------------------------------------------------------------------- mkv source
@@ -402,9 +441,17 @@ class MkvSource:
     Frames come as fast as the tracker produces them (no pacing). Needs pyk4a and the Body Tracking SDK.
     """
 
-    def __init__(self, path: str | Path, tracker: TrackerSettings | None = None, *, sensor_id: str | None = None,
-                 pyk4a: Any = None, k4abt: K4abtLibrary | str | Path | None = None, fps: float = 30.0,
-                 result_timeout_ms: int = 5000) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        tracker: TrackerSettings | None = None,
+        *,
+        sensor_id: str | None = None,
+        pyk4a: Any = None,
+        k4abt: K4abtLibrary | str | Path | None = None,
+        fps: float = 30.0,
+        result_timeout_ms: int = 5000,
+    ) -> None:
         self.path = Path(path)
         self.sensor_id = sensor_id or self.path.stem
         self.tracker_settings = tracker or TrackerSettings()
@@ -429,8 +476,10 @@ class MkvSource:
             self._tracker = Tracker(library, calibration_pointer(self._playback.calibration), self.tracker_settings)
         except pyk4a.K4AException as exc:
             self.close()
-            raise DataError(f"cannot open Kinect recording {self.path} ({exc or type(exc).__name__}); is it a "
-                            "k4arecorder .mkv with a depth track?") from None
+            raise DataError(
+                f"cannot open Kinect recording {self.path} ({exc or type(exc).__name__}); is it a "
+                "k4arecorder .mkv with a depth track?"
+            ) from None
         except BaseException:
             self.close()
             raise
@@ -495,8 +544,9 @@ class RecordedFileSource:
     Frames are returned as fast as they are read (no pacing).
     """
 
-    def __init__(self, path: str | Path, *, sensor_id: str | None = None, kind: str = "auto",
-                 loop: bool = False) -> None:
+    def __init__(
+        self, path: str | Path, *, sensor_id: str | None = None, kind: str = "auto", loop: bool = False
+    ) -> None:
         self.path = Path(path)
         self.kind = kind
         self.loop = loop
@@ -517,8 +567,10 @@ class RecordedFileSource:
         elif kind == "offline_processor":
             recording = recorded.load_offline_processor_json(self.path, sensor_id=self.sensor_id)
         else:
-            raise DataError(f"{self.path}: cannot tell the recording format from the suffix; expected .csv (andyj1) "
-                            "or .json (offline_processor), or pass kind=\"andyj1\" / \"offline_processor\"")
+            raise DataError(
+                f"{self.path}: cannot tell the recording format from the suffix; expected .csv (andyj1) "
+                'or .json (offline_processor), or pass kind="andyj1" / "offline_processor"'
+            )
         self._frames = list(recording.frames())
         if not self._frames:
             raise DataError(f"{self.path}: the recording holds no frames")
@@ -539,10 +591,16 @@ class RecordedFileSource:
         if not self._pass:
             return frame
         shift = self._shift_us
-        return SensorFrame(sensor_id=frame.sensor_id, sequence=frame.sequence + self._pass * len(self._frames),
-                           device_time_us=frame.device_time_us + shift, host_time_ns=frame.host_time_ns + shift * 1000,
-                           body_ids=frame.body_ids, positions=frame.positions, orientations=frame.orientations,
-                           confidence=frame.confidence)
+        return SensorFrame(
+            sensor_id=frame.sensor_id,
+            sequence=frame.sequence + self._pass * len(self._frames),
+            device_time_us=frame.device_time_us + shift,
+            host_time_ns=frame.host_time_ns + shift * 1000,
+            body_ids=frame.body_ids,
+            positions=frame.positions,
+            orientations=frame.orientations,
+            confidence=frame.confidence,
+        )
 
     def close(self) -> None:
         self._frames = []
@@ -581,10 +639,16 @@ class ReconnectReport:
     delays: list[float] = field(default_factory=list)
 
 
-def run_with_reconnect(open_source: Callable[[], SkeletonSource], on_frame: Callable[[SensorFrame], Any],
-                       should_exit: Callable[[], bool], *, backoff: Backoff | None = None,
-                       read_timeout_s: float = 0.1, wait: Callable[[float], Any] | None = None,
-                       on_error: Callable[[BaseException, float], Any] | None = None) -> ReconnectReport:
+def run_with_reconnect(
+    open_source: Callable[[], SkeletonSource],
+    on_frame: Callable[[SensorFrame], Any],
+    should_exit: Callable[[], bool],
+    *,
+    backoff: Backoff | None = None,
+    read_timeout_s: float = 0.1,
+    wait: Callable[[float], Any] | None = None,
+    on_error: Callable[[BaseException, float], Any] | None = None,
+) -> ReconnectReport:
     """Read frames from a source forever, reopening it with exponential backoff whenever it fails.
 
     Parameters
@@ -651,8 +715,14 @@ def run_with_reconnect(open_source: Callable[[], SkeletonSource], on_frame: Call
             report.last_error = f"{type(exc).__name__}: {exc}"
             report.delays.append(delay)
             expected = isinstance(exc, SkelfuseError)
-            log.log(logging.WARNING if expected else logging.ERROR, "source %s failed (%s); reconnecting in %.1f s",
-                    getattr(source, "sensor_id", "?"), report.last_error, delay, exc_info=not expected)
+            log.log(
+                logging.WARNING if expected else logging.ERROR,
+                "source %s failed (%s); reconnecting in %.1f s",
+                getattr(source, "sensor_id", "?"),
+                report.last_error,
+                delay,
+                exc_info=not expected,
+            )
             if on_error is not None:
                 on_error(exc, delay)
         finally:
@@ -672,8 +742,14 @@ class WorkerFrameSource:
     loop reopens the device) even when ``should_exit`` is not wired.
     """
 
-    def __init__(self, source: SkeletonSource, *, should_exit: Callable[[], bool] = lambda: False,
-                 read_timeout_s: float = 0.1, idle_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        source: SkeletonSource,
+        *,
+        should_exit: Callable[[], bool] = lambda: False,
+        read_timeout_s: float = 0.1,
+        idle_timeout_s: float = 5.0,
+    ) -> None:
         self.source = source
         self.sensor_id = source.sensor_id
         self.should_exit = should_exit
@@ -703,6 +779,8 @@ def make_skeleton_source(cfg: RigConfig, sensor_id: str, **kwargs: Any) -> Skele
     """The SkeletonSource of a ``source = "kinect"`` sensor (kwargs go to :class:`KinectSource`)."""
     sensor = cfg.sensor(sensor_id)
     if sensor.source != "kinect":
-        raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has source = {sensor.source!r}; make_skeleton_source "
-                          "handles kinect sensors")
+        raise ConfigError(
+            f"{cfg.source}: sensor {sensor_id!r} has source = {sensor.source!r}; make_skeleton_source "
+            "handles kinect sensors"
+        )
     return KinectSource.from_config(cfg, sensor_id, **kwargs)

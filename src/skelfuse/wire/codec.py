@@ -141,10 +141,16 @@ STATUS_HEADER_SIZE = _STATUS_HEADER.size  # 16
 SENSOR_BYTES_PER_BODY = 4 + N_JOINTS * 3 * 4 + N_JOINTS * 4 * 4 + N_JOINTS  # 932
 FUSED_BYTES_PER_PERSON = 8 + N_JOINTS * 3 * 8 + N_JOINTS * 2 + N_JOINTS  # 872
 
-_KIND_NAMES = {MessageKind.SENSOR_FRAME: "sensor frame", MessageKind.FUSED_FRAME: "fused frame",
-               MessageKind.STATUS: "status"}
-_HEADER_SIZES = {MessageKind.SENSOR_FRAME: SENSOR_HEADER_SIZE, MessageKind.FUSED_FRAME: FUSED_HEADER_SIZE,
-                 MessageKind.STATUS: STATUS_HEADER_SIZE}
+_KIND_NAMES = {
+    MessageKind.SENSOR_FRAME: "sensor frame",
+    MessageKind.FUSED_FRAME: "fused frame",
+    MessageKind.STATUS: "status",
+}
+_HEADER_SIZES = {
+    MessageKind.SENSOR_FRAME: SENSOR_HEADER_SIZE,
+    MessageKind.FUSED_FRAME: FUSED_HEADER_SIZE,
+    MessageKind.STATUS: STATUS_HEADER_SIZE,
+}
 _I64 = (-(2**63), 2**63 - 1)
 _U64 = (0, 2**64 - 1)
 
@@ -168,8 +174,7 @@ def _check_confidence(raw: bytes) -> None:
     """``raw``: the uint8 confidence bytes. ``translate`` deletes 0..3; anything left is out of range."""
     bad = raw.translate(None, _CONFIDENCE_VALUES)
     if bad:
-        raise _Invalid("bad_confidence", f"confidence holds value {max(bad)}; expected 0..3 "
-                       "(NONE, LOW, MEDIUM, HIGH)")
+        raise _Invalid("bad_confidence", f"confidence holds value {max(bad)}; expected 0..3 (NONE, LOW, MEDIUM, HIGH)")
 
 
 def _check_unique(ids: np.ndarray, what: str) -> None:
@@ -182,8 +187,11 @@ def _check_sensor_floats(floats: np.ndarray) -> None:
     """``floats``: positions and/or orientations of a sensor frame."""
     # Sensor frames come straight from the tracker, which always reports a (predicted) joint: no NaN.
     if not np.isfinite(floats).all():
-        raise _Invalid("non_finite", "positions or orientations hold NaN or Inf; the tracker always "
-                       "reports a joint, so a sensor frame must be finite (drop the body instead)")
+        raise _Invalid(
+            "non_finite",
+            "positions or orientations hold NaN or Inf; the tracker always "
+            "reports a joint, so a sensor frame must be finite (drop the body instead)",
+        )
 
 
 def _check_fused_positions(positions: np.ndarray) -> None:
@@ -194,15 +202,20 @@ def _check_fused_positions(positions: np.ndarray) -> None:
     if np.isinf(positions).any():
         raise _Invalid("non_finite", "positions hold Inf; only NaN (no estimate) is allowed")
     if (nan.any(axis=-1) != nan.all(axis=-1)).any():
-        raise _Invalid("non_finite", "positions hold a joint with some but not all coordinates NaN; "
-                       "a missing joint is NaN in x, y and z")
+        raise _Invalid(
+            "non_finite",
+            "positions hold a joint with some but not all coordinates NaN; a missing joint is NaN in x, y and z",
+        )
 
 
 def _check_n_agree(n_agree: np.ndarray) -> None:
     """``n_agree``: int16. Viewed as uint16, negative values are >= 32768, so one max() checks both ends."""
     if n_agree.size and int(n_agree.view(np.uint16).max()) > MAX_SENSORS:
-        raise _Invalid("bad_value", f"n_agree spans {int(n_agree.min())}..{int(n_agree.max())}; "
-                       f"expected 0..{MAX_SENSORS} (sensors in the winning cluster)")
+        raise _Invalid(
+            "bad_value",
+            f"n_agree spans {int(n_agree.min())}..{int(n_agree.max())}; "
+            f"expected 0..{MAX_SENSORS} (sensors in the winning cluster)",
+        )
 
 
 def _check_contributors(raw: bytes) -> None:
@@ -233,8 +246,7 @@ def _check_int(value: int, bounds: tuple[int, int], what: str) -> int:
     return number
 
 
-def _as_wire(array: object, dtype: np.dtype[Any], shape: tuple[int, ...], what: str,
-             kinds: str) -> np.ndarray:
+def _as_wire(array: object, dtype: np.dtype[Any], shape: tuple[int, ...], what: str, kinds: str) -> np.ndarray:
     """``array`` as a C-contiguous array of wire dtype ``dtype``; ValueError on shape, kind or range."""
     arr = np.asarray(array)
     if arr.shape != shape:
@@ -277,34 +289,56 @@ def _read_prefix(view: memoryview, expected: MessageKind | None) -> tuple[Messag
     what = _KIND_NAMES[expected] if expected is not None else "skelfuse"
     if len(view) < len(MAGIC) or view[: len(MAGIC)] != MAGIC:
         if len(view) < len(MAGIC) and bytes(view) == MAGIC[: len(view)]:
-            raise DecodeError("truncated", f"{what} payload rejected (truncated): {len(view)} bytes, "
-                              f"shorter than the {_PREFIX.size}-byte prefix")
-        raise DecodeError("bad_magic", f"{what} payload rejected (bad_magic): starts with "
-                          f"{bytes(view[:4])!r}, expected {MAGIC!r}; is this a skelfuse payload?")
+            raise DecodeError(
+                "truncated",
+                f"{what} payload rejected (truncated): {len(view)} bytes, shorter than the {_PREFIX.size}-byte prefix",
+            )
+        raise DecodeError(
+            "bad_magic",
+            f"{what} payload rejected (bad_magic): starts with "
+            f"{bytes(view[:4])!r}, expected {MAGIC!r}; is this a skelfuse payload?",
+        )
     if len(view) < _PREFIX.size:
-        raise DecodeError("truncated", f"{what} payload rejected (truncated): {len(view)} bytes, shorter "
-                          f"than the {_PREFIX.size}-byte prefix")
+        raise DecodeError(
+            "truncated",
+            f"{what} payload rejected (truncated): {len(view)} bytes, shorter than the {_PREFIX.size}-byte prefix",
+        )
     _, major, minor, kind_byte, _flags, header_size = _PREFIX.unpack_from(view)
     if major != VERSION_MAJOR:
-        raise DecodeError("bad_version", f"{what} payload rejected (bad_version): schema version "
-                          f"{major}.{minor}, this reader supports major version {VERSION_MAJOR} "
-                          f"(writes {VERSION_MAJOR}.{VERSION_MINOR}); upgrade the reader or the writer")
+        raise DecodeError(
+            "bad_version",
+            f"{what} payload rejected (bad_version): schema version "
+            f"{major}.{minor}, this reader supports major version {VERSION_MAJOR} "
+            f"(writes {VERSION_MAJOR}.{VERSION_MINOR}); upgrade the reader or the writer",
+        )
     if kind_byte not in _KIND_BY_BYTE:
-        raise DecodeError("bad_kind", f"{what} payload rejected (bad_kind): unknown message kind "
-                          f"{kind_byte}; known kinds {[int(k) for k in MessageKind]}")
+        raise DecodeError(
+            "bad_kind",
+            f"{what} payload rejected (bad_kind): unknown message kind "
+            f"{kind_byte}; known kinds {[int(k) for k in MessageKind]}",
+        )
     kind = _KIND_BY_BYTE[kind_byte]
     if expected is not None and kind != expected:
-        raise DecodeError("bad_kind", f"{what} payload rejected (bad_kind): message kind {int(kind)} "
-                          f"({_KIND_NAMES[kind]}), expected {int(expected)} ({what}); check the key "
-                          "the payload came from")
+        raise DecodeError(
+            "bad_kind",
+            f"{what} payload rejected (bad_kind): message kind {int(kind)} "
+            f"({_KIND_NAMES[kind]}), expected {int(expected)} ({what}); check the key "
+            "the payload came from",
+        )
     known_size = _HEADER_SIZES[kind]
     # A newer minor may grow the header; the same or an older minor (there is none yet) must match it.
     if header_size < known_size or (minor <= VERSION_MINOR and header_size != known_size):
-        raise DecodeError("bad_header", f"{_KIND_NAMES[kind]} payload rejected (bad_header): header size "
-                          f"{header_size} for version {major}.{minor}, expected {known_size}")
+        raise DecodeError(
+            "bad_header",
+            f"{_KIND_NAMES[kind]} payload rejected (bad_header): header size "
+            f"{header_size} for version {major}.{minor}, expected {known_size}",
+        )
     if len(view) < header_size:
-        raise DecodeError("truncated", f"{_KIND_NAMES[kind]} payload rejected (truncated): {len(view)} "
-                          f"bytes, shorter than its {header_size}-byte header")
+        raise DecodeError(
+            "truncated",
+            f"{_KIND_NAMES[kind]} payload rejected (truncated): {len(view)} "
+            f"bytes, shorter than its {header_size}-byte header",
+        )
     return kind, minor, header_size
 
 
@@ -313,45 +347,59 @@ _KIND_BY_BYTE = {int(kind): kind for kind in MessageKind}
 
 def _check_length(view: memoryview, end: int, minor: int, what: str) -> None:
     if len(view) < end:
-        raise DecodeError("truncated", f"{what} payload rejected (truncated): {len(view)} bytes, the "
-                          f"header's counts need {end}")
+        raise DecodeError(
+            "truncated", f"{what} payload rejected (truncated): {len(view)} bytes, the header's counts need {end}"
+        )
     if len(view) > end and minor <= VERSION_MINOR:
-        raise DecodeError("bad_length", f"{what} payload rejected (bad_length): {len(view)} bytes, the "
-                          f"header's counts need exactly {end}")
+        raise DecodeError(
+            "bad_length",
+            f"{what} payload rejected (bad_length): {len(view)} bytes, the header's counts need exactly {end}",
+        )
 
 
 def _read_id(view: memoryview, offset: int, what: str, kind_name: str) -> tuple[str, int]:
     if offset + 2 > len(view):
-        raise DecodeError("truncated", f"{kind_name} payload rejected (truncated): {what} length prefix "
-                          f"at byte {offset} is past the end ({len(view)} bytes)")
+        raise DecodeError(
+            "truncated",
+            f"{kind_name} payload rejected (truncated): {what} length prefix "
+            f"at byte {offset} is past the end ({len(view)} bytes)",
+        )
     (size,) = _U16.unpack_from(view, offset)
     offset += 2
     if size == 0:
         raise DecodeError("bad_value", f"{kind_name} payload rejected (bad_value): {what} is empty")
     if size > MAX_ID_BYTES:
-        raise DecodeError("too_large", f"{kind_name} payload rejected (too_large): {what} is {size} bytes, "
-                          f"at most {MAX_ID_BYTES}")
+        raise DecodeError(
+            "too_large", f"{kind_name} payload rejected (too_large): {what} is {size} bytes, at most {MAX_ID_BYTES}"
+        )
     if offset + size > len(view):
-        raise DecodeError("truncated", f"{kind_name} payload rejected (truncated): {what} of {size} bytes "
-                          f"at byte {offset} runs past the end ({len(view)} bytes)")
+        raise DecodeError(
+            "truncated",
+            f"{kind_name} payload rejected (truncated): {what} of {size} bytes "
+            f"at byte {offset} runs past the end ({len(view)} bytes)",
+        )
     try:
-        text = str(view[offset: offset + size], "utf-8")
+        text = str(view[offset : offset + size], "utf-8")
     except UnicodeDecodeError as exc:
-        raise DecodeError("bad_utf8", f"{kind_name} payload rejected (bad_utf8): {what} is not UTF-8 "
-                          f"({exc.reason} at byte {offset + exc.start})") from None
+        raise DecodeError(
+            "bad_utf8",
+            f"{kind_name} payload rejected (bad_utf8): {what} is not UTF-8 ({exc.reason} at byte {offset + exc.start})",
+        ) from None
     return text, offset + size
 
 
 def _cap(count: int, cap: int, what: str, kind_name: str) -> None:
     if count > cap:
-        raise DecodeError("too_large", f"{kind_name} payload rejected (too_large): {count} {what}, at most "
-                          f"{cap}")
+        raise DecodeError("too_large", f"{kind_name} payload rejected (too_large): {count} {what}, at most {cap}")
 
 
 def _joints(n_joints: int, kind_name: str) -> None:
     if n_joints != N_JOINTS:
-        raise DecodeError("bad_joint_count", f"{kind_name} payload rejected (bad_joint_count): "
-                          f"{n_joints} joints per skeleton, expected {N_JOINTS} (k4abt joint set)")
+        raise DecodeError(
+            "bad_joint_count",
+            f"{kind_name} payload rejected (bad_joint_count): "
+            f"{n_joints} joints per skeleton, expected {N_JOINTS} (k4abt joint set)",
+        )
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -388,13 +436,22 @@ def encode_sensor_frame(frame: SensorFrame) -> bytes:
     except _Invalid as exc:
         raise ValueError(f"sensor frame of {frame.sensor_id!r} cannot be sent: {exc}") from None
     header = _SENSOR_HEADER.pack(
-        MAGIC, VERSION_MAJOR, VERSION_MINOR, MessageKind.SENSOR_FRAME, 0, SENSOR_HEADER_SIZE, N_JOINTS, n, 0,
+        MAGIC,
+        VERSION_MAJOR,
+        VERSION_MINOR,
+        MessageKind.SENSOR_FRAME,
+        0,
+        SENSOR_HEADER_SIZE,
+        N_JOINTS,
+        n,
+        0,
         _check_int(frame.sequence, _U64, "sequence"),
         _check_int(frame.device_time_us, _I64, "device_time_us"),
         _check_int(frame.host_time_ns, _I64, "host_time_ns"),
     )
-    return b"".join((header, body_ids.tobytes(), positions.tobytes(), orientations.tobytes(), confidence,
-                     _U16.pack(len(sid)), sid))
+    return b"".join(
+        (header, body_ids.tobytes(), positions.tobytes(), orientations.tobytes(), confidence, _U16.pack(len(sid)), sid)
+    )
 
 
 def decode_sensor_frame(data: bytes | bytearray | memoryview) -> SensorFrame:
@@ -414,8 +471,7 @@ def decode_sensor_frame(data: bytes | bytearray | memoryview) -> SensorFrame:
     name = "sensor frame"
     view = _buffer(data)
     _, minor, offset = _read_prefix(view, MessageKind.SENSOR_FRAME)
-    (_, _, _, _, _, _, n_joints, n, _, sequence, device_time_us,
-     host_time_ns) = _SENSOR_HEADER.unpack_from(view)
+    (_, _, _, _, _, _, n_joints, n, _, sequence, device_time_us, host_time_ns) = _SENSOR_HEADER.unpack_from(view)
     _joints(n_joints, name)
     _cap(n, MAX_BODIES, "bodies", name)
     id_at = offset + n * SENSOR_BYTES_PER_BODY
@@ -432,8 +488,7 @@ def decode_sensor_frame(data: bytes | bytearray | memoryview) -> SensorFrame:
         _check_confidence(bytes(owned[confidence_at:id_at]))
         _check_unique(body_ids, "body_ids")
     except _Invalid as exc:
-        raise DecodeError(exc.reason, f"{name} payload of {sensor_id!r} rejected ({exc.reason}): "
-                          f"{exc}") from None
+        raise DecodeError(exc.reason, f"{name} payload of {sensor_id!r} rejected ({exc.reason}): {exc}") from None
     return SensorFrame(
         sensor_id=sensor_id,
         sequence=sequence,
@@ -441,7 +496,7 @@ def decode_sensor_frame(data: bytes | bytearray | memoryview) -> SensorFrame:
         host_time_ns=host_time_ns,
         body_ids=body_ids.astype(np.uint32, copy=False),
         positions=floats[: n_joint_rows * 3].reshape(n, N_JOINTS, 3).astype(np.float32, copy=False),
-        orientations=floats[n_joint_rows * 3:].reshape(n, N_JOINTS, 4).astype(np.float32, copy=False),
+        orientations=floats[n_joint_rows * 3 :].reshape(n, N_JOINTS, 4).astype(np.float32, copy=False),
         confidence=np.frombuffer(owned, _U1, n_joint_rows, confidence_at).reshape(n, N_JOINTS),
     )
 
@@ -490,11 +545,22 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
     table = b"".join([_U16.pack(len(raw)) + raw for raw in raw_ids])
     header = _FUSED_HEADER.pack(
-        MAGIC, VERSION_MAJOR, VERSION_MINOR, MessageKind.FUSED_FRAME, 0, FUSED_HEADER_SIZE, N_JOINTS, n,
-        n_sensors, _check_int(frame.time_us, _I64, "time_us"), len(table), 0,
+        MAGIC,
+        VERSION_MAJOR,
+        VERSION_MINOR,
+        MessageKind.FUSED_FRAME,
+        0,
+        FUSED_HEADER_SIZE,
+        N_JOINTS,
+        n,
+        n_sensors,
+        _check_int(frame.time_us, _I64, "time_us"),
+        len(table),
+        0,
     )
-    return b"".join((header, track_ids.tobytes(), positions.tobytes(), n_agree.tobytes(), confidence,
-                     contributors, table))
+    return b"".join(
+        (header, track_ids.tobytes(), positions.tobytes(), n_agree.tobytes(), confidence, contributors, table)
+    )
 
 
 def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
@@ -529,8 +595,11 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
         sid, at = _read_id(table, at, f"sensor_ids[{i}]", name)
         sensor_ids.append(sid)
     if at != table_end:
-        raise DecodeError("bad_length", f"{name} payload rejected (bad_length): sensor id table holds "
-                          f"{at - table_at} bytes of ids, header says {table_size}")
+        raise DecodeError(
+            "bad_length",
+            f"{name} payload rejected (bad_length): sensor id table holds "
+            f"{at - table_at} bytes of ids, header says {table_size}",
+        )
     rows = n * N_JOINTS
     owned = bytearray(view[:table_at])  # one copy backs every array (see decode_sensor_frame)
     track_ids = np.frombuffer(owned, _I8, n, offset)
@@ -604,8 +673,14 @@ def encode_status(status: NodeStatus) -> bytes:
     """
     if status.state not in STATUS_STATES:
         raise ValueError(f"status state {status.state!r} is not one of {STATUS_STATES}")
-    doc = {"node": status.node, "role": status.role, "state": status.state, "time_ns": status.time_ns,
-           "counters": dict(status.counters), "info": dict(status.info)}
+    doc = {
+        "node": status.node,
+        "role": status.role,
+        "state": status.state,
+        "time_ns": status.time_ns,
+        "counters": dict(status.counters),
+        "info": dict(status.info),
+    }
     problem = _status_problem(doc)
     if problem is not None:
         raise ValueError(f"status of node {status.node!r} cannot be sent: {problem}")
@@ -615,10 +690,12 @@ def encode_status(status: NodeStatus) -> bytes:
         raise ValueError(f"status of node {status.node!r} cannot be sent: info is not JSON: {exc}") from None
     body = text.encode("utf-8")
     if len(body) > MAX_STATUS_BYTES:
-        raise ValueError(f"status of node {status.node!r} is {len(body)} bytes of JSON, at most "
-                         f"{MAX_STATUS_BYTES}; trim 'info'")
-    header = _STATUS_HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, MessageKind.STATUS, 0,
-                                 STATUS_HEADER_SIZE, 0, len(body))
+        raise ValueError(
+            f"status of node {status.node!r} is {len(body)} bytes of JSON, at most {MAX_STATUS_BYTES}; trim 'info'"
+        )
+    header = _STATUS_HEADER.pack(
+        MAGIC, VERSION_MAJOR, VERSION_MINOR, MessageKind.STATUS, 0, STATUS_HEADER_SIZE, 0, len(body)
+    )
     return header + body
 
 
@@ -639,10 +716,12 @@ def decode_status(data: bytes | bytearray | memoryview) -> NodeStatus:
     _cap(json_size, MAX_STATUS_BYTES, "bytes of JSON", name)
     _check_length(view, offset + json_size, minor, name)
     try:
-        text = bytes(view[offset: offset + json_size]).decode("utf-8")
+        text = bytes(view[offset : offset + json_size]).decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise DecodeError("bad_utf8", f"{name} payload rejected (bad_utf8): JSON is not UTF-8 "
-                          f"({exc.reason} at byte {offset + exc.start})") from None
+        raise DecodeError(
+            "bad_utf8",
+            f"{name} payload rejected (bad_utf8): JSON is not UTF-8 ({exc.reason} at byte {offset + exc.start})",
+        ) from None
     try:
         doc = json.loads(text, parse_constant=_reject_constant)
     except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError; deep nesting recurses
@@ -650,8 +729,14 @@ def decode_status(data: bytes | bytearray | memoryview) -> NodeStatus:
     problem = _status_problem(doc)
     if problem is not None:
         raise DecodeError("bad_json", f"{name} payload rejected (bad_json): {problem}")
-    return NodeStatus(node=doc["node"], role=doc["role"], state=doc["state"], time_ns=doc["time_ns"],
-                      counters=dict(doc.get("counters", {})), info=dict(doc.get("info", {})))
+    return NodeStatus(
+        node=doc["node"],
+        role=doc["role"],
+        state=doc["state"],
+        time_ns=doc["time_ns"],
+        counters=dict(doc.get("counters", {})),
+        info=dict(doc.get("info", {})),
+    )
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -681,9 +766,30 @@ def decode(data: bytes | bytearray | memoryview) -> SensorFrame | FusedFrame | N
 
 
 __all__ = [
-    "FUSED_BYTES_PER_PERSON", "FUSED_HEADER_SIZE", "MAGIC", "MAX_BODIES", "MAX_ID_BYTES", "MAX_PERSONS",
-    "MAX_SENSORS", "MAX_STATUS_BYTES", "REJECT_REASONS", "SENSOR_BYTES_PER_BODY", "SENSOR_HEADER_SIZE",
-    "STATUS_HEADER_SIZE", "STATUS_STATES", "VERSION_MAJOR", "VERSION_MINOR", "DecodeError", "MessageKind",
-    "NodeStatus", "decode", "decode_fused_frame", "decode_sensor_frame", "decode_status",
-    "encode_fused_frame", "encode_sensor_frame", "encode_status", "peek_kind",
+    "FUSED_BYTES_PER_PERSON",
+    "FUSED_HEADER_SIZE",
+    "MAGIC",
+    "MAX_BODIES",
+    "MAX_ID_BYTES",
+    "MAX_PERSONS",
+    "MAX_SENSORS",
+    "MAX_STATUS_BYTES",
+    "REJECT_REASONS",
+    "SENSOR_BYTES_PER_BODY",
+    "SENSOR_HEADER_SIZE",
+    "STATUS_HEADER_SIZE",
+    "STATUS_STATES",
+    "VERSION_MAJOR",
+    "VERSION_MINOR",
+    "DecodeError",
+    "MessageKind",
+    "NodeStatus",
+    "decode",
+    "decode_fused_frame",
+    "decode_sensor_frame",
+    "decode_status",
+    "encode_fused_frame",
+    "encode_sensor_frame",
+    "encode_status",
+    "peek_kind",
 ]
