@@ -40,8 +40,8 @@ from skelfuse.eval.metrics import best_lag, lag_error_curve, swap_counts
 from skelfuse.fusion import FusionParams, preset
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.transform import apply_transform
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, PAPER_REALIGN_PAIRS
 from skelfuse.sim import GESTURES, load_profile, make_gesture, paper_rig, simulate
-from skelfuse.skeleton import EVAL_JOINTS, JOINT_GROUPS, PAPER_REALIGN_PAIRS
 
 TRAIN_SEED = 1
 TEST_SEED = 7919  # held out: never looked at while choosing values

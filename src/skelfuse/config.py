@@ -16,7 +16,7 @@ Cycle::
 
 Conventions: units are in the names (``tolerance_ms``, ``delay_us``, ``eps_mm``); ``None`` means "off" or
 "not set" and is written in TOML by leaving the key out (never ``-1``). Relative paths are resolved against
-the directory of the config file. Every problem raises :class:`skelfuse.errors.ConfigError` naming the
+the directory of the config file. Every problem raises :class:`skelfuse.schema.errors.ConfigError` naming the
 file, the key path (``sensors[2].sync.delay_us``), what was expected and what was found, with a "did you
 mean" for a misspelt key.
 """
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from skelfuse.errors import ConfigError
+from skelfuse.schema.errors import ConfigError
 from skelfuse.wire.keys import validate_name
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.config import DEFAULT_PRESET
-from skelfuse.skeleton import EVAL_JOINTS, JOINT_GROUPS
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS
 
 log = logging.getLogger(__name__)
 
@@ -428,7 +428,7 @@ def run_demo(
     import threading
 
     from skelfuse.config import load_rig_config
-    from skelfuse.errors import ServiceError
+    from skelfuse.schema.errors import ServiceError
     from skelfuse.service.lifecycle import Lifecycle
     from skelfuse.service.node import FusionNode, NodeOptions
     from skelfuse.service.viewer import ViewOptions, open_recording, stop_server
@@ -581,7 +581,7 @@ def run_demo(
 
 
 def _check_workers(workers: list[Any], workdir: Path) -> None:
-    from skelfuse.errors import ServiceError
+    from skelfuse.schema.errors import ServiceError
 
     for process in workers:
         if process.poll() is not None:

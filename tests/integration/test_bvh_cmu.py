@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skelfuse.schema.skeleton import BONES, J
 from skelfuse.sim.bvh import load_bvh
 from skelfuse.sim.motion import facing_deg
-from skelfuse.skeleton import BONES, J
 
 DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "cmu-mocap"
 

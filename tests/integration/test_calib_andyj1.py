@@ -22,7 +22,7 @@ from skelfuse.calibration.skeleton import (
     calibrate_from_skeletons,
     stack_sensor_takes,
 )
-from skelfuse.skeleton import Confidence
+from skelfuse.schema.skeleton import Confidence
 from skelfuse.sources.recorded import load_andyj1_csv
 
 DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "azure-kinect-andyj1" / "extrinsic_calculation"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skelfuse.eval import real
-from skelfuse.skeleton import JOINT_GROUPS, N_JOINTS, Confidence
+from skelfuse.schema.skeleton import JOINT_GROUPS, N_JOINTS, Confidence
 from skelfuse.sources.recorded import load_andyj1_csv
 
 DATA_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"

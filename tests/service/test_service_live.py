@@ -19,8 +19,8 @@ from service_helpers import RIG, Processes, start_node, worker_args, write_rig
 
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import load_rig_config
-from skelfuse.frames import FusedFrame
 from skelfuse.recording import RecordingWriter, fuse_recording
+from skelfuse.schema.frames import FusedFrame
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 

@@ -14,8 +14,8 @@ from skelfuse.fusion.association import (
     nanmedian_axis,
     torso_descriptor,
 )
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, Confidence
 from skelfuse.sim.gestures import make_gesture
-from skelfuse.skeleton import MIRROR, N_JOINTS, Confidence
 
 POSE = make_gesture("hands_up_down", duration_s=0.1, seed=0).positions[0]
 

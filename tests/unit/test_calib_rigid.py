@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from skelfuse.calibration.rigid import fit_rigid, fit_rigid_ransac, rotation_angle_deg
-from skelfuse.errors import CalibrationError
+from skelfuse.schema.errors import CalibrationError
 
 SEED = 20240611
 

@@ -17,10 +17,10 @@ from skelfuse.calibration.skeleton import (
     check_calibration,
     stack_sensor_takes,
 )
-from skelfuse.errors import CalibrationError
 from skelfuse.fusion.transform import invert_transform
+from skelfuse.schema.errors import CalibrationError
+from skelfuse.schema.skeleton import MIRROR
 from skelfuse.sim import load_profile, look_at, make_gesture, paper_rig, simulate
-from skelfuse.skeleton import MIRROR
 
 
 def _relative_errors(estimate: dict, world_from_sensor: np.ndarray, ids, subject_world: np.ndarray):

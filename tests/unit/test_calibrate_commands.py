@@ -13,23 +13,20 @@ import numpy as np
 import pytest
 
 from skelfuse.calibration.calfile import read_calibration, write_calibration
-from skelfuse.calibration.camera import Intrinsics
-from skelfuse.calibration.commands import (
-    EXIT_ATTENTION,
-    add_calibrate_parser,
-    load_rgbd_folder,
-    save_rgbd_folder,
-)
 from skelfuse.calibration.render import Scene, Sphere, aruco_plate, render, room
+from skelfuse.calibration.rgbd_folder import load_rgbd_folder, save_rgbd_folder
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.calibration.sphere import PAPER_RADIUS_MM
+from skelfuse.cli.calibrate import add_parser as add_calibrate_parser
+from skelfuse.cli.common import EXIT_ATTENTION
 from skelfuse.config import load_calibration
-from skelfuse.errors import CalibrationError, ConfigError, DataError
-from skelfuse.frames import SensorFrame
+from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import invert_transform
 from skelfuse.recording.mcap_io import RecordingWriter
+from skelfuse.schema.errors import CalibrationError, ConfigError, DataError
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.sim import load_profile, make_gesture, paper_rig, simulate
-from skelfuse.skeleton import N_JOINTS
 from skelfuse.sources.kinect import KinectUnavailable
 
 SEED = 90210
@@ -352,7 +349,7 @@ def test_takes_from_per_sensor_json_files(tmp_path: Path, walk) -> None:
     """offline_processor JSON per sensor (``--take SENSOR=FILE``): the same walk, frames matched by index."""
     import json
 
-    from skelfuse.skeleton import JOINT_NAMES
+    from skelfuse.schema.skeleton import JOINT_NAMES
 
     obs, _ = walk
     takes = []

@@ -15,8 +15,8 @@ from skelfuse.calibration.calfile import (
     write_calibration,
 )
 from skelfuse.config import load_calibration
-from skelfuse.errors import CalibrationError
 from skelfuse.fusion.transform import make_transform
+from skelfuse.schema.errors import CalibrationError
 from skelfuse.sim.rig import paper_rig
 
 

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration
-from skelfuse.calibration.camera import Intrinsics
 from skelfuse.calibration.marker import calibrate_world_from_marker, world_from_marker_centres
 from skelfuse.calibration.render import Quad, Scene, aruco_plate, render, room
 from skelfuse.calibration.rigid import rotation_angle_deg
-from skelfuse.errors import CalibrationError
+from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import invert_transform
+from skelfuse.schema.errors import CalibrationError
 from skelfuse.sim.rig import look_at, paper_rig
 
 SEED = 577

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.calibration.camera import Intrinsics
 from skelfuse.calibration.render import Quad, Scene, Sphere, render, room
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.calibration.sphere import (
@@ -17,8 +16,9 @@ from skelfuse.calibration.sphere import (
     red_histogram,
     sphere_histogram,
 )
-from skelfuse.errors import CalibrationError
+from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import invert_transform, make_transform
+from skelfuse.schema.errors import CalibrationError
 from skelfuse.sim.rig import look_at, paper_rig
 
 SEED = 2131
@@ -125,8 +125,8 @@ def test_ransac_ignores_a_red_poster_touching_the_ball() -> None:
     assert found is not None
     assert np.linalg.norm(found[0] - truth) < 2.0
     # Without outlier rejection (every blob point an inlier) the poster drags the centre far off.
-    from skelfuse.calibration.camera import lift_mask
     from skelfuse.calibration.sphere import sphere_mask
+    from skelfuse.fusion.camera import lift_mask
 
     points = lift_mask(depth, sphere_mask(color, red_histogram()), INTRINSICS)
     naive = fit_sphere_known_radius(points, PAPER_RADIUS_MM, rng=np.random.default_rng(0), threshold_mm=1e6)

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 
 from skelfuse import cli
-from skelfuse.errors import DataError
+from skelfuse.schema.errors import DataError
 
 
 @pytest.mark.parametrize(

@@ -21,8 +21,8 @@ from skelfuse.config import (
     zenoh_config,
     zenoh_flags,
 )
-from skelfuse.errors import ConfigError
 from skelfuse.fusion.presets import preset
+from skelfuse.schema.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
 IDENTITY = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]

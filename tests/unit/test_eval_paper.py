@@ -12,8 +12,8 @@ import pytest
 
 from skelfuse.eval import paper, paper_reference
 from skelfuse.eval.metrics import ErrorAccumulator, lag_error_curve
-from skelfuse.eval.progress import Progress
-from skelfuse.skeleton import EVAL_JOINTS, JOINT_GROUPS
+from skelfuse.progress import Progress
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS
 
 # ------------------------------------------------------------------------------------------------------------
 # Bookkeeping.

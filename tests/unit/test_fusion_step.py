@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from skelfuse.config import RigConfig, SensorConfig
-from skelfuse.frames import FusedFrame, SensorFrame
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform, make_transform
 from skelfuse.recording import RecordingWriter, fuse_recording
-from skelfuse.service.fusion_step import GroupFuser, bodies_to_world, group_bodies
-from skelfuse.service.grouping import FrameGroup
+from skelfuse.rig.grouping import FrameGroup
+from skelfuse.rig.instant import GroupFuser, bodies_to_world, group_bodies
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS, J
 from skelfuse.service.node import FusionCore
 from skelfuse.sim.crowd import CrowdObservations, bystander_scenario, crossing_scenario, simulate_scenario
 from skelfuse.sim.observe import load_profile
-from skelfuse.skeleton import N_JOINTS, J
 from skelfuse.wire.codec import encode_sensor_frame
 
 SEED = 20240613

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from skelfuse.frames import SensorFrame
-from skelfuse.service.grouping import FrameGroup, FrameGrouper
+from skelfuse.rig.grouping import FrameGroup, FrameGrouper
+from skelfuse.schema.frames import SensorFrame
 
 SEED = 20240611
 PERIOD_US = 33_333

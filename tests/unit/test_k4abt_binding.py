@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.errors import ServiceError
+from skelfuse.schema.errors import ServiceError
 from skelfuse.sources import k4abt
 from skelfuse.sources.k4abt import (
     K4abtLibrary,

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from skelfuse.config import load_rig_config
-from skelfuse.errors import ServiceError
-from skelfuse.frames import SensorFrame
+from skelfuse.schema.errors import ServiceError
+from skelfuse.schema.frames import SensorFrame
 from skelfuse.sources import devices, kinect
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings
 from skelfuse.sources.kinect import (
@@ -262,7 +262,7 @@ def test_fatal_errors_are_not_retried(monkeypatch):
 
 
 def _offline_json(path: Path, n_frames: int) -> Path:
-    from skelfuse.skeleton import JOINT_NAMES
+    from skelfuse.schema.skeleton import JOINT_NAMES
 
     frames = [
         {

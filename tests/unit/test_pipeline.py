@@ -7,7 +7,7 @@ import pytest
 
 from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.fusion import ALL_PRESETS, PAPER_PRESETS, Fuser, FusionParams, fuse, init_state, preset
-from skelfuse.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS
 
 SEED = 20220420
 
@@ -215,8 +215,8 @@ def test_skelfuse_beats_the_paper_on_upper_limbs_with_two_rear_views_mirrored():
     # Seeded simulator takes, subject facing 0 deg between two of the four sensors: the two rear views are
     # mirrored most of the time. Upper-limb RMSE against the exact truth: skelfuse at most half of A1's and A5's.
     from skelfuse.fusion.transform import apply_transform
+    from skelfuse.schema.skeleton import JOINT_GROUPS
     from skelfuse.sim import load_profile, make_gesture, paper_rig, simulate
-    from skelfuse.skeleton import JOINT_GROUPS
 
     upper = JOINT_GROUPS["upper_limb"]
     sq = {name: 0.0 for name in ("A1", "A5", "skelfuse")}

@@ -8,7 +8,7 @@ import numpy as np
 from skelfuse.eval.metrics import swap_counts
 from skelfuse.fusion import Fuser, fuse, init_state, preset
 from skelfuse.fusion.realign import _swap_pairs, realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
 
 RNG_SEED = 20220418
 

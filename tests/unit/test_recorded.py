@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.errors import DataError
 from skelfuse.eval import real
-from skelfuse.skeleton import BONES, JOINT_NAMES, MIRROR, N_JOINTS, Confidence, J
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import BONES, JOINT_NAMES, MIRROR, N_JOINTS, Confidence, J
 from skelfuse.sources.recorded import (
     FRAME_PERIOD_US,
     load_andyj1_csv,

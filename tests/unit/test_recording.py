@@ -20,8 +20,6 @@ from mcap.writer import Writer
 
 import skelfuse
 from skelfuse.config import FusionConfig, RigConfig, SensorConfig
-from skelfuse.errors import DataError
-from skelfuse.frames import FusedFrame, SensorFrame
 from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.recording import (
     RecordingReader,
@@ -32,7 +30,9 @@ from skelfuse.recording import (
     replay_frames,
     write_fused,
 )
-from skelfuse.skeleton import JOINT_NAMES, N_JOINTS
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 

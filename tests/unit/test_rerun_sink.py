@@ -9,8 +9,8 @@ import pyarrow as pa
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from skelfuse.schema.skeleton import BONES, N_JOINTS
 from skelfuse.sinks.rerun_sink import RerunSink
-from skelfuse.skeleton import BONES, N_JOINTS
 
 
 def _columns(path: Path) -> dict[str, dict[str, list]]:

@@ -13,7 +13,7 @@ import pytest
 
 from skelfuse import cli
 from skelfuse.config import RigConfig, load_rig_config
-from skelfuse.errors import ServiceError
+from skelfuse.schema.errors import ServiceError
 from skelfuse.service.lifecycle import JsonLogFormatter, Lifecycle, RunLimits
 from skelfuse.service.node import FusionCore, calibration_document
 from skelfuse.service.worker import SimSource, WorkerOptions, make_source, simulate_rig

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skelfuse.schema.skeleton import Confidence, J
 from skelfuse.sim.crowd import (
     crossing_scenario,
     other_person_occlusion,
@@ -14,7 +15,6 @@ from skelfuse.sim.crowd import (
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile
 from skelfuse.sim.rig import look_at
-from skelfuse.skeleton import Confidence, J
 
 
 def standing(x: float, y: float, seed: int = 0):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skelfuse.schema.skeleton import BONES, J
 from skelfuse.sim.gestures import GESTURES, make_gesture
 from skelfuse.sim.motion import facing_deg
-from skelfuse.skeleton import BONES, J
 
 FEET = [J["ANKLE_LEFT"], J["ANKLE_RIGHT"], J["FOOT_LEFT"], J["FOOT_RIGHT"]]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.errors import DataError
+from skelfuse.schema.errors import DataError
 from skelfuse.sim.bvh import forward_kinematics, parse_bvh
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 
@@ -125,7 +125,7 @@ def test_axis_rotation_is_right_handed() -> None:
 
 
 def test_facing_deg_from_hips_and_shoulders() -> None:
-    from skelfuse.skeleton import J
+    from skelfuse.schema.skeleton import J
 
     pose = np.zeros((32, 3))
     # Facing +y: the body's left is -x.

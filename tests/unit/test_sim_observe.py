@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.errors import ConfigError
+from skelfuse.schema.errors import ConfigError
+from skelfuse.schema.skeleton import BONES, MIRROR, Confidence, J
 from skelfuse.sim.gestures import forward_kinematics, make_gesture, rest_offsets
 from skelfuse.sim.motion import Motion
 from skelfuse.sim.observe import (
@@ -21,7 +22,6 @@ from skelfuse.sim.observe import (
     student_t,
 )
 from skelfuse.sim.rig import best_view_sensor, look_at, paper_rig
-from skelfuse.skeleton import BONES, MIRROR, Confidence, J
 
 PROFILE = load_profile()
 QUIET = {g: 0.0 for g in PROFILE.slow_sigma_mm}

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skelfuse.schema.skeleton import EVAL_JOINTS, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import facing_deg
 from skelfuse.sim.observe import facing_away_deg
 from skelfuse.sim.rig import VirtualSensor, best_view_sensor, look_at, paper_rig
-from skelfuse.skeleton import EVAL_JOINTS, J
 
 
 @pytest.mark.parametrize(

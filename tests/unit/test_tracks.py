@@ -10,10 +10,10 @@ from skelfuse.fusion.people import PeopleFuser
 from skelfuse.fusion.pipeline import init_state
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.tracks import TrackParams, TrackTable, split_state, stack_states
+from skelfuse.schema.skeleton import N_JOINTS, Confidence
 from skelfuse.sim.crowd import crossing_scenario, simulate_scenario
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile
-from skelfuse.skeleton import N_JOINTS, Confidence
 
 POSE = make_gesture("hands_up_down", duration_s=0.1, seed=0).positions[0]
 DT = 1.0 / 30.0

@@ -26,9 +26,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from skelfuse.errors import DataError
-from skelfuse.frames import FusedFrame, SensorFrame
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.wire import codec, keys
 from skelfuse.wire.codec import DecodeError, NodeStatus
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.skeleton import N_JOINTS, PARENTS, Confidence
+from skelfuse.schema.skeleton import N_JOINTS, PARENTS, Confidence
 
 OUTPUT_TOLERANCE_MM = 1e-6
 """Largest difference between the two fusers' outputs that still counts as "the same output"."""

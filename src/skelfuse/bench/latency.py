@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS
 
 FPS = 30.0
 WARMUP_S = 1.0
@@ -115,7 +115,7 @@ def _rig_toml(directory: Path, n_sensors: int) -> Path:
 
 def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0) -> list[list[Any]]:
     """Per instant, the N sensors' SensorFrames (device time filled in at publish); one body each."""
-    from skelfuse.frames import SensorFrame
+    from skelfuse.schema.frames import SensorFrame
     from skelfuse.sim.gestures import make_gesture
     from skelfuse.sim.rig import paper_rig
 

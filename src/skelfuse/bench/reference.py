@@ -21,7 +21,7 @@ from sklearn.cluster import DBSCAN
 
 from skelfuse.fusion.pipeline import FusionResult
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.schema.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS
 
 MEDIUM = 2
 

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.errors import CalibrationError, ConfigError
+from skelfuse.schema.errors import CalibrationError, ConfigError
 
 FORMAT_VERSION = 1
 METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual")

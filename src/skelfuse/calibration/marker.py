@@ -1,6 +1,6 @@
 """Sensor-to-world calibration from a plate of four ArUco markers on the floor (paper section 2.1.2).
 
-Cycle (one RGB-D frame of the master, colour registered to depth, see ``skelfuse.calibration.camera``)::
+Cycle (one RGB-D frame of the master, colour registered to depth, see ``skelfuse.fusion.camera``)::
 
     cv2.aruco.ArucoDetector on the colour image --> corners of markers 0..3 (missing one: CalibrationError
       naming the ids seen, the ids expected and the dictionary)
@@ -32,9 +32,9 @@ import cv2
 import numpy as np
 
 from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso, reanchor
-from skelfuse.calibration.camera import Intrinsics, lift_mask
-from skelfuse.errors import CalibrationError, DataError
+from skelfuse.fusion.camera import Intrinsics, lift_mask
 from skelfuse.fusion.transform import invert_transform, make_transform
+from skelfuse.schema.errors import CalibrationError, DataError
 
 PLATE_IDS: tuple[int, int, int, int] = (0, 1, 2, 3)
 """ArUco ids playing the paper's markers 0, 1, 2, 3 (1: origin; 2 → 1: x axis; 0 → 1: y axis; 3: check)."""

@@ -1,6 +1,6 @@
 """A small synthetic RGB-D renderer for calibration tests: ray casting, vectorized over all pixels.
 
-A virtual Azure Kinect (pinhole :class:`~skelfuse.calibration.camera.Intrinsics`, pose ``world_from_sensor``
+A virtual Azure Kinect (pinhole :class:`~skelfuse.fusion.camera.Intrinsics`, pose ``world_from_sensor``
 as built by :func:`skelfuse.sim.rig.look_at`) looks at a scene of spheres and flat textured rectangles
 (:class:`Sphere`, :class:`Quad`) inside a room (floor and walls). It renders what the calibrations read:
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from skelfuse.calibration.camera import Intrinsics
+from skelfuse.fusion.camera import Intrinsics
 
 _LIGHT_DIR = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])  # towards the light (world, z up)
 _AMBIENT = 0.45

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.errors import CalibrationError
 from skelfuse.fusion.transform import make_transform
+from skelfuse.schema.errors import CalibrationError
 
 _DEGENERATE_SPREAD_MM = 1e-6
 """A 3-point RANSAC sample whose second singular value (centred) is below this is collinear: skipped."""

@@ -76,16 +76,18 @@ apply (rotation deg, translation at the subject mm), and a "moved" warning past 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso
 from skelfuse.calibration.rigid import fit_rigid, fit_rigid_ransac, refine_rigid_trimmed, rotation_angle_deg
-from skelfuse.errors import CalibrationError
-from skelfuse.eval.progress import Progress
 from skelfuse.fusion.transform import invert_transform, make_transform
-from skelfuse.skeleton import N_JOINTS, Confidence, J
+from skelfuse.progress import Progress
+from skelfuse.schema.errors import CalibrationError
+from skelfuse.schema.skeleton import N_JOINTS, Confidence, J
 
 MIDLINE_JOINTS = np.array([J[n] for n in ("PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "HEAD")], dtype=np.int64)
 """Torso joints on the body's mid-line: a left/right flip leaves them in place."""
@@ -1025,3 +1027,30 @@ def check_calibration(
     if n_sensors > 2 and len(flagged) == n_sensors - 1:
         warnings.append(f"every sensor moved relative to master {ids[m]}: the master itself has probably moved")
     return CalibrationCheck(master=ids[m], sensors=sensors, warnings=tuple(warnings))
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def skeleton_calibration_result(cal: SkeletonCalibration) -> CalibrationResult:
+    """A :class:`~skelfuse.calibration.skeleton.SkeletonCalibration` as a file-ready CalibrationResult
+    (method "skeleton"; each sensor's verdict, half-take agreement and reasons in its notes)."""
+    date = now_iso()
+    sensors = {}
+    for sensor_id in cal.sensor_ids:
+        q = cal.quality[sensor_id]
+        notes = f"verdict {q.verdict}"
+        if sensor_id == cal.master:
+            notes += "; master"
+        elif q.half_rotation_deg is not None:
+            notes += f"; half-take {q.half_rotation_deg:.2f} deg / {q.half_translation_mm:.0f} mm"
+        if q.reasons:
+            notes += f"; {'; '.join(q.reasons)}"
+        sensors[sensor_id] = SensorCalibration(
+            cal.world_from_sensor[sensor_id], "skeleton", _finite_or_none(q.residual_mm), int(q.n_points), date, notes
+        )
+    verdicts = ", ".join(f"{s} {cal.quality[s].verdict}" for s in cal.sensor_ids)
+    world = "ArUco plate (master pose given)" if cal.world_source == "plate" else "floor from the feet"
+    notes = f"skeleton walk of {cal.n_frames} frames; world: {world}; verdicts: {verdicts}"
+    return CalibrationResult(sensors, "skeleton", cal.master, date, notes)

@@ -1,6 +1,6 @@
 """Sensor-to-sensor calibration from a coloured sphere carried through the space (paper section 2.1.1).
 
-Cycle, per sensor and frame (colour registered to depth, see ``skelfuse.calibration.camera``)::
+Cycle, per sensor and frame (colour registered to depth, see ``skelfuse.fusion.camera``)::
 
     colour (BGR) --HSV--> calcBackProject(hue/saturation histogram of the ball) --threshold, open-->
       largest blob (eroded: edge pixels mix ball and background depth)
@@ -34,9 +34,9 @@ import cv2
 import numpy as np
 
 from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso
-from skelfuse.calibration.camera import Intrinsics, lift_mask
 from skelfuse.calibration.rigid import fit_rigid_ransac
-from skelfuse.errors import CalibrationError, DataError
+from skelfuse.fusion.camera import Intrinsics, lift_mask
+from skelfuse.schema.errors import CalibrationError, DataError
 
 PAPER_RADIUS_MM = 240.0
 """The paper's red ball: "a sphere object with a radius of 24 cm"."""

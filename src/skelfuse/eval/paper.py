@@ -72,8 +72,8 @@ from skelfuse.eval.metrics import (
     mean_stats,
     swap_counts,
 )
-from skelfuse.eval.progress import Progress
-from skelfuse.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.progress import Progress
+from skelfuse.schema.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
 
 __all__ = [
     "DIRECTIONS_DEG",

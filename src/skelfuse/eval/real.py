@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.errors import DataError
 from skelfuse.eval.metrics import joint_distances
-from skelfuse.skeleton import BONES, JOINT_GROUPS, N_JOINTS, Confidence, J
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import BONES, JOINT_GROUPS, N_JOINTS, Confidence, J
 from skelfuse.sources.recorded import Recording, load_andyj1_csv
 
 __all__ = [

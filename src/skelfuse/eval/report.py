@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skelfuse.eval import paper_reference
-from skelfuse.skeleton import EVAL_JOINT_NAMES
+from skelfuse.schema.skeleton import EVAL_JOINT_NAMES
 
 if TYPE_CHECKING:
     from skelfuse.eval.paper import PaperEvalResult, PaperEvalSuite

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from skelfuse.fusion.association import descriptor_distance, torso_descriptor
-from skelfuse.skeleton import JOINT_GROUPS, N_JOINTS
+from skelfuse.schema.skeleton import JOINT_GROUPS, N_JOINTS
 
 DEFAULT_THRESHOLD_MM = 500.0
 

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.skeleton import N_JOINTS, J
+from skelfuse.schema.skeleton import N_JOINTS, J
 
 DESCRIPTOR_NAMES: tuple[str, ...] = ("PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "HEAD", "MID_SHOULDER", "MID_HIP")
 """The mirror-invariant torso points, in descriptor order."""

@@ -29,7 +29,7 @@ from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM, a
 from skelfuse.fusion.pipeline import FusionState, fuse, init_state
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.tracks import TrackParams, TrackTable, stack_states
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS
 
 DEFAULT_DT_S = 1.0 / 30.0
 

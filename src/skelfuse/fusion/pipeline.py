@@ -35,7 +35,7 @@ from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS
 
 _ONES3 = np.ones(3)
 
@@ -146,7 +146,7 @@ def fuse(
     Parameters
     ----------
     candidates : (B, S, J, 3) float, mm, world frame; NaN = missing.
-    confidence : (B, S, J) uint8, :class:`skelfuse.skeleton.Confidence` values.
+    confidence : (B, S, J) uint8, :class:`skelfuse.schema.skeleton.Confidence` values.
     state : FusionState from :func:`init_state` or the previous call, for the same B.
     params : FusionParams
     dt_s : float

@@ -31,7 +31,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Literal
 
-from skelfuse.skeleton import Confidence
+from skelfuse.schema.skeleton import Confidence
 
 RealignMode = Literal["paper", "body", "temporal"]
 MergeMode = Literal["dbscan", "average"]

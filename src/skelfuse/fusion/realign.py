@@ -85,7 +85,7 @@ import math
 
 import numpy as np
 
-from skelfuse.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
 
 # Confidence value -> tier rank 1 (NONE), 2 (LOW), 3 (MEDIUM+); HIGH and anything above count as MEDIUM.
 _TIER_RANK = (np.minimum(np.arange(256), int(Confidence.MEDIUM)) + 1).astype(np.int8)

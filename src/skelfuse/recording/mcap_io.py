@@ -25,7 +25,7 @@ footer the reader scans the records from the start (the "streaming fallback") in
 Reading never crashes on bad content: a message whose payload fails to decode is skipped and counted in
 :attr:`RecordingReader.rejects` under its :class:`~skelfuse.wire.codec.DecodeError` reason, a chunk that
 cannot be decompressed or fails its CRC is skipped and counted in :attr:`RecordingReader.bad_chunks`.
-Only a missing file or one that is not MCAP at all raises :class:`~skelfuse.errors.DataError`.
+Only a missing file or one that is not MCAP at all raises :class:`~skelfuse.schema.errors.DataError`.
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, IndexType, Writer
 
 import skelfuse
-from skelfuse.errors import DataError
-from skelfuse.frames import SensorFrame
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import SensorFrame
 from skelfuse.wire import keys
 from skelfuse.wire.codec import VERSION_MAJOR, VERSION_MINOR, DecodeError, decode_sensor_frame, encode_sensor_frame
 

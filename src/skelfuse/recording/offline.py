@@ -2,9 +2,9 @@
 
 Cycle of :func:`fuse_recording`: read the recording's sensor frames in host-time order
 (:class:`~skelfuse.recording.mcap_io.RecordingReader`), group them into instants as the live fusion node
-does (:class:`skelfuse.service.grouping.FrameGrouper`, fed the recorded host time as its arrival clock),
+does (:class:`skelfuse.rig.grouping.FrameGrouper`, fed the recorded host time as its arrival clock),
 and fuse each instant with the node's own per-instant adapter
-(:class:`skelfuse.service.fusion_step.GroupFuser`: every body of every sensor mapped to the world frame with
+(:class:`skelfuse.rig.instant.GroupFuser`: every body of every sensor mapped to the world frame with
 the rig's calibration, associated across sensors and time by :class:`skelfuse.fusion.people.PeopleFuser`,
 one fused skeleton per person with a stable track id). Live and offline share that adapter, so the live
 stream of a set of frames equals the offline fusion of the same frames.
@@ -27,14 +27,14 @@ from typing import Any
 import numpy as np
 
 from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
-from skelfuse.errors import DataError
-from skelfuse.eval.progress import Progress
-from skelfuse.frames import FusedFrame
 from skelfuse.fusion.presets import FusionParams, preset
+from skelfuse.progress import Progress
 from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
-from skelfuse.service.fusion_step import RESET_GAP_S, GroupFuser
-from skelfuse.service.grouping import FrameGrouper
-from skelfuse.skeleton import JOINT_NAMES, N_JOINTS
+from skelfuse.rig.grouping import FrameGrouper
+from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import FusedFrame
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
 
 __all__ = [
     "FUSED_COLUMNS",

@@ -19,9 +19,9 @@ and holds a liveliness token on ``skelfuse/<rig>/alive/<node>``.
 
 Everyone the sensors see is fused, one skeleton per person with a stable track id
 (:class:`skelfuse.fusion.people.PeopleFuser`). Each instant goes through the same
-:class:`skelfuse.service.fusion_step.GroupFuser` as offline fusion (the same clock rule too: the state
+:class:`skelfuse.rig.instant.GroupFuser` as offline fusion (the same clock rule too: the state
 restarts when the instants' time steps back or jumps by more than
-:data:`skelfuse.service.fusion_step.RESET_GAP_S`), so the live stream of a recording equals
+:data:`skelfuse.rig.instant.RESET_GAP_S`), so the live stream of a recording equals
 ``skelfuse fuse --input`` of it by construction.
 """
 
@@ -40,10 +40,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
-from skelfuse.frames import FusedFrame
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.service.fusion_step import GroupFuser
-from skelfuse.service.grouping import FrameGroup, FrameGrouper
+from skelfuse.rig.grouping import FrameGroup, FrameGrouper
+from skelfuse.rig.instant import GroupFuser
+from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
 from skelfuse.service.zenoh_io import SampleQueue, open_session

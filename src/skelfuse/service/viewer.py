@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.errors import ServiceError
+from skelfuse.schema.errors import ServiceError
 from skelfuse.service.zenoh_io import wait_for_port
 
 log = logging.getLogger("skelfuse.service")

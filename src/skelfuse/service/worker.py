@@ -52,11 +52,11 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
-from skelfuse.errors import ConfigError, DataError, ServiceError
-from skelfuse.frames import SensorFrame
+from skelfuse.schema.errors import ConfigError, DataError, ServiceError
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
-from skelfuse.skeleton import N_JOINTS
 from skelfuse.wire import keys
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
 

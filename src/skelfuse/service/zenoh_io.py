@@ -17,7 +17,7 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from skelfuse.errors import ConfigError, ServiceError
+from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.service.lifecycle import Lifecycle
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.errors import DataError
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import N_JOINTS, J
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
-from skelfuse.skeleton import N_JOINTS, J
 
 CMU_UNIT_MM = 25.4 / 0.45
 """One CMU length unit in millimetres: the ASF files store inches scaled by 0.45 (about 0.0564 m)."""

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.transform import apply_transform
+from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 from skelfuse.sim.observe import (
@@ -42,7 +43,6 @@ from skelfuse.sim.observe import (
     symmetric_bone_lengths,
 )
 from skelfuse.sim.rig import VirtualSensor, paper_rig
-from skelfuse.skeleton import BONES, MIRROR, N_JOINTS, Confidence, J
 
 _TORSO_TRACKING_JOINTS = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"]])
 _CAPSULE_START = np.array([J[c[1]] for c in CAPSULES])

@@ -20,8 +20,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from skelfuse.schema.skeleton import N_JOINTS, PARENTS, J
 from skelfuse.sim.motion import Motion, axis_rotation
-from skelfuse.skeleton import N_JOINTS, PARENTS, J
 
 GESTURES = ("hands_up_down", "jump", "squat", "lunge", "walking", "random")
 

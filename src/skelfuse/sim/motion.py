@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.errors import DataError
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import N_JOINTS
 
 
 @dataclass(frozen=True)
@@ -106,7 +106,7 @@ def body_facing(positions: np.ndarray) -> np.ndarray:
     (..., 3) unit vectors with zero z: forward = left × up, where left points from the right hip and
     shoulder to the left ones.
     """
-    from skelfuse.skeleton import J
+    from skelfuse.schema.skeleton import J
 
     left = (
         positions[..., J["HIP_LEFT"], :]

@@ -33,11 +33,11 @@ import numpy as np
 from scipy.signal import lfilter
 from scipy.special import ndtri
 
-from skelfuse.errors import ConfigError
 from skelfuse.fusion.transform import apply_transform
+from skelfuse.schema.errors import ConfigError
+from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, PARENTS, Confidence, J
 from skelfuse.sim.motion import Motion, body_facing
 from skelfuse.sim.rig import VirtualSensor
-from skelfuse.skeleton import BONES, MIRROR, N_JOINTS, PARENTS, Confidence, J
 
 NOISE_GROUPS = ("torso", "head", "face", "arm", "hand", "knee", "foot")
 """Joint groups of the per-group noise tables (see :data:`JOINT_NOISE_GROUP`)."""
@@ -367,7 +367,7 @@ class Observations:
     sensor_ids : tuple[str, ...]
     positions : (T, S, 32, 3) float32, each sensor's own camera frame (x right, y down, z forward), mm;
         NaN where the sensor did not track the body or dropped the frame.
-    confidence : (T, S, 32) uint8, :class:`skelfuse.skeleton.Confidence` values (NONE where NaN).
+    confidence : (T, S, 32) uint8, :class:`skelfuse.schema.skeleton.Confidence` values (NONE where NaN).
     body_ids : (T, S) int64, the tracker's body id; -1 where not tracked; a new id when the body is found
         again and when a mirrored burst starts.
     tracked : (T, S) bool, the sensor reported the body in that frame.

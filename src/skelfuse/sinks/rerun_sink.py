@@ -24,7 +24,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from skelfuse.skeleton import BONES, JOINT_NAMES
+from skelfuse.schema.skeleton import BONES, JOINT_NAMES
 
 MM_TO_M = 1e-3
 TIMELINE = "device_time"

@@ -45,8 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.errors import ConfigError, ServiceError, SkelfuseError
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.errors import ConfigError, ServiceError, SkelfuseError
+from skelfuse.schema.skeleton import N_JOINTS
 
 log = logging.getLogger("skelfuse.sources.k4abt")
 

@@ -31,8 +31,8 @@ from types import ModuleType
 from typing import Any, Protocol, runtime_checkable
 
 from skelfuse.config import RigConfig, SensorConfig
-from skelfuse.errors import ConfigError, DataError, ServiceError, SkelfuseError
-from skelfuse.frames import SensorFrame
+from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
+from skelfuse.schema.frames import SensorFrame
 from skelfuse.sources.k4abt import (
     K4A_INSTALL_HINT,
     K4ABT_INSTALL_HINT,

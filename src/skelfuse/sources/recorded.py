@@ -7,11 +7,11 @@ Two formats are read, both into one :class:`Recording` (arrays over frames, bodi
 * the JSON written by the Body Tracking SDK's ``offline_processor`` sample:
   :func:`load_offline_processor_json`.
 
-A :class:`Recording` replays as :class:`skelfuse.frames.SensorFrame` objects (:meth:`Recording.frames`), so
+A :class:`Recording` replays as :class:`skelfuse.schema.frames.SensorFrame` objects (:meth:`Recording.frames`), so
 anything that consumes live sensor frames can consume a file. Positions stay in the frame they were written
 in (for the andyj1 files the authors already mapped the subordinates into the master camera frame).
 
-Every malformed input raises :class:`skelfuse.errors.DataError` naming the file, the line (CSV) or the
+Every malformed input raises :class:`skelfuse.schema.errors.DataError` naming the file, the line (CSV) or the
 frame/body (JSON), what was expected and what was found.
 """
 
@@ -28,9 +28,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from skelfuse.errors import DataError
-from skelfuse.frames import SensorFrame
-from skelfuse.skeleton import JOINT_NAMES, N_JOINTS, Confidence
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS, Confidence
 
 FRAME_PERIOD_US = 33_333
 """Nominal frame interval of the Azure Kinect at 30 fps, used to number frames of files without timestamps."""
@@ -54,7 +54,7 @@ class Recording:
     orientations : (T, B, 32, 4) float32
         Joint orientations as quaternions **w, x, y, z** (our convention, whatever the file's order).
     confidence : (T, B, 32) uint8
-        :class:`skelfuse.skeleton.Confidence` values.
+        :class:`skelfuse.schema.skeleton.Confidence` values.
     body_ids : (T, B) int64
         The tracker's body id of each slot, -1 for padding.
     device_time_us : (T,) int64 or None

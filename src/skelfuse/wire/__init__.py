@@ -1,8 +1,8 @@
 """The wire: zenoh key expressions (:mod:`.keys`) and versioned binary payloads (:mod:`.codec`).
 
 Frames cross the process boundary here and nowhere else: a capture worker encodes a
-:class:`~skelfuse.frames.SensorFrame`, the fusion node decodes it, fuses, and encodes a
-:class:`~skelfuse.frames.FusedFrame` for any app. Nothing in this package imports zenoh; the byte layout
+:class:`~skelfuse.schema.frames.SensorFrame`, the fusion node decodes it, fuses, and encodes a
+:class:`~skelfuse.schema.frames.FusedFrame` for any app. Nothing in this package imports zenoh; the byte layout
 is specified in ``docs/wire-format.md``.
 """
 

@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.errors import DataError
-from skelfuse.frames import FusedFrame, SensorFrame
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 
 MAGIC = b"SKLF"
 """First 4 bytes of every payload."""
@@ -457,7 +457,7 @@ def encode_sensor_frame(frame: SensorFrame) -> bytes:
 def decode_sensor_frame(data: bytes | bytearray | memoryview) -> SensorFrame:
     """Parse and validate a sensor-frame payload (message kind 1).
 
-    Returns a :class:`~skelfuse.frames.SensorFrame` owning fresh writable arrays (never views of
+    Returns a :class:`~skelfuse.schema.frames.SensorFrame` owning fresh writable arrays (never views of
     ``data``): body_ids (B,) uint32, positions (B, 32, 3) float32 mm, orientations (B, 32, 4) float32,
     confidence (B, 32) uint8.
 
@@ -566,7 +566,7 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
 def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     """Parse and validate a fused-frame payload (message kind 2).
 
-    Returns a :class:`~skelfuse.frames.FusedFrame` owning fresh writable arrays: track_ids (P,) int64,
+    Returns a :class:`~skelfuse.schema.frames.FusedFrame` owning fresh writable arrays: track_ids (P,) int64,
     positions (P, 32, 3) float64 mm world (NaN = no estimate), n_agree (P, 32) int16, confidence (P, 32)
     uint8, contributors (P, S) bool, sensor_ids tuple of S str.
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,7 +33,7 @@ class SensorFrame:
         The tracker's body ids. They change when the tracker loses a body, including on a left/right flip.
     positions : (B, 32, 3) float32, mm, sensor frame
     orientations : (B, 32, 4) float32, quaternions w, x, y, z
-    confidence : (B, 32) uint8, :class:`skelfuse.skeleton.Confidence` values
+    confidence : (B, 32) uint8, :class:`skelfuse.schema.skeleton.Confidence` values
     """
 
     sensor_id: str

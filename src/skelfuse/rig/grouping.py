@@ -65,7 +65,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
-from skelfuse.frames import SensorFrame
+from skelfuse.schema.frames import SensorFrame
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from skelfuse.config import RigConfig, SyncConfig

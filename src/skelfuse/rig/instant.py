@@ -13,7 +13,7 @@ the offline fusion of the same frames" holds by construction. Cycle of :meth:`Gr
    <skelfuse.fusion.people.PeopleFuser.reset>`: tracks forgotten, ids keep counting up, never reused).
 4. :meth:`PeopleFuser.step <skelfuse.fusion.people.PeopleFuser.step>` at the group's time in seconds:
    association across sensors, stable track ids, per-track fusion.
-5. A :class:`~skelfuse.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
+5. A :class:`~skelfuse.schema.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
    coasting past the filter's ``max_coast_frames`` has none and is left out), ascending track id.
 
 Only pure numpy and the fusion core: no zenoh, no clocks, no I/O.
@@ -26,13 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.frames import FusedFrame, SensorFrame
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
 from skelfuse.fusion.people import PeopleFuser, PeopleResult
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.transform import apply_transform
-from skelfuse.service.grouping import FrameGroup
-from skelfuse.skeleton import N_JOINTS
+from skelfuse.rig.grouping import FrameGroup
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 
 RESET_GAP_S = 1.0
 """A gap longer than this between two instants restarts the fusion state (tracks, filters)."""

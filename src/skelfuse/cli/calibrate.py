@@ -1,4 +1,4 @@
-"""The ``skelfuse calibrate ...`` commands: capture RGB-D frames, run a calibration method, write the file.
+"""``skelfuse calibrate ...``: capture RGB-D frames, run a calibration method, write the file.
 
 Sub-commands (``docs/calibration.md`` is the user's procedure)::
 
@@ -8,8 +8,7 @@ Sub-commands (``docs/calibration.md`` is the user's procedure)::
     calibrate skeleton (--recording REC.mcap | --take ID=FILE ...)   sensor to sensor from a walk -> file
     calibrate check    (--recording REC.mcap | --take ID=FILE ...)   has a sensor moved since? exit 3 if so
 
-RGB-D folder layout (what ``capture`` writes and ``sphere`` / ``marker`` read; :func:`save_rgbd_folder`,
-:func:`load_rgbd_folder`)::
+The RGB-D folder they read and write: :mod:`skelfuse.calibration.rgbd_folder`.
 
     DIR/<sensor_id>/intrinsics.json     {"fx", "fy", "cx", "cy", "width", "height"} of the depth camera, px
     DIR/<sensor_id>/color_000000.png    BGR colour registered to depth (same pixels as the depth image)
@@ -17,23 +16,19 @@ RGB-D folder layout (what ``capture`` writes and ``sphere`` / ``marker`` read; :
     ...                                 the same number in every sensor's folder = the same instant
 
 Exit codes: 0 done; 3 (:data:`EXIT_ATTENTION`) the calibration needs attention (a "bad" skeleton verdict,
-a moved sensor); typed errors (:mod:`skelfuse.errors`) are raised and turned into exit codes by ``cli.py``.
+a moved sensor); typed errors (:mod:`skelfuse.schema.errors`) are raised and turned into exit codes by
+:mod:`skelfuse.cli`.
 Progress goes to stderr, results to stdout.
 
-The command line hooks these in with one call: ``add_calibrate_parser(commands)`` (the ``skelfuse``
-parser's sub-parsers).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
-import re
-import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,252 +36,23 @@ import numpy as np
 
 from skelfuse.calibration.calfile import (
     CalibrationResult,
-    SensorCalibration,
-    now_iso,
     read_calibration,
     write_calibration,
 )
-from skelfuse.calibration.camera import Intrinsics
-from skelfuse.errors import CalibrationError, ConfigError, DataError
-
-EXIT_OK = 0
-EXIT_ATTENTION = 3
-"""Exit code when the calibration needs attention: a "bad" skeleton verdict, or ``check`` found a moved sensor."""
+from skelfuse.calibration.marker import calibrate_world_from_marker
+from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
+from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
+from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
+from skelfuse.calibration.takes import load_file_takes, load_recording_take
+from skelfuse.calibration.view import log_calibration
+from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK
+from skelfuse.config import load_rig_config
+from skelfuse.fusion.camera import Intrinsics
+from skelfuse.progress import note
+from skelfuse.schema.errors import CalibrationError, ConfigError, DataError
+from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
 
 DEFAULT_OUTPUT = Path("calibration.toml")
-INTRINSICS_FILE = "intrinsics.json"
-COLOR_NAME = "color_{:06d}.png"
-DEPTH_NAME = "depth_{:06d}.png"
-_FRAME_FILE = re.compile(r"^(color|depth)_(\d+)\.png$")
-
-
-def _say(text: str) -> None:
-    """A progress / status line on stderr (stdout holds the results)."""
-    print(text, file=sys.stderr, flush=True)
-
-
-# ----------------------------------------------------------------------------------------------------------
-# RGB-D folder
-# ----------------------------------------------------------------------------------------------------------
-
-
-def write_intrinsics(sensor_dir: str | Path, intrinsics: Intrinsics) -> Path:
-    """Write ``<sensor_dir>/intrinsics.json``; returns its path."""
-    path = Path(sensor_dir) / INTRINSICS_FILE
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(dataclasses.asdict(intrinsics), indent=2) + "\n", encoding="utf-8")
-    return path
-
-
-def read_intrinsics(path: str | Path) -> Intrinsics:
-    """Read an ``intrinsics.json`` ({fx, fy, cx, cy, width, height}); DataError naming the file if malformed."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(
-            f"{path} not found: every sensor folder needs {INTRINSICS_FILE} with the depth camera's "
-            "fx, fy, cx, cy, width, height (px)"
-        ) from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataError(f"cannot read {path}: {exc}") from None
-    keys = ("fx", "fy", "cx", "cy", "width", "height")
-    if not isinstance(data, dict) or any(k not in data for k in keys):
-        raise DataError(f"{path}: expected a JSON object with keys {', '.join(keys)}, found {data!r:.200}")
-    try:
-        return Intrinsics(
-            float(data["fx"]),
-            float(data["fy"]),
-            float(data["cx"]),
-            float(data["cy"]),
-            int(data["width"]),
-            int(data["height"]),
-        )
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{path}: {exc}") from None
-
-
-def save_rgbd_frame(sensor_dir: str | Path, index: int, color_bgr: np.ndarray, depth_mm: np.ndarray) -> None:
-    """Write one frame (``color_%06d.png`` BGR uint8, ``depth_%06d.png`` uint16 mm) into a sensor folder."""
-    import cv2
-
-    sensor_dir = Path(sensor_dir)
-    sensor_dir.mkdir(parents=True, exist_ok=True)
-    color = np.ascontiguousarray(color_bgr, dtype=np.uint8)
-    depth = np.ascontiguousarray(depth_mm)
-    if color.ndim != 3 or color.shape[2] != 3:
-        raise ValueError(f"color_bgr must be (H, W, 3) BGR, got shape {color.shape}")
-    if depth.dtype != np.uint16 or depth.shape != color.shape[:2]:
-        raise ValueError(
-            f"depth_mm must be uint16 (H, W) matching the colour image {color.shape[:2]}, "
-            f"got {depth.dtype} {depth.shape}"
-        )
-    for name, image in ((COLOR_NAME.format(index), color), (DEPTH_NAME.format(index), depth)):
-        if not cv2.imwrite(str(sensor_dir / name), image):
-            raise DataError(f"cannot write {sensor_dir / name}; check the folder is writable")
-
-
-def save_rgbd_folder(
-    directory: str | Path,
-    frames_by_sensor: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
-    intrinsics_by_sensor: Mapping[str, Intrinsics],
-    *,
-    start_index: int = 0,
-) -> Path:
-    """Write synchronized RGB-D frames in the folder layout of the module docstring.
-
-    Parameters
-    ----------
-    directory : the folder (created).
-    frames_by_sensor : sensor id -> sequence of ``(color_bgr (H, W, 3) uint8, depth_mm (H, W) uint16)``;
-        frame i of every sensor is the same instant and is written as number ``start_index + i``.
-    intrinsics_by_sensor : sensor id -> the depth camera's Intrinsics (colour registered to depth).
-    """
-    directory = Path(directory)
-    for sensor_id, frames in frames_by_sensor.items():
-        if sensor_id not in intrinsics_by_sensor:
-            raise ValueError(f"no intrinsics for sensor {sensor_id!r}")
-        sensor_dir = directory / sensor_id
-        write_intrinsics(sensor_dir, intrinsics_by_sensor[sensor_id])
-        for i, (color, depth) in enumerate(frames):
-            save_rgbd_frame(sensor_dir, start_index + i, color, depth)
-    return directory
-
-
-class RgbdFrames(Sequence[tuple[np.ndarray, np.ndarray]]):
-    """One sensor's frames of an RGB-D folder, read from disk on access (a take of 1000 frames does not fit
-    in memory at once). Item i: ``(color_bgr (H, W, 3) uint8, depth_mm (H, W) uint16)``.
-
-    Attributes
-    ----------
-    sensor_dir : Path
-    numbers : tuple[int, ...], the frame numbers (file names), in order.
-    intrinsics : Intrinsics
-    """
-
-    def __init__(self, sensor_dir: Path, numbers: Sequence[int], intrinsics: Intrinsics) -> None:
-        self.sensor_dir = sensor_dir
-        self.numbers = tuple(numbers)
-        self.intrinsics = intrinsics
-
-    def __len__(self) -> int:
-        return len(self.numbers)
-
-    def __getitem__(self, index: Any) -> Any:
-        if isinstance(index, slice):
-            return RgbdFrames(self.sensor_dir, self.numbers[index], self.intrinsics)
-        return self.read(self.numbers[index])
-
-    def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for number in self.numbers:
-            yield self.read(number)
-
-    def read(self, number: int) -> tuple[np.ndarray, np.ndarray]:
-        """Frame ``number`` (the number in the file names)."""
-        import cv2
-
-        color_path = self.sensor_dir / COLOR_NAME.format(number)
-        depth_path = self.sensor_dir / DEPTH_NAME.format(number)
-        color = cv2.imread(str(color_path), cv2.IMREAD_COLOR)
-        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
-        if color is None:
-            raise DataError(f"cannot read {color_path} as an image; check the file")
-        if depth is None:
-            raise DataError(f"cannot read {depth_path} as an image; check the file")
-        size = (self.intrinsics.height, self.intrinsics.width)
-        if depth.dtype != np.uint16 or depth.ndim != 2:
-            raise DataError(
-                f"{depth_path}: expected a 16-bit single-channel PNG (depth in mm), found "
-                f"{depth.dtype} with shape {depth.shape}"
-            )
-        for path, image in ((color_path, color), (depth_path, depth)):
-            if image.shape[:2] != size:
-                raise DataError(
-                    f"{path} is {image.shape[1]}x{image.shape[0]} (W x H), {INTRINSICS_FILE} says "
-                    f"{self.intrinsics.width}x{self.intrinsics.height}; colour must be registered to "
-                    "depth (pyk4a capture.transformed_color) and the intrinsics be the depth camera's"
-                )
-        return color, depth
-
-
-def _frame_numbers(sensor_dir: Path) -> list[int]:
-    """Numbers that have both a colour and a depth file."""
-    found: dict[str, set[int]] = {"color": set(), "depth": set()}
-    for entry in sensor_dir.iterdir():
-        match = _FRAME_FILE.match(entry.name)
-        if match:
-            found[match.group(1)].add(int(match.group(2)))
-    return sorted(found["color"] & found["depth"])
-
-
-def load_rgbd_folder(
-    directory: str | Path,
-    *,
-    sensors: Sequence[str] | None = None,
-    frames: Sequence[int] | None = None,
-) -> tuple[dict[str, RgbdFrames], dict[str, Intrinsics]]:
-    """Open an RGB-D folder (layout in the module docstring) for :func:`calibrate_from_sphere` and the marker.
-
-    Parameters
-    ----------
-    directory : the folder holding one sub-folder per sensor.
-    sensors : only these sensor ids (default: every sub-folder with an ``intrinsics.json``).
-    frames : only these frame numbers (default: every number that every selected sensor has).
-
-    Returns
-    -------
-    (frames_by_sensor, intrinsics_by_sensor): sensor id -> :class:`RgbdFrames` (lazy; the frame numbers
-    every selected sensor has, in order, so index i is the same instant everywhere), sensor id -> Intrinsics.
-
-    Raises
-    ------
-    DataError
-        No such folder, no sensor folder, a requested sensor or frame missing, no frame common to all
-        sensors, a malformed ``intrinsics.json``.
-    """
-    directory = Path(directory)
-    if not directory.is_dir():
-        raise DataError(
-            f"RGB-D folder {directory} not found; record one with `skelfuse calibrate capture` "
-            "(layout: <dir>/<sensor_id>/intrinsics.json, color_%06d.png, depth_%06d.png)"
-        )
-    available = sorted(p.name for p in directory.iterdir() if (p / INTRINSICS_FILE).is_file())
-    if sensors is None:
-        selected = available
-    else:
-        selected = list(sensors)
-        missing = [s for s in selected if s not in available]
-        if missing:
-            raise DataError(
-                f"{directory}: no folder with {INTRINSICS_FILE} for sensor(s) {', '.join(missing)}; "
-                f"found {', '.join(available) or 'none'}"
-            )
-    if not selected:
-        raise DataError(
-            f"{directory} holds no sensor folder (<sensor_id>/{INTRINSICS_FILE}); is it the RGB-D "
-            "folder written by `skelfuse calibrate capture`?"
-        )
-    intrinsics = {s: read_intrinsics(directory / s / INTRINSICS_FILE) for s in selected}
-    numbers = {s: _frame_numbers(directory / s) for s in selected}
-    if frames is not None:
-        wanted = [int(n) for n in frames]
-        for s in selected:
-            absent = sorted(set(wanted) - set(numbers[s]))
-            if absent:
-                have = numbers[s]
-                span = f"{have[0]}..{have[-1]} ({len(have)} frames)" if have else "none"
-                raise DataError(f"{directory / s}: frame(s) {absent[:10]} not found (colour and depth); it has {span}")
-        common = wanted
-    else:
-        common_set = set.intersection(*(set(n) for n in numbers.values()))
-        common = sorted(common_set)
-        if not common:
-            counts = ", ".join(f"{s}: {len(n)}" for s, n in numbers.items())
-            raise DataError(
-                f"{directory}: no frame number has colour and depth in every sensor folder (frames per "
-                f"sensor: {counts}); frames with the same number must be the same instant"
-            )
-    return ({s: RgbdFrames(directory / s, common, intrinsics[s]) for s in selected}, intrinsics)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -297,7 +63,6 @@ def load_rgbd_folder(
 def _rig(args: argparse.Namespace) -> Any:
     if getattr(args, "config", None) is None:
         return None
-    from skelfuse.config import load_rig_config
 
     return load_rig_config(args.config)
 
@@ -309,7 +74,7 @@ def _output_path(args: argparse.Namespace, cfg: Any) -> Path:
     if cfg is not None and cfg.calibration.file is not None:
         return Path(cfg.calibration.file)
     if cfg is not None:
-        _say(
+        note(
             f"note: {cfg.source} has no [calibration] file; writing {DEFAULT_OUTPUT} (set [calibration] "
             f'file = "{DEFAULT_OUTPUT}" so that fusion uses it)'
         )
@@ -360,7 +125,7 @@ def _check_known_sensors(ids: Sequence[str], cfg: Any, where: str) -> None:
         )
     absent = [s for s in cfg.sensor_ids if s not in ids]
     if absent:
-        _say(f"note: {where} has no data of sensor(s) {', '.join(absent)}: they will not be calibrated")
+        note(f"note: {where} has no data of sensor(s) {', '.join(absent)}: they will not be calibrated")
 
 
 def _print_result(result: CalibrationResult, path: Path) -> None:
@@ -378,14 +143,12 @@ def _print_result(result: CalibrationResult, path: Path) -> None:
 def _save_rrd(path: Path, result: CalibrationResult) -> None:
     import rerun as rr
 
-    from skelfuse.calibration.view import log_calibration
-
     recording = rr.RecordingStream("skelfuse_calibration")
     recording.save(path)
     log_calibration(recording, result)
     recording.flush()
     recording.disconnect()
-    _say(f"calibration view saved to {path} (open it with `rerun {path}`)")
+    note(f"calibration view saved to {path} (open it with `rerun {path}`)")
 
 
 def _positive(kind: type) -> Any:
@@ -407,7 +170,6 @@ def _positive(kind: type) -> Any:
 
 
 def _cmd_capture(args: argparse.Namespace) -> int:
-    from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
 
     cfg = _rig(args)
     kinects = kinect_start_order(cfg.sensors)
@@ -432,15 +194,15 @@ def _cmd_capture(args: argparse.Namespace) -> int:
             device = _open_by_serial(pyk4a, settings)
             devices.append((sensor.id, device))
             device.start()
-            _say(f"started {sensor.id} ({settings.depth_mode}, colour {settings.color_resolution}, {sensor.sync.role})")
+            note(f"started {sensor.id} ({settings.depth_mode}, colour {settings.color_resolution}, {sensor.sync.role})")
         _capture_frames(pyk4a, devices, out, args)
     finally:
         for _, device in reversed(devices):
             try:
                 device.stop()
             except Exception as exc:
-                _say(f"note: stopping a device failed: {exc}")
-    _say(f"wrote {args.frames} frames of {len(devices)} sensor(s) to {out}")
+                note(f"note: stopping a device failed: {exc}")
+    note(f"wrote {args.frames} frames of {len(devices)} sensor(s) to {out}")
     print(out)
     return EXIT_OK
 
@@ -501,7 +263,7 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
             save_rgbd_frame(out / sid, written, np.asarray(color)[..., :3], np.asarray(capture.depth, dtype=np.uint16))
         written += 1
         if written % 10 == 0 or written == args.frames:
-            _say(f"captured {written}/{args.frames} frames ({time.monotonic() - started:.0f} s)")
+            note(f"captured {written}/{args.frames} frames ({time.monotonic() - started:.0f} s)")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -510,7 +272,6 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
 
 
 def _cmd_sphere(args: argparse.Namespace) -> int:
-    from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
 
     cfg = _rig(args)
     frames, intrinsics = load_rgbd_folder(args.folder)
@@ -533,7 +294,7 @@ def _cmd_sphere(args: argparse.Namespace) -> int:
     else:
         hist = red_histogram()
     n_frames = len(next(iter(frames.values())))
-    _say(f"sphere calibration: {len(ids)} sensors, {n_frames} frames, master {master}, radius {args.radius_mm:g} mm")
+    note(f"sphere calibration: {len(ids)} sensors, {n_frames} frames, master {master}, radius {args.radius_mm:g} mm")
     result = calibrate_from_sphere(
         frames,
         intrinsics,
@@ -558,7 +319,6 @@ def _cmd_sphere(args: argparse.Namespace) -> int:
 
 
 def _cmd_marker(args: argparse.Namespace) -> int:
-    from skelfuse.calibration.marker import calibrate_world_from_marker
 
     cfg = _rig(args)
     output = _output_path(args, cfg)
@@ -566,7 +326,7 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     stored_path = Path(args.calibration) if args.calibration is not None else output
     if not args.fresh and stored_path.exists():
         stored = read_calibration(stored_path)
-        _say(
+        note(
             f"re-anchoring the {stored.method} calibration in {stored_path} ({len(stored.sensors)} sensors, "
             f"master {stored.master})"
         )
@@ -593,7 +353,7 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     sequence = frames[master]
     number = sequence.numbers[0]
     color, depth = sequence.read(number)
-    _say(f"marker calibration: master {master}, frame {number} of {folder / master}")
+    note(f"marker calibration: master {master}, frame {number} of {folder / master}")
     result, observations = calibrate_world_from_marker(
         color,
         depth,
@@ -619,135 +379,11 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-# ----------------------------------------------------------------------------------------------------------
-# skeleton takes
-# ----------------------------------------------------------------------------------------------------------
-
-
 def _parse_take(text: str) -> tuple[str, Path]:
     sensor_id, sep, path = text.partition("=")
     if not sep or not sensor_id or not path:
         raise argparse.ArgumentTypeError(f"expected SENSOR=FILE (e.g. 000123412512=master.json), got {text!r}")
     return sensor_id, Path(path)
-
-
-def load_recording_take(
-    path: str | Path,
-    *,
-    by: str = "device",
-    sync: Any = None,
-    max_frames: int | None = None,
-    progress: bool = True,
-) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    """A skelfuse MCAP recording as a synchronized one-person take for the skeleton calibration.
-
-    Frames are grouped into instants as the fusion node does (:class:`~skelfuse.service.grouping.FrameGrouper`,
-    by device time by default, the recorded host time as the arrival clock); every group is one frame of
-    the take, and each sensor contributes its **first body** (NaN / confidence NONE where it has none).
-
-    Parameters
-    ----------
-    path : the recording.
-    by : "device" (wired sync) or "host".
-    sync : a :class:`skelfuse.config.SyncConfig` for the tolerances (default: SyncConfig()).
-    max_frames : keep only the first this many instants.
-
-    Returns
-    -------
-    positions (T, S, 32, 3) float64 mm, confidence (T, S, 32) uint8, sensor ids (the recording's order).
-
-    Raises
-    ------
-    DataError
-        Not a recording, no sensor channel, no frame with a body.
-    """
-    from skelfuse.config import SyncConfig
-    from skelfuse.recording.mcap_io import RecordingReader
-    from skelfuse.service.fusion_step import group_bodies
-    from skelfuse.service.grouping import FrameGrouper
-    from skelfuse.skeleton import N_JOINTS
-
-    reader = RecordingReader(path)
-    ids = reader.sensors
-    if not ids:
-        raise DataError(f"recording {reader.path} holds no sensor-frame channels; record with `skelfuse record`")
-    sync = sync if sync is not None else SyncConfig()
-    grouper = FrameGrouper.from_sync(ids, sync, by=by)
-    positions: list[np.ndarray] = []
-    confidence: list[np.ndarray] = []
-
-    def take(groups: Sequence[Any]) -> None:
-        for group in groups:
-            pos, conf, _ = group_bodies(group.frames, ids)  # (S, B, 32, 3): every sensor's bodies, padded
-            if pos.shape[1] == 0:
-                pos, conf = np.full((len(ids), 1, N_JOINTS, 3), np.nan), np.zeros((len(ids), 1, N_JOINTS), np.uint8)
-            positions.append(pos[:, 0])  # the first body of each sensor: one person walking
-            confidence.append(conf[:, 0])
-
-    n_read = 0
-    for frame in reader.frames():
-        take(grouper.push(frame, int(frame.host_time_ns)))
-        n_read += 1
-        if progress and n_read % 5000 == 0:
-            _say(f"reading {reader.path.name}: {n_read} frames")
-        if max_frames is not None and len(positions) >= max_frames:
-            break
-    take(grouper.flush())
-    if max_frames is not None:
-        del positions[max_frames:], confidence[max_frames:]
-    if not positions:
-        raise DataError(f"recording {reader.path} holds no readable sensor frames")
-    pos_arr, conf_arr = np.stack(positions), np.stack(confidence)
-    seen = np.isfinite(pos_arr).all(axis=-1).any(axis=-1)  # (T, S)
-    if not seen.any():
-        raise DataError(
-            f"recording {reader.path}: no sensor saw a body in {len(positions)} instants; record a "
-            "person walking through the shared space"
-        )
-    if progress:
-        per_sensor = ", ".join(f"{s}: {int(seen[:, i].sum())}" for i, s in enumerate(ids))
-        rejects = f", {sum(reader.rejects.values())} unreadable messages skipped" if reader.rejects else ""
-        _say(
-            f"read {reader.path.name}: {n_read} frames -> {len(positions)} instants (frames with a body per "
-            f"sensor: {per_sensor}){rejects}"
-        )
-    return pos_arr, conf_arr, ids
-
-
-def load_file_takes(
-    takes: Sequence[tuple[str, Path]], *, max_frames: int | None = None
-) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    """Per-sensor skeleton files (andyj1 ``.csv`` or offline_processor ``.json``) as one synchronized take.
-
-    Frames match by index (both formats hold one synchronized take per sensor); takes of different length
-    are cut to the shortest. Raises DataError for an unknown extension, a repeated sensor or a file with
-    several people.
-    """
-    from skelfuse.calibration.skeleton import stack_sensor_takes
-    from skelfuse.sources.recorded import load_andyj1_csv, load_offline_processor_json
-
-    per_sensor: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for sensor_id, path in takes:
-        if sensor_id in per_sensor:
-            raise DataError(f"--take: sensor {sensor_id!r} given twice; one file per sensor")
-        suffix = path.suffix.lower()
-        if suffix == ".csv":
-            recording = load_andyj1_csv(path, sensor_id=sensor_id)
-        elif suffix == ".json":
-            recording = load_offline_processor_json(path, sensor_id=sensor_id)
-        else:
-            raise DataError(
-                f"--take {sensor_id}={path}: unknown file type {suffix or '(none)'!r}; expected an "
-                "andyj1 .csv or an offline_processor .json (or give an MCAP with --recording)"
-            )
-        per_sensor[sensor_id] = recording.single_body()
-    lengths = {s: len(p) for s, (p, _) in per_sensor.items()}
-    if len(set(lengths.values())) > 1:
-        _say(f"note: takes differ in length ({lengths}); frames match by index, cut to the shortest")
-    positions, confidence, ids = stack_sensor_takes(per_sensor)
-    if max_frames is not None:
-        positions, confidence = positions[:max_frames], confidence[:max_frames]
-    return positions, confidence, ids
 
 
 def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
@@ -775,35 +411,7 @@ def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarr
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _finite_or_none(value: float | None) -> float | None:
-    return None if value is None or not math.isfinite(value) else float(value)
-
-
-def skeleton_calibration_result(cal: Any) -> CalibrationResult:
-    """A :class:`~skelfuse.calibration.skeleton.SkeletonCalibration` as a file-ready CalibrationResult
-    (method "skeleton"; each sensor's verdict, half-take agreement and reasons in its notes)."""
-    date = now_iso()
-    sensors = {}
-    for sensor_id in cal.sensor_ids:
-        q = cal.quality[sensor_id]
-        notes = f"verdict {q.verdict}"
-        if sensor_id == cal.master:
-            notes += "; master"
-        elif q.half_rotation_deg is not None:
-            notes += f"; half-take {q.half_rotation_deg:.2f} deg / {q.half_translation_mm:.0f} mm"
-        if q.reasons:
-            notes += f"; {'; '.join(q.reasons)}"
-        sensors[sensor_id] = SensorCalibration(
-            cal.world_from_sensor[sensor_id], "skeleton", _finite_or_none(q.residual_mm), int(q.n_points), date, notes
-        )
-    verdicts = ", ".join(f"{s} {cal.quality[s].verdict}" for s in cal.sensor_ids)
-    world = "ArUco plate (master pose given)" if cal.world_source == "plate" else "floor from the feet"
-    notes = f"skeleton walk of {cal.n_frames} frames; world: {world}; verdicts: {verdicts}"
-    return CalibrationResult(sensors, "skeleton", cal.master, date, notes)
-
-
 def _cmd_skeleton(args: argparse.Namespace) -> int:
-    from skelfuse.calibration.skeleton import calibrate_from_skeletons
 
     cfg = _rig(args)
     positions, confidence, ids = _load_take(args, cfg)
@@ -820,7 +428,7 @@ def _cmd_skeleton(args: argparse.Namespace) -> int:
                 f"{', '.join(anchor.sensors)}); give --master one of those"
             )
         anchor_pose = anchor.sensors[master].world_from_sensor
-    _say(f"skeleton calibration: {len(ids)} sensors, {len(positions)} frames, master {master}")
+    note(f"skeleton calibration: {len(ids)} sensors, {len(positions)} frames, master {master}")
     cal = calibrate_from_skeletons(
         positions, confidence, ids, master, master_world_from_sensor=anchor_pose, progress=not args.quiet
     )
@@ -853,7 +461,6 @@ def _cmd_skeleton(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from skelfuse.calibration.skeleton import check_calibration
 
     cfg = _rig(args)
     path = _stored_calibration_path(args, cfg, "calibrate check")
@@ -869,7 +476,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     reference = {
         s: c.residual_mm for s, c in stored.sensors.items() if c.method == "skeleton" and c.residual_mm is not None
     }
-    _say(
+    note(
         f"checking {path} ({stored.method}, {stored.date or 'undated'}) on a take of {len(positions)} frames, "
         f"master {master}"
     )
@@ -960,7 +567,7 @@ def _add_take(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
-def add_calibrate_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``calibrate`` with its sub-commands (capture, sphere, marker, skeleton, check) to ``commands``."""
     calibrate = commands.add_parser(
         "calibrate",

@@ -11,6 +11,11 @@ import time
 from typing import TextIO
 
 
+def note(text: str) -> None:
+    """A status line on stderr, flushed at once: stdout holds the command's results."""
+    print(text, file=sys.stderr, flush=True)
+
+
 class Progress:
     """A one-line progress bar: ``label [#####-----] 12/24  50%  0:42 left``.
 

@@ -1,0 +1,320 @@
+"""The daemons' commands: ``capture``, ``fuse`` (live, or offline with --input), ``record``, ``replay``, ``status``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from skelfuse.cli.common import EXIT_OK, add_run_limits, print_json, rig_config, run_limits, zenoh_conf
+from skelfuse.config import DEFAULT_PRESET, RigConfig, add_zenoh_arguments
+from skelfuse.recording import fuse_recording, write_fused
+from skelfuse.schema.errors import ConfigError
+from skelfuse.service import worker
+from skelfuse.service.lifecycle import Lifecycle
+from skelfuse.service.node import NodeOptions, run_fusion_node
+from skelfuse.service.recorder import run_recorder, run_replay
+from skelfuse.service.status import watch_status
+from skelfuse.service.viewer import ViewOptions
+from skelfuse.wire.keys import validate_name
+
+
+def _cmd_capture(args: argparse.Namespace) -> int:
+
+    cfg = rig_config(args)
+    options = worker.WorkerOptions(
+        gesture=args.gesture,
+        take_duration_s=args.take_duration,
+        seed=args.seed,
+        loop=args.loop,
+        speed=None if args.fast else args.speed,
+        node_name=args.node,
+        limits=run_limits(args),
+    )
+    report = worker.run_capture_worker(
+        cfg, args.sensor, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
+    )
+    if args.json:
+        print_json({"frames_out": report.frames_out, "restarts": report.restarts})
+    return EXIT_OK
+
+
+def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
+    r = cfg.rerun
+    if args.no_view:
+        return ViewOptions(mode="off")
+    if args.rrd is not None:
+        return ViewOptions(mode="save", file=args.rrd, log_sensors=r.log_sensors)
+    if args.serve:
+        return ViewOptions(
+            mode="serve",
+            bind=args.bind or r.bind,
+            grpc_port=args.grpc_port or r.grpc_port,
+            web_port=args.web_port if args.web_port is not None else r.web_port,
+            log_sensors=r.log_sensors,
+        )
+    if args.spawn:
+        return ViewOptions(mode="spawn", grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors)
+    return ViewOptions(
+        mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port, log_sensors=r.log_sensors
+    )
+
+
+def _cmd_fuse(args: argparse.Namespace) -> int:
+    if args.input is not None:
+        return _fuse_offline(args)
+    if args.output is not None:
+        raise ConfigError(
+            "--output needs --input FILE (offline fusion of a recording); the live node publishes "
+            "on zenoh, record it with `skelfuse record`"
+        )
+    if args.config is None:
+        raise ConfigError("skelfuse fuse needs --config RIG.toml (live) or --input FILE --output OUT (offline)")
+
+    cfg = rig_config(args)
+    options = NodeOptions(
+        node_name=args.node, status_period_s=args.status_period, limits=run_limits(args), view=_view_options(args, cfg)
+    )
+    report = run_fusion_node(cfg, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle("fusion"))
+    if args.json:
+        print_json({"frames_in": report.frames_in, "frames_out": report.frames_out, "status": report.status})
+    return EXIT_OK
+
+
+def _fuse_offline(args: argparse.Namespace) -> int:
+    if args.output is None:
+        raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
+    cfg = rig_config(args) if args.config is not None else None
+    frames = fuse_recording(args.input, rig_config=cfg, preset_name=args.preset, progress=not args.json)
+    try:
+        rows = write_fused(frames, args.output)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if args.json:
+        print_json({"input": args.input, "output": args.output, "rows": rows})
+    else:
+        print(f"Fused {args.input} -> {args.output} ({rows} rows)", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+
+    cfg = rig_config(args)
+    report = run_recorder(
+        cfg, zenoh_conf(args, cfg), output=args.output, limits=run_limits(args), lifecycle=Lifecycle("recorder")
+    )
+    summary = {"path": report.path, "frames_written": report.frames_written, "rejects": dict(report.rejects)}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"Recorded {report.frames_written} frames to {report.path}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+
+    if args.rig is not None:
+        try:
+            validate_name(args.rig, "rig")
+        except ValueError as exc:
+            raise ConfigError(f"--rig: {exc}") from None
+    cfg = rig_config(args) if args.config is not None else None
+    report = run_replay(
+        args.file,
+        zenoh_conf(args, cfg),
+        speed=None if args.fast else args.speed,
+        rig=args.rig,
+        limits=run_limits(args),
+        lifecycle=Lifecycle("replay"),
+    )
+    if args.json:
+        print_json({"frames_out": report.frames_out, "topics": sorted(report.topics)})
+    return EXIT_OK
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+
+    cfg = rig_config(args)
+    watch_status(
+        cfg,
+        zenoh_conf(args, cfg),
+        limits=run_limits(args),
+        lifecycle=Lifecycle("status"),
+        as_json=args.json,
+        out=sys.stdout,
+    )
+    return EXIT_OK
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``capture``, ``fuse``, ``record``, ``replay`` and ``status``."""
+    # capture ----------------------------------------------------------------------------------------
+    capture = commands.add_parser(
+        "capture",
+        help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
+        description="Run the capture worker of one sensor of the rig: read its frames from its source (sim, "
+        "replay; kinect is a separate issue) and publish them over zenoh. Retries with backoff when the zenoh "
+        "session cannot open or the source fails. SIGINT/SIGTERM stop it cleanly.",
+    )
+    capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    capture.add_argument("--sensor", required=True, metavar="ID", help="which [[sensors]] id to publish")
+    capture.add_argument(
+        "--node", default=None, metavar="NAME", help="node name for status/liveliness keys (default: capture-<ID>)"
+    )
+    capture.add_argument(
+        "--gesture",
+        default="walking",
+        choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
+        help="sim: what the simulated person does; every worker of a rig must agree (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--take-duration",
+        type=float,
+        default=20.0,
+        metavar="SECONDS",
+        help="sim: length of the simulated take before it loops (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--loop",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="start the take / recording over at its end (default: sim loops, replay follows sensors[i].replay.loop)",
+    )
+    capture.add_argument("--speed", type=float, default=1.0, help="replay: playback speed (default: %(default)s)")
+    capture.add_argument("--fast", action="store_true", help="replay: as fast as possible")
+    capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_run_limits(capture, "publishing N frames")
+    add_zenoh_arguments(capture)
+    capture.set_defaults(func=_cmd_capture)
+
+    # fuse -------------------------------------------------------------------------------------------
+    fuse = commands.add_parser(
+        "fuse",
+        help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
+        description="Live: subscribe to every sensor of the rig, group the frames of one instant (device or "
+        "host time, [sync]), fuse them as soon as all sensors arrived or the deadline passed, and publish on "
+        "skelfuse/<rig>/fused/skeletons; status every [node] status_period_s on skelfuse/<rig>/status/<node>; "
+        "answers `get skelfuse/<rig>/calibration`. Offline (--input): fuse a recording without zenoh and write "
+        "CSV or Parquet.",
+    )
+    fuse.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)",
+    )
+    fuse.add_argument("--input", type=Path, default=None, metavar="FILE", help="offline: an MCAP recording")
+    fuse.add_argument(
+        "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
+    )
+    fuse.add_argument(
+        "--preset",
+        default=None,
+        help=f"offline: fusion preset, {DEFAULT_PRESET} or the paper's A1..A5 "
+        f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})",
+    )
+    fuse.add_argument(
+        "--node",
+        default=None,
+        metavar="NAME",
+        help="node name for status/liveliness keys (default: [node] name, else fusion)",
+    )
+    fuse.add_argument(
+        "--status-period",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="status period (default: [node] status_period_s)",
+    )
+    view = fuse.add_argument_group("live view (default: the config's [rerun])")
+    view.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="save the live view to FILE")
+    view.add_argument("--spawn", action="store_true", help="spawn a local Rerun viewer")
+    view.add_argument(
+        "--serve",
+        action="store_true",
+        help="serve the view over gRPC (and the web viewer with --web-port) for remote viewers",
+    )
+    view.add_argument(
+        "--bind", default=None, metavar="ADDR", help="address to serve on (default: [rerun] bind, 127.0.0.1)"
+    )
+    view.add_argument(
+        "--grpc-port", type=int, default=None, metavar="PORT", help="gRPC port (default: [rerun] grpc_port, 9876)"
+    )
+    view.add_argument(
+        "--web-port",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="with --serve: also serve the web viewer on this port",
+    )
+    view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
+    fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_run_limits(fuse, "publishing N fused frames")
+    add_zenoh_arguments(fuse)
+    fuse.set_defaults(func=_cmd_fuse)
+
+    # record -----------------------------------------------------------------------------------------
+    record = commands.add_parser(
+        "record",
+        help="record every raw sensor frame of the rig to an MCAP file",
+        description="Subscribe to skelfuse/<rig>/sensors/*/skeletons and write every payload with both "
+        "timestamps to an MCAP file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
+        "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
+    )
+    record.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    record.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
+    )
+    record.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_run_limits(record, "writing N frames")
+    add_zenoh_arguments(record)
+    record.set_defaults(func=_cmd_record)
+
+    # replay -----------------------------------------------------------------------------------------
+    replay = commands.add_parser(
+        "replay",
+        help="republish a recording's sensor frames over zenoh (original or maximum speed)",
+        description="Publish the sensor frames of an MCAP recording on their recorded keys, byte for byte, "
+        "paced by their recorded host time, so a session can be fused again live with other settings.",
+    )
+    replay.add_argument("file", type=Path, metavar="FILE", help="an MCAP recording made by skelfuse record")
+    replay.add_argument("--speed", type=float, default=1.0, help="playback speed (default: %(default)s)")
+    replay.add_argument("--fast", action="store_true", help="as fast as possible")
+    replay.add_argument(
+        "--rig", default=None, metavar="NAME", help="publish under skelfuse/NAME/... instead of the recorded rig"
+    )
+    replay.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
+    )
+    replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_run_limits(replay, "publishing N frames")
+    add_zenoh_arguments(replay)
+    replay.set_defaults(func=_cmd_replay)
+
+    # status -----------------------------------------------------------------------------------------
+    status = commands.add_parser(
+        "status",
+        help="print the status messages of the rig's nodes",
+        description="Subscribe to skelfuse/<rig>/status/* and print one line per status message (rates, "
+        "counts, latency), or the documents as JSON lines with --json.",
+    )
+    status.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    status.add_argument("--json", action="store_true", help="print each status document as one JSON line")
+    add_run_limits(status, "N status messages")
+    add_zenoh_arguments(status)
+    status.set_defaults(func=_cmd_status)
