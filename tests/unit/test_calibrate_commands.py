@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.calibration.calfile import read_calibration, write_calibration
 from skelfuse.calibration.render import Scene, Sphere, aruco_plate, render, room
 from skelfuse.calibration.rgbd_folder import load_rgbd_folder, save_rgbd_folder
 from skelfuse.calibration.rigid import rotation_angle_deg
@@ -20,6 +19,7 @@ from skelfuse.calibration.sphere import PAPER_RADIUS_MM
 from skelfuse.cli.calibrate import add_parser as add_calibrate_parser
 from skelfuse.cli.common import EXIT_ATTENTION
 from skelfuse.config import load_calibration
+from skelfuse.config.calibration_file import read_calibration, write_calibration
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import invert_transform
 from skelfuse.recording.mcap_io import RecordingWriter

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse.calibration.calfile import (
+from skelfuse.config import load_calibration
+from skelfuse.config.calibration_file import (
     CalibrationResult,
     SensorCalibration,
     read_calibration,
     reanchor,
     write_calibration,
 )
-from skelfuse.config import load_calibration
 from skelfuse.fusion.transform import make_transform
 from skelfuse.schema.errors import CalibrationError
 from skelfuse.sim.rig import paper_rig

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration
 from skelfuse.calibration.marker import calibrate_world_from_marker, world_from_marker_centres
 from skelfuse.calibration.render import Quad, Scene, aruco_plate, render, room
 from skelfuse.calibration.rigid import rotation_angle_deg
+from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import invert_transform
 from skelfuse.schema.errors import CalibrationError

@@ -8,8 +8,8 @@ import numpy as np
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration
 from skelfuse.calibration.view import log_calibration
+from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration
 from skelfuse.fusion.transform import invert_transform
 from skelfuse.sim.rig import paper_rig
 

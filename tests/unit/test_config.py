@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from skelfuse.cli.common import add_zenoh_arguments, zenoh_flags
 from skelfuse.config import (
     RigConfig,
-    add_zenoh_arguments,
     load_calibration,
     load_rig_config,
+    parse_rig_config,
     zenoh_config,
-    zenoh_flags,
 )
 from skelfuse.fusion.presets import preset
 from skelfuse.schema.errors import ConfigError
@@ -70,7 +70,7 @@ def with_change(base: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
 
 def config_error(data: dict[str, Any]) -> str:
     with pytest.raises(ConfigError) as info:
-        RigConfig.from_dict(data, source="rig.toml")
+        parse_rig_config(data, source="rig.toml")
     return str(info.value)
 
 
@@ -112,7 +112,7 @@ def test_kinect_example_loads_and_says_how_to_get_a_calibration() -> None:
 
 
 def test_config_is_frozen_and_defaults_fill_in() -> None:
-    cfg = RigConfig.from_dict(minimal())
+    cfg = parse_rig_config(minimal())
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.name = "other"  # type: ignore[misc]
     assert cfg.sync.fps == 30.0 and cfg.sync.tolerance_ms == 10.0 and cfg.sync.deadline_ms == 17.0
@@ -126,12 +126,12 @@ def test_config_is_frozen_and_defaults_fill_in() -> None:
 
 
 def test_host_sync_gets_a_wider_default_tolerance() -> None:
-    cfg = RigConfig.from_dict(with_change(minimal(), "sync", {"by": "host"}))
+    cfg = parse_rig_config(with_change(minimal(), "sync", {"by": "host"}))
     assert cfg.sync.tolerance_ms == pytest.approx(13.333, abs=1e-3)
 
 
 def test_kinect_defaults() -> None:
-    cfg = RigConfig.from_dict(kinect_rig())
+    cfg = parse_rig_config(kinect_rig())
     first, second = cfg.sensors
     assert first.kinect is not None and second.kinect is not None
     assert first.kinect.serial == "000111" and first.kinect.depth_mode == "NFOV_UNBINNED"
@@ -393,7 +393,7 @@ def test_host_sync_allows_standalone_kinects() -> None:
     data = with_change(kinect_rig(), "sync", {"by": "host"})
     data["sensors"][0]["sync"] = {"role": "standalone"}
     data["sensors"][1]["sync"] = {"role": "standalone"}
-    cfg = RigConfig.from_dict(data)
+    cfg = parse_rig_config(data)
     assert cfg.sync.by == "host" and {s.sync.role for s in cfg.sensors} == {"standalone"}
 
 
@@ -403,7 +403,7 @@ def test_fusion_params_overrides_and_off() -> None:
         "fusion",
         {"preset": "a4", "eps_mm": 150, "params": {"previous_weight": "off", "max_coast_frames": 5}},
     )
-    cfg = RigConfig.from_dict(data)
+    cfg = parse_rig_config(data)
     params = cfg.fusion.fusion_params()
     assert cfg.fusion.preset == "A4"
     assert params.eps_mm == 150.0 and params.previous_weight is None and params.max_coast_frames == 5
@@ -412,7 +412,7 @@ def test_fusion_params_overrides_and_off() -> None:
 
 @pytest.mark.parametrize("name", ["skelfuse", "SkelFuse", " a5 "])
 def test_fusion_preset_names_are_case_insensitive_and_canonical(name: str) -> None:
-    cfg = RigConfig.from_dict(with_change(minimal(), "fusion", {"preset": name}))
+    cfg = parse_rig_config(with_change(minimal(), "fusion", {"preset": name}))
     canonical = "A5" if "5" in name else "skelfuse"
     assert cfg.fusion.preset == canonical
     assert cfg.fusion.fusion_params() == preset(canonical)
@@ -489,7 +489,7 @@ def test_malformed_calibration_file(tmp_path: Path) -> None:
 
 
 def test_rig_sensor_lookup_suggests() -> None:
-    cfg = RigConfig.from_dict(minimal())
+    cfg = parse_rig_config(minimal())
     assert cfg.sensor("b").sync.delay_us == 160
     with pytest.raises(ConfigError, match=r"no sensor 'bb'; did you mean 'b'"):
         cfg.sensor("bb")
@@ -508,7 +508,7 @@ def zenoh_rig() -> RigConfig:
         "multicast_scouting": False,
         "config": {"transport/unicast/max_links": 2, "scouting/gossip/enabled": False},
     }
-    return RigConfig.from_dict(data)
+    return parse_rig_config(data)
 
 
 def test_zenoh_config_from_file() -> None:
@@ -548,7 +548,7 @@ def test_zenoh_flags_override_file_and_passthrough_overrides_flags() -> None:
 def test_no_multicast_scouting_flag() -> None:
     parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
-    conf = zenoh_config(RigConfig.from_dict(minimal()), **zenoh_flags(parser.parse_args(["--no-multicast-scouting"])))
+    conf = zenoh_config(parse_rig_config(minimal()), **zenoh_flags(parser.parse_args(["--no-multicast-scouting"])))
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
 
 
@@ -565,10 +565,10 @@ def test_no_multicast_scouting_flag() -> None:
 )
 def test_bad_zenoh_overrides_raise_config_error(overrides: list[str], expected: str) -> None:
     with pytest.raises(ConfigError, match=expected):
-        zenoh_config(RigConfig.from_dict(minimal()), overrides)
+        zenoh_config(parse_rig_config(minimal()), overrides)
 
 
 def test_bad_raw_zenoh_key_in_file_names_the_key() -> None:
-    cfg = RigConfig.from_dict(with_change(minimal(), "zenoh", {"config": {"transport/nonsense": 1}}))
+    cfg = parse_rig_config(with_change(minimal(), "zenoh", {"config": {"transport/nonsense": 1}}))
     with pytest.raises(ConfigError, match=r'<dict>: zenoh\.config\."transport/nonsense": zenoh rejected'):
         zenoh_config(cfg)

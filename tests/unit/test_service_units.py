@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from skelfuse import cli
-from skelfuse.config import RigConfig, load_rig_config
+from skelfuse.config import RigConfig, load_rig_config, parse_rig_config
 from skelfuse.schema.errors import ServiceError
 from skelfuse.service.lifecycle import JsonLogFormatter, Lifecycle, RunLimits
 from skelfuse.service.node import FusionCore, calibration_document
@@ -256,7 +256,7 @@ def test_kinect_source_without_pyk4a_names_the_extra(monkeypatch: pytest.MonkeyP
     import sys
 
     monkeypatch.setitem(sys.modules, "pyk4a", None)  # as on a machine without the Azure Kinect SDK
-    cfg = RigConfig.from_dict({"rig": {"name": "k"}, "sensors": [{"id": "000123", "source": "kinect"}]})
+    cfg = parse_rig_config({"rig": {"name": "k"}, "sensors": [{"id": "000123", "source": "kinect"}]})
     source = make_source(cfg, "000123", WorkerOptions())
     with pytest.raises(ServiceError, match=r"skelfuse\[kinect\]"):
         next(iter(source.frames()))
@@ -334,7 +334,7 @@ def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 def test_kinect_master_waits_for_subordinates_before_opening(
     kinect_events: list[str], caplog: pytest.LogCaptureFixture
 ) -> None:
-    cfg = RigConfig.from_dict(_KINECT_RIG)
+    cfg = parse_rig_config(_KINECT_RIG)
     source = make_source(cfg, "m1", WorkerOptions(subordinate_wait_s=7.0))
     source.attach(_FakeSession(kinect_events), should_exit=lambda: False)  # type: ignore[attr-defined]
     with caplog.at_level(logging.INFO, logger="skelfuse.service.worker"):
@@ -348,7 +348,7 @@ def test_kinect_master_waits_for_subordinates_before_opening(
 def test_kinect_subordinate_declares_its_camera_token_after_opening(kinect_events: list[str]) -> None:
     from skelfuse.service.worker import KinectFrameSource
 
-    cfg = RigConfig.from_dict(_KINECT_RIG)
+    cfg = parse_rig_config(_KINECT_RIG)
     source = KinectFrameSource(cfg, "s1", session=_FakeSession(kinect_events))
     frames = source.frames()
     next(frames)
@@ -360,7 +360,7 @@ def test_kinect_subordinate_declares_its_camera_token_after_opening(kinect_event
 def test_kinect_standalone_and_sessionless_sources_do_not_wait(kinect_events: list[str]) -> None:
     from skelfuse.service.worker import KinectFrameSource
 
-    cfg = RigConfig.from_dict(_KINECT_RIG)
+    cfg = parse_rig_config(_KINECT_RIG)
     for source in (KinectFrameSource(cfg, "x1", session=_FakeSession(kinect_events)), KinectFrameSource(cfg, "m1")):
         frames = source.frames()
         next(frames)

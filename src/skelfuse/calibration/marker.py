@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso, reanchor
+from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, now_iso, reanchor
 from skelfuse.fusion.camera import Intrinsics, lift_mask
 from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.schema.errors import CalibrationError, DataError

@@ -82,8 +82,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso
 from skelfuse.calibration.rigid import fit_rigid, fit_rigid_ransac, refine_rigid_trimmed, rotation_angle_deg
+from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, now_iso
 from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.progress import Progress
 from skelfuse.schema.errors import CalibrationError

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from skelfuse.calibration.calfile import CalibrationResult, SensorCalibration, now_iso
 from skelfuse.calibration.rigid import fit_rigid_ransac
+from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, now_iso
 from skelfuse.fusion.camera import Intrinsics, lift_mask
 from skelfuse.schema.errors import CalibrationError, DataError
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from skelfuse.calibration.calfile import CalibrationResult
+from skelfuse.config.calibration_file import CalibrationResult
 
 MM_TO_M = 1e-3
 _PALETTE = np.array(

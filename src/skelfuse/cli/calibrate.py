@@ -34,11 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.calibration.calfile import (
-    CalibrationResult,
-    read_calibration,
-    write_calibration,
-)
 from skelfuse.calibration.marker import calibrate_world_from_marker
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
@@ -47,6 +42,11 @@ from skelfuse.calibration.takes import load_file_takes, load_recording_take
 from skelfuse.calibration.view import log_calibration
 from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK
 from skelfuse.config import load_rig_config
+from skelfuse.config.calibration_file import (
+    CalibrationResult,
+    read_calibration,
+    write_calibration,
+)
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.progress import note
 from skelfuse.schema.errors import CalibrationError, ConfigError, DataError

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from skelfuse.config import RigConfig, load_rig_config, zenoh_config, zenoh_flags
+from skelfuse.config import ZENOH_MODES, RigConfig, load_rig_config, zenoh_config
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service.lifecycle import RunLimits
 
@@ -60,3 +60,43 @@ def run_limits(args: argparse.Namespace) -> RunLimits:
         return RunLimits(duration_s=args.duration, max_frames=getattr(args, "max_frames", None))
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the zenoh flags every long-running command shares (read back by :func:`zenoh_flags`)."""
+    group = parser.add_argument_group("zenoh (override the config file's [zenoh])")
+    group.add_argument("--zenoh-mode", choices=ZENOH_MODES, default=None, help="session mode")
+    group.add_argument(
+        "--zenoh-connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=None,
+        help="endpoint to connect to (repeatable), e.g. tcp/10.0.0.2:7447",
+    )
+    group.add_argument(
+        "--zenoh-listen", metavar="ENDPOINT", action="append", default=None, help="endpoint to listen on (repeatable)"
+    )
+    group.add_argument(
+        "--no-multicast-scouting",
+        action="store_true",
+        default=False,
+        help="disable multicast scouting (recommended with explicit endpoints)",
+    )
+    group.add_argument(
+        "--zenoh-cfg",
+        metavar="KEY:VALUE",
+        action="append",
+        default=[],
+        help="raw zenoh config change, VALUE in JSON5, e.g. 'transport/unicast/max_links:2' (applied last)",
+    )
+
+
+def zenoh_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`zenoh_config` from flags added by :func:`add_zenoh_arguments`."""
+    return {
+        "overrides": tuple(args.zenoh_cfg or ()),
+        "mode": args.zenoh_mode,
+        "connect": args.zenoh_connect,
+        "listen": args.zenoh_listen,
+        "multicast_scouting": False if args.no_multicast_scouting else None,
+    }

@@ -6,8 +6,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from skelfuse.cli.common import EXIT_OK, add_run_limits, print_json, rig_config, run_limits, zenoh_conf
-from skelfuse.config import DEFAULT_PRESET, RigConfig, add_zenoh_arguments
+from skelfuse.cli.common import (
+    EXIT_OK,
+    add_run_limits,
+    add_zenoh_arguments,
+    print_json,
+    rig_config,
+    run_limits,
+    zenoh_conf,
+)
+from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.recording import fuse_recording, write_fused
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker

@@ -23,7 +23,7 @@ File format, version 1 (``docs/configuration.md``, "[calibration]")::
     n_points = 412                           # correspondences the fit used (absent: none)
     notes = "..."
 
-Only ``world_from_sensor`` is required by :func:`skelfuse.config.load_calibration`; the rest is metadata.
+Only ``world_from_sensor`` is required by :func:`load_calibration`; the rest is metadata.
 Absent values are written by leaving the key out (TOML has no null), as everywhere in skelfuse.
 """
 
@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.config.checks import describe, rigid_4x4
+from skelfuse.fusion.transform import invert_transform
 from skelfuse.schema.errors import CalibrationError, ConfigError
 
 FORMAT_VERSION = 1
@@ -49,6 +51,48 @@ METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual")
 def now_iso() -> str:
     """The current time as ISO 8601 with the UTC offset, to the second."""
     return _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
+
+
+CALIBRATE_HINT = (
+    "fusion needs a pose for every sensor: either set sensors[i].world_from_sensor, or point "
+    "[calibration] file at a calibration made with `skelfuse calibrate ...`"
+)
+
+
+def load_calibration(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a calibration TOML file: ``[sensors.<id>] world_from_sensor = [[4 x 4]]``.
+
+    Other keys (at the top level, or beside ``world_from_sensor``) are metadata written by the calibration
+    tool (method, residuals, date) and are ignored here.
+
+    Raises
+    ------
+    ConfigError
+        Unreadable, not TOML, no ``[sensors]`` table, or a pose that is not a rigid 4x4 transform.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as exc:
+        raise ConfigError(f"cannot read calibration {path}: {exc}; {CALIBRATE_HINT}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"calibration {path} is not valid TOML: {exc}") from None
+    sensors = data.get("sensors")
+    if not isinstance(sensors, dict) or not sensors:
+        raise ConfigError(
+            f"{path}: key sensors: expected a table [sensors.<id>] with world_from_sensor per "
+            f"sensor, found {describe(sensors)}"
+        )
+    poses = {}
+    for sensor_id, table in sensors.items():
+        where = f"sensors.{sensor_id}"
+        if not isinstance(table, dict) or "world_from_sensor" not in table:
+            raise ConfigError(
+                f"{path}: key {where}: expected a table with world_from_sensor (4x4), found {describe(table)}"
+            )
+        poses[sensor_id] = np.array(rigid_4x4(table["world_from_sensor"], f"{where}.world_from_sensor", str(path)))
+    return poses
 
 
 @dataclass(frozen=True)
@@ -131,7 +175,6 @@ def reanchor(result: CalibrationResult, world_from_master: np.ndarray, *, note: 
     CalibrationError
         The result has no master, or the master is not among its sensors.
     """
-    from skelfuse.fusion.transform import invert_transform
 
     if result.master is None or result.master not in result.sensors:
         raise CalibrationError(
@@ -212,7 +255,7 @@ def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
 def read_calibration(path: str | Path) -> CalibrationResult:
     """Read a calibration file with its metadata.
 
-    The poses are read and validated by :func:`skelfuse.config.load_calibration` (one parser for both), so
+    The poses are read and validated by :func:`load_calibration` (one parser for both), so
     whatever fusion accepts, this accepts. Files without ``version`` (hand-written) read as version 1;
     metadata that is absent gets defaults (method "manual" per sensor unless the file's top-level method
     says otherwise).
@@ -222,7 +265,6 @@ def read_calibration(path: str | Path) -> CalibrationResult:
     CalibrationError
         Unreadable, not TOML, a newer format version, a malformed pose or metadata value.
     """
-    from skelfuse.config import load_calibration
 
     path = Path(path)
     try:

@@ -1,0 +1,316 @@
+"""The rig configuration as typed, frozen dataclasses: one :class:`RigConfig` and its sections.
+
+Built by :func:`skelfuse.config.parse.parse_rig_config` (every key checked); read by every node of the rig.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.config.calibration_file import CALIBRATE_HINT, load_calibration
+from skelfuse.config.checks import did_you_mean
+from skelfuse.fusion import presets
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.schema.errors import ConfigError
+
+SOURCE_KINDS: tuple[str, ...] = ("sim", "replay", "kinect")
+SYNC_BY: tuple[str, ...] = ("device", "host")
+SYNC_ROLES: tuple[str, ...] = ("standalone", "master", "subordinate")
+DEPTH_MODES: tuple[str, ...] = ("NFOV_UNBINNED", "NFOV_2X2BINNED", "WFOV_UNBINNED", "WFOV_2X2BINNED")
+"""Depth modes body tracking can use (OFF and PASSIVE_IR give no depth)."""
+COLOR_RESOLUTIONS: tuple[str, ...] = ("720P", "1080P", "1440P", "1536P", "2160P", "3072P")
+KINECT_FPS: tuple[int, ...] = (5, 15, 30)
+PROCESSING_MODES: tuple[str, ...] = ("gpu", "cpu", "cuda", "tensorrt", "directml")
+"""k4abt_tracker_processing_mode_t, in SDK order (GPU=0, CPU=1, CUDA=2, TensorRT=3, DirectML=4)."""
+SENSOR_ORIENTATIONS: tuple[str, ...] = ("default", "clockwise90", "counterclockwise90", "flip180")
+"""k4abt_sensor_orientation_t, in SDK order."""
+ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
+RERUN_MODES: tuple[str, ...] = ("off", "spawn", "serve", "save")
+DEFAULT_PRESET = "skelfuse"
+"""The fusion preset of a rig config without ``[fusion] preset``, and of the demo and offline fusion."""
+FUSION_PRESETS: tuple[str, ...] = ("skelfuse", "A1", "A2", "A3", "A4", "A5")
+"""Accepted ``[fusion] preset`` names (case-insensitive), as :func:`skelfuse.fusion.presets.preset` knows them."""
+MIN_DELAY_SPACING_US = 160
+"""Subordinate depth delays must be at least this far apart (and from the master's 0) to avoid IR interference."""
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    """``[sync]``: how the fusion node groups the frames of one instant.
+
+    Attributes
+    ----------
+    by : {"device", "host"}
+        "device": group by device timestamp (needs wired hardware sync, so all devices share one clock);
+        "host": group by the host receive time (rigs without sync cables).
+    fps : float
+        The rig's frame rate, Hz. Kinect sensors capture at it (5, 15 or 30).
+    tolerance_ms : float
+        Frames whose times lie within this of a group's first frame belong to that group, ms.
+    deadline_ms : float
+        A group is emitted at the latest this long after its first frame arrived, ms (complete or not).
+    resync_after_frames : int
+        Consecutive frames far outside the current time window after which the grouper restarts its
+        clock (a replay looped, all sensors restarted).
+    resync_horizon_ms : float
+        How far from the newest frame time a frame may lie before it counts as outside the window, ms.
+    """
+
+    by: str = "device"
+    fps: float = 30.0
+    tolerance_ms: float = 10.0
+    deadline_ms: float = 17.0
+    resync_after_frames: int = 8
+    resync_horizon_ms: float = 1000.0
+
+    @property
+    def frame_period_us(self) -> float:
+        return 1e6 / self.fps
+
+    @property
+    def tolerance_us(self) -> int:
+        return round(self.tolerance_ms * 1000)
+
+    @property
+    def deadline_us(self) -> int:
+        return round(self.deadline_ms * 1000)
+
+    @property
+    def resync_horizon_us(self) -> int:
+        return round(self.resync_horizon_ms * 1000)
+
+
+@dataclass(frozen=True)
+class SensorSyncConfig:
+    """``sensors[i].sync``: the sensor's role in a wired sync chain (kinect; emulated by sim).
+
+    Attributes
+    ----------
+    role : {"standalone", "master", "subordinate"}
+    delay_us : int
+        Subordinates only: depth capture delay after the master, µs (distinct, >= 160 µs apart). 0 otherwise.
+    """
+
+    role: str = "standalone"
+    delay_us: int = 0
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """``sensors[i].tracker``: Azure Kinect Body Tracking SDK settings (k4abt_tracker_configuration_t)."""
+
+    processing_mode: str = "gpu"
+    gpu_device_id: int = 0
+    model_path: Path | None = None
+    sensor_orientation: str = "default"
+    temporal_smoothing: float = 0.0
+
+
+@dataclass(frozen=True)
+class KinectConfig:
+    """``sensors[i].kinect``: device settings of an Azure Kinect DK / Femto Bolt (K4A mode)."""
+
+    serial: str
+    depth_mode: str = "NFOV_UNBINNED"
+    color_resolution: str | None = None
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """``sensors[i].replay``: frames come from a recording."""
+
+    file: Path
+    sensor: str | None = None
+    loop: bool = False
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """``sensors[i].sim``: frames come from the simulator."""
+
+    profile: Path | None = None
+    seed: int | None = None
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """One ``[[sensors]]`` entry.
+
+    Attributes
+    ----------
+    id : str
+        Sensor id: a zenoh key chunk (the device serial for kinect sensors, by convention).
+    source : {"sim", "replay", "kinect"}
+    world_from_sensor : 4x4 tuple of floats or None
+        Inline pose (sensor frame -> world, mm). For sim sensors it is also the true pose.
+    sync : SensorSyncConfig
+    kinect, replay, sim : the options of the sensor's source kind (None for the other kinds)
+    """
+
+    id: str
+    source: str
+    world_from_sensor: tuple[tuple[float, ...], ...] | None = None
+    sync: SensorSyncConfig = field(default_factory=SensorSyncConfig)
+    kinect: KinectConfig | None = None
+    replay: ReplayConfig | None = None
+    sim: SimConfig | None = None
+
+    def pose(self) -> np.ndarray | None:
+        """(4, 4) float64 inline ``world_from_sensor``, or None."""
+        return None if self.world_from_sensor is None else np.array(self.world_from_sensor, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """``[calibration]``: where the rig's measured poses live (a TOML file; may not exist yet)."""
+
+    file: Path | None = None
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """``[fusion]``: a preset ("skelfuse" or the paper's A1-A5), its DBSCAN radius, and FusionParams overrides.
+
+    ``eps_mm`` None keeps the preset's own radius (75 mm for "skelfuse", 100 mm for the paper's presets).
+    ``params`` holds the ``[fusion.params]`` overrides as sorted ``(field, value)`` pairs, with "off"
+    already turned into None.
+    """
+
+    preset: str = DEFAULT_PRESET
+    eps_mm: float | None = None
+    params: tuple[tuple[str, Any], ...] = ()
+
+    def fusion_params(self) -> FusionParams:
+        """The :class:`skelfuse.fusion.presets.FusionParams` this section describes.
+
+        Raises
+        ------
+        ConfigError
+            An override is rejected by FusionParams' own validation.
+        """
+
+        try:
+            base = presets.preset(self.preset, self.eps_mm)
+            return dataclasses.replace(base, **dict(self.params))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"[fusion]: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ZenohSection:
+    """``[zenoh]``: session settings for every node of the rig (see :func:`zenoh_config`)."""
+
+    mode: str = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast_scouting: bool = True
+    config: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """``[node]``: settings shared by the rig's long-running nodes."""
+
+    status_period_s: float = 1.0
+    name: str | None = None
+
+
+@dataclass(frozen=True)
+class RerunConfig:
+    """``[rerun]``: the fusion node's live view."""
+
+    mode: str = "off"
+    bind: str = "127.0.0.1"
+    grpc_port: int = 9876
+    web_port: int | None = None
+    file: Path | None = None
+    log_sensors: bool = True
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """``[record]``: recording of the streams by the fusion node (``directory`` None: off)."""
+
+    directory: Path | None = None
+    flush_period_s: float = 1.0
+    sensors: bool = True
+    fused: bool = True
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A whole rig configuration, validated. Build it with :func:`load_rig_config` or :meth:`from_dict`.
+
+    Attributes
+    ----------
+    name : str
+        ``[rig] name``: the rig's key chunk (``skelfuse/<name>/...``).
+    sensors : tuple[SensorConfig, ...]
+    sync, calibration, fusion, zenoh, node, rerun, record : the sections
+    source : str
+        Where this config came from (a file path, or "<dict>"), for messages.
+    """
+
+    name: str
+    sensors: tuple[SensorConfig, ...]
+    sync: SyncConfig = field(default_factory=SyncConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    zenoh: ZenohSection = field(default_factory=ZenohSection)
+    node: NodeConfig = field(default_factory=NodeConfig)
+    rerun: RerunConfig = field(default_factory=RerunConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
+    source: str = "<dict>"
+
+    @property
+    def sensor_ids(self) -> tuple[str, ...]:
+        return tuple(s.id for s in self.sensors)
+
+    def sensor(self, sensor_id: str) -> SensorConfig:
+        """The sensor named ``sensor_id``; ConfigError (with a suggestion) if the rig has none."""
+        for s in self.sensors:
+            if s.id == sensor_id:
+                return s
+        raise ConfigError(
+            f"{self.source}: rig {self.name!r} has no sensor {sensor_id!r}"
+            f"{did_you_mean(sensor_id, self.sensor_ids)}; its sensors: {', '.join(self.sensor_ids)}"
+        )
+
+    def poses(self, *, required: bool = True) -> dict[str, np.ndarray]:
+        """``world_from_sensor`` (4x4 float64) per sensor id.
+
+        A pose from the calibration file (when ``[calibration] file`` is set and exists) wins over the
+        sensor's inline ``world_from_sensor`` (for sim sensors the inline pose is the true one; a
+        calibration is a measurement of it).
+
+        Raises
+        ------
+        ConfigError
+            ``required`` and a sensor has no pose; or the calibration file is malformed.
+        """
+        calibrated: dict[str, np.ndarray] = {}
+        calibration_note = ""
+        if self.calibration.file is not None:
+            if self.calibration.file.exists():
+                calibrated = load_calibration(self.calibration.file)
+            else:
+                calibration_note = f" (calibration file {self.calibration.file} does not exist yet)"
+        poses: dict[str, np.ndarray] = {}
+        for s in self.sensors:
+            pose = calibrated.get(s.id)
+            if pose is None:
+                pose = s.pose()
+            if pose is not None:
+                poses[s.id] = pose
+        missing = [s for s in self.sensor_ids if s not in poses]
+        if required and missing:
+            raise ConfigError(
+                f"{self.source}: no pose for sensor(s) {', '.join(missing)}{calibration_note}; {CALIBRATE_HINT}"
+            )
+        return poses

@@ -1,0 +1,438 @@
+"""Parsing and validating a rig config TOML into :class:`~skelfuse.config.model.RigConfig`, section by section."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from skelfuse.config.checks import REQUIRED, Table, describe, did_you_mean, rigid_4x4
+from skelfuse.config.model import (
+    COLOR_RESOLUTIONS,
+    DEFAULT_PRESET,
+    DEPTH_MODES,
+    FUSION_PRESETS,
+    KINECT_FPS,
+    MIN_DELAY_SPACING_US,
+    PROCESSING_MODES,
+    RERUN_MODES,
+    SENSOR_ORIENTATIONS,
+    SOURCE_KINDS,
+    SYNC_BY,
+    SYNC_ROLES,
+    ZENOH_MODES,
+    CalibrationConfig,
+    FusionConfig,
+    KinectConfig,
+    NodeConfig,
+    RecordConfig,
+    ReplayConfig,
+    RerunConfig,
+    RigConfig,
+    SensorConfig,
+    SensorSyncConfig,
+    SimConfig,
+    SyncConfig,
+    TrackerConfig,
+    ZenohSection,
+)
+from skelfuse.fusion import presets
+from skelfuse.schema.errors import ConfigError
+from skelfuse.wire.keys import validate_name
+
+_ZENOH_DEDICATED = {
+    "mode": "mode",
+    "connect/endpoints": "connect",
+    "listen/endpoints": "listen",
+    "scouting/multicast/enabled": "multicast_scouting",
+}
+
+
+def load_rig_config(path: str | Path) -> RigConfig:
+    """Read and validate a rig config TOML file (relative paths inside resolve against its directory).
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read, is not TOML, or any key is unknown, missing, mistyped or out of range.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"rig config {path} does not exist; see config/rig-sim-4.toml for an example") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read rig config {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"rig config {path} is not valid TOML: {exc}") from None
+    return parse_rig_config(data, source=str(path), base_dir=path.parent)
+
+
+def parse_rig_config(data: Mapping[str, Any], *, source: str = "<dict>", base_dir: Path | None = None) -> RigConfig:
+    """Validate a parsed TOML document (what ``tomllib.load`` returned) into a :class:`RigConfig`.
+
+    ``source`` is named in error messages (the file path); relative paths are resolved against ``base_dir``
+    (None leaves them as written).
+    """
+    return _parse_rig(data, source, base_dir)
+
+
+def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> RigConfig:
+    top = Table(dict(data), "", source, base_dir)
+
+    rig = top.table("rig", required=True)
+    assert rig is not None
+    name = rig.string("name", check=lambda v: validate_name(v, "rig"))
+    rig.done()
+
+    sync = _parse_sync(top.table("sync"))
+    sensors = _parse_sensors(top, source, base_dir)
+    calibration = CalibrationConfig()
+    if (t := top.table("calibration")) is not None:
+        calibration = CalibrationConfig(file=t.path_value("file", None))
+        t.done()
+    fusion = _parse_fusion(top.table("fusion"))
+    zenoh = _parse_zenoh(top.table("zenoh"))
+    node = NodeConfig()
+    if (t := top.table("node")) is not None:
+        node = NodeConfig(
+            status_period_s=t.number("status_period_s", 1.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
+            name=t.string("name", None, check=lambda v: validate_name(v, "node")),
+        )
+        t.done()
+    rerun = _parse_rerun(top.table("rerun"))
+    record = RecordConfig()
+    if (t := top.table("record")) is not None:
+        record = RecordConfig(
+            directory=t.path_value("directory", None),
+            flush_period_s=t.number("flush_period_s", 1.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
+            sensors=t.boolean("sensors", True),
+            fused=t.boolean("fused", True),
+        )
+        t.done()
+    top.done()
+
+    _check_rig(sensors, sync, source)
+    return RigConfig(
+        name=name,
+        sensors=sensors,
+        sync=sync,
+        calibration=calibration,
+        fusion=fusion,
+        zenoh=zenoh,
+        node=node,
+        rerun=rerun,
+        record=record,
+        source=source,
+    )
+
+
+def _parse_sync(t: Table | None) -> SyncConfig:
+    if t is None:
+        return SyncConfig()
+    fps = t.number("fps", 30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
+    half_period_ms = 500.0 / fps
+    by = t.string("by", "device", choices=SYNC_BY)
+    # Device clocks of a synced rig agree to the subordinate delays (< 1 ms): a third of a frame is plenty.
+    # Host receive times carry per-sensor latency offsets and USB jitter of a few ms each: 0.4 of a frame.
+    default_tolerance_ms = min(10.0, 0.3 * 2 * half_period_ms) if by == "device" else 0.4 * 2 * half_period_ms
+    sync = SyncConfig(
+        by=by,
+        fps=fps,
+        # Above half a frame period, consecutive instants would fall into one group.
+        tolerance_ms=t.number(
+            "tolerance_ms",
+            default_tolerance_ms,
+            lo=0.0,
+            lo_open=True,
+            hi=round(half_period_ms, 3) - 0.001,
+            unit="ms (below half a frame period)",
+        ),
+        deadline_ms=t.number("deadline_ms", max(17.0, half_period_ms), lo=0.0, lo_open=True, hi=10_000.0, unit="ms"),
+        resync_after_frames=t.integer("resync_after_frames", 8, lo=1, hi=10_000),
+        resync_horizon_ms=t.number("resync_horizon_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
+    )
+    if sync.resync_horizon_ms <= sync.tolerance_ms:
+        raise t.error(
+            t.key("resync_horizon_ms"), f"a number > tolerance_ms ({sync.tolerance_ms:g})", sync.resync_horizon_ms
+        )
+    t.done()
+    return sync
+
+
+def _parse_sensors(top: Table, source: str, base_dir: Path | None) -> tuple[SensorConfig, ...]:
+    raw = top.raw("sensors", REQUIRED, "an array of tables [[sensors]]")
+    if not isinstance(raw, list) or not raw:
+        raise top.error("sensors", "at least one [[sensors]] table", raw)
+    sensors = []
+    for idx, item in enumerate(raw):
+        t = Table(item, f"sensors[{idx}]", source, base_dir)
+        sensor_id = t.string("id", check=lambda v: validate_name(v, "sensor"))
+        kind = t.string("source", choices=SOURCE_KINDS)
+        pose = None
+        if "world_from_sensor" in t.data:
+            pose = rigid_4x4(t.raw("world_from_sensor", None, ""), t.key("world_from_sensor"), source)
+        sync = SensorSyncConfig()
+        if (s := t.table("sync")) is not None:
+            role = s.string("role", "standalone", choices=SYNC_ROLES)
+            if role == "subordinate":
+                delay = s.integer("delay_us", lo=MIN_DELAY_SPACING_US, hi=1_000_000, unit="µs")
+            else:
+                delay = s.integer("delay_us", 0, lo=0, hi=0, unit=f"µs (only subordinates have a delay; {role})")
+            sync = SensorSyncConfig(role=role, delay_us=delay)
+            s.done()
+        options: dict[str, Any] = {}
+        for other in SOURCE_KINDS:
+            if other != kind and other in t.data:
+                raise ConfigError(
+                    f"{source}: key {t.key(other)}: a [{t.key(other)}] table belongs to source = "
+                    f"{other!r} sensors, but this sensor has source = {kind!r}"
+                )
+        if kind == "kinect":
+            options["kinect"] = _parse_kinect(t.table("kinect"), t, sensor_id)
+        elif kind == "replay":
+            r = t.table("replay", required=True)
+            assert r is not None
+            options["replay"] = ReplayConfig(
+                file=r.path_value("file"), sensor=r.string("sensor", None), loop=r.boolean("loop", False)
+            )
+            r.done()
+        else:
+            s_t = t.table("sim")
+            sim = SimConfig()
+            if s_t is not None:
+                sim = SimConfig(profile=s_t.path_value("profile", None), seed=s_t.integer("seed", None, lo=0))
+                s_t.done()
+            options["sim"] = sim
+        for name in ("tracker",):
+            if name in t.data:
+                raise ConfigError(
+                    f"{source}: unknown key {t.key(name)}; did you mean {t.key('kinect.' + name)}? "
+                    "(tracker settings live under [sensors.kinect.tracker])"
+                )
+        t.done()
+        sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, **options))
+    ids = [s.id for s in sensors]
+    for idx, sensor_id in enumerate(ids):
+        if sensor_id in ids[:idx]:
+            raise ConfigError(
+                f"{source}: key sensors[{idx}].id: expected a sensor id not used before, found "
+                f"{sensor_id!r} again (also sensors[{ids.index(sensor_id)}].id)"
+            )
+    return tuple(sensors)
+
+
+def _parse_kinect(t: Table | None, sensor: Table, sensor_id: str) -> KinectConfig:
+    if t is None:
+        return KinectConfig(serial=sensor_id)
+    kinect = KinectConfig(
+        serial=t.string("serial", sensor_id),
+        depth_mode=t.string("depth_mode", "NFOV_UNBINNED", choices=DEPTH_MODES),
+        color_resolution=t.string("color_resolution", None, choices=COLOR_RESOLUTIONS),
+        tracker=_parse_tracker(t.table("tracker")),
+    )
+    t.done()
+    return kinect
+
+
+def _parse_tracker(t: Table | None) -> TrackerConfig:
+    if t is None:
+        return TrackerConfig()
+    tracker = TrackerConfig(
+        processing_mode=t.string("processing_mode", "gpu", choices=PROCESSING_MODES),
+        gpu_device_id=t.integer("gpu_device_id", 0, lo=0, hi=255),
+        model_path=t.path_value("model_path", None),
+        sensor_orientation=t.string("sensor_orientation", "default", choices=SENSOR_ORIENTATIONS),
+        temporal_smoothing=t.number("temporal_smoothing", 0.0, lo=0.0, hi=1.0),
+    )
+    t.done()
+    return tracker
+
+
+def _check_rig(sensors: tuple[SensorConfig, ...], sync: SyncConfig, source: str) -> None:
+    """Rules across sensors: one master, distinct delays >= 160 µs apart, fps and modes the devices support."""
+    roles = [(i, s) for i, s in enumerate(sensors) if s.sync.role != "standalone"]
+    masters = [i for i, s in roles if s.sync.role == "master"]
+    subordinates = [(i, s) for i, s in roles if s.sync.role == "subordinate"]
+    if len(masters) > 1:
+        raise ConfigError(
+            f"{source}: key sensors[{masters[1]}].sync.role: expected one master per sync chain, "
+            f"found a second master (sensors[{masters[0]}] is one already)"
+        )
+    if subordinates and not masters:
+        raise ConfigError(
+            f"{source}: key sensors[{subordinates[0][0]}].sync.role: a subordinate needs a master "
+            f'in the rig, found none; set sync.role = "master" on the sensor at the head of the chain'
+        )
+    taken: list[tuple[int, str]] = [(0, f"sensors[{masters[0]}] (master)")] if masters else []
+    for i, s in subordinates:
+        for delay, owner in taken:
+            if abs(s.sync.delay_us - delay) < MIN_DELAY_SPACING_US:
+                raise ConfigError(
+                    f"{source}: key sensors[{i}].sync.delay_us: expected a delay at least {MIN_DELAY_SPACING_US} µs "
+                    f"away from every other sensor's (IR interference), found {s.sync.delay_us} µs, "
+                    f"{abs(s.sync.delay_us - delay)} µs from {owner} at {delay} µs"
+                )
+        taken.append((s.sync.delay_us, f"sensors[{i}]"))
+    if sync.by == "device" and subordinates:
+        spread = max(s.sync.delay_us for _, s in subordinates)
+        if spread >= sync.tolerance_us:
+            raise ConfigError(
+                f"{source}: key sync.tolerance_ms: expected more than the largest subordinate delay "
+                f"({spread} µs) so a master's and its subordinates' frames group together, found "
+                f"{sync.tolerance_ms:g} ms"
+            )
+    kinects = [(i, s) for i, s in enumerate(sensors) if s.kinect is not None]
+    if kinects and not any(abs(sync.fps - f) < 1e-9 for f in KINECT_FPS):
+        raise ConfigError(
+            f"{source}: key sync.fps: expected one of {KINECT_FPS} for an Azure Kinect rig, found {sync.fps:g}"
+        )
+    for i, s in kinects:
+        assert s.kinect is not None
+        if sync.fps > 15 and s.kinect.depth_mode == "WFOV_UNBINNED":
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.depth_mode: WFOV_UNBINNED runs at 15 fps at most, "
+                f"found sync.fps = {sync.fps:g}; use WFOV_2X2BINNED or NFOV_UNBINNED, or fps 15"
+            )
+        if sync.fps > 15 and s.kinect.color_resolution == "3072P":
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.color_resolution: 3072P runs at 15 fps at most, "
+                f"found sync.fps = {sync.fps:g}"
+            )
+    if sync.by == "device" and len(kinects) > 1:
+        unsynced = [i for i, s in kinects if s.sync.role == "standalone"]
+        if unsynced:
+            raise ConfigError(
+                f'{source}: key sensors[{unsynced[0]}].sync.role: [sync] by = "device" needs every kinect on one '
+                f'wired sync chain (independent devices\' clocks do not share an epoch), found "standalone"; '
+                f'set master/subordinate roles, or use [sync] by = "host"'
+            )
+    serials = [(i, s.kinect.serial) for i, s in kinects if s.kinect is not None]
+    for n, (i, serial) in enumerate(serials):
+        earlier = [j for j, other in serials[:n] if other == serial]
+        if earlier:
+            raise ConfigError(
+                f"{source}: key sensors[{i}].kinect.serial: expected a serial not used before, "
+                f"found {serial!r} again (also sensors[{earlier[0]}])"
+            )
+
+
+def _parse_fusion(t: Table | None) -> FusionConfig:
+    if t is None:
+        return FusionConfig()
+    preset = t.string("preset", DEFAULT_PRESET)
+    canonical = {name.upper(): name for name in FUSION_PRESETS}
+    if preset.strip().upper() not in canonical:
+        raise t.error(
+            t.key("preset"),
+            f"one of {', '.join(FUSION_PRESETS)}",
+            preset,
+            did_you_mean(preset.strip(), FUSION_PRESETS),
+        )
+    preset = canonical[preset.strip().upper()]
+    eps_mm = t.number("eps_mm", None, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
+    params: dict[str, Any] = {}
+    p = t.table("params")
+    if p is not None:
+        fields = {f.name: f for f in dataclasses.fields(presets.FusionParams)}
+        for name, value in p.data.items():
+            p.used.add(name)
+            key = p.key(name)
+            if name == "eps_mm":
+                raise ConfigError(
+                    f"{p.source}: key {key}: set the DBSCAN radius with fusion.eps_mm, not in [fusion.params]"
+                )
+            if fields and name not in fields:
+                raise ConfigError(
+                    f"{p.source}: unknown key {key}{did_you_mean(name, list(fields))}; "
+                    f"[fusion.params] takes FusionParams fields: {', '.join(sorted(fields))}"
+                )
+            params[name] = _fusion_value(value, fields.get(name), key, p.source)
+        p.done()
+    fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())))
+    try:  # FusionParams' own range checks, reported at load time
+        dataclasses.replace(presets.preset(fusion.preset, eps_mm), **params)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{t.source}: key {t.key('params')}: {exc}") from None
+    t.done()
+    return fusion
+
+
+def _fusion_value(value: Any, f: dataclasses.Field[Any] | None, key: str, source: str) -> Any:
+    """Check a [fusion.params] value against the field's annotation; "off" means None for optional fields."""
+    if f is None:
+        return value
+    annotation = str(f.type)
+    optional = "None" in annotation
+    if value == "off":
+        if not optional:
+            raise ConfigError(f"{source}: key {key}: this field cannot be switched off, found 'off'")
+        return None
+    if annotation.startswith("bool"):
+        ok = isinstance(value, bool)
+        expected = "true or false"
+    elif annotation.startswith("int"):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        expected = "an integer"
+    elif annotation.startswith("float"):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        expected = "a number"
+        value = float(value) if ok else value
+    else:  # Literal aliases (RealignMode, FilterKind, ...): strings, checked by FusionParams itself
+        ok = isinstance(value, str)
+        expected = "a string"
+    if optional:
+        expected += ' or "off"'
+    if not ok:
+        raise ConfigError(f"{source}: key {key}: expected {expected}, found {describe(value)}")
+    return value
+
+
+def _parse_zenoh(t: Table | None) -> ZenohSection:
+    if t is None:
+        return ZenohSection()
+    section = ZenohSection(
+        mode=t.string("mode", "peer", choices=ZENOH_MODES),
+        connect=t.strings("connect", ()),
+        listen=t.strings("listen", ()),
+        multicast_scouting=t.boolean("multicast_scouting", True),
+    )
+    raw: dict[str, Any] = {}
+    c = t.table("config")
+    if c is not None:
+        for key, value in c.data.items():
+            c.used.add(key)
+            normalized = key.strip("/")
+            if normalized in _ZENOH_DEDICATED:
+                raise ConfigError(
+                    f'{c.source}: key zenoh.config."{key}": set this with zenoh.'
+                    f"{_ZENOH_DEDICATED[normalized]} instead of the raw passthrough"
+                )
+            if not normalized or " " in normalized:
+                raise c.error(f'zenoh.config."{key}"', "a zenoh config path like 'transport/unicast/max_links'", key)
+            raw[normalized] = value
+    t.done()
+    return dataclasses.replace(section, config=tuple(sorted(raw.items())))
+
+
+def _parse_rerun(t: Table | None) -> RerunConfig:
+    if t is None:
+        return RerunConfig()
+    mode = t.string("mode", "off", choices=RERUN_MODES)
+    rerun = RerunConfig(
+        mode=mode,
+        bind=t.string("bind", "127.0.0.1"),
+        grpc_port=t.integer("grpc_port", 9876, lo=1, hi=65535),
+        web_port=t.integer("web_port", None, lo=1, hi=65535),
+        file=t.path_value("file", None),
+        log_sensors=t.boolean("log_sensors", True),
+    )
+    if mode == "save" and rerun.file is None:
+        raise ConfigError(f'{t.source}: key rerun.file is required when rerun.mode = "save" (an .rrd path)')
+    if mode != "save" and rerun.file is not None:
+        raise ConfigError(f'{t.source}: key rerun.file: only used with rerun.mode = "save", found mode {mode!r}')
+    t.done()
+    return rerun
