@@ -84,7 +84,8 @@ import numpy as np
 
 from skelfuse.calibration.rigid import fit_rigid, fit_rigid_ransac, refine_rigid_trimmed, rotation_angle_deg
 from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, now_iso
-from skelfuse.fusion.transform import invert_transform, make_transform
+from skelfuse.fusion.mirror import pair_costs
+from skelfuse.fusion.transform import invert_transform, make_transform, transform_points
 from skelfuse.progress import Progress
 from skelfuse.schema.errors import CalibrationError
 from skelfuse.schema.skeleton import N_JOINTS, Confidence, J
@@ -438,10 +439,6 @@ class _Edge:
     mirrored_frames: int
 
 
-def _transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return p @ T[:3, :3].T + T[:3, 3]
-
-
 def _midline_pairs(pos: np.ndarray, ok: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     both = ok[:, a, MIDLINE_JOINTS] & ok[:, b, MIDLINE_JOINTS]
     frames, k = np.nonzero(both)
@@ -456,10 +453,9 @@ def _side_pairs(
     left, right = SIDE_PAIRS[:, 0], SIDE_PAIRS[:, 1]
     decidable = ok[:, a][:, left] & ok[:, a][:, right] & ok[:, b][:, left] & ok[:, b][:, right]  # (T, P)
     with np.errstate(invalid="ignore"):
-        bl, br = _transform(a_from_b, pos[:, b][:, left]), _transform(a_from_b, pos[:, b][:, right])
+        bl, br = transform_points(a_from_b, pos[:, b][:, left]), transform_points(a_from_b, pos[:, b][:, right])
         al, ar = pos[:, a][:, left], pos[:, a][:, right]
-        keep = np.linalg.norm(al - bl, axis=-1) + np.linalg.norm(ar - br, axis=-1)
-        swap = np.linalg.norm(al - br, axis=-1) + np.linalg.norm(ar - bl, axis=-1)
+        keep, swap = pair_costs(al, ar, bl, br)
     keep_sum = np.where(decidable, keep, 0.0).sum(axis=1)
     swap_sum = np.where(decidable, swap, 0.0).sum(axis=1)
     any_dec = decidable.any(axis=1)
@@ -511,7 +507,7 @@ def _fit_pair(
             return None
         a_from_b = fit.matrix
     # Correspondences kept for the joint refinement: inliers of the final pairwise fit, untrimmed.
-    resid = np.linalg.norm(_transform(a_from_b, src) - dst, axis=1)
+    resid = np.linalg.norm(transform_points(a_from_b, src) - dst, axis=1)
     keep = resid < opts.final_threshold_mm
     return _Edge(a, b, src[keep], dst[keep], frames[keep], fit.rms_mm, a_from_b, side_n, mirrored_n)
 
@@ -572,10 +568,10 @@ def _refine_joint(
                     continue
                 if e.b == s and fitted[e.a]:
                     src.append(e.src[m])
-                    dst.append(_transform(poses[e.a], e.dst[m]))
+                    dst.append(transform_points(poses[e.a], e.dst[m]))
                 elif e.a == s and fitted[e.b]:
                     src.append(e.dst[m])
-                    dst.append(_transform(poses[e.b], e.src[m]))
+                    dst.append(transform_points(poses[e.b], e.src[m]))
             if sum(len(x) for x in src) < min_points:
                 fitted[s] = False
                 continue
@@ -620,7 +616,7 @@ def _pose_difference(T1: np.ndarray, T2: np.ndarray, points: np.ndarray) -> tupl
     centre = points.mean(axis=0) if len(points) else np.zeros(3)
     return (
         rotation_angle_deg(T1[:3, :3] @ T2[:3, :3].T),
-        float(np.linalg.norm(_transform(T1, centre) - _transform(T2, centre))),
+        float(np.linalg.norm(transform_points(T1, centre) - transform_points(T2, centre))),
     )
 
 
@@ -629,7 +625,7 @@ def _residuals(edges: list[_Edge], poses: np.ndarray, n_sensors: int) -> tuple[n
     count = np.zeros(n_sensors, dtype=np.int64)
     per_edge = []
     for e in edges:
-        d2 = np.sum((_transform(poses[e.b], e.src) - _transform(poses[e.a], e.dst)) ** 2, axis=1)
+        d2 = np.sum((transform_points(poses[e.b], e.src) - transform_points(poses[e.a], e.dst)) ** 2, axis=1)
         per_edge.append(float(np.sqrt(d2.mean())) if len(d2) else float("nan"))
         for s in (e.a, e.b):
             sq[s] += d2.sum()
@@ -675,11 +671,11 @@ def _fit_floor(
     for s in range(n_sensors):
         T = master_from_sensor[s]
         both = ok[:, s, J["PELVIS"]] & ok[:, s, J["NECK"]]
-        pelvis = _transform(T, pos[both, s, J["PELVIS"]])
-        neck = _transform(T, pos[both, s, J["NECK"]])
+        pelvis = transform_points(T, pos[both, s, J["PELVIS"]])
+        neck = transform_points(T, pos[both, s, J["NECK"]])
         spines.append(neck - pelvis)
         pelvises.append(pelvis)
-        feet.append((_transform(T, pos[:, s][:, FOOT_JOINTS]), ok[:, s][:, FOOT_JOINTS]))
+        feet.append((transform_points(T, pos[:, s][:, FOOT_JOINTS]), ok[:, s][:, FOOT_JOINTS]))
     spine = np.concatenate(spines)
     if len(spine):
         unit = spine / np.linalg.norm(spine, axis=1, keepdims=True)

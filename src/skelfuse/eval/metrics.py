@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.mirror import pair_costs
+
 __all__ = [
     "ErrorAccumulator",
     "ErrorStats",
@@ -333,8 +335,7 @@ def swap_counts(estimate: np.ndarray, reference: np.ndarray, pairs: np.ndarray) 
     pairs = np.asarray(pairs, dtype=np.int64)
     e_left, e_right = estimate[:, pairs[:, 0]], estimate[:, pairs[:, 1]]
     r_left, r_right = reference[:, pairs[:, 0]], reference[:, pairs[:, 1]]
-    keep = np.linalg.norm(e_left - r_left, axis=-1) + np.linalg.norm(e_right - r_right, axis=-1)
-    swap = np.linalg.norm(e_left - r_right, axis=-1) + np.linalg.norm(e_right - r_left, axis=-1)
+    keep, swap = pair_costs(e_left, e_right, r_left, r_right)
     valid = np.isfinite(keep) & np.isfinite(swap)
     return (valid & (swap < keep)).sum(axis=0), valid.sum(axis=0)
 

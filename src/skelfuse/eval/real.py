@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.eval.metrics import joint_distances
+from skelfuse.fusion.mirror import lateral_axes
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BONES, JOINT_GROUPS, N_JOINTS, Confidence, J
 from skelfuse.sources.recorded import Recording, load_andyj1_csv
@@ -240,25 +241,6 @@ def jitter_rms(positions: np.ndarray, joints: Sequence[int] | np.ndarray) -> flo
     norms = np.sqrt(np.sum(second**2, axis=-1))
     norms = norms[np.isfinite(norms)]
     return float(np.sqrt(np.mean(norms**2))) if norms.size else math.nan
-
-
-def lateral_axes(positions: np.ndarray) -> np.ndarray:
-    """Unit right-to-left torso axis, (left - right shoulder) + (left - right hip): (..., J, 3) -> (..., 3).
-
-    NaN where a shoulder or hip is missing or the axis has zero length.
-    """
-    positions = np.asarray(positions, dtype=np.float64)
-    axis = (
-        positions[..., J["SHOULDER_LEFT"], :]
-        - positions[..., J["SHOULDER_RIGHT"], :]
-        + positions[..., J["HIP_LEFT"], :]
-        - positions[..., J["HIP_RIGHT"], :]
-    )
-    length = np.sqrt(np.sum(axis**2, axis=-1, keepdims=True))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        unit = axis / length
-    unit[~np.isfinite(unit).all(axis=-1)] = np.nan
-    return unit
 
 
 def mirrored_frames(candidate: np.ndarray, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -85,7 +85,8 @@ import math
 
 import numpy as np
 
-from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+from skelfuse.fusion.mirror import mirror_views, pair_costs
+from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
 
 # Confidence value -> tier rank 1 (NONE), 2 (LOW), 3 (MEDIUM+); HIGH and anything above count as MEDIUM.
 _TIER_RANK = (np.minimum(np.arange(256), int(Confidence.MEDIUM)) + 1).astype(np.int8)
@@ -193,30 +194,26 @@ def realign_body(
     confidence : (B, S, J), permuted along with the positions.
     mirrored : (B, S) bool, which sensors were mirrored.
     """
-    cand = positions[:, :, _PAIR_JOINTS]  # (B, S, 2P, 3): left joints then right joints
-    cand_conf = confidence[:, :, _PAIR_JOINTS]
-    cand_swapped = positions[:, :, _PAIR_SWAPPED]
-    ref_cand, ref_conf = cand, cand_conf
+    left, right = positions[:, :, _PAIR_LEFT], positions[:, :, _PAIR_RIGHT]  # (B, S, P, 3)
+    ref_left, ref_right = left, right
+    ref_conf = confidence[:, :, _PAIR_JOINTS]
     mirrored = np.zeros(positions.shape[:2], dtype=bool)
     for round_idx in range(passes):  # a fixed, small number of rounds
         if round_idx == 0 and reference is not None:
-            ref = reference[:, None, _PAIR_JOINTS]
+            ref = reference[:, None, _PAIR_JOINTS]  # (B, 1, 2P, 3): left joints then right joints
         elif round_idx > 0 and not mirrored.any():
             break  # nothing changed: the reference, and so the decision, would be the same again
         else:
-            ref = reference_positions(ref_cand, ref_conf)[:, None]  # (B, 1, 2P, 3)
-        keep = np.sqrt(((cand - ref) ** 2).sum(-1))  # (B, S, 2P)
-        swap = np.sqrt(((cand_swapped - ref) ** 2).sum(-1))
+            ref = reference_positions(np.concatenate([ref_left, ref_right], axis=2), ref_conf)[:, None]
+        keep, swap = pair_costs(left, right, ref[:, :, :_N_PAIRS], ref[:, :, _N_PAIRS:])  # (B, S, P)
         # A pair counts only where both its keep and swap costs exist (both joints and both references).
-        decidable = ~np.isnan(keep[..., :_N_PAIRS] + keep[..., _N_PAIRS:] + swap[..., :_N_PAIRS] + swap[..., _N_PAIRS:])
-        decidable = np.concatenate([decidable, decidable], axis=-1)
-        mirrored = np.where(decidable, swap - keep, 0.0).sum(-1) < 0.0
-        ref_cand = np.where(mirrored[..., None, None], cand_swapped, cand)
-        ref_conf = np.where(mirrored[..., None], confidence[:, :, _PAIR_SWAPPED], cand_conf)
+        mirrored = np.nansum(swap - keep, axis=-1) < 0.0
+        flip = mirrored[..., None, None]
+        ref_left, ref_right = np.where(flip, right, left), np.where(flip, left, right)
+        ref_conf = np.where(mirrored[..., None], confidence[:, :, _PAIR_SWAPPED], confidence[:, :, _PAIR_JOINTS])
     if not mirrored.any():
         return positions, confidence, mirrored
-    out_positions = np.where(mirrored[..., None, None], positions[:, :, MIRROR], positions)
-    out_confidence = np.where(mirrored[..., None], confidence[:, :, MIRROR], confidence)
+    out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored
 
 
@@ -327,8 +324,7 @@ def realign_temporal(
     mirrored = flips ^ (follow[:, None] & decided) if follow.any() else flips
     if not mirrored.any():
         return positions, confidence, mirrored, new_streak
-    out_positions = np.where(mirrored[..., None, None], positions[:, :, MIRROR], positions)
-    out_confidence = np.where(mirrored[..., None], confidence[:, :, MIRROR], confidence)
+    out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
 
 

@@ -73,6 +73,15 @@ def invert_transform(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def transform_points(frame_b_from_a: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Map points by one rigid transform: (4, 4) and (..., 3) mm -> (..., 3) float64 mm (``p @ R' + t``).
+
+    The inverse direction is ``transform_points(invert_transform(T), points)``; NaN stays NaN.
+    """
+    T = np.asarray(frame_b_from_a, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+
+
 def apply_transform(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """Map every sensor's joints into the world frame.
 

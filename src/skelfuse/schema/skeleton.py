@@ -158,3 +158,33 @@ def joint_index(name: str) -> int:
     if key not in J:
         raise KeyError(f"unknown joint {name!r}; expected one of {', '.join(JOINT_NAMES)}")
     return J[key]
+
+
+BODY_REGIONS: dict[str, np.ndarray] = {
+    name: np.array([J[n] for n in members], dtype=np.int64)
+    for name, members in {
+        "torso": (
+            "PELVIS",
+            "SPINE_NAVEL",
+            "SPINE_CHEST",
+            "NECK",
+            "CLAVICLE_LEFT",
+            "CLAVICLE_RIGHT",
+            "SHOULDER_LEFT",
+            "SHOULDER_RIGHT",
+            "HIP_LEFT",
+            "HIP_RIGHT",
+        ),
+        "head": ("HEAD",),
+        "face": ("NOSE", "EYE_LEFT", "EYE_RIGHT", "EAR_LEFT", "EAR_RIGHT"),
+        "arm": ("ELBOW_LEFT", "ELBOW_RIGHT", "WRIST_LEFT", "WRIST_RIGHT"),
+        "hand": ("HAND_LEFT", "HAND_RIGHT", "HANDTIP_LEFT", "HANDTIP_RIGHT", "THUMB_LEFT", "THUMB_RIGHT"),
+        "knee": ("KNEE_LEFT", "KNEE_RIGHT"),
+        "foot": ("ANKLE_LEFT", "ANKLE_RIGHT", "FOOT_LEFT", "FOOT_RIGHT"),
+    }.items()
+}
+"""Every joint in exactly one body region: how the tracker's error differs over the body (the simulator's noise
+tables and the real-data statistics are kept per region)."""
+
+TORSO_TRACKING_JOINTS = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"]], dtype=np.int64)
+"""The joints a body tracker needs to see to track a body at all."""

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.transform import apply_transform
-from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, Confidence, J
+from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, TORSO_TRACKING_JOINTS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 from skelfuse.sim.observe import (
@@ -44,7 +44,6 @@ from skelfuse.sim.observe import (
 )
 from skelfuse.sim.rig import VirtualSensor, paper_rig
 
-_TORSO_TRACKING_JOINTS = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"]])
 _CAPSULE_START = np.array([J[c[1]] for c in CAPSULES])
 _CAPSULE_END = np.array([J[c[2]] for c in CAPSULES])
 
@@ -221,7 +220,7 @@ def simulate_people(
             # In view (the tracker labels out-of-view joints NONE; torso joints are never NONE otherwise) and
             # not hidden by someone else: self-occlusion of the trunk by an arm does not stop tracking.
             in_view = obs.confidence[:T, s_idx] > Confidence.NONE
-            seen_torso = (in_view & ~hidden)[:, _TORSO_TRACKING_JOINTS]
+            seen_torso = (in_view & ~hidden)[:, TORSO_TRACKING_JOINTS]
             ok = obs.tracked[:T, s_idx] & present[:, p] & ~dropped[:, s_idx]
             ok &= seen_torso.sum(axis=1) >= profile.min_torso_joints_in_view
             own = obs.positions[:T, s_idx].astype(np.float64)
@@ -394,7 +393,7 @@ def _spot_seen_by_one(sensors: list[VirtualSensor], avoid_xy: np.ndarray, min_ga
     grid = grid[np.linalg.norm(grid - avoid_xy, axis=1) >= min_gap_mm]
     bodies = pose[None] + np.concatenate([grid, np.zeros((grid.shape[0], 1))], axis=1)[:, None]  # (G, 32, 3)
     whole = np.stack([s.in_view(s.to_sensor(bodies)).all(axis=1) for s in sensors], axis=1)
-    torso = np.stack([s.in_view(s.to_sensor(bodies[:, _TORSO_TRACKING_JOINTS])).any(axis=1) for s in sensors], axis=1)
+    torso = np.stack([s.in_view(s.to_sensor(bodies[:, TORSO_TRACKING_JOINTS])).any(axis=1) for s in sensors], axis=1)
     good = (whole.sum(axis=1) == 1) & (torso.sum(axis=1) == 1)
     for sensor in sensors:  # keep clear of the sensors and of their lines of sight to the subject
         start = sensor.position_mm[:2]

@@ -35,38 +35,26 @@ from scipy.special import ndtri
 
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.schema.errors import ConfigError
-from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, PARENTS, Confidence, J
+from skelfuse.schema.skeleton import (
+    BODY_REGIONS,
+    BONES,
+    MIRROR,
+    N_JOINTS,
+    PARENTS,
+    TORSO_TRACKING_JOINTS,
+    Confidence,
+    J,
+)
 from skelfuse.sim.motion import Motion, body_facing
 from skelfuse.sim.rig import VirtualSensor
 
-NOISE_GROUPS = ("torso", "head", "face", "arm", "hand", "knee", "foot")
+NOISE_GROUPS: tuple[str, ...] = tuple(BODY_REGIONS)
 """Joint groups of the per-group noise tables (see :data:`JOINT_NOISE_GROUP`)."""
 
-_GROUP_MEMBERS = {
-    "torso": (
-        "PELVIS",
-        "SPINE_NAVEL",
-        "SPINE_CHEST",
-        "NECK",
-        "CLAVICLE_LEFT",
-        "CLAVICLE_RIGHT",
-        "SHOULDER_LEFT",
-        "SHOULDER_RIGHT",
-        "HIP_LEFT",
-        "HIP_RIGHT",
-    ),
-    "head": ("HEAD",),
-    "face": ("NOSE", "EYE_LEFT", "EYE_RIGHT", "EAR_LEFT", "EAR_RIGHT"),
-    "arm": ("ELBOW_LEFT", "ELBOW_RIGHT", "WRIST_LEFT", "WRIST_RIGHT"),
-    "hand": ("HAND_LEFT", "HAND_RIGHT", "HANDTIP_LEFT", "HANDTIP_RIGHT", "THUMB_LEFT", "THUMB_RIGHT"),
-    "knee": ("KNEE_LEFT", "KNEE_RIGHT"),
-    "foot": ("ANKLE_LEFT", "ANKLE_RIGHT", "FOOT_LEFT", "FOOT_RIGHT"),
-}
 JOINT_NOISE_GROUP = np.zeros(N_JOINTS, dtype=np.int64)
 """(32,) index into :data:`NOISE_GROUPS` of every joint."""
 for _group_idx, _group in enumerate(NOISE_GROUPS):
-    for _name in _GROUP_MEMBERS[_group]:
-        JOINT_NOISE_GROUP[J[_name]] = _group_idx
+    JOINT_NOISE_GROUP[BODY_REGIONS[_group]] = _group_idx
 
 CAPSULES = (
     ("spine", "PELVIS", "NECK"),
@@ -85,13 +73,12 @@ CAPSULES = (
 """Body capsules for self-occlusion: (radius key in ``capsule_radius_mm``, start joint, end joint)."""
 
 _TORSO_CAPSULE = np.array([c[0] in ("spine", "torso_side") for c in CAPSULES])
-_CAN_HIDE = ~(np.isin(np.arange(N_JOINTS), [J[n] for n in _GROUP_MEMBERS["torso"]])[:, None] & _TORSO_CAPSULE)
+_CAN_HIDE = ~(np.isin(np.arange(N_JOINTS), BODY_REGIONS["torso"])[:, None] & _TORSO_CAPSULE)
 """(32, C) whether capsule c can hide joint j: torso joints lie inside the trunk, which the tracker sees through
 its surface, so only limbs and the head can hide them."""
-_TORSO_TRACKING_JOINTS = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"]])
-_HAND_JOINTS = np.array([J[n] for n in _GROUP_MEMBERS["hand"]])
-_LEG_JOINTS = np.array([J[n] for n in _GROUP_MEMBERS["knee"] + _GROUP_MEMBERS["foot"]])
-_FACE_JOINTS = np.array([J[n] for n in _GROUP_MEMBERS["face"]])
+_HAND_JOINTS = BODY_REGIONS["hand"]
+_LEG_JOINTS = np.concatenate([BODY_REGIONS["knee"], BODY_REGIONS["foot"]])
+_FACE_JOINTS = BODY_REGIONS["face"]
 _FOOT_TIPS = np.array([J["FOOT_LEFT"], J["FOOT_RIGHT"]])
 
 
@@ -679,18 +666,18 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
 
     for index, sensor in enumerate(sensors):
         rngs = _sensor_rngs(seed, sensor.sensor_id)
-        rotation, translation = sensor.world_from_sensor[:3, :3], sensor.world_from_sensor[:3, 3]
-        physical = (truth - translation) @ rotation  # (T, 32, 3) sensor frame
+        rotation = sensor.world_from_sensor[:3, :3]
+        physical = sensor.to_sensor(truth)  # (T, 32, 3) sensor frame
 
         # 1. visibility and tracking
         in_view = sensor.in_view(physical)
         dropped = rngs["tracking"].random(n) < profile.dropped_frame_prob
-        torso_visible = in_view[:, _TORSO_TRACKING_JOINTS].sum(axis=1) >= profile.min_torso_joints_in_view
+        torso_visible = in_view[:, TORSO_TRACKING_JOINTS].sum(axis=1) >= profile.min_torso_joints_in_view
         tracked = torso_visible & ~dropped
         # 2. self-occlusion (geometry of the true body)
         hidden = self_occlusion(physical, profile.capsule_radius_mm, profile.occlusion_margin_mm) | ~in_view
         # 3. mirroring and body ids
-        angle = facing_away_deg(truth, translation)
+        angle = facing_away_deg(truth, sensor.position_mm)
         mirrored = mirror_bursts(rngs["tracking"], angle, tracked, profile)
         prev_tracked = np.concatenate([[False], tracked[:-1]])
         prev_mirrored = np.concatenate([[False], mirrored[:-1]])

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.transform import invert_transform, transform_points
+
 NFOV_UNBINNED_FOV_DEG = (75.0, 65.0)
 NFOV_UNBINNED_RANGE_MM = (500.0, 3860.0)
 
@@ -52,14 +54,18 @@ class VirtualSensor:
         object.__setattr__(self, "world_from_sensor", pose)
 
     @property
+    def sensor_from_world(self) -> np.ndarray:
+        """(4, 4) the inverse pose: world points into this sensor's frame."""
+        return invert_transform(self.world_from_sensor)
+
+    @property
     def position_mm(self) -> np.ndarray:
         """(3,) sensor origin in the world, mm."""
         return self.world_from_sensor[:3, 3]
 
     def to_sensor(self, points_world: np.ndarray) -> np.ndarray:
         """(..., 3) world points → sensor frame, mm."""
-        rotation, translation = self.world_from_sensor[:3, :3], self.world_from_sensor[:3, 3]
-        return (np.asarray(points_world) - translation) @ rotation
+        return transform_points(self.sensor_from_world, points_world)
 
     def in_view(self, points_sensor: np.ndarray) -> np.ndarray:
         """(...) bool: inside the field of view and the depth range (points in the sensor frame).
