@@ -21,16 +21,36 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import subprocess
 import sys
+import tempfile
+import threading
 import time
+import time as _time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skelfuse.config import DEFAULT_PRESET
+from skelfuse.config import DEFAULT_PRESET, load_rig_config
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.presets import preset
+from skelfuse.fusion.transform import apply_transform
+from skelfuse.schema.errors import ServiceError
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS
+from skelfuse.service.lifecycle import Lifecycle
+from skelfuse.service.node import FusionNode, NodeOptions
+from skelfuse.service.viewer import ViewOptions, open_recording, stop_server
+from skelfuse.service.worker import simulate_rig
+from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.rig import paper_rig
+from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
+from skelfuse.wire import keys
+from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
 log = logging.getLogger(__name__)
 
@@ -105,14 +125,6 @@ def run_demo_offline(
     realtime : pace frames at the sensors' 30 Hz; default: only when a live viewer is watching.
     """
     import rerun as rr
-
-    from skelfuse.fusion.pipeline import Fuser
-    from skelfuse.fusion.presets import preset
-    from skelfuse.fusion.transform import apply_transform
-    from skelfuse.sim.gestures import make_gesture
-    from skelfuse.sim.observe import load_profile, simulate
-    from skelfuse.sim.rig import paper_rig
-    from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 
     if duration_s <= 0:
         raise ValueError(f"--duration must be positive, got {duration_s}")
@@ -238,7 +250,6 @@ def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> 
     The sensors' inline ``world_from_sensor`` are the true poses the simulator observes from; fusion uses
     ``calibration.toml`` beside it (the simulated calibration, with its error), written by the demo.
     """
-    from skelfuse.sim.rig import paper_rig
 
     lines = [
         "# skelfuse demo rig, written by `skelfuse demo` (the paper's 4-sensor layout, simulated).",
@@ -295,7 +306,6 @@ class _Scorer:
     def __init__(
         self, truth: np.ndarray, fps: float, poses_calibrated: np.ndarray, sensor_ids: tuple[str, ...]
     ) -> None:
-        import threading
 
         self.truth = truth
         self.period_us = 1e6 / fps
@@ -312,8 +322,6 @@ class _Scorer:
         return round(time_us / self.period_us)
 
     def on_sensor(self, sample: Any) -> None:
-        from skelfuse.fusion.transform import apply_transform
-        from skelfuse.wire.codec import DecodeError, decode_sensor_frame
 
         try:
             frame = decode_sensor_frame(sample.payload.to_bytes())
@@ -330,9 +338,6 @@ class _Scorer:
                 self.single[column].append((n, world))
 
     def on_fused(self, sample: Any) -> None:
-        import time as _time
-
-        from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
         received = _time.time_ns()
         try:
@@ -381,8 +386,6 @@ class _Scorer:
 
 def _stop_process(process: Any, timeout_s: float = 5.0) -> None:
     """SIGTERM the process group we started, then SIGKILL after ``timeout_s``."""
-    import signal
-    import subprocess
 
     if process.poll() is not None:
         return
@@ -423,18 +426,6 @@ def run_demo(
     ServiceError
         A capture worker exits early, or no fused frame arrives within STARTUP_TIMEOUT_S.
     """
-    import subprocess
-    import tempfile
-    import threading
-
-    from skelfuse.config import load_rig_config
-    from skelfuse.schema.errors import ServiceError
-    from skelfuse.service.lifecycle import Lifecycle
-    from skelfuse.service.node import FusionNode, NodeOptions
-    from skelfuse.service.viewer import ViewOptions, open_recording, stop_server
-    from skelfuse.service.worker import simulate_rig
-    from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
-    from skelfuse.wire import keys
 
     if duration_s <= 0:
         raise ValueError(f"--duration must be positive, got {duration_s}")
@@ -581,7 +572,6 @@ def run_demo(
 
 
 def _check_workers(workers: list[Any], workdir: Path) -> None:
-    from skelfuse.schema.errors import ServiceError
 
     for process in workers:
         if process.poll() is not None:

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from skelfuse.eval import paper, paper_reference
+from skelfuse.eval import paper, paper_reference, report
 from skelfuse.eval.metrics import ErrorAccumulator, lag_error_curve
 from skelfuse.progress import Progress
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS
@@ -220,7 +220,7 @@ def test_report_files_markdown_and_json(tmp_path) -> None:
     for p in paths:
         assert p.exists() and p.stat().st_size > 0
     assert (tmp_path / "out" / "fig09_algorithms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    md = paper.format_markdown(result)
+    md = report.format_markdown(result)
     assert "Experiment 1" in md and "Experiment 3" in md and "| A5 | paper |" in md
     assert "| **skelfuse (ours)** | **ours** |" in md and "| **4 sensors, skelfuse (ours)** | **ours** |" in md
     assert "39.1 ± 9.6" in md  # the paper's A5 at eps 10 cm, printed beside ours
@@ -253,7 +253,7 @@ def test_summary_puts_both_scenarios_beside_the_paper() -> None:
         {name: _fake_result({"skelfuse": 1.0}, name) for name in paper.SCENARIOS},
         {**_FAKE_SETTINGS, "scenarios": list(paper.SCENARIOS)},
     )
-    summary = paper.format_markdown(suite)
+    summary = report.format_markdown(suite)
     assert "paper: vs truth" in summary and "rear_mirroring: vs best view" in summary
     assert "rear_mirroring: jitter" in summary and "paper: swapped" in summary
     assert "| **skelfuse (ours)** | **ours** |" in summary and "| 1 sensor (raw) | raw |" in summary
@@ -313,7 +313,6 @@ def quick_run(tmp_path_factory):
     _require_core()
     out = tmp_path_factory.mktemp("paper")
     suite = paper.run_paper_eval(
-        out_dir=out,
         quick=True,
         seed=1124,
         progress=False,
@@ -321,6 +320,7 @@ def quick_run(tmp_path_factory):
         directions_deg=(0.0, 180.0),
         duration_s=5.0,
     )
+    report.write_suite(suite, out)
     return suite, out
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from skelfuse.eval.tracking import clear_mot, run_tracking_eval
+from skelfuse.schema.errors import ConfigError
 from skelfuse.sim.gestures import make_gesture
 
 POSE = make_gesture("hands_up_down", duration_s=0.1, seed=0).positions[0]
@@ -65,7 +66,7 @@ def test_per_person_rmse() -> None:
 
 
 def test_run_tracking_eval_quick() -> None:
-    result = run_tracking_eval(quick=True, preset_name="no-such-preset")
+    result = run_tracking_eval(quick=True, preset_name="A5")
     assert result.preset == "A5"
     names = [s.name for s in result.scenarios]
     assert names == ["crossing", "bystander", "enter_leave", "crowd"]
@@ -75,3 +76,8 @@ def test_run_tracking_eval_quick() -> None:
     text = result.format_markdown()
     assert "| crossing |" in text and "IDF1" in text
     assert result.to_dict()["scenarios"][0]["metrics"]["gt"] > 0
+
+
+def test_unknown_preset_is_an_error_naming_the_presets() -> None:
+    with pytest.raises(ConfigError, match=r"A9.*skelfuse"):
+        run_tracking_eval(quick=True, preset_name="A9")

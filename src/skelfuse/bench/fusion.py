@@ -19,6 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.presets import preset
+from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import N_JOINTS, PARENTS, Confidence
 
 OUTPUT_TOLERANCE_MM = 1e-6
@@ -115,9 +118,6 @@ def bench_case(
     n_sensors: int, n_bodies: int, *, preset_name: str, n_frames: int, reference_frames: int, warmup: int = 20
 ) -> BenchCase:
     """Time the vectorized and the reference fuser on the same inputs; compare their outputs frame by frame."""
-    from skelfuse.bench.reference import ReferenceFuser
-    from skelfuse.fusion.pipeline import Fuser
-    from skelfuse.fusion.presets import preset
 
     params = preset(preset_name)
     total = warmup + max(n_frames, reference_frames)
@@ -139,6 +139,13 @@ def bench_case(
         if frame < checked:
             fast_positions.append(fused.positions)
 
+    try:  # the reference needs scikit-learn and filterpy: the dev extra, optional for a rig
+        from skelfuse.bench.reference import ReferenceFuser
+    except ImportError as exc:
+        raise ConfigError(
+            f"skelfuse bench fusion times against a scikit-learn + filterpy reference: {exc}; "
+            f'install them with `pip install -e ".[dev]"`'
+        ) from None
     reference = ReferenceFuser(params, n_bodies=n_bodies)
     reference_ns: list[int] = []
     max_diff = 0.0

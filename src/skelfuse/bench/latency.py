@@ -22,6 +22,7 @@ measures this whole machine (publisher included), not the node alone.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -36,7 +37,13 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.rig import paper_rig
+from skelfuse.wire import keys
+from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_status, encode_sensor_frame
 
 FPS = 30.0
 WARMUP_S = 1.0
@@ -89,7 +96,6 @@ class LatencyResult:
 
 
 def _rig_toml(directory: Path, n_sensors: int) -> Path:
-    from skelfuse.sim.rig import paper_rig
 
     lines = [
         "[rig]",
@@ -115,9 +121,6 @@ def _rig_toml(directory: Path, n_sensors: int) -> Path:
 
 def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0) -> list[list[Any]]:
     """Per instant, the N sensors' SensorFrames (device time filled in at publish); one body each."""
-    from skelfuse.schema.frames import SensorFrame
-    from skelfuse.sim.gestures import make_gesture
-    from skelfuse.sim.rig import paper_rig
 
     truth = make_gesture("walking", duration_s=n_instants / FPS, seed=seed).at_times(np.arange(n_instants) / FPS)
     rng = np.random.default_rng(seed)
@@ -163,13 +166,8 @@ def _merge_windows(windows: list[dict[str, Any]]) -> dict[str, float | None]:
 
 def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
     """One sensor count: start a node, publish for WARMUP_S + duration_s, collect, stop the node."""
-    import dataclasses
 
     import zenoh
-
-    from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
-    from skelfuse.wire import keys
-    from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_status, encode_sensor_frame
 
     config = _rig_toml(workdir, n_sensors)
     port = free_port()

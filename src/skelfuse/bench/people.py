@@ -14,6 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.fusion.people import PeopleFuser
+from skelfuse.fusion.presets import preset
+from skelfuse.sim.crowd import crowd_scenario, simulate_scenario
+from skelfuse.sim.observe import load_profile
+
 FRAME_BUDGET_MS = 1000.0 / 30.0
 
 
@@ -34,10 +39,6 @@ def bench_people(
     margin_p99 (budget / p99: how many times the step fits in a frame), mean_persons_out (confirmed
     tracks output per frame) and track_ids (distinct ids seen; n_people means no fragmentation).
     """
-    from skelfuse.fusion.people import PeopleFuser
-    from skelfuse.fusion.presets import preset
-    from skelfuse.sim.crowd import crowd_scenario, simulate_scenario
-    from skelfuse.sim.observe import load_profile
 
     total = int(n_frames) + int(warmup)
     scenario = crowd_scenario(n_people=n_people, n_sensors=n_sensors, duration_s=total / 30.0, seed=seed)

@@ -7,13 +7,12 @@ import sys
 from pathlib import Path
 
 from skelfuse.cli.common import EXIT_OK, print_json
-from skelfuse.eval import paper, real
+from skelfuse.eval import paper, real, report
 from skelfuse.eval.tracking import run_tracking_eval
 
 
 def _cmd_eval_paper(args: argparse.Namespace) -> int:
     result = paper.run_paper_eval(
-        out_dir=None if args.no_files else args.out,
         quick=args.quick,
         seed=args.seed,
         duration_s=args.duration,
@@ -21,10 +20,12 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         workers=args.workers,
     )
+    if not args.no_files:
+        report.write_suite(result, args.out)
     if args.json:
         print_json(result.to_dict())
     else:
-        print(paper.format_markdown(result))
+        print(report.format_markdown(result))
         if not args.no_files:
             print(f"\nTables, CSV and figures written to {args.out}/", file=sys.stderr)
     return EXIT_OK

@@ -72,8 +72,14 @@ from skelfuse.eval.metrics import (
     mean_stats,
     swap_counts,
 )
+from skelfuse.fusion import presets
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.transform import apply_transform
 from skelfuse.progress import Progress
 from skelfuse.schema.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.sim.gestures import GESTURES, make_gesture
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.rig import best_view_sensor, paper_rig
 
 __all__ = [
     "DIRECTIONS_DEG",
@@ -85,7 +91,6 @@ __all__ = [
     "SCENARIOS",
     "PaperEvalResult",
     "PaperEvalSuite",
-    "format_markdown",
     "run_paper_eval",
 ]
 
@@ -144,9 +149,8 @@ class FusionRun:
 
     def params(self) -> Any:
         """The preset's ``FusionParams``: eps is passed only where the run sets one (A3-A5)."""
-        from skelfuse.fusion.presets import preset
 
-        return preset(self.preset) if self.eps_mm is None else preset(self.preset, eps_mm=self.eps_mm)
+        return presets.preset(self.preset) if self.eps_mm is None else presets.preset(self.preset, eps_mm=self.eps_mm)
 
 
 def fusion_runs(
@@ -259,7 +263,6 @@ class TakeResult:
 
 def _world_skeletons(obs: Any) -> np.ndarray:
     """(T, S, 32, 3) world positions with the calibrated extrinsics; NaN where a sensor tracked nobody."""
-    from skelfuse.fusion.transform import apply_transform
 
     world = np.asarray(
         apply_transform(obs.world_from_sensor_calibrated, np.asarray(obs.positions, np.float64)),
@@ -283,7 +286,6 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
     -------
     (T, 32, 3) fused positions, NaN where the fuser gave none.
     """
-    from skelfuse.fusion.pipeline import Fuser
 
     sensors = list(run.sensors)
     cand = np.ascontiguousarray(candidates[:, sensors])
@@ -300,9 +302,6 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
 def evaluate_take(task: TakeTask) -> TakeResult:
     """Simulate one take of ``task.scenario`` with all five sensors, run every output and accumulate its
     errors, lag, jitter and left/right swaps."""
-    from skelfuse.sim.gestures import make_gesture
-    from skelfuse.sim.observe import load_profile, simulate
-    from skelfuse.sim.rig import best_view_sensor, paper_rig
 
     t0 = time.perf_counter()
     motion = make_gesture(
@@ -656,8 +655,6 @@ def plan_takes(
         if quick:
             gestures = QUICK_GESTURES
         else:
-            from skelfuse.sim.gestures import GESTURES
-
             gestures = GESTURES
     if directions_deg is None:
         directions_deg = QUICK_DIRECTIONS_DEG if quick else DIRECTIONS_DEG
@@ -740,7 +737,6 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
 
 def run_paper_eval(
     *,
-    out_dir: Path | None,
     quick: bool = False,
     seed: int = 0,
     duration_s: float | None = None,
@@ -752,14 +748,11 @@ def run_paper_eval(
     scenarios: Sequence[str] = SCENARIOS,
     ours: Sequence[str] = (OURS,),
 ) -> PaperEvalSuite:
-    """Run the paper's three experiments on simulated takes in each scenario and write the reports.
+    """Run the paper's three experiments on simulated takes in each scenario (:mod:`skelfuse.eval.report`
+    writes the reports: ``write_suite``).
 
     Parameters
     ----------
-    out_dir : Path or None
-        Where to write (created if needed): the combined summary ``report.md`` and ``result.json``, and per
-        scenario a folder ``<scenario>/`` with report.md, CSV tables, PNG figures and result.json. None writes
-        nothing.
     quick : bool
         CI mode: 2 gestures x 2 directions x 4 s takes (well under a minute) instead of 6 x 4 x 33 s
         (1000 frames, as the paper's takes).
@@ -846,24 +839,7 @@ def run_paper_eval(
         for name in scenarios
     }
     suite = PaperEvalSuite(per_scenario, settings)
-    if out_dir is not None:
-        from skelfuse.eval.report import write_suite
-
-        suite.elapsed_s = time.perf_counter() - t0
-        for result in per_scenario.values():
-            result.elapsed_s = suite.elapsed_s
-        suite.files = [str(p) for p in write_suite(suite, Path(out_dir))]
     suite.elapsed_s = time.perf_counter() - t0
     for result in per_scenario.values():
         result.elapsed_s = suite.elapsed_s
     return suite
-
-
-def format_markdown(result: PaperEvalResult | PaperEvalSuite) -> str:
-    """The report as markdown: the combined summary of a ``PaperEvalSuite`` (the text of ``out_dir/report.md``)
-    or the full report of one scenario's ``PaperEvalResult`` (``out_dir/<scenario>/report.md``)."""
-    from skelfuse.eval import report
-
-    if isinstance(result, PaperEvalSuite):
-        return report.format_summary(result)
-    return report.format_markdown(result)

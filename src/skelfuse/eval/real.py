@@ -39,6 +39,9 @@ import numpy as np
 
 from skelfuse.eval.metrics import joint_distances
 from skelfuse.fusion.mirror import lateral_axes
+from skelfuse.fusion.pipeline import Fuser
+from skelfuse.fusion.presets import preset
+from skelfuse.fusion.transform import apply_transform
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BONES, JOINT_GROUPS, N_JOINTS, Confidence, J
 from skelfuse.sources.recorded import Recording, load_andyj1_csv
@@ -312,9 +315,6 @@ def fuse_views(
     -------
     (T, J, 3) float64 fused positions, NaN where the fuser had no estimate.
     """
-    from skelfuse.fusion.pipeline import Fuser  # imported here: the report module loads without the core
-    from skelfuse.fusion.presets import preset
-    from skelfuse.fusion.transform import apply_transform
 
     positions = np.asarray(positions, dtype=np.float64)
     n_sensors, n_frames = positions.shape[:2]

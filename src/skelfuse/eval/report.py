@@ -9,7 +9,7 @@ Files written into the output folder (``write_suite``):
   panels per scenario;
 - ``<scenario>/`` per scenario (``write_report``):
 
-  - ``report.md``: the markdown of ``format_markdown``;
+  - ``report.md``: the markdown of ``format_scenario``;
   - ``{experiment}_{protocol}_joints.csv`` and ``{experiment}_{protocol}_groups.csv``: one row per
     configuration, gesture ("all" = mean over gestures) and joint or group, with AE / RMSE / STD and frame
     counts, and whether the row is the paper's algorithm or ours;
@@ -29,13 +29,19 @@ import csv
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from skelfuse.eval import paper_reference
+from skelfuse.eval.paper import (
+    EXPERIMENTS,
+    GROUP_NAMES,
+    PROTOCOLS,
+    SCENARIO_DESCRIPTIONS,
+    PaperEvalResult,
+    PaperEvalSuite,
+    is_ours,
+)
 from skelfuse.schema.skeleton import EVAL_JOINT_NAMES
-
-if TYPE_CHECKING:
-    from skelfuse.eval.paper import PaperEvalResult, PaperEvalSuite
 
 GROUP_LABELS = {"torso": "torso", "upper_limb": "upper limb", "lower_limb": "lower limb"}
 EXPERIMENT_TITLES = {
@@ -52,17 +58,11 @@ def _f(value: float | None, digits: int = 1) -> str:
     return f"{value:.{digits}f}"
 
 
-def _is_ours(config: str) -> bool:
-    from skelfuse.eval.paper import is_ours
-
-    return is_ours(config)
-
-
 def _by(experiment: str, config: str) -> str:
     """Who the row's algorithm is: the paper's, ours, or raw sensor data."""
     if experiment == "n_sensors" and config == "1":
         return "raw"
-    return "**ours**" if _is_ours(config) else "paper"
+    return "**ours**" if is_ours(config) else "paper"
 
 
 def _row_label(experiment: str, config: str) -> str:
@@ -75,13 +75,13 @@ def _row_label(experiment: str, config: str) -> str:
     if experiment == "eps_sweep":
         name, eps = config.split("_")
         return f"{name} eps {eps} mm"
-    return f"{config} (ours)" if _is_ours(config) else config
+    return f"{config} (ours)" if is_ours(config) else config
 
 
 def _row_cell(experiment: str, config: str) -> str:
     """Row label for markdown: our rows in bold."""
     label = _row_label(experiment, config)
-    return f"**{label}**" if _is_ours(config) else label
+    return f"**{label}**" if is_ours(config) else label
 
 
 def _pct(frac: float | None) -> str:
@@ -90,7 +90,6 @@ def _pct(frac: float | None) -> str:
 
 def _dynamics_table(result: PaperEvalResult) -> list[str]:
     """Experiment 1's rows: swapped share, lag and jitter per group (4 sensors, against exact truth)."""
-    from skelfuse.eval.paper import GROUP_NAMES
 
     header = ["config", "by", "swapped"]
     header += [f"{GROUP_LABELS[g]} lag (frames)" for g in GROUP_NAMES]
@@ -116,9 +115,8 @@ def _dynamics_table(result: PaperEvalResult) -> list[str]:
     return lines
 
 
-def format_markdown(result: PaperEvalResult) -> str:
+def format_scenario(result: PaperEvalResult) -> str:
     """The whole report of one scenario as markdown."""
-    from skelfuse.eval.paper import EXPERIMENTS, GROUP_NAMES, PROTOCOLS
 
     s = result.settings
     scenario = s.get("scenario")
@@ -251,7 +249,7 @@ def format_markdown(result: PaperEvalResult) -> str:
     ]
     for key in lag_keys:
         frac = result.swapped.get(key)
-        cells = [f"**{key} (ours)**" if _is_ours(key) else key, _pct(frac)]
+        cells = [f"**{key} (ours)**" if is_ours(key) else key, _pct(frac)]
         for g in GROUP_NAMES:
             entry = result.lag[key].get(g, {})
             cells += [
@@ -291,7 +289,6 @@ def format_markdown(result: PaperEvalResult) -> str:
 
 
 def _write_csvs(result: PaperEvalResult, out_dir: Path) -> list[Path]:
-    from skelfuse.eval.paper import EXPERIMENTS, GROUP_NAMES, PROTOCOLS
 
     paths: list[Path] = []
     gestures = ["all", *result.gestures]
@@ -375,7 +372,7 @@ def _write_csvs(result: PaperEvalResult, out_dir: Path) -> list[Path]:
         w = csv.writer(f)
         w.writerow(["output", "group", "lag_frames", "error_mm", "jitter_mm_per_frame2", "algorithm"])
         for key, by_group in result.lag.items():
-            by = "ours" if _is_ours(key) else ("raw" if "raw" in key else "paper")
+            by = "ours" if is_ours(key) else ("raw" if "raw" in key else "paper")
             for g, entry in by_group.items():
                 jitter = result.jitter.get(key, {}).get(g, float("nan"))
                 w.writerow([key, g, _c(entry["lag_frames"], 3), _c(entry["error_mm"]), _c(jitter, 3), by])
@@ -394,8 +391,6 @@ def _plot_axes(axes: Any, result: PaperEvalResult, experiment: str, *, legend: b
     """Grouped bars of one experiment into one axis per joint group; our rows on a shaded background."""
     import numpy as np
 
-    from skelfuse.eval.paper import GROUP_NAMES
-
     configs = result.experiment_configs(experiment)
     if experiment == "eps_sweep":
         configs = [c for c in configs if c.startswith(paper_reference.EPS_SWEEP_PRESET + "_")]
@@ -408,7 +403,7 @@ def _plot_axes(axes: Any, result: PaperEvalResult, experiment: str, *, legend: b
     width = 0.8 / len(series)
     for ax, group in zip(axes, GROUP_NAMES, strict=True):
         for k, config in enumerate(configs):
-            if _is_ours(config):
+            if is_ours(config):
                 ax.axvspan(k - 0.5, k + 0.5, color="#2ca02c", alpha=0.12, linewidth=0)
         for i, (label, source, color, hatch) in enumerate(series):
             if source == "paper":
@@ -437,7 +432,7 @@ def _plot_axes(axes: Any, result: PaperEvalResult, experiment: str, *, legend: b
             x, labels, rotation=30 if len(configs) > 5 else 0, fontsize=7, ha="right" if len(configs) > 5 else "center"
         )
         for tick, config in zip(ax.get_xticklabels(), configs, strict=True):
-            if _is_ours(config):
+            if is_ours(config):
                 tick.set_fontweight("bold")
                 tick.set_color("#1a6b1a")
         ax.set_title(GROUP_LABELS[group])
@@ -452,8 +447,6 @@ def _plot(result: PaperEvalResult, experiment: str, path: Path, title: str) -> P
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from skelfuse.eval.paper import GROUP_NAMES
 
     fig, axes = plt.subplots(1, len(GROUP_NAMES), figsize=(4.6 * len(GROUP_NAMES), 4.4), sharey=False)
     _plot_axes(axes, result, experiment)
@@ -473,8 +466,6 @@ def _plot_suite(suite: PaperEvalSuite, experiment: str, path: Path, title: str) 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from skelfuse.eval.paper import GROUP_NAMES
 
     n = len(suite.scenarios)
     fig, axes = plt.subplots(n, len(GROUP_NAMES), figsize=(4.6 * len(GROUP_NAMES), 4.2 * n), squeeze=False)
@@ -516,7 +507,7 @@ def write_report(result: PaperEvalResult, out_dir: Path) -> list[Path]:
     json_path = out_dir / "result.json"
     paths += [md_path, json_path]
     result.files = [str(p) for p in paths]
-    md_path.write_text(format_markdown(result))
+    md_path.write_text(format_scenario(result))
     json_path.write_text(json.dumps(result.to_dict(), indent=1, allow_nan=False))
     return paths
 
@@ -527,7 +518,6 @@ def write_report(result: PaperEvalResult, out_dir: Path) -> list[Path]:
 
 def _triple(result: PaperEvalResult, experiment: str, config: str, protocol: str) -> str:
     """RMSE of a row as "torso / upper / lower", or "—" where the scenario lacks the row."""
-    from skelfuse.eval.paper import GROUP_NAMES
 
     if config not in result.experiment_configs(experiment):
         return "—"
@@ -536,7 +526,6 @@ def _triple(result: PaperEvalResult, experiment: str, config: str, protocol: str
 
 
 def _paper_triple(result: PaperEvalResult, experiment: str, config: str) -> str:
-    from skelfuse.eval.paper import GROUP_NAMES
 
     values = [result.paper_value(experiment, config, "ae_mm", g) for g in GROUP_NAMES]
     return "—" if all(v is None for v in values) else " / ".join(_f(v, 0) for v in values)
@@ -544,7 +533,6 @@ def _paper_triple(result: PaperEvalResult, experiment: str, config: str) -> str:
 
 def format_summary(suite: PaperEvalSuite) -> str:
     """The combined summary of every scenario as markdown (the text of ``out_dir/report.md``)."""
-    from skelfuse.eval.paper import GROUP_NAMES, SCENARIO_DESCRIPTIONS
 
     s = suite.settings
     results = suite.scenarios
@@ -679,6 +667,14 @@ def format_summary(suite: PaperEvalSuite) -> str:
 def _mean(values: list[float]) -> float:
     finite = [v for v in values if math.isfinite(v)]
     return sum(finite) / len(finite) if finite else float("nan")
+
+
+def format_markdown(result: PaperEvalResult | PaperEvalSuite) -> str:
+    """The report as markdown: the combined summary of a ``PaperEvalSuite`` (the text of ``out_dir/report.md``)
+    or the full report of one scenario's ``PaperEvalResult`` (``out_dir/<scenario>/report.md``)."""
+    if isinstance(result, PaperEvalSuite):
+        return format_summary(result)
+    return format_scenario(result)
 
 
 def write_suite(suite: PaperEvalSuite, out_dir: Path) -> list[Path]:

@@ -40,7 +40,12 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from skelfuse.fusion.association import descriptor_distance, torso_descriptor
+from skelfuse.fusion.people import PeopleFuser
+from skelfuse.fusion.presets import preset
+from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import JOINT_GROUPS, N_JOINTS
+from skelfuse.sim import crowd
+from skelfuse.sim.observe import load_profile
 
 DEFAULT_THRESHOLD_MM = 500.0
 
@@ -300,18 +305,17 @@ def run_tracking_eval(
 
     Scenarios (:mod:`skelfuse.sim.crowd`): two people crossing 350 mm apart, a bystander seen by one sensor,
     people entering and leaving, a crowd of 4 on two counter-rotating rings (6 sensors). ``quick`` shortens
-    every take. ``preset_name`` falls back to "A5" where the preset is unknown.
-    """
-    from skelfuse.fusion.people import PeopleFuser
-    from skelfuse.fusion.presets import preset
-    from skelfuse.sim import crowd
-    from skelfuse.sim.observe import load_profile
+    every take.
 
+    Raises
+    ------
+    ConfigError
+        ``preset_name`` is not a fusion preset (the message lists them).
+    """
     try:
         params = preset(preset_name)
-        used = preset_name
-    except ValueError:
-        params, used = preset("A5"), "A5"
+    except ValueError as exc:
+        raise ConfigError(f"--preset: {exc}") from None
     scale = 0.5 if quick else 1.0
     builders = [
         lambda: crowd.crossing_scenario(duration_s=8.0 * scale if not quick else 5.0, seed=seed),
@@ -338,4 +342,4 @@ def run_tracking_eval(
                 step_p99_ms=float(np.percentile(step_ms, 99)),
             )
         )
-    return TrackingEvalResult(preset=used, seed=seed, quick=quick, scenarios=results)
+    return TrackingEvalResult(preset=preset_name, seed=seed, quick=quick, scenarios=results)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from skelfuse.config import RigConfig
+from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -51,7 +52,6 @@ def run_recorder(
     cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | None, limits: RunLimits, lifecycle: Lifecycle
 ) -> RecordReport:
     """Record every raw sensor frame of the rig to MCAP until a signal or the run limits."""
-    from skelfuse.recording import RecordingWriter
 
     path = Path(output) if output is not None else default_recording_path(cfg)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -119,7 +119,6 @@ def run_replay(
     lifecycle: Lifecycle,
 ) -> ReplayReport:
     """Publish a recording's sensor frames at ``speed`` (None: as fast as possible)."""
-    from skelfuse.recording import RecordingReader, replay_frames
 
     reader = RecordingReader(path)
     report = ReplayReport()

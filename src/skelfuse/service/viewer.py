@@ -31,6 +31,7 @@ import numpy as np
 
 from skelfuse.schema.errors import ServiceError
 from skelfuse.service.zenoh_io import wait_for_port
+from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 
 log = logging.getLogger("skelfuse.service")
 
@@ -59,8 +60,6 @@ class ViewOptions:
 def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] | None]:
     """A ``rr.RecordingStream`` sending where ``options`` says, and the server process it started (serve)."""
     import rerun as rr
-
-    from skelfuse.sinks.rerun_sink import default_blueprint
 
     recording = rr.RecordingStream(options.application_id)
     server: subprocess.Popen[bytes] | None = None
@@ -131,7 +130,6 @@ class RerunView:
         log_sensors: bool = True,
         max_pending: int = 64,
     ) -> None:
-        from skelfuse.sinks.rerun_sink import RerunSink
 
         self.recording = recording
         self.sink = RerunSink(recording, sensor_ids)

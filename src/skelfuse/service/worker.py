@@ -52,11 +52,16 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.recording import RecordingReader
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
+from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.rig import VirtualSensor
+from skelfuse.sources.kinect import KinectSource
 from skelfuse.wire import keys
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
 
@@ -124,9 +129,6 @@ def simulate_rig(
     cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: int, observation_seed: int | None = None
 ) -> Any:
     """Simulate the rig's sim sensors (:func:`sim_rig_order`) for one take: ``skelfuse.sim`` Observations."""
-    from skelfuse.sim.gestures import make_gesture
-    from skelfuse.sim.observe import load_profile, simulate
-    from skelfuse.sim.rig import VirtualSensor
 
     sensors = sim_rig_order(cfg)
     if not sensors:
@@ -250,7 +252,6 @@ class ReplaySource:
         loop: bool = False,
         speed: float | None = 1.0,
     ) -> None:
-        from skelfuse.recording import RecordingReader
 
         self.sensor_id = sensor_id
         self.recorded_sensor = recorded_sensor or sensor_id
@@ -449,7 +450,6 @@ class KinectFrameSource:
             log.info("kinect master %s: every subordinate camera is running; starting", self.sensor_id)
 
     def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
-        from skelfuse.sources.kinect import KinectSource
 
         source = KinectSource.from_config(self.cfg, self.sensor_id)
         self._wait_for_subordinates()

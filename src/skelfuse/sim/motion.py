@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS, J
 
 
 @dataclass(frozen=True)
@@ -106,7 +106,6 @@ def body_facing(positions: np.ndarray) -> np.ndarray:
     (..., 3) unit vectors with zero z: forward = left × up, where left points from the right hip and
     shoulder to the left ones.
     """
-    from skelfuse.schema.skeleton import J
 
     left = (
         positions[..., J["HIP_LEFT"], :]

@@ -33,6 +33,7 @@ from typing import Any, Protocol, runtime_checkable
 from skelfuse.config import RigConfig, SensorConfig
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
 from skelfuse.schema.frames import SensorFrame
+from skelfuse.sources import recorded
 from skelfuse.sources.k4abt import (
     K4A_INSTALL_HINT,
     K4ABT_INSTALL_HINT,
@@ -557,7 +558,6 @@ class RecordedFileSource:
         self._pass = 0
 
     def open(self) -> None:
-        from skelfuse.sources import recorded
 
         kind = self.kind
         if kind == "auto":
