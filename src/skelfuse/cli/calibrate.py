@@ -579,7 +579,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     sub = calibrate.add_subparsers(dest="calibrate_command", metavar="METHOD", required=True)
 
-    # capture ---------------------------------------------------------------------------------------
+    _add_capture(sub)
+    _add_sphere(sub)
+    _add_marker(sub)
+    _add_skeleton(sub)
+    _add_check(sub)
+
+
+def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     capture = sub.add_parser(
         "capture",
         help="grab colour (registered to depth) + depth frames from the rig's Azure Kinects into an RGB-D folder",
@@ -641,7 +648,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     capture.set_defaults(func=_cmd_capture)
 
-    # sphere ----------------------------------------------------------------------------------------
+
+def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     sphere = sub.add_parser(
         "sphere",
         help="sensor-to-sensor calibration from a coloured ball carried through the space (paper 2.1.1)",
@@ -708,7 +716,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     sphere.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     sphere.set_defaults(func=_cmd_sphere)
 
-    # marker ----------------------------------------------------------------------------------------
+
+def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     marker = sub.add_parser(
         "marker",
         help="sensor-to-world calibration from a plate of 4 ArUco markers on the floor, seen by the master "
@@ -781,7 +790,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     marker.set_defaults(func=_cmd_marker)
 
-    # skeleton --------------------------------------------------------------------------------------
+
+def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     skeleton = sub.add_parser(
         "skeleton",
         help="sensor-to-sensor (and floor) calibration from one person walking ~30 s through the shared space",
@@ -802,7 +812,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     skeleton.add_argument("--force", action="store_true", help="write the file even when a verdict is bad")
     skeleton.set_defaults(func=_cmd_skeleton)
 
-    # check -----------------------------------------------------------------------------------------
+
+def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     check = sub.add_parser(
         "check",
         help="has a sensor moved since calibration? compare the stored calibration with a new walk",

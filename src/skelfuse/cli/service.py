@@ -156,7 +156,14 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``capture``, ``fuse``, ``record``, ``replay`` and ``status``."""
-    # capture ----------------------------------------------------------------------------------------
+    _add_capture(commands)
+    _add_fuse(commands)
+    _add_record(commands)
+    _add_replay(commands)
+    _add_status(commands)
+
+
+def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     capture = commands.add_parser(
         "capture",
         help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
@@ -201,7 +208,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_zenoh_arguments(capture)
     capture.set_defaults(func=_cmd_capture)
 
-    # fuse -------------------------------------------------------------------------------------------
+
+def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     fuse = commands.add_parser(
         "fuse",
         help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
@@ -268,7 +276,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_zenoh_arguments(fuse)
     fuse.set_defaults(func=_cmd_fuse)
 
-    # record -----------------------------------------------------------------------------------------
+
+def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     record = commands.add_parser(
         "record",
         help="record every raw sensor frame of the rig to an MCAP file",
@@ -289,7 +298,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_zenoh_arguments(record)
     record.set_defaults(func=_cmd_record)
 
-    # replay -----------------------------------------------------------------------------------------
+
+def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     replay = commands.add_parser(
         "replay",
         help="republish a recording's sensor frames over zenoh (original or maximum speed)",
@@ -314,7 +324,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_zenoh_arguments(replay)
     replay.set_defaults(func=_cmd_replay)
 
-    # status -----------------------------------------------------------------------------------------
+
+def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     status = commands.add_parser(
         "status",
         help="print the status messages of the rig's nodes",

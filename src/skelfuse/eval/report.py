@@ -31,6 +31,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from skelfuse.eval import paper_reference
 from skelfuse.eval.paper import (
     EXPERIMENTS,
@@ -389,8 +391,6 @@ def _c(value: float, digits: int = 2) -> str:
 
 def _plot_axes(axes: Any, result: PaperEvalResult, experiment: str, *, legend: bool = True) -> None:
     """Grouped bars of one experiment into one axis per joint group; our rows on a shaded background."""
-    import numpy as np
-
     configs = result.experiment_configs(experiment)
     if experiment == "eps_sweep":
         configs = [c for c in configs if c.startswith(paper_reference.EPS_SWEEP_PRESET + "_")]
