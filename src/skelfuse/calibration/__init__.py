@@ -7,9 +7,10 @@ Modules (paper section 2.1, and beyond it):
 - ``marker``: sensor (the master) to world from a plate of four ArUco markers lying on the floor.
 - ``skeleton``: sensor to sensor from the body-tracking skeletons themselves.
 - ``rigid``: the robust rigid fits (Kabsch / Umeyama without scale, RANSAC) the methods share.
-- ``calfile``: the rig's versioned calibration file (TOML), and the result types every method returns.
-- ``camera``: pinhole intrinsics and depth-image lifting; ``render``: a synthetic RGB-D renderer for tests;
-  ``view``: logging a calibration to Rerun.
-- ``commands``: the ``skelfuse calibrate capture|sphere|marker|skeleton|check`` commands
-  (``add_calibrate_parser``) and the RGB-D folder they read (``load_rgbd_folder``, ``save_rgbd_folder``).
+- ``rgbd_folder``: the RGB-D folder the sphere and marker methods read; ``takes``: skeleton takes from a
+  recording or per-sensor files; ``render``: a synthetic RGB-D renderer for tests; ``view``: logging a
+  calibration to Rerun.
+
+The calibration file itself (read and written) is :mod:`skelfuse.config.calibration_file`; the commands are
+:mod:`skelfuse.cli.calibrate`.
 """
