@@ -48,9 +48,14 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``bench`` with its sub-commands."""
-    # bench ----------------------------------------------------------------------------------------
     bench = commands.add_parser("bench", help="measure speed")
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
+    _add_fusion(bench_commands)
+    _add_people(bench_commands)
+    _add_latency(bench_commands)
+
+
+def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     fusion = bench_commands.add_parser(
         "fusion",
         help="time per fused frame against a scikit-learn + filterpy reference on the same inputs",
@@ -73,6 +78,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     fusion.set_defaults(func=_cmd_bench_fusion)
 
+
+def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     people = bench_commands.add_parser(
         "people",
         help="time per frame of multi-person fusion (association + tracks + fusion) on a simulated crowd",
@@ -84,6 +91,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     people.set_defaults(func=_cmd_bench_people)
 
+
+def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     latency = bench_commands.add_parser(
         "latency",
         help="publish -> fused-receive latency over zenoh on loopback, the node's own latency, max sensors",

@@ -61,10 +61,15 @@ def _default_data_dir() -> Path:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``eval`` with its sub-commands."""
-    # eval -----------------------------------------------------------------------------------------
     evaluate = commands.add_parser("eval", help="reproduce the paper's experiments / evaluate on real data")
     eval_commands = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
 
+    _add_paper(eval_commands)
+    _add_real(eval_commands)
+    _add_tracking(eval_commands)
+
+
+def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     paper = eval_commands.add_parser(
         "paper",
         help="the paper's three experiments on simulated data with exact ground truth",
@@ -94,6 +99,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     paper.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     paper.set_defaults(func=_cmd_eval_paper)
 
+
+def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     real = eval_commands.add_parser(
         "real",
         help="fuse the real 3-sensor Azure Kinect take and report agreement, jitter and leave-one-out error",
@@ -111,6 +118,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     real.add_argument("--out", type=Path, default=None, help="also write report.md into this folder")
     real.set_defaults(func=_cmd_eval_real)
 
+
+def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     tracking = eval_commands.add_parser(
         "tracking",
         help="several people: association, stable ids and per-person accuracy on simulated crowds",
