@@ -119,7 +119,16 @@ def _dynamics_table(result: PaperEvalResult) -> list[str]:
 
 def format_scenario(result: PaperEvalResult) -> str:
     """The whole report of one scenario as markdown."""
+    lines = _intro_lines(result)
+    for exp in EXPERIMENTS:
+        lines += _experiment_lines(result, exp)
+    lines += _per_joint_lines(result) + _dynamics_lines(result) + _simulated_data_lines(result)
+    lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
+    return "\n".join(lines)
 
+
+def _intro_lines(result: PaperEvalResult) -> list[str]:
+    """Title, the takes, the error conventions and how good the best-view reference is."""
     s = result.settings
     scenario = s.get("scenario")
     lines = [
@@ -155,59 +164,67 @@ def format_scenario(result: PaperEvalResult) -> str:
             + ".",
             "",
         ]
+    return lines
 
-    for exp in EXPERIMENTS:
-        configs = result.experiment_configs(exp)
-        lines += [f"## {EXPERIMENT_TITLES[exp]}", ""]
-        # Comparison with the paper: RMSE ± STD for both protocols and the paper's figure.
-        header = ["config", "by"] + [
-            f"{GROUP_LABELS[g]}: {col}" for g in GROUP_NAMES for col in ("truth", "best view", "paper")
-        ]
+
+def _experiment_lines(result: PaperEvalResult, exp: str) -> list[str]:
+    """One experiment: beside the paper's figures, then AE / RMSE / STD per protocol."""
+    lines: list[str] = []
+    configs = result.experiment_configs(exp)
+    lines += [f"## {EXPERIMENT_TITLES[exp]}", ""]
+    # Comparison with the paper: RMSE ± STD for both protocols and the paper's figure.
+    header = ["config", "by"] + [
+        f"{GROUP_LABELS[g]}: {col}" for g in GROUP_NAMES for col in ("truth", "best view", "paper")
+    ]
+    lines += [
+        "RMSE ± STD (mm) against exact truth, against the best view, and the paper's figure:",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    for config in configs:
+        t = result.group_stats(exp, config, "truth")
+        b = result.group_stats(exp, config, "best_view")
+        cells = [_row_cell(exp, config), _by(exp, config)]
+        for g in GROUP_NAMES:
+            pa, ps = (
+                result.paper_value(exp, config, "ae_mm", g),
+                result.paper_value(exp, config, "std_mm", g),
+            )
+            cells += [
+                f"{_f(t[g]['rmse_mm'])} ± {_f(t[g]['std_mm'])}",
+                f"{_f(b[g]['rmse_mm'])} ± {_f(b[g]['std_mm'])}",
+                "—" if pa is None else f"{_f(pa)} ± {_f(ps)}",
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    for protocol in PROTOCOLS:
+        header = ["config", "by"] + [f"{GROUP_LABELS[g]} {m}" for g in GROUP_NAMES for m in ("AE", "RMSE", "STD")]
+        header += ["NaN joint-frames"]
         lines += [
-            "RMSE ± STD (mm) against exact truth, against the best view, and the paper's figure:",
+            f"AE / RMSE / STD (mm) against the {PROTOCOL_TITLES[protocol]}:",
             "",
             "| " + " | ".join(header) + " |",
             "|" + "---|" * len(header),
         ]
         for config in configs:
-            t = result.group_stats(exp, config, "truth")
-            b = result.group_stats(exp, config, "best_view")
+            gs = result.group_stats(exp, config, protocol)
             cells = [_row_cell(exp, config), _by(exp, config)]
             for g in GROUP_NAMES:
-                pa, ps = (
-                    result.paper_value(exp, config, "ae_mm", g),
-                    result.paper_value(exp, config, "std_mm", g),
-                )
-                cells += [
-                    f"{_f(t[g]['rmse_mm'])} ± {_f(t[g]['std_mm'])}",
-                    f"{_f(b[g]['rmse_mm'])} ± {_f(b[g]['std_mm'])}",
-                    "—" if pa is None else f"{_f(pa)} ± {_f(ps)}",
-                ]
+                cells += [_f(gs[g]["ae_mm"]), _f(gs[g]["rmse_mm"]), _f(gs[g]["std_mm"])]
+            missing = sum(gs[g]["n_missing"] for g in GROUP_NAMES)
+            total = missing + sum(gs[g]["n_frames"] for g in GROUP_NAMES)
+            cells.append(f"{missing} / {total}")
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
-        for protocol in PROTOCOLS:
-            header = ["config", "by"] + [f"{GROUP_LABELS[g]} {m}" for g in GROUP_NAMES for m in ("AE", "RMSE", "STD")]
-            header += ["NaN joint-frames"]
-            lines += [
-                f"AE / RMSE / STD (mm) against the {PROTOCOL_TITLES[protocol]}:",
-                "",
-                "| " + " | ".join(header) + " |",
-                "|" + "---|" * len(header),
-            ]
-            for config in configs:
-                gs = result.group_stats(exp, config, protocol)
-                cells = [_row_cell(exp, config), _by(exp, config)]
-                for g in GROUP_NAMES:
-                    cells += [_f(gs[g]["ae_mm"]), _f(gs[g]["rmse_mm"]), _f(gs[g]["std_mm"])]
-                missing = sum(gs[g]["n_missing"] for g in GROUP_NAMES)
-                total = missing + sum(gs[g]["n_frames"] for g in GROUP_NAMES)
-                cells.append(f"{missing} / {total}")
-                lines.append("| " + " | ".join(cells) + " |")
-            lines.append("")
-        if exp == "algorithms":
-            lines += [*_dynamics_table(result), ""]
+    if exp == "algorithms":
+        lines += [*_dynamics_table(result), ""]
+    return lines
 
-    # Per joint, experiment 1, exact truth.
+
+def _per_joint_lines(result: PaperEvalResult) -> list[str]:
+    """Experiment 1 per joint, RMSE against exact truth."""
+    lines: list[str] = []
     configs = result.experiment_configs("algorithms")
     lines += [
         "## Per joint — experiment 1, RMSE (mm) against exact truth",
@@ -219,8 +236,12 @@ def format_scenario(result: PaperEvalResult) -> str:
     for k, name in enumerate(EVAL_JOINT_NAMES):
         lines.append(f"| {name} | " + " | ".join(_f(float(per_config[c].rmse_mm[k])) for c in configs) + " |")
     lines.append("")
+    return lines
 
-    # Lag.
+
+def _dynamics_lines(result: PaperEvalResult) -> list[str]:
+    """Lag, jitter and left/right swaps of every output against exact truth."""
+    lines: list[str] = []
     lag_keys = [
         k
         for k in (
@@ -266,7 +287,12 @@ def format_scenario(result: PaperEvalResult) -> str:
             cells += ["—", "—", _f(result.jitter["exact_truth"].get(g), 2)]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
+    return lines
 
+
+def _simulated_data_lines(result: PaperEvalResult) -> list[str]:
+    """How often each simulated sensor tracked and mirrored the person."""
+    lines: list[str] = []
     mirrored = [t["mirrored_fraction"] for t in result.takes]
     tracked = [t["tracked_fraction"] for t in result.takes]
     if mirrored:
@@ -282,8 +308,7 @@ def format_scenario(result: PaperEvalResult) -> str:
             + ".",
             "",
         ]
-    lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
-    return "\n".join(lines)
+    return lines
 
 
 # ----------------------------------------------------------------------------------------------------

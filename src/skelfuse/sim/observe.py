@@ -662,7 +662,6 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     host_time = np.zeros((n, n_sensors), dtype=np.int64)
     poses = np.stack([s.world_from_sensor for s in sensors])
     poses_calibrated = poses.copy()
-    period_us = 1e6 / profile.fps
 
     for index, sensor in enumerate(sensors):
         rngs = _sensor_rngs(seed, sensor.sensor_id)
@@ -684,62 +683,12 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         new_body = tracked & (~prev_tracked | (mirrored & ~prev_mirrored))
         body_ids[:, index] = np.where(tracked, np.cumsum(new_body), -1)
 
-        # Label space: a mirrored fit faces the sensor, so face and toes go to the sensor's side and the
-        # left/right labels swap.
-        lab = physical.copy()
-        if mirrored.any():
-            forward = forward_world[mirrored] @ rotation
-            m_lab = lab[mirrored]
-            m_lab[:, _FACE_JOINTS] = _reflect(m_lab[:, _FACE_JOINTS], m_lab[:, J["HEAD"]], forward)
-            for tip in _FOOT_TIPS:
-                ankle = PARENTS[tip]
-                m_lab[:, [tip]] = _reflect(m_lab[:, [tip]], m_lab[:, ankle], forward)
-            lab[mirrored] = m_lab[:, MIRROR]
-            hidden = np.where(mirrored[:, None], hidden[:, MIRROR], hidden)
-            in_view = np.where(mirrored[:, None], in_view[:, MIRROR], in_view)
-
-        # 4. error
-        noise = rngs["noise"]
-        offsets = noise.normal(0.0, 1.0, (N_JOINTS, 3)) * _group_values(profile.offset_sigma_mm)
-        jumps = (noise.random((n, N_JOINTS, 1)) < profile.jump_prob) & ~hidden[:, :, None]
-        impulses = jumps * noise.normal(0.0, profile.jump_sigma_mm, (n, N_JOINTS, 3))
-        slow = ar1(
-            noise, n, (N_JOINTS, 3), _group_values(profile.slow_rho), _group_values(profile.slow_sigma_mm), impulses
-        )
-        white = student_t(noise, (n, N_JOINTS, 3), _group_values(profile.white_sigma_mm), profile.white_dof)
-        guess = _occluded_guess_error(noise, n, profile)
-        down = -rotation[2]  # world -z in the sensor frame
-        prior = _default_pose(lab, bone_lengths, down)
-        noisy = lab + offsets + slow + white
-        noisy = noisy + hidden[:, :, None] * (profile.occluded_pull * (prior - lab) + guess)
-        if profile.convergence_frames > 0:
-            run_start = np.maximum.accumulate(np.where(new_body & ~(mirrored & prev_tracked), np.arange(n), 0))
-            since = np.arange(n) - run_start
-            initial = noise.normal(0.0, profile.convergence_sigma_mm, (N_JOINTS, 3))
-            noisy = noisy + np.exp(-since / profile.convergence_frames)[:, None, None] * initial
-
-        # 5. body model with one size factor per frame
-        scale_rng = rngs["scale"]
-        level = 1.0 + np.clip(
-            scale_rng.normal(0.0, profile.scale_view_sd), -profile.scale_view_max, profile.scale_view_max
-        )
-        drift = ar1(scale_rng, n, (), profile.scale_slow_rho, profile.scale_slow_sd)
-        scale = level * pose_scale * (1.0 + drift)
-        fitted = fit_body_model(noisy, bone_lengths, scale)
-
-        # 6. confidence
-        conf_rng = rngs["confidence"]
-        labels = np.full((n, N_JOINTS), Confidence.MEDIUM, dtype=np.uint8)
-        leg_low = conf_rng.random((n, _LEG_JOINTS.size)) < profile.leg_low_prob
-        labels[:, _LEG_JOINTS] = np.where(leg_low, Confidence.LOW, Confidence.MEDIUM)
-        hidden_low = hidden & (conf_rng.random((n, N_JOINTS)) < profile.occluded_low_prob)
-        labels[hidden_low] = Confidence.LOW
-        fraction = conf_rng.uniform(profile.hand_none_fraction_min, profile.hand_none_fraction_max, _HAND_JOINTS.size)
-        latent = ar1(conf_rng, n, (_HAND_JOINTS.size,), profile.hand_none_rho, 1.0)
-        hand_labels = labels[:, _HAND_JOINTS]
-        hand_labels[latent < ndtri(np.clip(fraction, 1e-9, 1 - 1e-9))] = Confidence.NONE
-        labels[:, _HAND_JOINTS] = hand_labels
-        labels[~in_view] = Confidence.NONE
+        # 4-7. what the tracker reports: labels, error, body-model refit, confidence, timestamps
+        lab, hidden, in_view = _label_space(physical, hidden, in_view, mirrored, forward_world[mirrored] @ rotation)
+        restarts = new_body & ~(mirrored & prev_tracked)
+        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile)
+        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile)
+        labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile)
 
         positions[tracked, index] = fitted[tracked].astype(np.float32)
         confidence[tracked, index] = labels[tracked]
@@ -747,30 +696,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         mirrored_all[:, index] = mirrored
         dropped_all[:, index] = dropped
         occluded_all[:, index] = hidden & tracked[:, None]
-
-        # 7. timestamps and calibration
-        timing = rngs["timing"]
-        device = (
-            profile.device_time_start_us
-            + np.arange(n) * period_us
-            + timing.normal(0.0, profile.frame_interval_jitter_us / np.sqrt(2.0), n)
-        )
-        if index > 0:
-            device = (
-                device
-                + index * profile.subordinate_delay_us
-                - timing.uniform(0.0, profile.subordinate_delay_spread_us, n)
-            )
-        latency_ms = np.maximum(
-            profile.host_latency_mean_ms
-            + timing.normal(0.0, profile.host_offset_sd_ms)
-            + timing.normal(0.0, profile.host_latency_jitter_ms, n),
-            0.0,
-        )
-        host = profile.host_epoch_s * 1e9 + device * 1e3 + latency_ms * 1e6
-        host = np.maximum.accumulate(host)  # a host clock never runs backwards
-        device_time[:, index] = np.where(dropped, -1, np.rint(device).astype(np.int64))
-        host_time[:, index] = np.where(dropped, -1, np.rint(host).astype(np.int64))
+        device_time[:, index], host_time[:, index] = _timestamps(rngs["timing"], n, index, dropped, profile)
         if index > 0:
             poses_calibrated[index] = sensor.world_from_sensor @ _calibration_error(rngs["calibration"], profile)
 
@@ -789,6 +715,123 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         dropped=dropped_all,
         occluded=occluded_all,
         times_s=times,
+    )
+
+
+def _label_space(
+    physical: np.ndarray, hidden: np.ndarray, in_view: np.ndarray, mirrored: np.ndarray, forward: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The true joints as the tracker labels them (stage 3 of :func:`simulate`).
+
+    A mirrored fit faces the sensor, so face and toes go to the sensor's side (``forward``: the body's facing
+    in the sensor frame, for the mirrored frames) and the left/right labels swap, with the joints' occlusion
+    and visibility.
+    """
+    lab = physical.copy()
+    if not mirrored.any():
+        return lab, hidden, in_view
+    m_lab = lab[mirrored]
+    m_lab[:, _FACE_JOINTS] = _reflect(m_lab[:, _FACE_JOINTS], m_lab[:, J["HEAD"]], forward)
+    for tip in _FOOT_TIPS:
+        ankle = PARENTS[tip]
+        m_lab[:, [tip]] = _reflect(m_lab[:, [tip]], m_lab[:, ankle], forward)
+    lab[mirrored] = m_lab[:, MIRROR]
+    hidden = np.where(mirrored[:, None], hidden[:, MIRROR], hidden)
+    in_view = np.where(mirrored[:, None], in_view[:, MIRROR], in_view)
+    return lab, hidden, in_view
+
+
+def _tracker_error(
+    noise: np.random.Generator,
+    lab: np.ndarray,
+    hidden: np.ndarray,
+    restarts: np.ndarray,
+    bone_lengths: np.ndarray,
+    down: np.ndarray,
+    profile: SimProfile,
+) -> np.ndarray:
+    """Stage 4 of :func:`simulate`: constant offsets, slow AR(1) error with jumps, heavy-tailed white jitter, the
+    pull of hidden joints toward a default pose plus their guess error, and the convergence after a (re)start.
+
+    ``restarts``: frames where the tracker starts a new fit; ``down``: world -z in the sensor frame.
+    """
+    n = lab.shape[0]
+    offsets = noise.normal(0.0, 1.0, (N_JOINTS, 3)) * _group_values(profile.offset_sigma_mm)
+    jumps = (noise.random((n, N_JOINTS, 1)) < profile.jump_prob) & ~hidden[:, :, None]
+    impulses = jumps * noise.normal(0.0, profile.jump_sigma_mm, (n, N_JOINTS, 3))
+    slow = ar1(noise, n, (N_JOINTS, 3), _group_values(profile.slow_rho), _group_values(profile.slow_sigma_mm), impulses)
+    white = student_t(noise, (n, N_JOINTS, 3), _group_values(profile.white_sigma_mm), profile.white_dof)
+    guess = _occluded_guess_error(noise, n, profile)
+    prior = _default_pose(lab, bone_lengths, down)
+    noisy = lab + offsets + slow + white
+    noisy = noisy + hidden[:, :, None] * (profile.occluded_pull * (prior - lab) + guess)
+    if profile.convergence_frames > 0:
+        run_start = np.maximum.accumulate(np.where(restarts, np.arange(n), 0))
+        since = np.arange(n) - run_start
+        initial = noise.normal(0.0, profile.convergence_sigma_mm, (N_JOINTS, 3))
+        noisy = noisy + np.exp(-since / profile.convergence_frames)[:, None, None] * initial
+    return noisy
+
+
+def _body_model(
+    scale_rng: np.random.Generator,
+    noisy: np.ndarray,
+    bone_lengths: np.ndarray,
+    pose_scale: np.ndarray,
+    profile: SimProfile,
+) -> np.ndarray:
+    """Stage 5 of :func:`simulate`: refit the noisy joints to the body model with one size factor per frame
+    (a per-view level, the pose's shrink, a slow drift)."""
+    level = 1.0 + np.clip(scale_rng.normal(0.0, profile.scale_view_sd), -profile.scale_view_max, profile.scale_view_max)
+    drift = ar1(scale_rng, noisy.shape[0], (), profile.scale_slow_rho, profile.scale_slow_sd)
+    return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift))
+
+
+def _confidence_labels(
+    conf_rng: np.random.Generator, hidden: np.ndarray, in_view: np.ndarray, profile: SimProfile
+) -> np.ndarray:
+    """Stage 6 of :func:`simulate`: (n, 32) confidence: MEDIUM, LOW for some leg frames and hidden joints, NONE
+    for hand episodes and joints out of view."""
+    n = hidden.shape[0]
+    labels = np.full((n, N_JOINTS), Confidence.MEDIUM, dtype=np.uint8)
+    leg_low = conf_rng.random((n, _LEG_JOINTS.size)) < profile.leg_low_prob
+    labels[:, _LEG_JOINTS] = np.where(leg_low, Confidence.LOW, Confidence.MEDIUM)
+    hidden_low = hidden & (conf_rng.random((n, N_JOINTS)) < profile.occluded_low_prob)
+    labels[hidden_low] = Confidence.LOW
+    fraction = conf_rng.uniform(profile.hand_none_fraction_min, profile.hand_none_fraction_max, _HAND_JOINTS.size)
+    latent = ar1(conf_rng, n, (_HAND_JOINTS.size,), profile.hand_none_rho, 1.0)
+    hand_labels = labels[:, _HAND_JOINTS]
+    hand_labels[latent < ndtri(np.clip(fraction, 1e-9, 1 - 1e-9))] = Confidence.NONE
+    labels[:, _HAND_JOINTS] = hand_labels
+    labels[~in_view] = Confidence.NONE
+    return labels
+
+
+def _timestamps(
+    timing: np.random.Generator, n: int, index: int, dropped: np.ndarray, profile: SimProfile
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 7 of :func:`simulate`: device timestamps (µs; subordinates after the master by their delay) and host
+    timestamps (ns; latency and a per-host offset, never running backwards); -1 for dropped frames."""
+    period_us = 1e6 / profile.fps
+    device = (
+        profile.device_time_start_us
+        + np.arange(n) * period_us
+        + timing.normal(0.0, profile.frame_interval_jitter_us / np.sqrt(2.0), n)
+    )
+    if index > 0:
+        device = (
+            device + index * profile.subordinate_delay_us - timing.uniform(0.0, profile.subordinate_delay_spread_us, n)
+        )
+    latency_ms = np.maximum(
+        profile.host_latency_mean_ms
+        + timing.normal(0.0, profile.host_offset_sd_ms)
+        + timing.normal(0.0, profile.host_latency_jitter_ms, n),
+        0.0,
+    )
+    host = profile.host_epoch_s * 1e9 + device * 1e3 + latency_ms * 1e6
+    host = np.maximum.accumulate(host)  # a host clock never runs backwards
+    return np.where(dropped, -1, np.rint(device).astype(np.int64)), np.where(
+        dropped, -1, np.rint(host).astype(np.int64)
     )
 
 
