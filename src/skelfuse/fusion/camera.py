@@ -101,3 +101,26 @@ def lift_mask(depth_mm: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics) ->
         )
     rows, cols = np.nonzero((np.asarray(mask) != 0) & (depth > 0))
     return intrinsics.lift(cols, rows, depth[rows, cols])
+
+
+def look_at_pose(position_mm: np.ndarray, target_mm: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """(4, 4) ``world_from_camera`` of a camera at ``position_mm`` whose optical axis (+z) points at
+    ``target_mm``, with no roll: its x axis is horizontal (right in the image), y points down in the image.
+
+    Raises ValueError when the target equals the position or the camera looks straight along ``up``.
+    """
+    position = np.asarray(position_mm, dtype=np.float64)
+    forward = np.asarray(target_mm, dtype=np.float64) - position
+    norm = np.linalg.norm(forward)
+    if norm < 1e-9:
+        raise ValueError(f"look_at: target equals position {position}")
+    z_axis = forward / norm
+    x_axis = np.cross(z_axis, np.asarray(up, dtype=np.float64))
+    if np.linalg.norm(x_axis) < 1e-9:
+        raise ValueError("look_at: looking straight along 'up' leaves the roll undefined")
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(z_axis, x_axis)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x_axis, y_axis, z_axis], axis=1)
+    pose[:3, 3] = position
+    return pose

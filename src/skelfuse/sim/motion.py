@@ -13,8 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.depth.frontal import body_facing
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import N_JOINTS, J
+from skelfuse.schema.skeleton import N_JOINTS
+
+# body_facing lives in the pure core (the depth fusion's front/back decision needs it); re-exported here.
+__all__ = ["Motion", "axis_rotation", "body_facing", "facing_deg"]
 
 
 @dataclass(frozen=True)
@@ -92,30 +96,6 @@ class Motion:
         last_s = (self.n_frames - 1) / self.fps
         n_new = int(np.floor(last_s * fps + 1e-6)) + 1
         return Motion(self.name, float(fps), self.at_times(np.arange(n_new) / fps))
-
-
-def body_facing(positions: np.ndarray) -> np.ndarray:
-    """Horizontal unit vector the body faces, from the hips and shoulders.
-
-    Parameters
-    ----------
-    positions : (..., 32, 3) world mm (z up)
-
-    Returns
-    -------
-    (..., 3) unit vectors with zero z: forward = left × up, where left points from the right hip and
-    shoulder to the left ones.
-    """
-
-    left = (
-        positions[..., J["HIP_LEFT"], :]
-        - positions[..., J["HIP_RIGHT"], :]
-        + positions[..., J["SHOULDER_LEFT"], :]
-        - positions[..., J["SHOULDER_RIGHT"], :]
-    )
-    forward = np.stack([left[..., 1], -left[..., 0], np.zeros_like(left[..., 0])], axis=-1)
-    norm = np.linalg.norm(forward, axis=-1, keepdims=True)
-    return forward / np.maximum(norm, 1e-9)
 
 
 def facing_deg(positions: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.camera import look_at_pose
 from skelfuse.fusion.transform import invert_transform, transform_points
 
 NFOV_UNBINNED_FOV_DEG = (75.0, 65.0)
@@ -92,20 +93,10 @@ def look_at(
     The sensor's x axis is horizontal (right in the image), y points down in the image. Extra keyword
     arguments (``fov_h_deg``, ``fov_v_deg``, ``range_mm``) go to :class:`VirtualSensor`.
     """
-    position = np.asarray(position_mm, dtype=np.float64)
-    forward = np.asarray(target_mm, dtype=np.float64) - position
-    norm = np.linalg.norm(forward)
-    if norm < 1e-9:
-        raise ValueError(f"look_at {sensor_id!r}: target equals position {position}")
-    z_axis = forward / norm
-    x_axis = np.cross(z_axis, np.asarray(up, dtype=np.float64))
-    if np.linalg.norm(x_axis) < 1e-9:
-        raise ValueError(f"look_at {sensor_id!r}: looking straight along 'up' leaves the roll undefined")
-    x_axis /= np.linalg.norm(x_axis)
-    y_axis = np.cross(z_axis, x_axis)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x_axis, y_axis, z_axis], axis=1)
-    pose[:3, 3] = position
+    try:
+        pose = look_at_pose(position_mm, target_mm, up)
+    except ValueError as error:
+        raise ValueError(f"look_at {sensor_id!r}: {error}") from None
     return VirtualSensor(sensor_id, pose, **fov)  # type: ignore[arg-type]
 
 
