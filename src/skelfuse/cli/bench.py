@@ -1,4 +1,4 @@
-"""``skelfuse bench fusion|people|latency``: speed against a reference measured in the same run."""
+"""``skelfuse bench fusion|people|latency|depth``: speed against a reference measured in the same run."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 
 from skelfuse.bench import fusion as bench_fusion
 from skelfuse.bench import latency
+from skelfuse.bench.depth import format_depth_bench, run_depth_bench
 from skelfuse.bench.people import bench_people, format_people_bench
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, print_json
 
@@ -46,6 +47,22 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_depth(args: argparse.Namespace) -> int:
+    result = run_depth_bench(
+        tuple(args.people),
+        n_sensors=args.sensors,
+        n_frames=args.frames,
+        voxel_mm=args.voxel,
+        seed=args.seed,
+        progress=not args.json,
+    )
+    if args.json:
+        print_json(result)
+    else:
+        print(format_depth_bench(result))
+    return EXIT_OK
+
+
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``bench`` with its sub-commands."""
     bench = commands.add_parser("bench", help="measure speed")
@@ -53,6 +70,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_fusion(bench_commands)
     _add_people(bench_commands)
     _add_latency(bench_commands)
+    _add_depth(bench_commands)
 
 
 def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -120,3 +138,24 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
     latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
     latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     latency.set_defaults(func=_cmd_bench_latency)
+
+
+def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    depth = bench_commands.add_parser(
+        "depth",
+        help="depth-level fusion: person-cloud bytes on the wire, capture and fusion time per person (simulated)",
+        description="Simulate 1-3 people in front of a 4-sensor rig (depth + body-index images per sensor), time "
+        "the capture side (mask, lift, voxelize, encode the person clouds) per sensor-frame and the fusion node "
+        "(decode, to world, merge, optional ICP, frontalize, render the virtual depth image with hole filling) "
+        "per person-frame, and count the payload bytes per frame and per second at 30 fps. The body tracker on "
+        "the virtual image is not included (it needs the SDK and a GPU).",
+    )
+    depth.add_argument(
+        "--people", type=int, nargs="+", default=[1, 2, 3], metavar="N", help="people counts (default: %(default)s)"
+    )
+    depth.add_argument("--sensors", type=int, default=4, help="sensors in the rig (default: %(default)s)")
+    depth.add_argument("--frames", type=int, default=30, help="frames per people count (default: %(default)s)")
+    depth.add_argument("--voxel", type=float, default=15.0, help="voxel edge, mm (default: %(default)s)")
+    depth.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    depth.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    depth.set_defaults(func=_cmd_bench_depth)

@@ -83,6 +83,17 @@ def all_sensor_skeletons(rig: str) -> str:
     return f"{rig_prefix(rig)}/sensors/*/skeletons"
 
 
+def sensor_clouds(rig: str, sensor_id: str) -> str:
+    """``skelfuse/<rig>/sensors/<sensor_id>/clouds``: where a capture worker in depth mode publishes its
+    person clouds (:mod:`skelfuse.wire.clouds`)."""
+    return f"{rig_prefix(rig)}/sensors/{validate_name(sensor_id, 'sensor')}/clouds"
+
+
+def all_sensor_clouds(rig: str) -> str:
+    """``skelfuse/<rig>/sensors/*/clouds``: what a fusion node in depth or hybrid mode subscribes to."""
+    return f"{rig_prefix(rig)}/sensors/*/clouds"
+
+
 def fused_skeletons(rig: str) -> str:
     """``skelfuse/<rig>/fused/skeletons``: where the fusion node publishes fused frames."""
     return f"{rig_prefix(rig)}/fused/skeletons"

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import distance_transform_edt, minimum_filter
 
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.transform import transform_points
@@ -75,69 +75,67 @@ def render_points(
     camera_from_world = np.linalg.inv(np.asarray(world_from_camera, dtype=np.float64))
     p = transform_points(camera_from_world, np.asarray(points_world, dtype=np.float64).reshape(-1, 3))
     values = None if ir is None else np.asarray(ir, dtype=np.float32).reshape(-1)
-    in_front = p[:, 2] > 1.0
-    p = p[in_front]
-    if values is not None:
-        values = values[in_front]
-    uv = np.rint(intrinsics.project(p)).astype(np.int64) if p.shape[0] else np.zeros((0, 2), np.int64)
-    if splat_mm > 0 and p.shape[0]:
-        visible = _visible(p, uv, splat_mm, intrinsics)
-        p, uv = p[visible], uv[visible]
+    keep = p[:, 2] > 1.0
+    uv = np.zeros((0, 2), np.int64)
+    if keep.any():
+        uv = np.rint(intrinsics.project(p[keep])).astype(np.int64)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+        keep[keep] = inside
+        uv = uv[inside]
+    p = p[keep]
+    values = None if values is None else values[keep]
+    depth = np.full((height, width), np.inf, dtype=np.float32)
+    image_ir = None if values is None else np.zeros((height, width), dtype=np.float32)
+    if p.shape[0] == 0:
+        return VirtualImage(depth, image_ir, np.zeros((height, width), dtype=bool))
+    # Work in the bounding box of the projected points (plus room for the filling): a person covers a
+    # fraction of the image, and the distance transform's cost is the box's area.
+    margin = int(np.ceil(fill_radius_px)) + 1
+    u0, v0 = np.maximum(uv.min(axis=0) - margin, 0)
+    u1, v1 = np.minimum(uv.max(axis=0) + margin + 1, (width, height))
+    box_w, box_h = int(u1 - u0), int(v1 - v0)
+    flat = (uv[:, 1] - v0) * box_w + (uv[:, 0] - u0)
+    z = p[:, 2]
+    zbuffer = np.full(box_h * box_w, np.inf)
+    np.minimum.at(zbuffer, flat, z)  # Eq. 9: the nearest point per pixel
+    if splat_mm > 0:
+        visible = _visible(zbuffer.reshape(box_h, box_w), flat, z, splat_mm, intrinsics)
+        flat, z = flat[visible], z[visible]
         values = None if values is None else values[visible]
-    inside = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-    flat = uv[inside, 1] * width + uv[inside, 0]
-    z = p[inside, 2]
-    # z-buffer: sort by pixel, then depth; the first entry of each pixel is the nearest point.
-    order = np.lexsort((z, flat))
-    first = np.ones(order.shape[0], dtype=bool)
-    first[1:] = flat[order][1:] != flat[order][:-1]
-    winners = order[first]
-    depth = np.full(height * width, np.inf, dtype=np.float32)
-    depth[flat[winners]] = z[winners]
-    image_ir = None
+        zbuffer = np.full(box_h * box_w, np.inf)
+        np.minimum.at(zbuffer, flat, z)
+    box = zbuffer.reshape(box_h, box_w).astype(np.float32)
+    box_ir = None
     if values is not None:
-        image_ir = np.zeros(height * width, dtype=np.float32)
-        image_ir[flat[winners]] = values[inside][winners]
-    depth = depth.reshape(height, width)
-    hit = np.isfinite(depth)
-    if image_ir is not None:
-        image_ir = image_ir.reshape(height, width)
-    if fill_radius_px > 0 and hit.any():
-        depth, image_ir = fill_holes(depth, image_ir, fill_radius_px)
+        box_ir = np.zeros(box_h * box_w, dtype=np.float32)
+        winner = z == zbuffer[flat]
+        box_ir[flat[winner]] = values[winner]
+        box_ir = box_ir.reshape(box_h, box_w)
+    hit = np.zeros((height, width), dtype=bool)
+    hit[v0:v1, u0:u1] = np.isfinite(box)
+    if fill_radius_px > 0:
+        box, box_ir = fill_holes(box, box_ir, fill_radius_px)
+    depth[v0:v1, u0:u1] = box
+    if image_ir is not None and box_ir is not None:
+        image_ir[v0:v1, u0:u1] = box_ir
     return VirtualImage(depth, image_ir, hit)
 
 
-def _splat(
-    p: np.ndarray, uv: np.ndarray, values: np.ndarray | None, splat_mm: float, intrinsics: Intrinsics
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Repeat every point over the pixels of its footprint (a square of ``splat_mm`` at its depth)."""
-    half_px = 0.5 * splat_mm * max(intrinsics.fx, intrinsics.fy) / p[:, 2]  # (N,)
-    reach = int(np.ceil(min(float(half_px.max()), 16.0) - 0.5))
-    if reach <= 0:
-        return p, uv, values
-    offsets = np.arange(-reach, reach + 1)
-    du, dv = (grid.reshape(-1) for grid in np.meshgrid(offsets, offsets))
-    covers = (np.abs(du)[None, :] <= half_px[:, None] + 0.5) & (np.abs(dv)[None, :] <= half_px[:, None] + 0.5)
-    point, offset = np.nonzero(covers)
-    new_uv = uv[point] + np.stack([du[offset], dv[offset]], axis=1)
-    return p[point], new_uv, None if values is None else values[point]
+def _visible(
+    zbuffer: np.ndarray, flat: np.ndarray, z: np.ndarray, splat_mm: float, intrinsics: Intrinsics
+) -> np.ndarray:
+    """(N,) bool: points not hidden behind a nearer surface.
 
-
-def _visible(p: np.ndarray, uv: np.ndarray, splat_mm: float, intrinsics: Intrinsics) -> np.ndarray:
-    """(N,) bool: points not hidden behind a nearer surface, judged on a z-buffer of voxel footprints.
-
-    A point is hidden when the splatted z-buffer at its pixel holds a depth more than ``2 * splat_mm`` in
-    front of it (neighbouring voxels of one surface differ by less; a body part behind another by more).
+    Every point is taken to cover a square of ``splat_mm`` (its voxel's footprint) at the depth of the
+    nearest point: a minimum filter of that width over the one-pixel z-buffer is the z-buffer of the splats.
+    A point is hidden when that holds a depth more than ``2 * splat_mm`` in front of it (neighbouring voxels
+    of one surface differ by less; a body part behind another by more).
     """
-    width, height = intrinsics.width, intrinsics.height
-    splat_p, splat_uv, _ = _splat(p, uv, None, splat_mm, intrinsics)
-    inside = (splat_uv[:, 0] >= 0) & (splat_uv[:, 0] < width) & (splat_uv[:, 1] >= 0) & (splat_uv[:, 1] < height)
-    zbuffer = np.full(height * width, np.inf)
-    np.minimum.at(zbuffer, splat_uv[inside, 1] * width + splat_uv[inside, 0], splat_p[inside, 2])
-    own = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-    visible = np.zeros(p.shape[0], dtype=bool)
-    visible[own] = p[own, 2] <= zbuffer[uv[own, 1] * width + uv[own, 0]] + 2.0 * splat_mm
-    return visible
+    nearest = float(np.min(z))
+    half_px = 0.5 * splat_mm * max(intrinsics.fx, intrinsics.fy) / nearest
+    width = 2 * int(np.ceil(min(half_px, 16.0) - 0.5)) + 1
+    splatted = minimum_filter(zbuffer, size=width, mode="constant", cval=np.inf).reshape(-1)
+    return z <= splatted[flat] + 2.0 * splat_mm
 
 
 def fill_holes(
