@@ -11,9 +11,9 @@
 
 typedef struct { char serial[64]; bool sync_in; bool sync_out; } fake_device_info;
 typedef struct { size_t magic; uint32_t index; int open; } fake_device;
-typedef struct { size_t magic; int refcount; } fake_capture;
 
 static int g_captures_alive = 0;
+static int g_images_alive = 0;
 
 static int read_devices(fake_device_info *out) {
     const char *env = getenv("FAKE_K4A_DEVICES");
@@ -113,9 +113,80 @@ FAKE_EXPORT k4a_result_t k4a_capture_create(k4a_capture_t *capture_handle) {
 
 FAKE_EXPORT void k4a_capture_reference(k4a_capture_t handle) { ((fake_capture *)handle)->refcount++; }
 
+/* ---- images (k4a_image_create_from_buffer and what a capture does with them) ---- */
+
+static fake_image *as_image(k4a_image_t handle) {
+    fake_image *image = (fake_image *)handle;
+    return (image != NULL && image->magic == FAKE_IMAGE_MAGIC) ? image : NULL;
+}
+
+FAKE_EXPORT k4a_result_t k4a_image_create_from_buffer(k4a_image_format_t format, int width_pixels, int height_pixels,
+                                                      int stride_bytes, uint8_t *buffer, size_t buffer_size,
+                                                      k4a_memory_destroy_cb_t *buffer_release_cb,
+                                                      void *buffer_release_cb_context, k4a_image_t *image_handle) {
+    int bytes_per_pixel = (format == K4A_IMAGE_FORMAT_DEPTH16 || format == K4A_IMAGE_FORMAT_IR16 ||
+                           format == K4A_IMAGE_FORMAT_CUSTOM16) ? 2 : 1;
+    if (image_handle == NULL || buffer == NULL || width_pixels <= 0 || height_pixels <= 0 ||
+        stride_bytes < width_pixels * bytes_per_pixel || buffer_size < (size_t)stride_bytes * (size_t)height_pixels)
+        return K4A_RESULT_FAILED;
+    fake_image *image = calloc(1, sizeof(fake_image));
+    image->magic = FAKE_IMAGE_MAGIC;
+    image->refcount = 1;
+    image->format = format;
+    image->width = width_pixels;
+    image->height = height_pixels;
+    image->stride = stride_bytes;
+    image->buffer = buffer;
+    image->size = buffer_size;
+    image->release = buffer_release_cb;
+    image->context = buffer_release_cb_context;
+    g_images_alive++;
+    *image_handle = (k4a_image_t)image;
+    return K4A_RESULT_SUCCEEDED;
+}
+
+FAKE_EXPORT void k4a_image_reference(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    if (image != NULL) image->refcount++;
+}
+
+FAKE_EXPORT void k4a_image_release(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    if (image != NULL && --image->refcount == 0) {
+        if (image->release != NULL) image->release(image->buffer, image->context);
+        image->magic = 0;
+        free(image);
+        g_images_alive--;
+    }
+}
+
+FAKE_EXPORT void k4a_image_set_device_timestamp_usec(k4a_image_t handle, uint64_t timestamp_usec) {
+    fake_image *image = as_image(handle);
+    if (image != NULL) image->device_usec = timestamp_usec;
+}
+
+static void set_image(fake_image **slot, k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    if (image != NULL) image->refcount++;
+    if (*slot != NULL) k4a_image_release((k4a_image_t)*slot);
+    *slot = image;
+}
+
+FAKE_EXPORT void k4a_capture_set_depth_image(k4a_capture_t capture_handle, k4a_image_t image_handle) {
+    fake_capture *capture = (fake_capture *)capture_handle;
+    if (capture != NULL && capture->magic == FAKE_CAPTURE_MAGIC) set_image(&capture->depth, image_handle);
+}
+
+FAKE_EXPORT void k4a_capture_set_ir_image(k4a_capture_t capture_handle, k4a_image_t image_handle) {
+    fake_capture *capture = (fake_capture *)capture_handle;
+    if (capture != NULL && capture->magic == FAKE_CAPTURE_MAGIC) set_image(&capture->ir, image_handle);
+}
+
 FAKE_EXPORT void k4a_capture_release(k4a_capture_t handle) {
     fake_capture *capture = (fake_capture *)handle;
     if (capture != NULL && --capture->refcount == 0) {
+        if (capture->depth != NULL) k4a_image_release((k4a_image_t)capture->depth);
+        if (capture->ir != NULL) k4a_image_release((k4a_image_t)capture->ir);
         capture->magic = 0;
         free(capture);
         g_captures_alive--;
@@ -124,6 +195,7 @@ FAKE_EXPORT void k4a_capture_release(k4a_capture_t handle) {
 
 /* ---- test control ---- */
 FAKE_EXPORT int fake_k4a_captures_alive(void) { return g_captures_alive; }
+FAKE_EXPORT int fake_k4a_images_alive(void) { return g_images_alive; }
 
 FAKE_EXPORT size_t fake_k4a_layout(const char *name) {
     if (strcmp(name, "version") == 0) return sizeof(k4a_version_t);
@@ -132,5 +204,21 @@ FAKE_EXPORT size_t fake_k4a_layout(const char *name) {
     if (strcmp(name, "hardware_version.depth_sensor") == 0) return offsetof(k4a_hardware_version_t, depth_sensor);
     if (strcmp(name, "hardware_version.firmware_build") == 0) return offsetof(k4a_hardware_version_t, firmware_build);
     if (strcmp(name, "hardware_version.firmware_signature") == 0) return offsetof(k4a_hardware_version_t, firmware_signature);
+#define L(key, value) if (strcmp(name, key) == 0) return (value)
+    L("calibration", sizeof(k4a_calibration_t));
+    L("calibration.color_camera_calibration", offsetof(k4a_calibration_t, color_camera_calibration));
+    L("calibration.extrinsics", offsetof(k4a_calibration_t, extrinsics));
+    L("calibration.depth_mode", offsetof(k4a_calibration_t, depth_mode));
+    L("calibration.color_resolution", offsetof(k4a_calibration_t, color_resolution));
+    L("calibration_camera", sizeof(k4a_calibration_camera_t));
+    L("calibration_camera.intrinsics", offsetof(k4a_calibration_camera_t, intrinsics));
+    L("calibration_camera.resolution_width", offsetof(k4a_calibration_camera_t, resolution_width));
+    L("calibration_camera.resolution_height", offsetof(k4a_calibration_camera_t, resolution_height));
+    L("calibration_camera.metric_radius", offsetof(k4a_calibration_camera_t, metric_radius));
+    L("intrinsics", sizeof(k4a_calibration_intrinsics_t));
+    L("intrinsics.parameter_count", offsetof(k4a_calibration_intrinsics_t, parameter_count));
+    L("intrinsics.parameters", offsetof(k4a_calibration_intrinsics_t, parameters));
+    L("extrinsics", sizeof(k4a_calibration_extrinsics_t));
+#undef L
     return (size_t)-1;
 }

@@ -38,7 +38,7 @@ typedef struct {
     fake_frame *frame;
 } fake_event;
 
-typedef struct { size_t magic; int shutdown; } fake_tracker;
+typedef struct { size_t magic; int shutdown; k4a_calibration_t calibration; } fake_tracker;
 
 typedef struct {
     int32_t created;
@@ -65,6 +65,7 @@ static int g_script_head = 0, g_script_len = 0;
 static fake_frame *g_ready[FAKE_QUEUE_MAX];
 static int g_ready_len = 0;
 static int g_fail_creates = 0;
+static int g_echo = 0;
 static uint64_t g_auto_time = 0;
 static fake_stats g_stats;
 
@@ -105,6 +106,7 @@ FAKE_EXPORT void fake_k4abt_reset(void) {
     for (int i = 0; i < g_ready_len; i++) free_frame(g_ready[i]);
     g_script_head = g_script_len = g_ready_len = 0;
     g_fail_creates = 0;
+    g_echo = 0;
     g_auto_time = 0;
     int alive = g_stats.frames_alive; /* frames the binding still holds stay counted */
     memset(&g_stats, 0, sizeof(g_stats));
@@ -128,6 +130,65 @@ FAKE_EXPORT int fake_k4abt_script_event(int kind) {
 }
 
 FAKE_EXPORT void fake_k4abt_fail_next_creates(int n) { g_fail_creates = n; }
+
+/* Echo mode: with an empty script, every capture yields one body computed from the capture's depth image and
+ * the calibration the tracker was created with, so that the test can recompute it independently:
+ *   joint 0 position: the mean of the valid depth pixels lifted with the calibration's depth intrinsics
+ *                     (x = (u - cx) d / fx, y = (v - cy) d / fy, z = d), rows read with the image's stride;
+ *   joint 1 position: (valid pixel count, mean IR over them (0 without IR), depth stride in bytes);
+ *   joint 2 position: (depth_mode, depth resolution_width, resolution_height);
+ *   joint 3 position: (intrinsics type, parameter_count, metric_radius).
+ * The body frame's device timestamp is the depth image's. A capture without a DEPTH16 image of the
+ * calibration's resolution is refused (enqueue FAILED, counted as a bad capture). */
+FAKE_EXPORT void fake_k4abt_set_echo(int on) { g_echo = on; }
+
+static fake_frame *echo_frame(const fake_tracker *tracker, const fake_capture *capture) {
+    const fake_image *depth = capture->depth;
+    const k4a_calibration_camera_t *camera = &tracker->calibration.depth_camera_calibration;
+    if (depth == NULL || depth->magic != FAKE_IMAGE_MAGIC || depth->format != K4A_IMAGE_FORMAT_DEPTH16 ||
+        depth->width != camera->resolution_width || depth->height != camera->resolution_height)
+        return NULL;
+    const fake_image *ir = capture->ir;
+    if (ir != NULL && (ir->magic != FAKE_IMAGE_MAGIC || ir->format != K4A_IMAGE_FORMAT_IR16 ||
+                       ir->width != depth->width || ir->height != depth->height))
+        return NULL;
+    const float cx = camera->intrinsics.parameters.param.cx, cy = camera->intrinsics.parameters.param.cy;
+    const float fx = camera->intrinsics.parameters.param.fx, fy = camera->intrinsics.parameters.param.fy;
+    double sum[3] = {0, 0, 0}, ir_sum = 0;
+    long count = 0;
+    for (int v = 0; v < depth->height; v++) {
+        const uint16_t *row = (const uint16_t *)(depth->buffer + (size_t)v * (size_t)depth->stride);
+        const uint16_t *ir_row = ir ? (const uint16_t *)(ir->buffer + (size_t)v * (size_t)ir->stride) : NULL;
+        for (int u = 0; u < depth->width; u++) {
+            double d = row[u];
+            if (d <= 0) continue;
+            sum[0] += (u - cx) * d / fx;
+            sum[1] += (v - cy) * d / fy;
+            sum[2] += d;
+            if (ir_row) ir_sum += ir_row[u];
+            count++;
+        }
+    }
+    k4abt_skeleton_t skeleton;
+    memset(&skeleton, 0, sizeof(skeleton));
+    for (int j = 0; j < K4ABT_JOINT_COUNT; j++) {
+        skeleton.joints[j].orientation.wxyz.w = 1.0f;
+        skeleton.joints[j].confidence_level = K4ABT_JOINT_CONFIDENCE_MEDIUM;
+    }
+    if (count > 0)
+        for (int a = 0; a < 3; a++) skeleton.joints[0].position.v[a] = (float)(sum[a] / (double)count);
+    skeleton.joints[1].position.v[0] = (float)count;
+    skeleton.joints[1].position.v[1] = count > 0 ? (float)(ir_sum / (double)count) : 0.0f;
+    skeleton.joints[1].position.v[2] = (float)depth->stride;
+    skeleton.joints[2].position.v[0] = (float)tracker->calibration.depth_mode;
+    skeleton.joints[2].position.v[1] = (float)camera->resolution_width;
+    skeleton.joints[2].position.v[2] = (float)camera->resolution_height;
+    skeleton.joints[3].position.v[0] = (float)camera->intrinsics.type;
+    skeleton.joints[3].position.v[1] = (float)camera->intrinsics.parameter_count;
+    skeleton.joints[3].position.v[2] = camera->metric_radius;
+    uint32_t id = 1;
+    return new_frame(depth->device_usec, 0, count > 0 ? 1 : 0, &id, &skeleton);
+}
 
 FAKE_EXPORT void fake_k4abt_get_stats(fake_stats *out) {
     g_stats.abi = FAKE_K4ABT_ABI;
@@ -182,6 +243,7 @@ FAKE_EXPORT k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_ca
     }
     fake_tracker *tracker = calloc(1, sizeof(fake_tracker));
     tracker->magic = 0x4B344254u;
+    tracker->calibration = *sensor_calibration;
     *tracker_handle = (k4abt_tracker_t)tracker;
     g_stats.created++;
     return K4A_RESULT_SUCCEEDED;
@@ -237,6 +299,13 @@ FAKE_EXPORT k4a_wait_result_t k4abt_tracker_enqueue_capture(k4abt_tracker_t trac
         return K4A_WAIT_RESULT_SUCCEEDED;
     }
     default:
+        if (event.frame == NULL && g_echo) {
+            event.frame = echo_frame(tracker, (const fake_capture *)sensor_capture_handle);
+            if (event.frame == NULL) {
+                g_stats.bad_captures++;
+                return K4A_WAIT_RESULT_FAILED;
+            }
+        }
         if (event.frame == NULL) {
             g_auto_time += 33333;
             event.frame = new_frame(g_auto_time, g_auto_time * 1000, 0, NULL, NULL);

@@ -53,8 +53,76 @@ typedef struct {
     k4a_firmware_signature_t firmware_signature;
 } k4a_hardware_version_t;
 
-/* The binding passes k4a_calibration_t only by pointer (from pyk4a's capsule): opaque here. */
-typedef struct _k4a_calibration_t k4a_calibration_t;
+/* k4a_calibration_t, transcribed from k4atypes.h (Sensor SDK 1.4). The depth-level fusion builds one for its
+ * virtual camera; the fake libk4abt reads the depth intrinsics from it, so a wrong layout shows. */
+typedef enum {
+    K4A_DEPTH_MODE_OFF = 0,
+    K4A_DEPTH_MODE_NFOV_2X2BINNED,
+    K4A_DEPTH_MODE_NFOV_UNBINNED,
+    K4A_DEPTH_MODE_WFOV_2X2BINNED,
+    K4A_DEPTH_MODE_WFOV_UNBINNED,
+    K4A_DEPTH_MODE_PASSIVE_IR,
+} k4a_depth_mode_t;
+typedef enum { K4A_COLOR_RESOLUTION_OFF = 0 } k4a_color_resolution_t; /* 1..6: 720P .. 3072P */
+typedef enum {
+    K4A_CALIBRATION_TYPE_UNKNOWN = -1,
+    K4A_CALIBRATION_TYPE_DEPTH,
+    K4A_CALIBRATION_TYPE_COLOR,
+    K4A_CALIBRATION_TYPE_GYRO,
+    K4A_CALIBRATION_TYPE_ACCEL,
+    K4A_CALIBRATION_TYPE_NUM,
+} k4a_calibration_type_t;
+typedef enum {
+    K4A_CALIBRATION_LENS_DISTORTION_MODEL_UNKNOWN = 0,
+    K4A_CALIBRATION_LENS_DISTORTION_MODEL_THETA,
+    K4A_CALIBRATION_LENS_DISTORTION_MODEL_POLYNOMIAL_3K,
+    K4A_CALIBRATION_LENS_DISTORTION_MODEL_RATIONAL_6KT,
+    K4A_CALIBRATION_LENS_DISTORTION_MODEL_BROWN_CONRADY,
+} k4a_calibration_model_type_t;
+typedef struct _k4a_calibration_extrinsics_t {
+    float rotation[9];
+    float translation[3];
+} k4a_calibration_extrinsics_t;
+typedef union {
+    struct _param {
+        float cx, cy, fx, fy, k1, k2, k3, k4, k5, k6, codx, cody, p2, p1, metric_radius;
+    } param;
+    float v[15];
+} k4a_calibration_intrinsic_parameters_t;
+typedef struct _k4a_calibration_intrinsics_t {
+    k4a_calibration_model_type_t type;
+    unsigned int parameter_count;
+    k4a_calibration_intrinsic_parameters_t parameters;
+} k4a_calibration_intrinsics_t;
+typedef struct _k4a_calibration_camera_t {
+    k4a_calibration_extrinsics_t extrinsics;
+    k4a_calibration_intrinsics_t intrinsics;
+    int resolution_width;
+    int resolution_height;
+    float metric_radius;
+} k4a_calibration_camera_t;
+typedef struct _k4a_calibration_t {
+    k4a_calibration_camera_t depth_camera_calibration;
+    k4a_calibration_camera_t color_camera_calibration;
+    k4a_calibration_extrinsics_t extrinsics[K4A_CALIBRATION_TYPE_NUM][K4A_CALIBRATION_TYPE_NUM];
+    k4a_depth_mode_t depth_mode;
+    k4a_color_resolution_t color_resolution;
+} k4a_calibration_t;
+
+/* Images (k4atypes.h): handles, formats, the release callback of k4a_image_create_from_buffer. */
+typedef struct _k4a_image_t { size_t _rsvd; } *k4a_image_t;
+typedef enum {
+    K4A_IMAGE_FORMAT_COLOR_MJPG = 0,
+    K4A_IMAGE_FORMAT_COLOR_NV12,
+    K4A_IMAGE_FORMAT_COLOR_YUY2,
+    K4A_IMAGE_FORMAT_COLOR_BGRA32,
+    K4A_IMAGE_FORMAT_DEPTH16,
+    K4A_IMAGE_FORMAT_IR16,
+    K4A_IMAGE_FORMAT_CUSTOM8,
+    K4A_IMAGE_FORMAT_CUSTOM16,
+    K4A_IMAGE_FORMAT_CUSTOM,
+} k4a_image_format_t;
+typedef void(k4a_memory_destroy_cb_t)(void *buffer, void *context);
 
 /* k4abttypes.h */
 typedef enum {
@@ -115,5 +183,27 @@ typedef struct _k4abt_skeleton_t {
 /* Written by the fake libk4a's k4a_capture_create into every capture, checked by the fake libk4abt: a
  * binding that passes the capsule pointer instead of the handle it points to is caught. */
 #define FAKE_CAPTURE_MAGIC ((size_t)0x4B344143u) /* "K4AC" */
+#define FAKE_IMAGE_MAGIC ((size_t)0x4B344149u) /* "K4AI" */
+
+/* The fakes' own objects behind k4a_image_t / k4a_capture_t, shared by both fakes so that the fake tracker
+ * can read the depth image of a capture the fake libk4a built (the real SDK's are opaque). */
+typedef struct {
+    size_t magic;
+    int refcount;
+    k4a_image_format_t format;
+    int width, height, stride;
+    uint8_t *buffer;
+    size_t size;
+    uint64_t device_usec;
+    k4a_memory_destroy_cb_t *release;
+    void *context;
+} fake_image;
+
+typedef struct {
+    size_t magic;
+    int refcount;
+    fake_image *depth;
+    fake_image *ir;
+} fake_capture;
 
 #endif

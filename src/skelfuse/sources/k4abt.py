@@ -172,6 +172,226 @@ class K4aHardwareVersion(ctypes.Structure):
     ]
 
 
+# ------------------------------------------------------------------- calibration (k4atypes.h, SDK 1.4)
+# Transcribed from the Sensor SDK's k4atypes.h; tests/fake_k4a/k4a_abi.h holds the same transcription in C and
+# the suite checks that both agree (sizes and offsets). Neither is checked against the real SDK here.
+
+K4A_DEPTH_MODES: dict[tuple[int, int], int] = {(320, 288): 1, (640, 576): 2, (512, 512): 3, (1024, 1024): 4}
+"""k4a_depth_mode_t of each depth image size: NFOV 2x2 binned, NFOV unbinned, WFOV 2x2 binned, WFOV unbinned."""
+K4A_CALIBRATION_TYPE_NUM = 4
+K4A_CALIBRATION_LENS_DISTORTION_MODEL_BROWN_CONRADY = 4
+K4A_IMAGE_FORMAT_DEPTH16 = 4
+K4A_IMAGE_FORMAT_IR16 = 5
+NFOV_METRIC_RADIUS = 1.7
+"""Largest normalized image radius the distortion model is valid for (a real NFOV unbinned calibration holds
+about 1.7); a pinhole virtual camera has no distortion, so any value covering the image will do."""
+
+
+class K4aCalibrationExtrinsics(ctypes.Structure):
+    """``k4a_calibration_extrinsics_t``: row-major rotation[9], translation[3] (mm)."""
+
+    _fields_ = [("rotation", ctypes.c_float * 9), ("translation", ctypes.c_float * 3)]
+
+
+class K4aCalibrationIntrinsicParameters(ctypes.Structure):
+    """``k4a_calibration_intrinsic_parameters_t`` (a union of these 15 named floats and float v[15])."""
+
+    _fields_ = [
+        (name, ctypes.c_float)
+        for name in (
+            "cx",
+            "cy",
+            "fx",
+            "fy",
+            "k1",
+            "k2",
+            "k3",
+            "k4",
+            "k5",
+            "k6",
+            "codx",
+            "cody",
+            "p2",
+            "p1",
+            "metric_radius",
+        )
+    ]
+
+
+class K4aCalibrationIntrinsics(ctypes.Structure):
+    """``k4a_calibration_intrinsics_t``."""
+
+    _fields_ = [
+        ("type", ctypes.c_int),
+        ("parameter_count", ctypes.c_uint),
+        ("parameters", K4aCalibrationIntrinsicParameters),
+    ]
+
+
+class K4aCalibrationCamera(ctypes.Structure):
+    """``k4a_calibration_camera_t``."""
+
+    _fields_ = [
+        ("extrinsics", K4aCalibrationExtrinsics),
+        ("intrinsics", K4aCalibrationIntrinsics),
+        ("resolution_width", ctypes.c_int),
+        ("resolution_height", ctypes.c_int),
+        ("metric_radius", ctypes.c_float),
+    ]
+
+
+class K4aCalibration(ctypes.Structure):
+    """``k4a_calibration_t``."""
+
+    _fields_ = [
+        ("depth_camera_calibration", K4aCalibrationCamera),
+        ("color_camera_calibration", K4aCalibrationCamera),
+        ("extrinsics", (K4aCalibrationExtrinsics * K4A_CALIBRATION_TYPE_NUM) * K4A_CALIBRATION_TYPE_NUM),
+        ("depth_mode", ctypes.c_int),
+        ("color_resolution", ctypes.c_int),
+    ]
+
+
+def virtual_calibration(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> K4aCalibration:
+    """A ``k4a_calibration_t`` for a virtual depth camera: pinhole intrinsics as a Brown-Conrady model with every
+    distortion coefficient 0, colour camera off, identity extrinsics between all sensors.
+
+    The principal point is in the same pixel convention as :class:`skelfuse.fusion.camera.Intrinsics` (the
+    centre of the top-left pixel at (0, 0)), which is k4a's for 2D pixel coordinates. The body tracker only
+    accepts the depth modes' image sizes (:data:`K4A_DEPTH_MODES`): a virtual camera takes the reference
+    sensor's size, so it is one of them.
+    """
+    if (width, height) not in K4A_DEPTH_MODES:
+        raise ConfigError(
+            f"a virtual depth camera of {width}x{height} has no k4a depth mode; use one of "
+            f"{', '.join(f'{w}x{h}' for w, h in K4A_DEPTH_MODES)} (the reference sensor's depth mode)"
+        )
+    calibration = K4aCalibration()
+    identity = K4aCalibrationExtrinsics((ctypes.c_float * 9)(1, 0, 0, 0, 1, 0, 0, 0, 1), (ctypes.c_float * 3)(0, 0, 0))
+    depth = calibration.depth_camera_calibration
+    depth.extrinsics = identity
+    depth.intrinsics.type = K4A_CALIBRATION_LENS_DISTORTION_MODEL_BROWN_CONRADY
+    depth.intrinsics.parameter_count = 14
+    parameters = depth.intrinsics.parameters
+    parameters.cx, parameters.cy, parameters.fx, parameters.fy = cx, cy, fx, fy
+    parameters.metric_radius = NFOV_METRIC_RADIUS
+    depth.resolution_width, depth.resolution_height = width, height
+    depth.metric_radius = NFOV_METRIC_RADIUS
+    calibration.color_camera_calibration.extrinsics = identity
+    for row in calibration.extrinsics:
+        for index in range(K4A_CALIBRATION_TYPE_NUM):
+            row[index] = identity
+    calibration.depth_mode = K4A_DEPTH_MODES[(width, height)]
+    calibration.color_resolution = 0  # K4A_COLOR_RESOLUTION_OFF
+    return calibration
+
+
+K4aMemoryDestroyCallback = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
+"""``k4a_memory_destroy_cb_t``: called by libk4a when the last reference to an image made from our buffer goes."""
+
+_PINNED: dict[int, np.ndarray] = {}
+_PIN_COUNTER = iter(range(1, 2**62))
+
+
+@K4aMemoryDestroyCallback
+def _unpin_buffer(_buffer: int | None, context: int | None) -> None:
+    _PINNED.pop(int(context or 0), None)
+
+
+def declare_image_api(lib: ctypes.CDLL) -> None:
+    """Declare the libk4a functions that build a capture from our own images (idempotent)."""
+    handle_p = ctypes.POINTER(ctypes.c_void_p)
+    try:
+        lib.k4a_image_create_from_buffer.restype = ctypes.c_int
+        lib.k4a_image_create_from_buffer.argtypes = [
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_void_p,
+            ctypes.c_size_t,
+            K4aMemoryDestroyCallback,
+            ctypes.c_void_p,
+            handle_p,
+        ]
+        lib.k4a_image_release.restype = None
+        lib.k4a_image_release.argtypes = [ctypes.c_void_p]
+        lib.k4a_image_set_device_timestamp_usec.restype = None
+        lib.k4a_image_set_device_timestamp_usec.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
+        lib.k4a_capture_create.restype = ctypes.c_int
+        lib.k4a_capture_create.argtypes = [handle_p]
+        lib.k4a_capture_release.restype = None
+        lib.k4a_capture_release.argtypes = [ctypes.c_void_p]
+        lib.k4a_capture_set_depth_image.restype = None
+        lib.k4a_capture_set_depth_image.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        lib.k4a_capture_set_ir_image.restype = None
+        lib.k4a_capture_set_ir_image.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    except AttributeError as exc:
+        raise K4ABTLibraryError(f"the loaded libk4a lacks an image function ({exc}); {K4A_INSTALL_HINT}") from None
+
+
+def _image_from_array(lib: ctypes.CDLL, pixels: np.ndarray, image_format: int, device_time_us: int) -> int:
+    """A ``k4a_image_t`` around a copy of ``pixels`` (uint16, H x W, rows ``2 W`` bytes apart), kept alive
+    until libk4a releases the image (its release callback unpins it)."""
+    buffer = np.ascontiguousarray(pixels, dtype="<u2")
+    if buffer.ndim != 2:
+        raise ValueError(f"an image must be 2-D (H, W), got shape {buffer.shape}")
+    height, width = buffer.shape
+    key = next(_PIN_COUNTER)
+    _PINNED[key] = buffer
+    image = ctypes.c_void_p()
+    result = lib.k4a_image_create_from_buffer(
+        image_format,
+        width,
+        height,
+        width * 2,
+        buffer.ctypes.data,
+        buffer.nbytes,
+        _unpin_buffer,
+        key,
+        ctypes.byref(image),
+    )
+    if result != K4A_RESULT_SUCCEEDED or not image.value:
+        _PINNED.pop(key, None)
+        raise K4ABTError(f"k4a_image_create_from_buffer failed for a {width}x{height} image (format {image_format})")
+    lib.k4a_image_set_device_timestamp_usec(image, device_time_us)
+    return int(image.value)
+
+
+def capture_from_images(
+    lib: ctypes.CDLL, depth_mm: np.ndarray, ir: np.ndarray | None = None, *, device_time_us: int = 0
+) -> int:
+    """A new ``k4a_capture_t`` holding a DEPTH16 image (and an IR16 image) made from our arrays; the caller
+    releases it with ``k4a_capture_release`` (the capture holds the only references to its images).
+
+    Parameters
+    ----------
+    lib : libk4a with :func:`declare_image_api` done.
+    depth_mm : (H, W) uint16 mm, 0 = invalid (``fusion.depth.render.to_k4a_depth``).
+    ir : optional (H, W) uint16 of the same size.
+    device_time_us : the images' device timestamp (the body frame carries it back).
+    """
+    if ir is not None and np.shape(ir) != np.shape(depth_mm):
+        raise ValueError(f"IR image {np.shape(ir)} and depth image {np.shape(depth_mm)} differ in size")
+    capture = ctypes.c_void_p()
+    if lib.k4a_capture_create(ctypes.byref(capture)) != K4A_RESULT_SUCCEEDED or not capture.value:
+        raise K4ABTError("k4a_capture_create failed")
+    try:
+        for pixels, image_format, setter in (
+            (depth_mm, K4A_IMAGE_FORMAT_DEPTH16, lib.k4a_capture_set_depth_image),
+            (ir, K4A_IMAGE_FORMAT_IR16, lib.k4a_capture_set_ir_image),
+        ):
+            if pixels is None:
+                continue
+            image = _image_from_array(lib, pixels, image_format, device_time_us)
+            setter(capture, image)  # the capture takes its own reference
+            lib.k4a_image_release(image)
+    except BaseException:
+        lib.k4a_capture_release(capture)
+        raise
+    return int(capture.value)
+
+
 JOINT_DTYPE = np.dtype(
     {
         "names": ["position", "orientation", "confidence"],
