@@ -68,6 +68,7 @@ def run_depth_bench(
     n_sensors: int = 4,
     n_frames: int = 30,
     voxel_mm: float = 15.0,
+    icp: bool = True,
     seed: int = 0,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -75,12 +76,15 @@ def run_depth_bench(
 
     Returns a JSON-ready dict: per people count, payload bytes per sensor-frame, per frame (all sensors) and
     per second at 30 fps; capture ms per sensor-frame; fusion ms per person-frame without and with ICP; the
-    frontalization error against the true facing; and the 30 Hz frame budget.
+    frontalization error against the true facing; and the 30 Hz frame budget. ``icp=False`` skips the
+    variant with ICP (the slow one).
     """
     sensors = paper_rig(n_sensors)
     poses = np.stack([s.world_from_sensor for s in sensors])
     intrinsics = Intrinsics.azure_kinect_nfov()
-    variants = {"no_icp": DepthFusionParams(voxel_mm=voxel_mm), "icp": DepthFusionParams(voxel_mm=voxel_mm, icp=True)}
+    variants = {"no_icp": DepthFusionParams(voxel_mm=voxel_mm)}
+    if icp:
+        variants["icp"] = DepthFusionParams(voxel_mm=voxel_mm, icp=True)
     cases = []
     bar = Progress(len(people_counts) * n_frames, "bench depth", enabled=None if progress else False)
     for n_people in people_counts:
@@ -161,8 +165,9 @@ def format_depth_bench(result: dict[str, Any]) -> str:
         f"{'facing err p50/max':>18}",
     ]
     for case in result["cases"]:
-        fuse, icp = case["fuse_ms_per_person_frame"]["no_icp"], case["fuse_ms_per_person_frame"]["icp"]
-        cpu = case["fuse_cpu_ms_per_person_frame"]
+        nan = {"p50": float("nan"), "p99": float("nan")}
+        fuse, icp = case["fuse_ms_per_person_frame"]["no_icp"], case["fuse_ms_per_person_frame"].get("icp", nan)
+        cpu = {"icp": nan, **case["fuse_cpu_ms_per_person_frame"]}
         lines.append(
             f"{case['n_people']:>6} {case['bytes_per_sensor_frame']['p50'] / 1e3:>13.1f} "
             f"{case['bytes_per_frame']['p50'] / 1e3:>12.1f} {case['megabits_per_second_mean']:>7.1f} "

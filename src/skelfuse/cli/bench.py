@@ -53,6 +53,7 @@ def _cmd_bench_depth(args: argparse.Namespace) -> int:
         n_sensors=args.sensors,
         n_frames=args.frames,
         voxel_mm=args.voxel,
+        icp=not args.no_icp,
         seed=args.seed,
         progress=not args.json,
     )
@@ -156,6 +157,7 @@ def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ign
     depth.add_argument("--sensors", type=int, default=4, help="sensors in the rig (default: %(default)s)")
     depth.add_argument("--frames", type=int, default=30, help="frames per people count (default: %(default)s)")
     depth.add_argument("--voxel", type=float, default=15.0, help="voxel edge, mm (default: %(default)s)")
+    depth.add_argument("--no-icp", action="store_true", help="skip the variant with ICP refinement (the slow one)")
     depth.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
     depth.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     depth.set_defaults(func=_cmd_bench_depth)
