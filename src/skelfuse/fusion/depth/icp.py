@@ -99,6 +99,8 @@ def icp_point_to_plane(
     damping: float = 1e-2,
     tolerance_mm: float = 0.05,
     max_source_points: int = 800,
+    source_frames: np.ndarray | None = None,
+    target_frames: np.ndarray | None = None,
 ) -> IcpResult:
     """Rigid correction that moves ``source`` onto ``target`` (both (N, 3) world mm).
 
@@ -116,23 +118,35 @@ def icp_point_to_plane(
     tolerance_mm : stop when a step moves no source point by more than about this.
     max_source_points : ICP runs on an even subsample of at most this many source points (speed: six
         unknowns need far fewer pairs than a cloud has).
+    source_frames, target_frames : optional (N,) frame numbers: a point pairs only with points of its own
+        frame (for clouds stacked over the frames of a walk-through; the people move between frames).
     """
     src = np.asarray(source, dtype=np.float64).reshape(-1, 3)
     dst = np.asarray(target, dtype=np.float64).reshape(-1, 3)
     dst_normals = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)
     src_normals = None if source_normals is None else np.asarray(source_normals, dtype=np.float64).reshape(-1, 3)
+    if (source_frames is None) != (target_frames is None):
+        raise ValueError("give frame numbers for both clouds or for neither")
+    src_label = None if source_frames is None else np.asarray(source_frames, np.float64).reshape(-1)
     if src.shape[0] > max_source_points:
         keep = np.linspace(0, src.shape[0] - 1, max_source_points).astype(np.int64)
         src = src[keep]
         src_normals = None if src_normals is None else src_normals[keep]
+        src_label = None if src_label is None else src_label[keep]
     if src.shape[0] < _MIN_PAIRS or dst.shape[0] < _MIN_PAIRS:
         return IcpResult(np.eye(4), float("nan"), float("nan"), 0, 0, False)
-    tree = cKDTree(dst)
+    # Frame numbers become a fourth coordinate far larger than any pairing distance: pairs stay within a frame.
+    frame_gap = 100.0 * max_pair_mm
+    if target_frames is None:
+        tree = cKDTree(dst)
+    else:
+        tree = cKDTree(np.column_stack([dst, np.asarray(target_frames, np.float64).reshape(-1) * frame_gap]))
     extent = float(np.linalg.norm(src - src.mean(axis=0), axis=1).max())
 
     def pairs(total: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         moved = transform_points(total, src)
-        distance, nearest = tree.query(moved, distance_upper_bound=max_pair_mm)
+        query = moved if src_label is None else np.column_stack([moved, src_label * frame_gap])
+        distance, nearest = tree.query(query, distance_upper_bound=max_pair_mm)
         keep = np.isfinite(distance)
         if src_normals is not None:
             turned = src_normals @ total[:3, :3].T
@@ -234,3 +248,73 @@ def refine_clouds(
             current[index] = transform_points(corrections[index], clouds[index])
             current_normals[index] = normals[index] @ corrections[index][:3, :3].T
     return corrections, results
+
+
+def refine_poses_from_walk(
+    frames: list[list[np.ndarray]],
+    world_from_sensor: np.ndarray,
+    *,
+    reference: int,
+    passes: int = 3,
+    max_pair_mm: float = 80.0,
+    max_source_points: int = 4000,
+) -> tuple[np.ndarray, list[IcpResult | None]]:
+    """Refine every sensor's pose by ICP on a person walking through (the paper's calibration refinement).
+
+    One frame of a roughly cylindrical body barely constrains a turn about its axis; a walk-through, the
+    person at many places and in many poses, does. Each sensor's clouds of all frames, stacked, are
+    registered to the other sensors' clouds of the same frames (points pair only within their frame), in
+    turn, for ``passes`` rounds; the reference sensor stays put.
+
+    Parameters
+    ----------
+    frames : T lists of S clouds (N, 3) in each sensor's frame, mm (empty where a sensor does not see anyone).
+    world_from_sensor : (S, 4, 4) the calibration to refine.
+    reference : the sensor that defines the world with the calibration (not moved).
+
+    Returns
+    -------
+    (S, 4, 4) refined ``world_from_sensor`` and, per sensor, the last pass's :class:`IcpResult` (None for the
+    reference and for sensors that saw too little).
+    """
+    poses = np.array(world_from_sensor, dtype=np.float64)
+    n_sensors = poses.shape[0]
+    if not 0 <= reference < n_sensors:
+        raise ValueError(f"reference {reference} is not one of the {n_sensors} sensors")
+    if any(len(clouds) != n_sensors for clouds in frames):
+        raise ValueError(f"every frame needs one cloud per sensor ({n_sensors})")
+    local: list[np.ndarray] = []
+    local_normals: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    for s in range(n_sensors):
+        points, normals, frame_numbers = [], [], []
+        for t, clouds in enumerate(frames):
+            cloud = np.asarray(clouds[s], dtype=np.float64).reshape(-1, 3)
+            if cloud.shape[0] < _MIN_PAIRS:
+                continue
+            points.append(cloud)
+            normals.append(estimate_normals(cloud, viewpoint=np.zeros(3)))  # sensor frame: the sensor is the origin
+            frame_numbers.append(np.full(cloud.shape[0], t))
+        local.append(np.concatenate(points) if points else np.zeros((0, 3)))
+        local_normals.append(np.concatenate(normals) if normals else np.zeros((0, 3)))
+        labels.append(np.concatenate(frame_numbers) if frame_numbers else np.zeros(0, np.int64))
+    results: list[IcpResult | None] = [None] * n_sensors
+    usable = [points.shape[0] >= _MIN_PAIRS for points in local]
+    for _ in range(passes):
+        for s in range(n_sensors):
+            others = [j for j in range(n_sensors) if j != s and usable[j]]
+            if s == reference or not usable[s] or not others:
+                continue
+            result = icp_point_to_plane(
+                transform_points(poses[s], local[s]),
+                np.concatenate([transform_points(poses[j], local[j]) for j in others]),
+                target_normals=np.concatenate([local_normals[j] @ poses[j][:3, :3].T for j in others]),
+                source_normals=local_normals[s] @ poses[s][:3, :3].T,
+                source_frames=labels[s],
+                target_frames=np.concatenate([labels[j] for j in others]),
+                max_pair_mm=max_pair_mm,
+                max_source_points=max_source_points,
+            )
+            poses[s] = result.transform @ poses[s]
+            results[s] = result
+    return poses, results
