@@ -9,8 +9,9 @@ import pyarrow as pa
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from skelfuse.fusion.depth.cloud import MergedCloud
 from skelfuse.schema.skeleton import BONES, N_JOINTS
-from skelfuse.sinks.rerun_sink import RerunSink
+from skelfuse.sinks.rerun_sink import SENSOR_COLORS, RerunSink
 
 
 def _columns(path: Path) -> dict[str, dict[str, list]]:
@@ -85,3 +86,19 @@ def test_every_body_and_every_person_is_drawn_one_colour_per_track(tmp_path: Pat
     colors = np.array(joints["Points3D:colors"][0])
     assert len(set(colors[:N_JOINTS].tolist())) == 1 and len(set(colors[N_JOINTS:].tolist())) == 1
     assert colors[0] != colors[N_JOINTS]  # two track ids, two colours
+
+
+def test_person_clouds_are_drawn_in_metres_coloured_by_sensor(tmp_path: Path) -> None:
+    recording = rr.RecordingStream("skelfuse_test")
+    path = tmp_path / "clouds.rrd"
+    recording.save(path)
+    sink = RerunSink(recording, ["s0", "s1", "s2"])
+    cloud = MergedCloud(np.array([[1000.0, 0.0, 500.0], [0.0, 2000.0, 1500.0], [5.0, 5.0, 5.0]]), np.array([0, 2, 1]))
+    sink.set_time(0.1)
+    sink.log_person_clouds([cloud], [7])
+    recording.flush()
+    recording.disconnect()
+    columns = _columns(path)["/world/fused/clouds/7"]
+    np.testing.assert_allclose(np.array(columns["Points3D:positions"][0]), cloud.points / 1000.0, rtol=1e-6)
+    expected = [int.from_bytes(bytes([*SENSOR_COLORS[i], 255]), "big") for i in (0, 2, 1)]
+    assert columns["Points3D:colors"][0] == expected

@@ -10,6 +10,7 @@ the tests each own theirs. Entities mirror the scene:
   subtree, so world-frame points under the posed entity would be transformed twice. Hide one sensor by
   hiding ``world/sensors/{id}``;
 - ``world/fused``: every fused person in one entity (joints + bones), one colour per track id;
+  ``world/fused/clouds/{track_id}``: a person's merged depth cloud (depth-level fusion), coloured by sensor;
 - ``metrics/...``: time series of fusion time and per-sensor rate.
 
 Each frame costs one log call per kind (joints, bones) per sensor and for the fused persons, so logging
@@ -24,6 +25,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from skelfuse.fusion.depth.cloud import MergedCloud
 from skelfuse.schema.skeleton import BONES, JOINT_NAMES
 
 MM_TO_M = 1e-3
@@ -189,6 +191,16 @@ class RerunSink:
         )
         segments, owner = _bone_segments(skeletons)
         self.recording.log("world/fused/bones", rr.LineStrips3D(segments, colors=colors[owner], radii=0.012))
+
+    def log_person_clouds(self, clouds: Sequence[MergedCloud], track_ids: Sequence[int]) -> None:
+        """Each person's merged depth cloud (depth-level fusion), coloured by the sensor each point came from
+        (the sensors' skeleton colours): ``world/fused/clouds/{track_id}``, world frame, mm in, metres drawn."""
+        for cloud, track_id in zip(clouds, track_ids, strict=True):
+            colors = SENSOR_COLORS[np.asarray(cloud.sensor_index, dtype=np.int64) % len(SENSOR_COLORS)]
+            self.recording.log(
+                f"world/fused/clouds/{int(track_id)}",
+                rr.Points3D(np.asarray(cloud.points) * MM_TO_M, colors=colors, radii=0.004),
+            )
 
     def log_metrics(
         self,
