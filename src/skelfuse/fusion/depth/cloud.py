@@ -120,7 +120,7 @@ def merge_clouds(
     voxel_mm : voxel edge of the merged cloud, mm; None keeps every point.
     ir : optional S arrays (N_s,) of IR intensity.
     refinements : optional (S, 4, 4) world-to-world corrections (``T_ICP^i`` of Eq. 2, identity for the
-        reference), e.g. from :func:`skelfuse.fusion.depth.icp.refine_to_reference`.
+        reference), e.g. from :func:`skelfuse.fusion.depth.icp.refine_clouds`.
     """
     if ir is not None and len(ir) != len(world_clouds):
         raise ValueError(f"ir must hold one array per cloud: {len(ir)} for {len(world_clouds)} clouds")
