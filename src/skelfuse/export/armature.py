@@ -135,6 +135,7 @@ _HINGE_TWIST = {
 _HINGE_MIN_DEG = 10.0  # below this bend the plane is noise: keep the minimal-rotation twist
 _HINGE_FULL_DEG = 30.0  # above this bend the plane sets the twist fully
 _ORIENTATION_MAX_SPREAD_DEG = 30.0  # an orientation whose offset to our frame varies more is not used
+_SNAP_FRACTION = 0.05  # resampling: a sample this close (share of a step) to a grid time is used as it is
 _LEAF_TAIL_FRACTION = 0.5  # End Site / bone tail of a leaf joint: this fraction of its own bone, along it
 _MIN_LEAF_TAIL_MM = 20.0
 
@@ -400,8 +401,9 @@ def resample(
     """Put (F, 32, C) samples with NaN gaps onto a uniform grid; fill gaps; mark them.
 
     The grid starts at the first time, steps ``1 / fps`` (default: the median step of ``times_s``) and
-    ends at or before the last time. Each joint is interpolated linearly in time between its valid samples
-    and held constant before its first and after its last one; a joint never seen stays NaN.
+    ends at or before the last time. A valid sample within 5 % of a step of a grid time is taken as it is;
+    elsewhere each joint is interpolated linearly in time between its valid samples and held constant before
+    its first and after its last one; a joint never seen stays NaN.
 
     Returns
     -------
@@ -431,9 +433,15 @@ def resample(
         t_ok = times_s[ok]
         for c in range(values.shape[2]):
             out[:, joint, c] = np.interp(grid, t_ok, values[ok, joint, c])
-        nearest = np.clip(np.searchsorted(t_ok, grid), 1, max(1, t_ok.size - 1))
-        gap = np.minimum(np.abs(grid - t_ok[nearest - 1]), np.abs(grid - t_ok[np.minimum(nearest, t_ok.size - 1)]))
+        right = np.minimum(np.searchsorted(t_ok, grid), t_ok.size - 1)
+        left = np.maximum(right - 1, 0)
+        nearest = np.where(np.abs(grid - t_ok[left]) <= np.abs(grid - t_ok[right]), left, right)
+        gap = np.abs(grid - t_ok[nearest])
         filled[:, joint] = gap > 0.5 * step + 1e-9
+        # A sample within 5 % of a step of its grid time (timestamps rounded to µs, clock jitter) is taken as
+        # it is, not interpolated: the fused values reach the file unchanged.
+        snap = gap <= _SNAP_FRACTION * step
+        out[snap, joint] = values[ok][nearest[snap], joint]
     return grid, out, filled
 
 
