@@ -577,6 +577,50 @@ def _orientation_twist(
     return out
 
 
+def solve_rotations(armature: Armature, targets: np.ndarray, *, given: np.ndarray | None = None) -> np.ndarray:
+    """Local joint rotations (F, 32, 3, 3) that pose ``armature`` onto ``targets`` (F, 32, 3) mm world.
+
+    The per-frame half of the retargeting (module docstring), shared by the file exports and the live VMC
+    stream. Frames are independent, except that ``given`` orientations (F, 32, 3, 3) need several frames
+    to calibrate their offset. A joint whose child is unknown (NaN) keeps its parent's rotation (local
+    identity); the root must be finite.
+    """
+    offsets = armature.offsets
+    n = targets.shape[0]
+    fk = np.zeros((n, N_JOINTS, 3))
+    rot = np.zeros((n, N_JOINTS, 3, 3))
+    fk[:, 0] = targets[:, 0]
+    identity = np.broadcast_to(np.eye(3), (n, 3, 3))
+    for joint in range(N_JOINTS):
+        parent_rot = identity if joint == 0 else rot[:, PARENTS[joint]]
+        kids = CHILDREN[joint]
+        if not kids:
+            rot[:, joint] = parent_rot
+            continue
+        aim = targets[:, list(kids)] - fk[:, joint, None]  # from where FK put this joint
+        if len(kids) == 1:
+            kid = kids[0]
+            rest_dir = _unit(offsets[kid])
+            bone_dir = _unit(aim[:, 0])
+            fitted = minimal_rotation(parent_rot @ rest_dir, bone_dir) @ parent_rot
+            if joint in _HINGE_TWIST:
+                hinge, after, axis = _HINGE_TWIST[joint]
+                fitted = _hinge_twist(fitted, bone_dir, _unit(targets[:, after] - targets[:, hinge]), axis)
+            if given is not None:
+                fitted = _orientation_twist(fitted, bone_dir, rest_dir, given[:, joint])
+            seen = np.isfinite(bone_dir).all(axis=-1)
+            rot[:, joint] = np.where(seen[:, None, None], fitted, parent_rot)
+        else:
+            weights = np.isfinite(aim).all(axis=-1).astype(np.float64)
+            fitted = kabsch(np.broadcast_to(offsets[list(kids)], aim.shape), aim, weights)
+            rot[:, joint] = np.where((weights.sum(axis=-1) > 0)[:, None, None], fitted, parent_rot)
+        for kid in kids:
+            fk[:, kid] = fk[:, joint] + rot[:, joint] @ offsets[kid]
+    local = rot.copy()
+    local[:, 1:] = np.swapaxes(rot[:, PARENTS[1:]], -1, -2) @ rot[:, 1:]
+    return local
+
+
 def fit_motion(
     times_s: np.ndarray,
     positions: np.ndarray,
@@ -612,39 +656,8 @@ def fit_motion(
         _, quats, _ = resample(times_s, np.asarray(orientations, dtype=np.float64), fps=fps)
         given = quaternion_to_matrix(quats)
     armature = build_armature(targets)
-    offsets = armature.offsets
+    local = solve_rotations(armature, targets, given=given)
     n = grid.shape[0]
-    fk = np.zeros((n, N_JOINTS, 3))
-    rot = np.zeros((n, N_JOINTS, 3, 3))
-    fk[:, 0] = targets[:, 0]
-    identity = np.broadcast_to(np.eye(3), (n, 3, 3))
-    for joint in range(N_JOINTS):
-        parent_rot = identity if joint == 0 else rot[:, PARENTS[joint]]
-        kids = CHILDREN[joint]
-        if not kids:
-            rot[:, joint] = parent_rot
-            continue
-        aim = targets[:, list(kids)] - fk[:, joint, None]  # from where FK put this joint
-        if len(kids) == 1:
-            kid = kids[0]
-            rest_dir = _unit(offsets[kid])
-            bone_dir = _unit(aim[:, 0])
-            fitted = minimal_rotation(parent_rot @ rest_dir, bone_dir) @ parent_rot
-            if joint in _HINGE_TWIST:
-                hinge, after, axis = _HINGE_TWIST[joint]
-                fitted = _hinge_twist(fitted, bone_dir, _unit(targets[:, after] - targets[:, hinge]), axis)
-            if given is not None:
-                fitted = _orientation_twist(fitted, bone_dir, rest_dir, given[:, joint])
-            seen = np.isfinite(bone_dir).all(axis=-1)
-            rot[:, joint] = np.where(seen[:, None, None], fitted, parent_rot)
-        else:
-            weights = np.isfinite(aim).all(axis=-1).astype(np.float64)
-            fitted = kabsch(np.broadcast_to(offsets[list(kids)], aim.shape), aim, weights)
-            rot[:, joint] = np.where((weights.sum(axis=-1) > 0)[:, None, None], fitted, parent_rot)
-        for kid in kids:
-            fk[:, kid] = fk[:, joint] + rot[:, joint] @ offsets[kid]
-    local = rot.copy()
-    local[:, 1:] = np.swapaxes(rot[:, PARENTS[1:]], -1, -2) @ rot[:, 1:]
     positions_fk, rotations_fk = forward_kinematics(armature, targets[:, 0], local)
     return FittedMotion(
         track_id=track_id,
