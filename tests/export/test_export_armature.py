@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from export_takes import as_frames, fused_take, truth_take
 from scipy.spatial.transform import Rotation
 
+from skelfuse.eval import real
 from skelfuse.export.armature import (
     CHILDREN,
     axis_angle_matrix,
+    continuous_quaternions,
     fit_frames,
     fit_motion,
     kabsch,
@@ -192,3 +196,33 @@ def test_orientations_set_the_twist_when_given() -> None:
     ok = np.isfinite(quats[:, forearm]).all(axis=-1)
     np.testing.assert_allclose(fit.global_rotations[ok, forearm], twisted[ok], atol=1e-3)  # the offset is an estimate
     assert np.abs(fit.positions - truth).max() < 1e-6  # twist never moves a joint
+
+
+DATA_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
+
+
+@pytest.mark.skipif(
+    not (DATA_DIR / "azure-kinect-andyj1").is_dir(),
+    reason=f"the real andyj1 take is not at {DATA_DIR} (the shared data folder beside the project)",
+)
+def test_the_real_three_view_take_meets_the_body_target() -> None:
+    # Real k4abt skeletons of three synchronized Azure Kinects, fused by our preset (eval.real.fuse_views).
+    take = real.load_take(DATA_DIR)
+    fused = real.fuse_views(take.positions, take.confidence, "skelfuse")
+    fit = fit_motion(_times(len(fused)), fused)
+    err = fit.retargeting_error()
+    assert err["body"]["median"] <= 10.0 and err["body"]["n"] >= 0.9 * len(fused) * 16, err
+    lengths = np.linalg.norm(fused[:, BONES[:, 1]] - fused[:, BONES[:, 0]], axis=-1)
+    np.testing.assert_allclose(fit.armature.bone_lengths[BONES[:, 1]], np.nanmedian(lengths, axis=0), rtol=1e-9)
+
+
+def test_quaternion_tracks_are_made_continuous() -> None:
+    rng = np.random.default_rng(2)
+    track = Rotation.from_rotvec(np.linspace(0, 1, 20)[:, None] * rng.normal(size=3)).as_quat()[:, None, :]
+    flipped = track * np.where(rng.random(20) < 0.5, -1.0, 1.0)[:, None, None]
+    flipped[5] = np.nan
+    smooth = continuous_quaternions(flipped)
+    ok = np.isfinite(smooth[:, 0, 0])
+    assert (np.sum(smooth[ok][1:, 0] * smooth[ok][:-1, 0], axis=-1) > 0).all()
+    np.testing.assert_allclose(np.abs(smooth[ok]), np.abs(track[ok]))
+    assert np.isnan(smooth[5]).all()

@@ -9,8 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pythonosc.dispatcher import Dispatcher
 from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
+from pythonosc.osc_server import BlockingOSCUDPServer
+from pythonosc.udp_client import SimpleUDPClient
 from scipy.spatial.transform import Rotation
 
 from skelfuse.export.armature import build_armature
@@ -127,3 +130,25 @@ def test_the_live_person_warms_up_then_streams_and_holds_unknown_joints() -> Non
     assert live["LeftLowerArm"] == pytest.approx(before["LeftLowerArm"], abs=1e-6)
     nan_pelvis = np.full((N_JOINTS, 3), np.nan)
     assert vmc_messages(nan_pelvis, person.armature, time_s=0.0) == []
+
+
+def test_a_python_osc_server_receives_the_bundle_over_udp() -> None:
+    # python-osc's own UDP server and dispatcher, as a Marionette would listen (an ephemeral port here).
+    truth = truth_take("walking")
+    messages = vmc_messages(truth[5], build_armature(truth), time_s=2.0)
+    received: list[tuple[str, tuple]] = []
+    dispatcher = Dispatcher()
+    dispatcher.map("/VMC/Ext/*", lambda address, *args: received.append((address, args)))
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), dispatcher)
+    server.timeout = 5.0
+    client = SimpleUDPClient("127.0.0.1", server.server_address[1])
+    try:
+        client.send(vmc_bundle(messages))
+        server.handle_request()
+    finally:
+        client.close()
+        server.server_close()
+    assert [address for address, _ in received] == [m.address for m in messages]
+    hips = next(args for address, args in received if address == "/VMC/Ext/Bone/Pos" and args[0] == "Hips")
+    x, y, z = truth[5, J["PELVIS"]] / 1000.0
+    np.testing.assert_allclose(hips[1:4], [-x, z, -y], atol=1e-6)

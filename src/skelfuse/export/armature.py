@@ -476,6 +476,23 @@ def _frame_from(
     return world @ rest.T
 
 
+def continuous_quaternions(quaternions: np.ndarray) -> np.ndarray:
+    """(F, J, 4) quaternions with signs flipped so each joint's track stays in one hemisphere over time.
+
+    q and -q are the same rotation; interpolating across a sign flip would pass through a near-zero
+    quaternion. NaN rows (unknown) are skipped and kept.
+    """
+    out = np.array(quaternions, dtype=np.float64)
+    for joint in range(out.shape[1]):  # a running product along time: one pass per joint
+        ok = np.isfinite(out[:, joint]).all(axis=-1)
+        track = out[ok, joint]
+        if track.shape[0] < 2:
+            continue
+        flips = np.where(np.sum(track[1:] * track[:-1], axis=-1) < 0, -1.0, 1.0)
+        out[ok, joint] = track * np.concatenate([[1.0], np.cumprod(flips)])[:, None]
+    return out
+
+
 def build_armature(targets: np.ndarray) -> Armature:
     """The rest armature of one person from its (F, 32, 3) fused positions (gaps may be NaN).
 
@@ -653,7 +670,7 @@ def fit_motion(
         raise DataError(f"person {track_id}: the pelvis was never tracked, so no armature can be fitted")
     given = None
     if orientations is not None:
-        _, quats, _ = resample(times_s, np.asarray(orientations, dtype=np.float64), fps=fps)
+        _, quats, _ = resample(times_s, continuous_quaternions(orientations), fps=fps)
         given = quaternion_to_matrix(quats)
     armature = build_armature(targets)
     local = solve_rotations(armature, targets, given=given)
