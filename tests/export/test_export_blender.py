@@ -78,3 +78,10 @@ def test_blender_reads_back_the_fbx_it_wrote(blender, frames, tmp_path: Path) ->
     result = run_blender({"command": "sample", "fbx": str(export.path), "fps": FPS, "frames": SAMPLED})
     assert result["frame_range"][1] - result["frame_range"][0] + 1 == pytest.approx(export.motion.n_frames, abs=0.01)
     _check_against_fit(_heads_mm(result), export.motion)
+
+
+def test_without_blender_the_fbx_writer_says_how_to_get_it(frames, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setenv("SKELFUSE_BPY_VENV", str(tmp_path / "no-such-venv"))
+    with pytest.raises(BlenderError, match=r"no bpy environment at .*pip install 'bpy==4\.5"):
+        write_fbx(frames[:10], tmp_path / "take.fbx", install_blender=False)
+    assert not (tmp_path / "take.fbx").exists()

@@ -12,7 +12,7 @@ aiming from where forward kinematics (FK) actually put the joint, so that length
 down a chain → local rotations ``L[j] = G[parent]ᵀ G[j]`` → FK → retargeting error against the fused
 positions.
 
-Rest pose (documented in docs/export.md): a T-pose in the world axes (x, y, z; z up). The person faces
+Rest pose (documented in docs/animation.md): a T-pose in the world axes (x, y, z; z up). The person faces
 world -y with its left side towards +x; spine and neck point up (+z), arms straight out sideways (left arm
 +x, right arm -x, palms down, thumbs forward), legs straight down (-z), feet forward (-y). The joints with
 several children (pelvis, chest, head, wrists) keep their children's relative layout as measured on the
