@@ -1,0 +1,133 @@
+"""Blender (the ``bpy`` wheel) driven in its own virtual environment, through a subprocess.
+
+bpy 4.5 needs Python 3.11 and pins numpy < 2, while our environment needs numpy ≥ 2 (rerun, OpenCV), so
+the two cannot share one environment. This module finds (or builds, on request, and caches) a separate
+environment with bpy, and runs :mod:`skelfuse.export.blender_driver` there as a script, exchanging JSON.
+
+Where the environment lives: ``$SKELFUSE_BPY_VENV`` if set, else ``~/.cache/skelfuse/bpy-venv``. Building
+it: ``python3.11 -m venv DIR && DIR/bin/pip install "bpy==4.5.*"`` (:func:`ensure_bpy`, about a minute and
+~400 MB here; ``.ci/run`` builds it before the tests).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from skelfuse.schema.errors import SkelfuseError
+
+BPY_REQUIREMENT = "bpy==4.5.*"
+BPY_PYTHON = "python3.11"
+DRIVER = Path(__file__).with_name("blender_driver.py")
+
+
+class BlenderError(SkelfuseError):
+    """Blender's bpy is not available (and could not be installed), or it failed on a file."""
+
+
+def bpy_venv_dir() -> Path:
+    """Where the bpy environment is (``$SKELFUSE_BPY_VENV``, else ``~/.cache/skelfuse/bpy-venv``)."""
+    configured = os.environ.get("SKELFUSE_BPY_VENV")
+    return Path(configured) if configured else Path.home() / ".cache" / "skelfuse" / "bpy-venv"
+
+
+def _python_in(venv: Path) -> Path:
+    return venv / ("Scripts/python.exe" if sys.platform == "win32" else "bin/python")
+
+
+_WORKING: set[Path] = set()  # interpreters that imported bpy once in this process (the probe takes seconds)
+
+
+def bpy_python() -> Path | None:
+    """The bpy environment's interpreter if it exists and imports bpy, else None."""
+    python = _python_in(bpy_venv_dir())
+    if python in _WORKING:
+        return python
+    if not python.exists():
+        return None
+    probe = subprocess.run([str(python), "-c", "import bpy"], capture_output=True, timeout=120, check=False)
+    if probe.returncode != 0:
+        return None
+    _WORKING.add(python)
+    return python
+
+
+def ensure_bpy(*, install: bool = True) -> Path:
+    """The bpy interpreter, building the cached environment first if it is missing and ``install`` is set.
+
+    Raises
+    ------
+    BlenderError
+        No Python 3.11 to build it with, or pip could not install bpy (the message carries pip's last lines).
+    """
+    python = bpy_python()
+    if python is not None:
+        return python
+    venv = bpy_venv_dir()
+    if not install:
+        raise BlenderError(
+            f"no bpy environment at {venv}; build it with: {BPY_PYTHON} -m venv {venv} && "
+            f"{venv}/bin/pip install '{BPY_REQUIREMENT}'"
+        )
+    base = shutil.which(BPY_PYTHON)
+    if base is None:
+        raise BlenderError(
+            f"bpy 4.5 needs {BPY_PYTHON}, which is not on PATH; install Python 3.11 or set "
+            f"SKELFUSE_BPY_VENV to an environment that has bpy"
+        )
+    venv.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix="bpy-venv-", dir=venv.parent))
+    try:
+        subprocess.run([base, "-m", "venv", str(staging)], check=True, capture_output=True, timeout=600)
+        pip = subprocess.run(
+            [str(_python_in(staging)), "-m", "pip", "install", "--quiet", BPY_REQUIREMENT],
+            capture_output=True,
+            text=True,
+            timeout=1800,
+            check=False,
+        )
+        if pip.returncode != 0:
+            tail = "\n".join((pip.stderr or pip.stdout).strip().splitlines()[-5:])
+            raise BlenderError(f"pip could not install {BPY_REQUIREMENT} (no wheel for this platform?):\n{tail}")
+        shutil.rmtree(venv, ignore_errors=True)
+        staging.rename(venv)  # complete or absent: a half-built environment is never found at `venv`
+    except subprocess.SubprocessError as exc:
+        raise BlenderError(f"building the bpy environment at {venv} failed: {exc}") from exc
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    python = bpy_python()
+    if python is None:
+        raise BlenderError(f"the bpy environment at {venv} was built but 'import bpy' fails there")
+    return python
+
+
+def run_blender(request: dict[str, Any], *, install: bool = True, timeout_s: float = 900.0) -> dict[str, Any]:
+    """Run one driver command in Blender and return its JSON result.
+
+    Raises
+    ------
+    BlenderError
+        bpy unavailable, or the driver failed (its stderr's last lines in the message).
+    """
+    python = ensure_bpy(install=install)
+    with tempfile.TemporaryDirectory(prefix="skelfuse-blender-") as work:
+        request_path = Path(work) / "request.json"
+        result_path = Path(work) / "result.json"
+        request_path.write_text(json.dumps(request), encoding="utf-8")
+        done = subprocess.run(
+            [str(python), str(DRIVER), str(request_path), str(result_path)],
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            check=False,
+        )
+        if done.returncode != 0 or not result_path.exists():
+            tail = "\n".join((done.stderr or done.stdout).strip().splitlines()[-8:])
+            raise BlenderError(f"Blender failed on {request.get('command')!r} (exit {done.returncode}):\n{tail}")
+        return json.loads(result_path.read_text(encoding="utf-8"))

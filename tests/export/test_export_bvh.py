@@ -1,0 +1,105 @@
+"""BVH export: the file's own forward kinematics (read back with the simulator's independent BVH reader)
+reproduces the fitted armature; header, units, rotation order and multi-person naming as documented."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from export_takes import FPS, as_frames, fused_take, truth_take
+from scipy.spatial.transform import Rotation
+
+from skelfuse.export.bvh import (
+    BVH_FROM_WORLD,
+    DFS_ORDER,
+    euler_zxy_degrees,
+    world_positions_from_bvh,
+    write_bvh,
+    write_bvh_arrays,
+)
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS, PARENTS
+from skelfuse.sim.bvh import forward_kinematics, parse_bvh
+
+
+def _read_back(path: Path, unit: str) -> tuple[np.ndarray, object]:
+    bvh = parse_bvh(path.read_text(), source=str(path))
+    positions, _ = forward_kinematics(bvh)
+    return world_positions_from_bvh(positions, [j.name for j in bvh.joints], unit=unit), bvh
+
+
+@pytest.mark.parametrize("unit", ["cm", "mm", "m"])
+def test_the_file_reproduces_the_fitted_positions(tmp_path: Path, unit: str) -> None:
+    fused, _ = fused_take("random")
+    export = write_bvh_arrays(tmp_path / "take.bvh", np.arange(len(fused)) / FPS, fused, unit=unit)
+    world, bvh = _read_back(export.path, unit)
+    assert np.abs(world - export.motion.positions).max() < 1e-3  # mm; 6 decimals in the file
+    assert bvh.motion.shape == (len(fused), 6 + 3 * (N_JOINTS - 1))
+    assert bvh.frame_time_s == pytest.approx(1 / FPS, abs=1e-8)
+
+
+def test_a_rigid_skeleton_survives_the_file(tmp_path: Path) -> None:
+    truth = truth_take("squat")
+    export = write_bvh_arrays(tmp_path / "squat.bvh", np.arange(len(truth)) / FPS, truth)
+    world, _ = _read_back(export.path, "cm")
+    assert np.abs(world - truth).max() < 1e-3
+
+
+def test_hierarchy_channels_and_axes(tmp_path: Path) -> None:
+    truth = truth_take("walking")
+    export = write_bvh_arrays(tmp_path / "walk.bvh", np.arange(len(truth)) / FPS, truth)
+    _, bvh = _read_back(export.path, "cm")
+    names = [j.name for j in bvh.joints]
+    assert names == [JOINT_NAMES[j] for j in DFS_ORDER] and sorted(names) == sorted(JOINT_NAMES)
+    for joint in bvh.joints:  # the k4abt parents
+        expected_parent = PARENTS[JOINT_NAMES.index(joint.name)]
+        assert (joint.parent < 0 and expected_parent < 0) or names[joint.parent] == JOINT_NAMES[expected_parent]
+        rotations = ["Zrotation", "Xrotation", "Yrotation"]
+        assert joint.channels == (
+            ["Xposition", "Yposition", "Zposition", *rotations] if joint.parent < 0 else rotations
+        )
+    leaves = {j.name for j in bvh.joints if j.end_offset is not None}
+    assert leaves == {"HANDTIP_LEFT", "THUMB_LEFT", "HANDTIP_RIGHT", "THUMB_RIGHT", "FOOT_LEFT", "FOOT_RIGHT",
+                      "NOSE", "EYE_LEFT", "EAR_LEFT", "EYE_RIGHT", "EAR_RIGHT"}  # fmt: skip
+    # Y up and the T-pose: the spine's offsets point up (+Y), the left arm's to +X, the legs down.
+    offset = {j.name: j.offset for j in bvh.joints}
+    assert offset["SPINE_CHEST"][1] > 0 and abs(offset["SPINE_CHEST"][0]) < 1e-9
+    assert offset["ELBOW_LEFT"][0] > 0 and offset["ELBOW_RIGHT"][0] < 0
+    assert offset["KNEE_LEFT"][1] < 0 and offset["FOOT_LEFT"][2] > 0  # feet forward: +Z
+    # Root channels are the pelvis position in cm, BVH axes.
+    np.testing.assert_allclose(bvh.motion[:, :3], truth[:, 0] @ BVH_FROM_WORLD.T / 10.0, atol=1e-5)
+
+
+def test_euler_order_matches_scipy_intrinsic_zxy() -> None:
+    rotations = Rotation.random(200, random_state=3)
+    ours = euler_zxy_degrees(rotations.as_matrix())
+    back = Rotation.from_euler("ZXY", ours, degrees=True).as_matrix()
+    np.testing.assert_allclose(back, rotations.as_matrix(), atol=1e-9)
+    lock = Rotation.from_euler("ZXY", [[30.0, 90.0, 0.0], [-20.0, -90.0, 15.0]], degrees=True).as_matrix()
+    np.testing.assert_allclose(
+        Rotation.from_euler("ZXY", euler_zxy_degrees(lock), degrees=True).as_matrix(), lock, atol=1e-6
+    )
+
+
+def test_several_people_write_one_file_each(tmp_path: Path) -> None:
+    truth = truth_take("walking")[:30]
+    frames = as_frames(truth, track_id=4)
+    other = as_frames(truth + np.array([500.0, 0.0, 0.0]), track_id=11)
+    merged = [
+        type(a)(a.time_us, np.concatenate([a.track_ids, b.track_ids]), np.concatenate([a.positions, b.positions]),
+                np.concatenate([a.n_agree, b.n_agree]), np.concatenate([a.confidence, b.confidence]),
+                np.concatenate([a.contributors, b.contributors]), a.sensor_ids)
+        for a, b in zip(frames, other, strict=True)
+    ]  # fmt: skip
+    exports = write_bvh(merged, tmp_path / "take.bvh")
+    assert [e.path.name for e in exports] == ["take_person4.bvh", "take_person11.bvh"]
+    world, _ = _read_back(exports[1].path, "cm")
+    assert np.abs(world - (truth + np.array([500.0, 0.0, 0.0]))).max() < 1e-3
+    single = write_bvh(frames, tmp_path / "one.bvh")
+    assert [e.path.name for e in single] == ["one.bvh"] and single[0].n_frames == 30
+
+
+def test_bad_unit_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="unknown BVH unit"):
+        write_bvh(as_frames(truth_take("walking")[:5]), tmp_path / "x.bvh", unit="inch")
