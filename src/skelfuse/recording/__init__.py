@@ -5,7 +5,15 @@
 * :mod:`skelfuse.recording.offline`: :func:`fuse_recording`, :func:`write_fused`, :func:`replay_frames`.
 """
 
-from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader, RecordingWriter
+from skelfuse.recording.mcap_io import RecordedFrame, RecordedFused, RecordingReader, RecordingWriter
 from skelfuse.recording.offline import fuse_recording, replay_frames, write_fused
 
-__all__ = ["RecordedFrame", "RecordingReader", "RecordingWriter", "fuse_recording", "replay_frames", "write_fused"]
+__all__ = [
+    "RecordedFrame",
+    "RecordedFused",
+    "RecordingReader",
+    "RecordingWriter",
+    "fuse_recording",
+    "replay_frames",
+    "write_fused",
+]
