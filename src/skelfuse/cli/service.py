@@ -16,7 +16,8 @@ from skelfuse.cli.common import (
     zenoh_conf,
 )
 from skelfuse.config import DEFAULT_PRESET, RigConfig
-from skelfuse.recording import fuse_recording, write_fused
+from skelfuse.export.csv import write_fused
+from skelfuse.recording import fuse_recording
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
