@@ -282,6 +282,8 @@ def _frames(cols: dict[str, np.ndarray]) -> Iterator[FusedFrame]:
     fields = {f.name for f in dataclasses.fields(FusedFrame)}
     order = np.lexsort((cols["joint"], cols["track_id"], cols["time_us"]))
     times = cols["time_us"][order]
+    if not len(times):
+        return
     starts = np.flatnonzero(np.r_[True, times[1:] != times[:-1]])
     ends = np.r_[starts[1:], len(times)]
     for start, end in zip(starts, ends, strict=True):
