@@ -98,6 +98,7 @@ def test_reader_yields_the_fused_frames_and_keeps_sensor_reads_unchanged(tmp_pat
     rec = RecordingReader(path)
     assert rec.fused_topic == keys.fused_skeletons(RIG)
     assert rec.sensors == SENSORS  # the fused channel is not a sensor
+    assert rec.fused_message_count == 9 and rec.message_count == 27
     records = list(rec.fused_records())
     assert [r.payload for r in records] == payloads
     for i, r in enumerate(records):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import socket
+import sys
 import threading
 import time
 from types import SimpleNamespace
@@ -18,12 +19,15 @@ from pythonosc.osc_server import BlockingOSCUDPServer
 
 from skelfuse.config import StreamConfig, parse_rig_config
 from skelfuse.schema.errors import ConfigError
-from skelfuse.schema.frames import FusedFrame
+from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
-from skelfuse.service.zenoh_io import Received
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.zenoh_io import Received, free_port, loopback_config
 from skelfuse.stream import lsl
-from skelfuse.stream.daemon import BoundedSampleQueue
+from skelfuse.stream.daemon import BoundedSampleQueue, StreamReport, run_stream
 from skelfuse.stream.osc import MAX_DATAGRAM_BYTES, OscSender, frame_bundles
+from skelfuse.wire import keys
+from skelfuse.wire.codec import encode_fused_frame, encode_sensor_frame
 
 
 def fused(persons: int = 2, time_us: int = 1_234_567_890_123, seed: int = 0) -> FusedFrame:
@@ -174,6 +178,12 @@ def test_lsl_slots_stay_with_their_person() -> None:
     np.testing.assert_array_equal(joints[:, 7], frame.confidence[1])
 
 
+def test_lsl_without_pylsl_says_how_to_get_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "pylsl", None)  # import pylsl raises ImportError
+    with pytest.raises(ConfigError, match="pip install"):
+        lsl.LslOutlet(name="x", source_id="y", max_persons=1, rate_hz=30.0)
+
+
 def test_lsl_outlet_seen_by_a_real_inlet() -> None:
     pylsl = pytest.importorskip("pylsl", reason="LSL needs pylsl with its liblsl (pip install pylsl)")
     source_id = f"skelfuse-test-{time.monotonic_ns()}"
@@ -229,3 +239,91 @@ def test_stream_section_defaults_and_errors() -> None:
     ]:
         with pytest.raises(ConfigError, match=message):
             parse_rig_config({**RIG, "stream": bad})
+
+
+class FlakySender:
+    """Records what it is given; fails on the frames whose time is in ``fail_at`` (a receiver library error)."""
+
+    def __init__(self, fail_at: set[int]) -> None:
+        self.fail_at = fail_at
+        self.sent: list[int] = []
+        self.closed = False
+        self.stats = SimpleNamespace()
+
+    def send(self, frame: FusedFrame) -> None:
+        if frame.time_us in self.fail_at:
+            raise RuntimeError("receiver library exploded")
+        self.sent.append(frame.time_us)
+
+    def close(self) -> None:
+        self.closed = True
+
+    def describe(self) -> str:
+        return "a test sender"
+
+
+def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
+    """In-process daemon on a real zenoh loopback session: garbage and a sensor frame on the fused key are
+    rejected by reason, a sender error is counted, the good frames go through, request_exit stops it."""
+    zenoh = pytest.importorskip("zenoh")
+    port = free_port()
+    cfg = parse_rig_config({**RIG, "stream": {"drain_timeout_s": 0.5}})
+    sender = FlakySender(fail_at={2000})
+    lifecycle = Lifecycle("stream-test")
+    result: dict[str, StreamReport] = {}
+
+    def run() -> None:
+        result["report"] = run_stream(
+            cfg,
+            loopback_config(listen_port=port),
+            sender,
+            node="stream-test",
+            limits=RunLimits(duration_s=60),
+            lifecycle=lifecycle,
+        )
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    session = zenoh.open(loopback_config(connect_ports=[port]))
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            replies = session.liveliness().get(keys.alive("lab", "stream-test"), timeout=0.5)
+            if any(getattr(r, "ok", None) is not None for r in replies):
+                break
+        else:
+            pytest.fail("the daemon never declared its liveliness token")
+        time.sleep(0.3)
+        publisher = session.declare_publisher(keys.fused_skeletons("lab"))
+        sensor_payload = encode_sensor_frame(
+            SensorFrame(
+                "a",
+                0,
+                0,
+                0,
+                np.zeros(0, np.uint32),
+                np.zeros((0, N_JOINTS, 3), np.float32),
+                np.zeros((0, N_JOINTS, 4), np.float32),
+                np.zeros((0, N_JOINTS), np.uint8),
+            )
+        )
+        for payload in (
+            encode_fused_frame(fused(1, time_us=1000)),
+            b"not a skelfuse payload",
+            sensor_payload,
+            encode_fused_frame(fused(1, time_us=2000)),
+            encode_fused_frame(fused(1, time_us=3000)),
+        ):
+            publisher.put(payload)
+        deadline = time.monotonic() + 10
+        while sender.sent != [1000, 3000] and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        lifecycle.request_exit()
+        thread.join(10)
+        session.close()
+    assert not thread.is_alive()
+    report = result["report"]
+    assert sender.sent == [1000, 3000] and sender.closed
+    assert report.frames_in == 5 and report.frames_out == 2 and report.send_failures == 1
+    assert sum(report.rejects.values()) == 2 and report.dropped == 0

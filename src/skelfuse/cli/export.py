@@ -215,7 +215,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         type=float,
         default=None,
         metavar="HZ",
-        help="per-person formats: the file's frame rate (default: from the timestamps, 1e6 / median step)",
+        help="per-person formats: the file's frame rate (default: from the timestamps, docs/export.md)",
     )
     export.add_argument(
         "--world-axes",

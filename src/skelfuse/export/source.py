@@ -82,7 +82,7 @@ def open_fused(
         )
     reader = RecordingReader(path)
     if reader.fused_topic is not None and not refuse:
-        return FusedSource(reader.fused_frames(), "recorded fused stream", reader.message_count)
+        return FusedSource(reader.fused_frames(), "recorded fused stream", reader.fused_message_count)
     if not reader.sensors:
         raise DataError(f"recording {path} holds neither a fused stream nor sensor frames: nothing to export")
     frames = fuse_recording(path, rig_config=rig_config, preset_name=preset_name, progress=progress)

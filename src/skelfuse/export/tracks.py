@@ -2,7 +2,8 @@
 
 C3D and TRC hold one subject's markers at a constant frame rate. The fused stream holds every person of each
 instant, at the rate the sensors ran, with the odd dropped instant. :func:`take_tracks` estimates the rate
-from the timestamps (the median step between instants), puts every instant on the grid
+from the timestamps (the median step between instants finds the grid, the take's span over its grid steps
+refines it), puts every instant on the grid
 ``round((time_us - first) / period)``, and cuts one :class:`PersonTrack` per track id from its first to its
 last frame. A frame where the person was not fused, a grid slot no instant fell on, and a joint without an
 estimate are all gaps (NaN): each format marks them as it allows.
@@ -120,12 +121,18 @@ def take_tracks(frames: Iterable[FusedFrame], *, rate_hz: float | None = None) -
     if not frames:
         raise DataError("the input holds no fused instant: nothing to export")
     times = np.array([int(f.time_us) for f in frames], np.int64)
+    start = int(times.min())
     if rate_hz is None:
-        rate_hz = estimate_rate_hz(times)
+        # The median step finds the grid; the take's span over its number of grid steps then gives the rate
+        # to well under a microsecond per frame (a 30 fps device clock steps 33333 and 33334 us).
+        period_us = 1e6 / estimate_rate_hz(times)
+        steps = int(np.rint((times.max() - start) / period_us))
+        if steps > 0:
+            period_us = (times.max() - start) / steps
+        rate_hz = 1e6 / period_us
     elif not (np.isfinite(rate_hz) and rate_hz > 0):
         raise DataError(f"frame rate must be a positive number of Hz, got {rate_hz!r}")
     period_us = 1e6 / rate_hz
-    start = int(times.min())
     index = np.rint((times - start) / period_us).astype(np.int64)
     n_frames = int(index.max()) + 1
     if n_frames > MAX_GRID_FACTOR * len(frames) + 1000:

@@ -494,6 +494,7 @@ class RecordingReader:
         self._chunks: list[_ChunkRef] = []
         self._metadata: dict[str, dict[str, str]] = {}
         self._message_count: int | None = None
+        self._channel_counts: dict[int, int] | None = None
         self.indexed = self._load_index()
         if not self.indexed:
             self._scan()
@@ -545,6 +546,7 @@ class RecordingReader:
         ]
         if summary.statistics is not None:
             self._message_count = summary.statistics.message_count
+            self._channel_counts = dict(summary.statistics.channel_message_counts)
         return True
 
     def _scan(self) -> None:
@@ -645,6 +647,14 @@ class RecordingReader:
     def message_count(self) -> int | None:
         """Messages in the file (all channels), from the statistics or the scan; None if unknown."""
         return self._message_count
+
+    @property
+    def fused_message_count(self) -> int | None:
+        """Messages on the fused channel, from the statistics of an indexed file; None if unknown."""
+        if self._channel_counts is None:
+            return None
+        fused = [cid for cid, c in self._channels.items() if c.message_encoding == FUSED_MESSAGE_ENCODING]
+        return sum(self._channel_counts.get(cid, 0) for cid in fused)
 
     def frames(
         self, start_ns: int | None = None, end_ns: int | None = None, sensors: Iterable[str] | None = None
