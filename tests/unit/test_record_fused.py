@@ -7,15 +7,21 @@ bytes as given.
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from skelfuse.config import parse_rig_config
 from skelfuse.recording import RecordingReader, RecordingWriter, mcap_io
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.recorder import RecordReport, run_recorder
+from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, encode_fused_frame, encode_sensor_frame
 
@@ -141,3 +147,68 @@ def test_a_bad_fused_payload_is_refused_and_a_file_without_fused_channel_yields_
     rec = RecordingReader(path)
     assert rec.fused_topic is None
     assert list(rec.fused_frames()) == []
+
+
+@pytest.mark.parametrize("record_fused", [True, False], ids=["fused on", "fused off"])
+def test_recorder_records_the_fused_key_as_configured_and_rejects_bad_payloads(
+    tmp_path: Path, record_fused: bool
+) -> None:
+    """run_recorder in-process on a real zenoh loopback session: `[record] fused` decides whether the fused key is
+    recorded; a bad payload on it is counted by reason and the recorder goes on."""
+    zenoh = pytest.importorskip("zenoh")
+    port = free_port()
+    cfg = parse_rig_config(
+        {
+            "rig": {"name": RIG},
+            "sensors": [{"id": s, "source": "sim", "world_from_sensor": np.eye(4).tolist()} for s in SENSORS],
+            "record": {"fused": record_fused, "flush_period_s": 0.2},
+        }
+    )
+    lifecycle = Lifecycle("recorder-test")
+    output = tmp_path / "rec.mcap"
+    result: dict[str, RecordReport] = {}
+
+    def run() -> None:
+        result["report"] = run_recorder(
+            cfg, loopback_config(listen_port=port), output=output, limits=RunLimits(duration_s=60), lifecycle=lifecycle
+        )
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    session = zenoh.open(loopback_config(connect_ports=[port]))
+    try:
+        deadline = time.monotonic() + 20
+        while not any(
+            getattr(r, "ok", None) is not None
+            for r in session.liveliness().get(keys.alive(RIG, "recorder"), timeout=0.5)
+        ):
+            assert time.monotonic() < deadline, "the recorder never declared its liveliness token"
+        time.sleep(0.3)
+        fused_pub = session.declare_publisher(keys.fused_skeletons(RIG))
+        sensor_pub = session.declare_publisher(keys.sensor_skeletons(RIG, SENSORS[0]))
+        good = [encode_fused_frame(fused_frame(i)) for i in range(3)]
+        fused_pub.put(good[0])
+        fused_pub.put(b"SKLF garbage")
+        fused_pub.put(good[1])
+        sensor_pub.put(encode_sensor_frame(sensor_frame(0, 0)))
+        fused_pub.put(good[2])
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and output.exists():
+            rec = RecordingReader(output)
+            if len(list(rec.frames())) == 1 and (not record_fused or len(list(rec.fused_frames())) == 3):
+                break
+            time.sleep(0.1)
+    finally:
+        lifecycle.request_exit()
+        thread.join(15)
+        session.close()
+    assert not thread.is_alive()
+    report = result["report"]
+    rec = RecordingReader(output)
+    assert report.frames_written == 1 and len(list(rec.frames())) == 1
+    if record_fused:
+        assert report.fused_frames_written == 3 and sum(report.rejects.values()) == 1
+        assert [r.payload for r in rec.fused_records()] == good
+    else:
+        assert report.fused_frames_written == 0 and not report.rejects
+        assert rec.fused_topic is None

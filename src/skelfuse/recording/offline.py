@@ -179,7 +179,8 @@ def _fuse(
     progress: bool,
 ) -> Iterator[FusedFrame]:
     fuser = GroupFuser(sensor_ids, poses, params)
-    bar = Progress(reader.message_count or 0, "fuse", enabled=None if progress else False)
+    sensor_messages = (reader.message_count or 0) - (reader.fused_message_count or 0)  # a recorded fused stream
+    bar = Progress(max(sensor_messages, 0), "fuse", enabled=None if progress else False)
     try:
         for frame in reader.frames(start_ns, end_ns):
             # The recorded host time stands in for the arrival clock, so deadlines behave as they did live.
