@@ -118,8 +118,10 @@ def test_recorder_and_osc_stream_carry_the_fused_skeletons(
     assert [r.payload for r in recorded] == [encode_fused_frame(f) for f in received]
     log_times = np.array([r.log_time_ns for r in recorded])
     assert (np.diff(log_times) >= 0).all() and abs(log_times[0] / 1e9 - time.time()) < 300  # host clock
-    assert set(rec.sensors) == set(SENSORS)  # the sensor channels are still there beside
-    assert len(list(rec.frames())) == len(sensor_frames)
+    # The sensor channels are still there beside. The recorder and the test's subscriber are independent
+    # subscribers that start at slightly different moments: their counts agree closely, not exactly.
+    assert set(rec.sensors) == set(SENSORS)
+    assert abs(len(list(rec.frames())) - len(sensor_frames)) <= max(3, 0.02 * len(sensor_frames))
 
     # --- the OSC stream -----------------------------------------------------------------------------------
     assert stop_s < DRAIN_S + 5.0, f"SIGTERM took {stop_s:.1f} s"  # drain timeout + teardown on a busy host
