@@ -1,9 +1,8 @@
 """Recording: MCAP write -> read round trips, index and time filters, crash (kill -9) recovery, corrupt and
-wrong files, offline fusion of a synthetic recording, the CSV / Parquet writers, and replay pacing."""
+wrong files, offline fusion of a synthetic recording, and replay pacing (the fused table: test_export_csv.py)."""
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -26,13 +25,11 @@ from skelfuse.recording import (
     RecordingWriter,
     fuse_recording,
     mcap_io,
-    offline,
     replay_frames,
-    write_fused,
 )
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.frames import FusedFrame, SensorFrame
-from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
@@ -448,87 +445,6 @@ def test_fuse_recording_with_rig_config_and_a_dropped_frame(tmp_path: Path) -> N
     assert (fused[10].n_agree == 2).all() and (fused[11].n_agree == 3).all()
     errors = np.linalg.norm(fused[10].positions[0] - truth_skeleton(10), axis=-1)
     assert np.median(errors) < 3 * NOISE_MM
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Fused-frame writers
-
-
-def fused_frames() -> list[FusedFrame]:
-    rng = np.random.default_rng(SEED)
-    out = []
-    for t, persons in [(1000, 1), (2000, 0), (3000, 2)]:
-        positions = rng.normal(0, 1000, (persons, N_JOINTS, 3))
-        if persons:
-            positions[0, 5] = np.nan
-        out.append(
-            FusedFrame(
-                time_us=t,
-                track_ids=np.arange(1, persons + 1, dtype=np.int64),
-                positions=positions,
-                n_agree=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.int16),
-                confidence=rng.integers(0, 4, (persons, N_JOINTS)).astype(np.uint8),
-                contributors=np.ones((persons, 3), bool),
-                sensor_ids=SENSORS,
-            )
-        )
-    return out
-
-
-def expected_rows(frames: list[FusedFrame]) -> list[tuple]:
-    return [
-        (
-            f.time_us,
-            int(f.track_ids[p]),
-            j,
-            JOINT_NAMES[j],
-            *f.positions[p, j].tolist(),
-            int(f.n_agree[p, j]),
-            int(f.confidence[p, j]),
-        )
-        for f in frames
-        for p in range(f.n_persons)
-        for j in range(N_JOINTS)
-    ]
-
-
-def same_rows(got: list[tuple], expected: list[tuple]) -> None:
-    assert len(got) == len(expected)
-    for g, e in zip(got, expected, strict=True):
-        assert g[:4] == e[:4] and g[7:] == e[7:]
-        for a, b in zip(g[4:7], e[4:7], strict=True):
-            assert (a is None and math.isnan(b)) or a == b  # exact: floats are written with repr
-
-
-def test_write_fused_csv_round_trip(tmp_path: Path) -> None:
-    frames = fused_frames()
-    path = tmp_path / "fused.csv"
-    assert write_fused(iter(frames), path) == 3 * N_JOINTS
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    assert tuple(rows[0]) == offline.FUSED_COLUMNS
-    got = [
-        (int(r[0]), int(r[1]), int(r[2]), r[3], *(None if v == "" else float(v) for v in r[4:7]), int(r[7]), int(r[8]))
-        for r in rows[1:]
-    ]
-    same_rows(got, expected_rows(frames))
-
-
-def test_write_fused_parquet_round_trip(tmp_path: Path) -> None:
-    pq = pytest.importorskip("pyarrow.parquet")
-    frames = fused_frames()
-    path = tmp_path / "fused.parquet"
-    assert write_fused(frames, path) == 3 * N_JOINTS
-    table = pq.read_table(path)
-    assert tuple(table.column_names) == offline.FUSED_COLUMNS
-    columns = [table.column(name).to_pylist() for name in offline.FUSED_COLUMNS]
-    same_rows(list(zip(*columns, strict=True)), expected_rows(frames))
-
-
-def test_write_fused_unknown_extension(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"\.csv, \.parquet"):
-        write_fused(fused_frames(), tmp_path / "fused.json")
-    assert not (tmp_path / "fused.json").exists()
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -16,7 +16,8 @@ from skelfuse.cli.common import (
     zenoh_conf,
 )
 from skelfuse.config import DEFAULT_PRESET, RigConfig
-from skelfuse.recording import fuse_recording, write_fused
+from skelfuse.export.csv import write_fused
+from skelfuse.recording import fuse_recording
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
@@ -111,11 +112,20 @@ def _cmd_record(args: argparse.Namespace) -> int:
     report = run_recorder(
         cfg, zenoh_conf(args, cfg), output=args.output, limits=run_limits(args), lifecycle=Lifecycle("recorder")
     )
-    summary = {"path": report.path, "frames_written": report.frames_written, "rejects": dict(report.rejects)}
+    summary = {
+        "path": report.path,
+        "frames_written": report.frames_written,
+        "fused_frames_written": report.fused_frames_written,
+        "rejects": dict(report.rejects),
+    }
     if args.json:
         print_json(summary)
     else:
-        print(f"Recorded {report.frames_written} frames to {report.path}", file=sys.stderr)
+        print(
+            f"Recorded {report.frames_written} sensor frames and {report.fused_frames_written} fused frames "
+            f"to {report.path}",
+            file=sys.stderr,
+        )
     return EXIT_OK
 
 
@@ -280,9 +290,10 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
 def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     record = commands.add_parser(
         "record",
-        help="record every raw sensor frame of the rig to an MCAP file",
-        description="Subscribe to skelfuse/<rig>/sensors/*/skeletons and write every payload with both "
-        "timestamps to an MCAP file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
+        help="record every raw sensor frame of the rig (and its fused stream) to an MCAP file",
+        description="Subscribe to skelfuse/<rig>/sensors/*/skeletons (and, with [record] fused = true, the "
+        "default, to skelfuse/<rig>/fused/skeletons) and write every payload with its timestamps to an MCAP "
+        "file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
         "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
     )
     record.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")

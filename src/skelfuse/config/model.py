@@ -243,6 +243,25 @@ class RecordConfig:
     fused: bool = True
 
 
+OSC_UNITS = ("mm", "m")
+"""Position units the OSC stream can send."""
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """``[stream]``: the stream daemon (``skelfuse stream osc|lsl|vmc``), a subscriber of the fused stream."""
+
+    host: str = "127.0.0.1"
+    osc_port: int = 9000
+    osc_prefix: str = "/skelfuse"
+    osc_units: str = "mm"
+    vmc_port: int = 39539
+    lsl_name: str = "skelfuse"
+    lsl_max_persons: int = 2
+    queue_size: int = 64
+    drain_timeout_s: float = 1.0
+
+
 @dataclass(frozen=True)
 class RigConfig:
     """A whole rig configuration, validated. Build it with :func:`load_rig_config` or :meth:`from_dict`.
@@ -252,7 +271,7 @@ class RigConfig:
     name : str
         ``[rig] name``: the rig's key chunk (``skelfuse/<name>/...``).
     sensors : tuple[SensorConfig, ...]
-    sync, calibration, fusion, zenoh, node, rerun, record : the sections
+    sync, calibration, fusion, zenoh, node, rerun, record, stream : the sections
     source : str
         Where this config came from (a file path, or "<dict>"), for messages.
     """
@@ -266,6 +285,7 @@ class RigConfig:
     node: NodeConfig = field(default_factory=NodeConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
+    stream: StreamConfig = field(default_factory=StreamConfig)
     source: str = "<dict>"
 
     @property

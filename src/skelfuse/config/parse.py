@@ -16,6 +16,7 @@ from skelfuse.config.model import (
     FUSION_PRESETS,
     KINECT_FPS,
     MIN_DELAY_SPACING_US,
+    OSC_UNITS,
     PROCESSING_MODES,
     RERUN_MODES,
     SENSOR_ORIENTATIONS,
@@ -34,6 +35,7 @@ from skelfuse.config.model import (
     SensorConfig,
     SensorSyncConfig,
     SimConfig,
+    StreamConfig,
     SyncConfig,
     TrackerConfig,
     ZenohSection,
@@ -113,6 +115,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
             fused=t.boolean("fused", True),
         )
         t.done()
+    stream = _parse_stream(top.table("stream"))
     top.done()
 
     _check_rig(sensors, sync, source)
@@ -126,6 +129,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         node=node,
         rerun=rerun,
         record=record,
+        stream=stream,
         source=source,
     )
 
@@ -416,6 +420,39 @@ def _parse_zenoh(t: Table | None) -> ZenohSection:
             raw[normalized] = value
     t.done()
     return dataclasses.replace(section, config=tuple(sorted(raw.items())))
+
+
+def _check_osc_prefix(value: str) -> str:
+    if not value.startswith("/") or value.endswith("/") or any(c in value for c in " #*,?[]{}"):
+        raise ValueError(
+            f"{value!r} is not an OSC address prefix: it starts with '/', does not end with '/', and holds none "
+            f'of \' #*,?[]{{}}\' (e.g. "/skelfuse" or "/lab/skeletons")'
+        )
+    return value
+
+
+def _parse_stream(t: Table | None) -> StreamConfig:
+    if t is None:
+        return StreamConfig()
+    stream = StreamConfig(
+        host=t.string("host", "127.0.0.1", check=_nonempty),
+        osc_port=t.integer("osc_port", 9000, lo=1, hi=65535),
+        osc_prefix=t.string("osc_prefix", "/skelfuse", check=_check_osc_prefix),
+        osc_units=t.string("osc_units", "mm", choices=OSC_UNITS),
+        vmc_port=t.integer("vmc_port", 39539, lo=1, hi=65535),
+        lsl_name=t.string("lsl_name", "skelfuse", check=_nonempty),
+        lsl_max_persons=t.integer("lsl_max_persons", 2, lo=1, hi=64),
+        queue_size=t.integer("queue_size", 64, lo=1, hi=100_000, unit="frames"),
+        drain_timeout_s=t.number("drain_timeout_s", 1.0, lo=0.0, hi=60.0, unit="s"),
+    )
+    t.done()
+    return stream
+
+
+def _nonempty(value: str) -> str:
+    if not value.strip():
+        raise ValueError("must not be empty")
+    return value
 
 
 def _parse_rerun(t: Table | None) -> RerunConfig:

@@ -10,6 +10,11 @@ Layout of a skelfuse recording (details and the reasons for MCAP in ``docs/recor
 * one *message* per sensor frame: the payload is exactly :func:`skelfuse.wire.codec.encode_sensor_frame`'s
   bytes (so a replay republishes bit-identical payloads), ``log_time`` = the frame's host time (ns),
   ``publish_time`` = its device time (µs -> ns), ``sequence`` = its sequence number modulo 2**32;
+* when the fused stream is recorded too (``[record] fused``), a schema ``skelfuse.FusedFrame`` and one
+  channel whose topic is the rig's fused key expression (``skelfuse/<rig>/fused/skeletons``, encoding
+  :data:`FUSED_MESSAGE_ENCODING`), one message per fused frame: the fused wire payload as received,
+  ``log_time`` = when the recorder received it (host ns), ``publish_time`` = the frame's time (µs -> ns),
+  ``sequence`` = its index in the file modulo 2**32;
 * *metadata* records ``skelfuse.recording`` (rig, skelfuse version, start time, sensors, caller's keys) and,
   when a calibration is given, ``skelfuse.calibration`` (``world_from_sensor`` per sensor, row-major 4x4,
   mm);
@@ -55,9 +60,17 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 import skelfuse
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.wire import keys
-from skelfuse.wire.codec import VERSION_MAJOR, VERSION_MINOR, DecodeError, decode_sensor_frame, encode_sensor_frame
+from skelfuse.wire.codec import (
+    VERSION_MAJOR,
+    VERSION_MINOR,
+    DecodeError,
+    decode_fused_frame,
+    decode_sensor_frame,
+    encode_fused_frame,
+    encode_sensor_frame,
+)
 
 MESSAGE_ENCODING = "skelfuse-sensor-frame/1"
 """MCAP message encoding of sensor-frame channels: the wire codec's sensor frame, schema major 1."""
@@ -72,6 +85,18 @@ SCHEMA_TEXT = (
     "Little-endian; prefix 'SKLF', major, minor, kind, flags, header_size; then sequence, device time (us), "
     "host time (ns), body ids, positions f32[B][32][3] mm, orientations f32[B][32][4] wxyz, confidence "
     "u8[B][32], sensor id.\n"
+)
+FUSED_MESSAGE_ENCODING = "skelfuse-fused-frame/1"
+"""MCAP message encoding of the fused channel: the wire codec's fused frame, schema major 1."""
+FUSED_SCHEMA_NAME = "skelfuse.FusedFrame"
+"""Name of the schema record of the fused channel."""
+FUSED_SCHEMA_TEXT = (
+    f"skelfuse fused frame, wire schema {VERSION_MAJOR}.x (message kind 2).\n"
+    "Specified byte by byte in docs/wire-format.md, section 'Fused frame', of the skelfuse project; "
+    "reference implementation: skelfuse.wire.codec.decode_fused_frame.\n"
+    "Little-endian; prefix 'SKLF', major, minor, kind, flags, header_size; then time (us), track ids, "
+    "positions f64[P][32][3] mm world, n_agree i16[P][32], confidence u8[P][32], contributors u8[P][S], "
+    "sensor id table.\n"
 )
 PROFILE = "skelfuse"
 """MCAP header profile of skelfuse recordings."""
@@ -142,6 +167,9 @@ class RecordingWriter:
     path : Path
     rig : str
     frames_written : int
+        Sensor frames written.
+    fused_frames_written : int
+        Fused frames written (:meth:`write_fused_payload`).
     flushes : int
         How many times buffered data was pushed to the OS.
     """
@@ -186,8 +214,10 @@ class RecordingWriter:
             self._stream, chunk_size=int(chunk_size), compression=_COMPRESSIONS[compression], index_types=IndexType.ALL
         )
         self._channels: dict[str, int] = {}
+        self._fused_channel: int | None = None
         self._closed = False
         self.frames_written = 0
+        self.fused_frames_written = 0
         self.flushes = 0
 
         start_ns = time.time_ns()
@@ -265,6 +295,49 @@ class RecordingWriter:
         if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
             self.flush()
 
+    def write_fused(self, frame: FusedFrame, *, log_time_ns: int) -> None:
+        """Encode a fused frame with the wire codec and record it on the fused channel.
+
+        ``log_time_ns`` is the host time (ns since the Unix epoch) the frame belongs to on the recording's
+        time axis; a recorder passes the time it received the frame. ValueError if the codec refuses it.
+        """
+        self._write_fused(encode_fused_frame(frame), int(frame.time_us), log_time_ns)
+
+    def write_fused_payload(self, payload: bytes | bytearray | memoryview, *, log_time_ns: int) -> FusedFrame:
+        """Record a received fused wire payload as it is (bit-identical); returns the decoded frame.
+
+        Raises
+        ------
+        DecodeError
+            The payload is not a valid fused frame: nothing is written (count it and carry on).
+        """
+        data = bytes(payload)
+        frame = decode_fused_frame(data)
+        self._write_fused(data, int(frame.time_us), log_time_ns)
+        return frame
+
+    def _write_fused(self, data: bytes, time_us: int, log_time_ns: int) -> None:
+        if self._closed:
+            raise ValueError(f"recording {self.path} is closed")
+        if self._fused_channel is None:
+            schema_id = self._writer.register_schema(FUSED_SCHEMA_NAME, SCHEMA_ENCODING, FUSED_SCHEMA_TEXT.encode())
+            self._fused_channel = self._writer.register_channel(
+                topic=keys.fused_skeletons(self.rig),
+                message_encoding=FUSED_MESSAGE_ENCODING,
+                schema_id=schema_id,
+                metadata={"stream": "fused"},
+            )
+        self._writer.add_message(
+            channel_id=self._fused_channel,
+            log_time=_clamp_u64(log_time_ns),
+            publish_time=_clamp_u64(time_us * 1000),
+            data=data,
+            sequence=self.fused_frames_written & 0xFFFFFFFF,
+        )
+        self.fused_frames_written += 1
+        if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
+            self.flush()
+
     def flush(self) -> None:
         """Finish the open chunk and push everything written so far to the OS (and disk, with ``fsync``).
 
@@ -324,6 +397,31 @@ class RecordedFrame:
 
 
 @dataclass(frozen=True)
+class RecordedFused:
+    """One recorded fused frame with its MCAP envelope.
+
+    Attributes
+    ----------
+    topic : str
+        The fused channel's topic: the rig's fused key expression.
+    log_time_ns : int
+        Host time the recorder received the frame (ns), the recording's time axis.
+    publish_time_ns : int
+        The frame's own time (``time_us`` x 1000).
+    payload : bytes
+        The fused wire payload, bit-identical to what was received.
+    frame : FusedFrame
+        The decoded payload.
+    """
+
+    topic: str
+    log_time_ns: int
+    publish_time_ns: int
+    payload: bytes = field(repr=False)
+    frame: FusedFrame = field(repr=False)
+
+
+@dataclass(frozen=True)
 class _ChunkRef:
     start_ns: int
     end_ns: int
@@ -352,6 +450,9 @@ class RecordingReader:
         Sensor ids of the sensor-frame channels, in channel order.
     topics : dict[str, str]
         Sensor id -> topic.
+    fused_topic : str or None
+        Topic of the recorded fused stream (``skelfuse/<rig>/fused/skeletons``), None when the file holds no
+        fused channel.
     metadata : dict[str, str]
         The ``skelfuse.recording`` metadata record (empty if absent).
     calibration : dict[str, (4, 4) ndarray] or None
@@ -393,6 +494,7 @@ class RecordingReader:
         self._chunks: list[_ChunkRef] = []
         self._metadata: dict[str, dict[str, str]] = {}
         self._message_count: int | None = None
+        self._channel_counts: dict[int, int] | None = None
         self.indexed = self._load_index()
         if not self.indexed:
             self._scan()
@@ -401,6 +503,8 @@ class RecordingReader:
         sensor_channels = [c for _, c in sorted(self._channels.items()) if c.message_encoding == MESSAGE_ENCODING]
         self.topics = {self._sensor_of(c): c.topic for c in sensor_channels}
         self.sensors = tuple(self.topics)
+        fused_channels = [c for _, c in sorted(self._channels.items()) if c.message_encoding == FUSED_MESSAGE_ENCODING]
+        self.fused_topic = fused_channels[0].topic if fused_channels else None
         self.metadata = dict(self._metadata.get(RECORDING_METADATA, {}))
         self.calibration = self._read_calibration()
 
@@ -442,6 +546,7 @@ class RecordingReader:
         ]
         if summary.statistics is not None:
             self._message_count = summary.statistics.message_count
+            self._channel_counts = dict(summary.statistics.channel_message_counts)
         return True
 
     def _scan(self) -> None:
@@ -543,6 +648,14 @@ class RecordingReader:
         """Messages in the file (all channels), from the statistics or the scan; None if unknown."""
         return self._message_count
 
+    @property
+    def fused_message_count(self) -> int | None:
+        """Messages on the fused channel, from the statistics of an indexed file; None if unknown."""
+        if self._channel_counts is None:
+            return None
+        fused = [cid for cid, c in self._channels.items() if c.message_encoding == FUSED_MESSAGE_ENCODING]
+        return sum(self._channel_counts.get(cid, 0) for cid in fused)
+
     def frames(
         self, start_ns: int | None = None, end_ns: int | None = None, sensors: Iterable[str] | None = None
     ) -> Iterator[SensorFrame]:
@@ -574,6 +687,33 @@ class RecordingReader:
             for cid, c in self._channels.items()
             if c.message_encoding == MESSAGE_ENCODING and (wanted is None or self._sensor_of(c) in wanted)
         }
+        for message in self._merged(channels, start_ns, end_ns):
+            yield from self._decode(message, channels)
+
+    def fused_frames(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[FusedFrame]:
+        """Decoded recorded fused frames in log-time order (see :meth:`fused_records`)."""
+        for record in self.fused_records(start_ns, end_ns):
+            yield record.frame
+
+    def fused_records(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[RecordedFused]:
+        """The recorded fused stream with its envelope, in log-time (receive time) order.
+
+        Nothing when the file has no fused channel (:attr:`fused_topic` None). A payload that fails to decode
+        is skipped and counted in :attr:`rejects`, as for sensor frames.
+        """
+        channels = {cid: c for cid, c in self._channels.items() if c.message_encoding == FUSED_MESSAGE_ENCODING}
+        for message in self._merged(channels, start_ns, end_ns):
+            channel = channels[message.channel_id]
+            try:
+                frame = decode_fused_frame(message.data)
+            except DecodeError as exc:
+                self.rejects[exc.reason] += 1
+                self._note(f"fused message at log time {message.log_time} on {channel.topic}: {exc.reason}: {exc}")
+                continue
+            yield RecordedFused(channel.topic, message.log_time, message.publish_time, bytes(message.data), frame)
+
+    def _merged(self, channels: Mapping[int, Channel], start_ns: int | None, end_ns: int | None) -> Iterator[Message]:
+        """Messages of ``channels`` in the half-open log-time window, in log-time order (ties: file order)."""
         chunks = [
             c
             for c in self._chunks
@@ -587,7 +727,7 @@ class RecordingReader:
         with open(self.path, "rb") as f:
             for chunk in chunks:
                 while heap and heap[0][0] < chunk.start_ns:
-                    yield from self._decode(heapq.heappop(heap)[3], channels)
+                    yield heapq.heappop(heap)[3]
                 for index, message in enumerate(self._messages_of(f, chunk)):
                     if message.channel_id not in channels:
                         continue
@@ -597,7 +737,7 @@ class RecordingReader:
                         continue
                     heapq.heappush(heap, (message.log_time, chunk.offset, index, message))
             while heap:
-                yield from self._decode(heapq.heappop(heap)[3], channels)
+                yield heapq.heappop(heap)[3]
 
     def _messages_of(self, f: IO[bytes], chunk: _ChunkRef) -> list[Message]:
         if chunk.offset < 0:

@@ -1,4 +1,7 @@
-"""Fuse a recording offline, write the fused skeletons to CSV / Parquet, and pace a replay.
+"""Fuse a recording offline and pace a replay.
+
+The fused frames are written by :mod:`skelfuse.export.csv` (the one fused table, CSV or Parquet) or the other
+exporters of :mod:`skelfuse.export`.
 
 Cycle of :func:`fuse_recording`: read the recording's sensor frames in host-time order
 (:class:`~skelfuse.recording.mcap_io.RecordingReader`), group them into instants as the live fusion node
@@ -15,13 +18,11 @@ CLI's ``skelfuse replay FILE`` publishes each yielded ``record.payload`` on ``re
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,22 +35,8 @@ from skelfuse.rig.grouping import FrameGrouper
 from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
-from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
 
-__all__ = [
-    "FUSED_COLUMNS",
-    "FUSED_FORMATS",
-    "RESET_GAP_S",
-    "fuse_recording",
-    "replay_frames",
-    "resolve_poses",
-    "write_fused",
-]
-
-FUSED_COLUMNS = ("time_us", "track_id", "joint", "joint_name", "x_mm", "y_mm", "z_mm", "n_agree", "confidence")
-"""Columns of :func:`write_fused`, one row per person x joint (see docs/recording.md)."""
-FUSED_FORMATS = (".csv", ".parquet")
-"""Output extensions :func:`write_fused` supports."""
+__all__ = ["RESET_GAP_S", "fuse_recording", "replay_frames", "resolve_poses"]
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -192,7 +179,8 @@ def _fuse(
     progress: bool,
 ) -> Iterator[FusedFrame]:
     fuser = GroupFuser(sensor_ids, poses, params)
-    bar = Progress(reader.message_count or 0, "fuse", enabled=None if progress else False)
+    sensor_messages = (reader.message_count or 0) - (reader.fused_message_count or 0)  # a recorded fused stream
+    bar = Progress(max(sensor_messages, 0), "fuse", enabled=None if progress else False)
     try:
         for frame in reader.frames(start_ns, end_ns):
             # The recorded host time stands in for the arrival clock, so deadlines behave as they did live.
@@ -203,141 +191,6 @@ def _fuse(
             yield fuser.step(group).frame
     finally:
         bar.close()
-
-
-# --------------------------------------------------------------------------------------------------------
-# Writing fused frames
-
-
-def _rows(frame: FusedFrame) -> Iterator[tuple[Any, ...]]:
-    for p in range(frame.n_persons):
-        track_id = int(frame.track_ids[p])
-        for j in range(N_JOINTS):
-            x, y, z = (float(v) for v in frame.positions[p, j])
-            yield (
-                int(frame.time_us),
-                track_id,
-                j,
-                JOINT_NAMES[j],
-                x,
-                y,
-                z,
-                int(frame.n_agree[p, j]),
-                int(frame.confidence[p, j]),
-            )
-
-
-def write_fused(frames: Iterable[FusedFrame], output_path: str | os.PathLike[str]) -> int:
-    """Write fused frames as a table, one row per person x joint; the format follows the extension.
-
-    Columns (:data:`FUSED_COLUMNS`): ``time_us`` (int, device time), ``track_id`` (int), ``joint`` (0..31,
-    k4abt order), ``joint_name`` (e.g. "PELVIS"), ``x_mm y_mm z_mm`` (float, world frame; missing: empty in
-    CSV, null in Parquet), ``n_agree`` (sensors that agreed, 0 = predicted), ``confidence`` (0..3).
-
-    Parameters
-    ----------
-    frames : iterable of FusedFrame
-    output_path : str or Path
-        ``.csv`` (header row, comma separated) or ``.parquet`` (needs pyarrow).
-
-    Returns
-    -------
-    int
-        Rows written.
-
-    Raises
-    ------
-    ValueError
-        The extension is not one of :data:`FUSED_FORMATS`.
-    """
-    path = Path(output_path)
-    suffix = path.suffix.lower()
-    if suffix not in FUSED_FORMATS:
-        raise ValueError(
-            f"cannot write fused frames to {path}: unknown extension {path.suffix!r}; "
-            f"supported: {', '.join(FUSED_FORMATS)}"
-        )
-    if suffix == ".csv":
-        return _write_csv(frames, path)
-    return _write_parquet(frames, path)
-
-
-def _write_csv(frames: Iterable[FusedFrame], path: Path) -> int:
-    n = 0
-    with open(path, "w", newline="", encoding="utf-8") as f:
-        writer = csv.writer(f)
-        writer.writerow(FUSED_COLUMNS)
-        for frame in frames:
-            for row in _rows(frame):
-                writer.writerow(
-                    [
-                        ("" if isinstance(v, float) and math.isnan(v) else repr(v) if isinstance(v, float) else v)
-                        for v in row
-                    ]
-                )
-                n += 1
-    return n
-
-
-def _write_parquet(frames: Iterable[FusedFrame], path: Path, batch_frames: int = 1000) -> int:
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError as exc:
-        raise ModuleNotFoundError("writing .parquet needs pyarrow (pip install pyarrow); or write .csv") from exc
-    schema = pa.schema(
-        [
-            ("time_us", pa.int64()),
-            ("track_id", pa.int64()),
-            ("joint", pa.int16()),
-            ("joint_name", pa.string()),
-            ("x_mm", pa.float64()),
-            ("y_mm", pa.float64()),
-            ("z_mm", pa.float64()),
-            ("n_agree", pa.int16()),
-            ("confidence", pa.uint8()),
-        ]
-    )
-    n = 0
-    pending: list[FusedFrame] = []
-
-    def flush(writer: Any) -> int:
-        if not pending:
-            return 0
-        time_us = np.concatenate([np.full(f.n_persons * N_JOINTS, f.time_us, np.int64) for f in pending])
-        track = np.concatenate([np.repeat(np.asarray(f.track_ids, np.int64), N_JOINTS) for f in pending])
-        joints = np.concatenate([np.tile(np.arange(N_JOINTS, dtype=np.int16), f.n_persons) for f in pending])
-        xyz = np.concatenate([np.asarray(f.positions, np.float64).reshape(-1, 3) for f in pending])
-        n_agree = np.concatenate([np.asarray(f.n_agree, np.int16).reshape(-1) for f in pending])
-        conf = np.concatenate([np.asarray(f.confidence, np.uint8).reshape(-1) for f in pending])
-        names = np.asarray(JOINT_NAMES, dtype=object)[joints]
-        nan = np.isnan(xyz)
-        table = pa.Table.from_arrays(
-            [
-                pa.array(time_us),
-                pa.array(track),
-                pa.array(joints),
-                pa.array(names.tolist(), pa.string()),
-                pa.array(xyz[:, 0], mask=nan[:, 0]),
-                pa.array(xyz[:, 1], mask=nan[:, 1]),
-                pa.array(xyz[:, 2], mask=nan[:, 2]),
-                pa.array(n_agree),
-                pa.array(conf),
-            ],
-            schema=schema,
-        )
-        writer.write_table(table)
-        pending.clear()
-        return table.num_rows
-
-    with pq.ParquetWriter(path, schema) as writer:
-        for frame in frames:
-            if frame.n_persons:
-                pending.append(frame)
-            if len(pending) >= batch_frames:
-                n += flush(writer)
-        n += flush(writer)
-    return n
 
 
 # --------------------------------------------------------------------------------------------------------

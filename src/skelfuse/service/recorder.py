@@ -1,10 +1,11 @@
 """``skelfuse record`` and ``skelfuse replay``: the zenoh ends of :mod:`skelfuse.recording`.
 
-Recorder cycle: subscribe to ``skelfuse/<rig>/sensors/*/skeletons`` (:class:`SampleQueue`, one writer
-thread) -> ``RecordingWriter.write_payload`` (the bytes as received; a payload that fails to decode is
-counted per reason and not written) -> ``flush()`` every ``[record] flush_period_s`` even when idle, so a
-killed recorder leaves a file readable up to its last flush -> ``close()`` on SIGINT/SIGTERM or the run
-limits (index and footer written).
+Recorder cycle: subscribe to ``skelfuse/<rig>/sensors/*/skeletons`` and, with ``[record] fused`` (the
+default), to ``skelfuse/<rig>/fused/skeletons`` (one :class:`SampleQueue`, one writer thread) ->
+``RecordingWriter.write_payload`` / ``write_fused_payload`` (the bytes as received, a fused frame stamped
+with the host time it arrived; a payload that fails to decode is counted per reason and not written) ->
+``flush()`` every ``[record] flush_period_s`` even when idle, so a killed recorder leaves a file readable up
+to its last flush -> ``close()`` on SIGINT/SIGTERM or the run limits (index and footer written).
 
 Replay cycle: ``replay_frames(reader, speed=...)`` paces the recorded frames by their host time; each
 payload is published unchanged on its recorded topic (or on the same sensor's key of another rig with
@@ -45,13 +46,15 @@ def default_recording_path(cfg: RigConfig) -> Path:
 class RecordReport:
     path: Path
     frames_written: int = 0
+    fused_frames_written: int = 0
     rejects: Counter[str] = field(default_factory=Counter)
 
 
 def run_recorder(
     cfg: RigConfig, zenoh_conf: zenoh.Config, *, output: Path | None, limits: RunLimits, lifecycle: Lifecycle
 ) -> RecordReport:
-    """Record every raw sensor frame of the rig to MCAP until a signal or the run limits."""
+    """Record every raw sensor frame of the rig (and its fused stream, ``[record] fused``) to MCAP until a signal
+    or the run limits."""
 
     path = Path(output) if output is not None else default_recording_path(cfg)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -72,15 +75,26 @@ def run_recorder(
         )
         try:
             subscriber = session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples)
+            fused_key = keys.fused_skeletons(cfg.name)
+            fused_subscriber = session.declare_subscriber(fused_key, samples) if cfg.record.fused else None
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
-            log.info("recorder: writing rig %s's sensor frames to %s (flush every %.1f s)", cfg.name, path, flush_s)
+            log.info(
+                "recorder: writing rig %s's sensor frames%s to %s (flush every %.1f s)",
+                cfg.name,
+                " and fused frames" if cfg.record.fused else "",
+                path,
+                flush_s,
+            )
             start = time.monotonic()
             next_flush = start + flush_s
             while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
                 item = samples.get(timeout=0.05)
                 while item is not None:
                     try:
-                        writer.write_payload(item.payload)
+                        if item.key == fused_key:
+                            writer.write_fused_payload(item.payload, log_time_ns=_wall_time_ns(item.arrival_ns))
+                        else:
+                            writer.write_payload(item.payload)
                     except DecodeError as exc:
                         report.rejects[exc.reason] += 1
                         if report.rejects[exc.reason] == 1:
@@ -92,15 +106,27 @@ def run_recorder(
                     writer.flush()
                     next_flush = time.monotonic() + flush_s
             subscriber.undeclare()
+            if fused_subscriber is not None:
+                fused_subscriber.undeclare()
             token.undeclare()
         finally:
             writer.close()
             session.close()
     report.frames_written = writer.frames_written
+    report.fused_frames_written = writer.fused_frames_written
     log.info(
-        "recorder: %d frames written to %s (%d rejected)", report.frames_written, path, sum(report.rejects.values())
+        "recorder: %d sensor frames and %d fused frames written to %s (%d rejected)",
+        report.frames_written,
+        report.fused_frames_written,
+        path,
+        sum(report.rejects.values()),
     )
     return report
+
+
+def _wall_time_ns(arrival_monotonic_ns: int) -> int:
+    """The wall-clock time (ns since the Unix epoch) of a sample stamped with ``time.monotonic_ns()`` on arrival."""
+    return time.time_ns() - (time.monotonic_ns() - arrival_monotonic_ns)
 
 
 @dataclass

@@ -1,0 +1,149 @@
+"""The fused stream's live consumers as real processes on loopback: ``skelfuse record`` (``[record] fused``) and
+``skelfuse stream osc``, beside a fusion node, simulated workers, an independent zenoh subscriber and a
+python-osc UDP server in the test (one rig for both, to keep the suite short).
+
+- The fused frames the recorder wrote equal, payload for payload and in order, what the subscriber received.
+- The OSC messages decode to those fused skeletons; SIGTERM stops the stream daemon within its drain timeout.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pythonosc.dispatcher import Dispatcher
+from pythonosc.osc_server import BlockingOSCUDPServer
+from service_helpers import RIG, Processes, start_node, worker_args, write_rig
+
+from skelfuse.recording import RecordingReader
+from skelfuse.schema.skeleton import JOINT_NAMES
+from skelfuse.service.zenoh_io import loopback_args
+from skelfuse.wire import keys
+from skelfuse.wire.codec import encode_fused_frame
+
+pytestmark = pytest.mark.service
+
+SENSORS = ("capture_0", "capture_1")
+DRAIN_S = 1.0
+
+
+def _alive(session, node: str) -> bool:
+    replies = session.liveliness().get(keys.alive(RIG, node), timeout=1.0)
+    return any(getattr(reply, "ok", None) is not None for reply in replies)
+
+
+class OscFrames:
+    """A python-osc server that groups the messages of each fused frame under its ``/skelfuse/frame`` time."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.frames: dict[int, dict[str, list]] = {}
+        self._current: dict[str, list] | None = None
+        dispatcher = Dispatcher()
+        dispatcher.set_default_handler(self._on_message)
+        self.server = BlockingOSCUDPServer(("127.0.0.1", 0), dispatcher)  # one thread: datagrams stay in order
+        self.port = self.server.server_address[1]
+        self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+        self.thread.start()
+
+    def _on_message(self, address: str, *args: object) -> None:
+        with self.lock:
+            if address == "/skelfuse/frame":
+                self._current = self.frames.setdefault(int(args[0]), {})
+            if self._current is not None:
+                self._current[address] = list(args)
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_recorder_and_osc_stream_carry_the_fused_skeletons(
+    tmp_path: Path, processes: Processes, node_port: int
+) -> None:
+    config = write_rig(tmp_path, n_sensors=2, deadline_ms=100.0)
+    config.write_text(config.read_text() + f"\n[stream]\ndrain_timeout_s = {DRAIN_S}\n", encoding="utf-8")
+    output = tmp_path / "take.mcap"
+    osc = OscFrames()
+    node, listener = start_node(processes, config, node_port)
+    try:
+        common = ["--config", str(config), "--duration", "120", *loopback_args(connect_ports=[node_port])]
+        recorder = processes.start("recorder", "record", "--output", str(output), *common)
+        daemon = processes.start("stream", "stream", "osc", "--port", str(osc.port), "--json", *common)
+        for process, name in ((recorder, "recorder"), (daemon, "stream-osc")):
+            listener.wait_for(
+                lambda name=name: _alive(listener.session, name),
+                30.0,
+                f"the {name}'s liveliness token",
+                lambda process=process: processes.log(process),
+            )
+        time.sleep(0.5)  # let their subscriptions reach the node
+        workers = [
+            processes.start(f"w{i}", *worker_args(config, node_port, sid, "--duration", "3", listener=listener))
+            for i, sid in enumerate(SENSORS)
+        ]
+        for worker in workers:
+            worker.wait(60.0)
+            assert worker.returncode == 0, processes.log(worker)
+        listener.wait_for(
+            lambda: bool(listener.fused) and time.monotonic() - listener.fused[-1][0] > 0.5,
+            10.0,
+            "the fused stream to settle",
+        )
+        stop_at = time.monotonic()
+        assert processes.stop(daemon, signal.SIGTERM, timeout_s=10.0) == 0, processes.log(daemon)
+        stop_s = time.monotonic() - stop_at
+        assert processes.stop(recorder) == 0, processes.log(recorder)
+        assert processes.stop(node) == 0, processes.log(node)
+        received = [frame for _, frame in listener.fused]
+        sensor_frames = listener.sensor_frames()
+    finally:
+        listener.close()
+        osc.close()
+    assert len(received) >= 60, f"only {len(received)} fused frames reached the subscriber"
+    assert sum(f.n_persons for f in received) > 0
+
+    # --- the recording ------------------------------------------------------------------------------------
+    rec = RecordingReader(output)
+    assert rec.indexed, rec.problems  # closed cleanly on SIGTERM
+    assert rec.fused_topic == keys.fused_skeletons(RIG)
+    recorded = list(rec.fused_records())
+    # The same frames, in the same order, with identical payloads (the wire codec is deterministic, so
+    # re-encoding what the subscriber decoded gives the bytes it received).
+    assert [r.frame.time_us for r in recorded] == [f.time_us for f in received]
+    assert [r.payload for r in recorded] == [encode_fused_frame(f) for f in received]
+    log_times = np.array([r.log_time_ns for r in recorded])
+    assert (np.diff(log_times) >= 0).all() and abs(log_times[0] / 1e9 - time.time()) < 300  # host clock
+    # The sensor channels are still there beside. The recorder and the test's subscriber are independent
+    # subscribers that start at slightly different moments: their counts agree closely, not exactly.
+    assert set(rec.sensors) == set(SENSORS)
+    assert abs(len(list(rec.frames())) - len(sensor_frames)) <= max(3, 0.02 * len(sensor_frames))
+
+    # --- the OSC stream -----------------------------------------------------------------------------------
+    assert stop_s < DRAIN_S + 5.0, f"SIGTERM took {stop_s:.1f} s"  # drain timeout + teardown on a busy host
+    with osc.lock:
+        osc_frames = dict(osc.frames)
+    # UDP on loopback: every frame should arrive; allow a few lost on a loaded machine.
+    assert len(osc_frames) >= 0.95 * len(received), (len(osc_frames), len(received))
+    checked = 0
+    for frame in received:
+        messages = osc_frames.get(int(frame.time_us))
+        if messages is None:
+            continue
+        assert messages["/skelfuse/frame"][1] == frame.n_persons
+        assert messages["/skelfuse/persons"] == frame.track_ids.tolist()
+        for p, track in enumerate(frame.track_ids.tolist()):
+            for j, name in enumerate(JOINT_NAMES):
+                base = f"/skelfuse/person/{track}/{name.lower()}"
+                if np.isfinite(frame.positions[p, j]).all():
+                    got = messages[f"{base}/position"]
+                    np.testing.assert_allclose(got, frame.positions[p, j], rtol=1e-6, atol=1e-3)  # float32
+                    checked += 1
+                else:
+                    assert f"{base}/position" not in messages
+                assert messages[f"{base}/confidence"][:2] == [int(frame.confidence[p, j]), int(frame.n_agree[p, j])]
+    assert checked >= 60 * 16, checked
