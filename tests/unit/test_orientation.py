@@ -293,3 +293,23 @@ def test_real_sdk_frames_lie_along_our_bones():
     assert np.allclose(
         orient.quat_angle_deg(sdk[:, derived_from_parent], sdk[:, PARENTS[derived_from_parent]]), 0, atol=0.5
     )
+
+
+def test_view_orientation_agreement_by_hand():
+    from skelfuse.eval.metrics import angle_stats, angular_errors, view_orientation_agreement
+
+    pose = t_pose()
+    fused = orient.apply_derived(orient.body_hint_frames(pose))[None]  # (T=1, 32, 4)
+    views = np.stack([_twisted(fused[0], 20.0), fused[0], np.full((N_JOINTS, 4), np.nan)])[None]  # (1, 3, 32, 4)
+    agreement = view_orientation_agreement(fused, pose[None], views)
+    assert np.allclose(agreement[0, 0], 20.0) and np.allclose(agreement[0, 1], 0.0, atol=1e-5)
+    assert np.isnan(agreement[0, 2]).all()
+    # A view whose bone points 10 deg elsewhere but has the same twist: 10 deg in full, 0 in twist only.
+    tilt = _wxyz(Rotation.from_rotvec([0.0, np.radians(10.0), 0.0]))
+    tilted = orient.quat_multiply(tilt, fused[0, J["ELBOW_LEFT"]])
+    views[0, 1, J["ELBOW_LEFT"]] = tilted
+    full = view_orientation_agreement(fused, pose[None], views)[0, 1, J["ELBOW_LEFT"]]
+    twist = view_orientation_agreement(fused, pose[None], views, twist_only=True)[0, 1, J["ELBOW_LEFT"]]
+    assert np.isclose(full, 10.0, atol=1e-6) and twist < 1e-5
+    stats = angle_stats(angular_errors(views[0, 0], fused[0]))
+    assert np.isclose(stats["median_deg"], 20.0) and stats["n"] == N_JOINTS
