@@ -4,10 +4,11 @@ Truth (:func:`truth_orientations`), in the k4abt joint-frame convention (docs/or
 
 * the swing from the motion's own bones: every joint's X axis along its aim bone of the true positions,
   the secondary axis towards the body's left / forward (:func:`skelfuse.fusion.orientation.body_hint_frames`);
-* a twist about each arm and hand bone: a smooth random roll (a sum of two slow sines per joint, up to
-  :data:`ARM_TWIST_DEG`), so that the twist cannot be guessed from the body and must come from the views.
-  The procedural gestures have no forearm roll of their own; this one is ASSUMED. BVH motions get the same
-  treatment (their own rotations are not used yet: the BVH loader keeps positions only);
+* procedural gestures: a twist about each arm and hand bone, a smooth random roll (a sum of two slow sines
+  per joint, up to :data:`ARM_TWIST_DEG`), so that the twist cannot be guessed from the body and must come
+  from the views. The gestures have no forearm roll of their own; this one is ASSUMED;
+* BVH motions (:func:`load_bvh_with_orientations`): the twist of the BVH segment each bone rides on (the
+  recorded motion's own joint rotations), fixed to the k4abt frame by the offset at the file's T-pose;
 * derived joints (hand tips, feet, face) copy their source joint (the SDK does the same, measured).
 
 Views (:func:`observe_orientations`): each sensor reports the truth seen through its TRUE pose, turned by a
@@ -26,18 +27,24 @@ Nothing here changes the positions the simulator draws: orientations use their o
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from skelfuse.fusion.orientation import (
+    aim_directions,
     apply_derived,
     body_hint_frames,
     quat_conjugate,
     quat_from_matrix,
     quat_from_rotvec,
     quat_multiply,
+    swing_onto_aims,
 )
-from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
+from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
+from skelfuse.sim.motion import Motion, facing_deg
 from skelfuse.sim.observe import Observations, ar1
 
 ARM_TWIST_DEG = 35.0
@@ -150,3 +157,87 @@ def observe_orientations(
         tracked = np.asarray(obs.tracked)[:, s] & np.isfinite(np.asarray(obs.positions)[:, s]).all(axis=(-1, -2))
         out[:, s] = np.where(tracked[:, None, None], seen, np.nan)
     return out
+
+
+# The BVH segment whose rotation carries each k4abt joint's frame (its bone, and the twist about it); None for
+# the derived joints (copied from their source).
+_BVH_SEGMENT: dict[str, str] = {
+    "PELVIS": "hips",
+    "SPINE_NAVEL": "spine_low",
+    "SPINE_CHEST": "spine_high",
+    "NECK": "neck",
+    "HEAD": "head",
+    **{
+        f"{joint}_{side.upper()}": f"{side[0].lower()}_{segment}"
+        for side in ("Left", "Right")
+        for joint, segment in (
+            ("CLAVICLE", "collar"),
+            ("SHOULDER", "shoulder"),
+            ("ELBOW", "elbow"),
+            ("WRIST", "wrist"),
+            ("HAND", "hand"),
+            ("THUMB", "wrist"),
+            ("HIP", "upleg"),
+            ("KNEE", "knee"),
+            ("ANKLE", "ankle"),
+        )
+    },
+}
+_BVH_TO_WORLD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # as load_bvh: (x, y, z) -> (z, x, y)
+
+
+def load_bvh_with_orientations(
+    path: str | Path,
+    *,
+    fps_out: float = 30.0,
+    position_mm: tuple[float, float] = (0.0, 0.0),
+    facing_deg_: float = 0.0,
+    unit_mm: float = CMU_UNIT_MM,
+) -> tuple[Motion, np.ndarray]:
+    """A CMU BVH take as :func:`skelfuse.sim.bvh.load_bvh` loads it, and its true joint orientations.
+
+    Each k4abt joint's frame rides on one BVH segment (``_BVH_SEGMENT``): at the file's T-pose (frame 0,
+    which the CMU conversion prepends) the offset between that segment's rotation and the k4abt frame built
+    from the T-pose's bones and body (:func:`~skelfuse.fusion.orientation.body_hint_frames`) is fixed; in every
+    frame the segment's rotation times that offset gives the frame, swung onto the k4abt bone exactly (the
+    k4abt points are not all on the segment's axis). Rotations are taken at the nearest source frame (CMU's
+    120 Hz to 30 Hz is exact).
+
+    Returns
+    -------
+    motion : Motion, the same as ``load_bvh(path, fps_out=..., position_mm=..., facing_deg=..., unit_mm=...)``.
+    orientations : (T, 32, 4) float64 world quaternions w, x, y, z, k4abt convention.
+
+    Raises
+    ------
+    DataError
+        As :func:`~skelfuse.sim.bvh.load_bvh`.
+    """
+    path = Path(path)
+    motion = load_bvh(path, fps_out=fps_out, position_mm=position_mm, facing_deg=facing_deg_, unit_mm=unit_mm)
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read BVH file {path}: {exc}") from None
+    bvh = parse_bvh(text, source=str(path))
+    role = _roles(bvh, str(path))
+    world_rest = bvh_to_k4abt(bvh, source=str(path), unit_mm=unit_mm)[..., [2, 0, 1]]  # all frames, T-pose first
+    _, rotations = forward_kinematics(bvh)
+    joints = [J[name] for name in _BVH_SEGMENT]
+    segments = [role[_BVH_SEGMENT[name]] for name in _BVH_SEGMENT]
+    segment_quats = quat_from_matrix(_BVH_TO_WORLD @ rotations[:, segments])  # (F, n, 4), world axes
+    rest = body_hint_frames(world_rest[0])[joints]
+    offset = quat_multiply(quat_conjugate(segment_quats[0]), rest)  # fixed per joint
+    fps_in = 1.0 / bvh.frame_time_s
+    if abs(fps_in - round(fps_in)) < 1e-4 * fps_in:
+        fps_in = float(round(fps_in))
+    source = 1 + np.rint(np.arange(motion.n_frames) * fps_in / motion.fps).astype(np.int64)
+    source = np.minimum(source, segment_quats.shape[0] - 1)
+    # load_bvh turned the take about z so that its first frame faces facing_deg_: the same turn here.
+    unturned = Motion(motion.name, fps_in, world_rest[1:]).resampled(fps_out).positions[0]
+    turn = np.radians(facing_deg_ - float(facing_deg(unturned)))
+    q_turn = np.array([np.cos(turn / 2), 0.0, 0.0, np.sin(turn / 2)])
+    quats = np.full((motion.n_frames, N_JOINTS, 4), np.nan)
+    quats[:, joints] = quat_multiply(q_turn, quat_multiply(segment_quats[source], offset))
+    aims = aim_directions(motion.positions)
+    return motion, apply_derived(swing_onto_aims(quats, aims))
