@@ -60,7 +60,6 @@ from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
-from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.kinect import KinectSource
 from skelfuse.wire import keys
@@ -191,13 +190,6 @@ class SimSource:
         )
         self.column = list(self.observations.sensor_ids).index(sensor_id)
         self.fps = float(cfg.sync.fps)
-        # The joint orientations this sensor's tracker reports (sim/orientation.py); every worker of the rig
-        # draws the same take, so their views agree as real views of one person would.
-        take_seed = seed if observation_seed is None else observation_seed
-        obs = self.observations
-        self.orientations = observe_orientations(
-            obs, truth_orientations(obs.truth, self.fps, seed=take_seed), seed=take_seed
-        )[:, self.column]
         self.loop = loop
         self.clock_ns = clock_ns
 
@@ -216,12 +208,12 @@ class SimSource:
             body_ids = np.array([max(int(obs.body_ids[f, s]), 0)], dtype=np.uint32)
             positions = positions[None].astype(np.float32)
             confidence = obs.confidence[f, s][None]
-            orientations = self.orientations[f][None].astype(np.float32)
         else:  # the tracker lost the body: a frame without bodies (never NaN on the wire)
             body_ids = np.zeros(0, dtype=np.uint32)
             positions = np.zeros((0, N_JOINTS, 3), dtype=np.float32)
             confidence = np.zeros((0, N_JOINTS), dtype=np.uint8)
-            orientations = np.zeros((0, N_JOINTS, 4), dtype=np.float32)
+        orientations = np.zeros((len(body_ids), N_JOINTS, 4), dtype=np.float32)
+        orientations[..., 0] = 1.0  # the simulator has no joint orientations: identity quaternions
         return SensorFrame(
             sensor_id=self.sensor_id,
             sequence=n,
