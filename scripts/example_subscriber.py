@@ -26,13 +26,15 @@ from typing import Any
 
 MAGIC = b"SKLF"
 SUPPORTED_MAJOR = 1
-KNOWN_MINOR = 0
+KNOWN_MINOR = 1  # 1.1 adds optional orientations and position_std after the sensor id table
+SECTION_ORIENTATIONS = 1  # bits of the header's `sections` field (version 1.1; `reserved` in 1.0)
+SECTION_POSITION_STD = 2
 KIND_FUSED_FRAME = 2
 N_JOINTS = 32
 PELVIS = 0
 
 # Fused-frame header, 32 bytes little-endian: magic, major, minor, kind, flags, header_size, n_joints,
-# n_persons, n_sensors, time_us, sensor_table_size, reserved.
+# n_persons, n_sensors, time_us, sensor_table_size, sections (1.1; reserved in 1.0).
 FUSED_HEADER = struct.Struct("<4sBBBBHHHHqII")
 
 
@@ -49,11 +51,13 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
         ``version`` (major, minor), ``time_us`` int, ``sensor_ids`` list of str, and ``persons``: one dict
         per person with ``track_id`` int, ``positions`` (32 [x, y, z] lists, mm, world frame, NaN = no
         estimate), ``n_agree`` (32 ints), ``confidence`` (32 ints 0..3), ``contributors`` (list of the
-        sensor ids that contributed).
+        sensor ids that contributed), and from a 1.1 payload that carries them ``orientations`` (32 [w, x, y, z]
+        lists, world frame, k4abt joint axes, NaN = unknown) and ``position_std`` (32 floats, mm, one sigma per
+        axis, NaN = no estimate); absent keys mean the sender did not compute them.
     """
     if len(payload) < FUSED_HEADER.size:
         raise PayloadError(f"{len(payload)} bytes, shorter than the {FUSED_HEADER.size}-byte header")
-    (magic, major, minor, kind, _flags, header_size, n_joints, n_persons, n_sensors, time_us, table_size, _reserved) = (
+    (magic, major, minor, kind, _flags, header_size, n_joints, n_persons, n_sensors, time_us, table_size, sections) = (
         FUSED_HEADER.unpack_from(payload, 0)
     )
     if magic != MAGIC:
@@ -74,7 +78,12 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     confidence_at = n_agree_at + 2 * per_person * n_persons
     contributors_at = confidence_at + per_person * n_persons
     table_at = contributors_at + n_sensors * n_persons
-    end = table_at + table_size
+    table_end = table_at + table_size
+    # Version 1.1: the `sections` bits name optional sections after the table, in bit order (1.0: ignore).
+    sections = sections if minor >= 1 else 0
+    orientations_at = table_end
+    std_at = orientations_at + (8 * 4 * per_person * n_persons if sections & SECTION_ORIENTATIONS else 0)
+    end = std_at + (8 * per_person * n_persons if sections & SECTION_POSITION_STD else 0)
     if len(payload) < end or (minor <= KNOWN_MINOR and len(payload) != end):
         raise PayloadError(f"{len(payload)} bytes, the header's counts need {end}")
 
@@ -84,7 +93,7 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
         (size,) = struct.unpack_from("<H", payload, at)
         sensor_ids.append(payload[at + 2 : at + 2 + size].decode("utf-8"))
         at += 2 + size
-    if at != end:
+    if at != table_end:
         raise PayloadError("sensor id table does not match its declared size")
 
     track_ids = struct.unpack_from(f"<{n_persons}q", payload, track_ids_at)
@@ -92,19 +101,28 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     n_agree = struct.unpack_from(f"<{per_person * n_persons}h", payload, n_agree_at)
     confidence = payload[confidence_at:contributors_at]
     contributors = payload[contributors_at:table_at]
+    quats = (
+        struct.unpack_from(f"<{4 * per_person * n_persons}d", payload, orientations_at)
+        if sections & SECTION_ORIENTATIONS
+        else ()
+    )
+    std = struct.unpack_from(f"<{per_person * n_persons}d", payload, std_at) if sections & SECTION_POSITION_STD else ()
 
     persons = []
     for p in range(n_persons):
         first = p * per_person
-        persons.append(
-            {
-                "track_id": track_ids[p],
-                "positions": [list(coords[3 * (first + j) : 3 * (first + j) + 3]) for j in range(per_person)],
-                "n_agree": list(n_agree[first : first + per_person]),
-                "confidence": list(confidence[first : first + per_person]),
-                "contributors": [sensor_ids[s] for s in range(n_sensors) if contributors[p * n_sensors + s]],
-            }
-        )
+        person = {
+            "track_id": track_ids[p],
+            "positions": [list(coords[3 * (first + j) : 3 * (first + j) + 3]) for j in range(per_person)],
+            "n_agree": list(n_agree[first : first + per_person]),
+            "confidence": list(confidence[first : first + per_person]),
+            "contributors": [sensor_ids[s] for s in range(n_sensors) if contributors[p * n_sensors + s]],
+        }
+        if quats:
+            person["orientations"] = [list(quats[4 * (first + j) : 4 * (first + j) + 4]) for j in range(per_person)]
+        if std:
+            person["position_std"] = list(std[first : first + per_person])
+        persons.append(person)
     return {"version": (major, minor), "time_us": time_us, "sensor_ids": sensor_ids, "persons": persons}
 
 

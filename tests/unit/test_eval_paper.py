@@ -485,3 +485,41 @@ def test_skelfuse_with_four_sensors_beats_one(quick_run, scenario: str) -> None:
     for g in ("torso", "upper_limb", "lower_limb"):
         one, four = _upper(result, "n_sensors", "1", g), _upper(result, "n_sensors", "skelfuse_4", g)
         assert four < 0.75 * one, f"{g}: skelfuse 4 sensors {four:.1f} mm vs 1 sensor {one:.1f} mm"
+
+
+def test_fused_orientations_are_scored_against_truth_and_beat_the_views(quick_run) -> None:
+    """The orientation table: ours against the simulator's true orientations, finite, and better than the
+    raw views (in the rear-mirroring scenario the mirrored rear views are about 180 deg off; ours leaves them
+    out)."""
+    suite, out = quick_run
+    assert "Fused orientations against the true orientations" in (out / "report.md").read_text()
+    for name, result in suite.scenarios.items():
+        assert "Fused orientations, against the true orientations" in (out / name / "report.md").read_text()
+        ours = result.orientation["skelfuse"]
+        for g in paper.GROUP_NAMES:
+            assert ours[g]["n"] > 0 and math.isfinite(ours[g]["median_deg"]), (name, g)
+            raw = [result.orientation[f"raw[{i}]"][g]["median_deg"] for i in range(paper.N_CAPTURE)]
+            assert ours[g]["median_deg"] < min(raw), (name, g, ours[g], raw)
+        assert ours["torso"]["median_deg"] < 10.0
+        assert json.loads((out / name / "result.json").read_text())["orientation_error_deg"]["skelfuse"]
+
+
+def test_orientations_do_not_change_the_fused_positions() -> None:
+    _require_core()
+    from skelfuse.fusion.orientation import views_to_world
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.orientation import observe_orientations, truth_orientations
+    from skelfuse.sim.rig import paper_rig
+
+    motion = make_gesture("squat", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=2)
+    obs = simulate(motion, list(paper_rig(4)), load_profile(), seed=3)
+    world = paper._world_skeletons(obs)
+    quats = views_to_world(
+        observe_orientations(obs, truth_orientations(obs.truth, 30.0, seed=3), seed=3), obs.world_from_sensor_calibrated
+    )
+    run = paper.FusionRun("skelfuse", "skelfuse", None, (0, 1, 2, 3))
+    plain = paper.fuse_take(run, world, obs.confidence, 30.0)
+    oriented, fused_quats = paper.fuse_take_oriented(run, world, obs.confidence, quats, 30.0)
+    np.testing.assert_array_equal(plain, oriented)
+    assert np.isfinite(fused_quats[:, :26]).all()

@@ -20,6 +20,9 @@ The cycle of an evaluation:
 that minimizes the mean distance between the shifted output and the reference. ``swap_counts`` counts frames
 where an output has a left/right pair the wrong way round. ``jitter_sums`` / ``jitter_rms`` measure how much an
 output shakes: the RMS of its second difference over time (mm/frame², the discrete acceleration).
+``angular_errors`` / ``angle_stats`` score joint orientations (degrees of the rotation between estimate and
+truth); ``view_orientation_agreement`` compares fused orientations with each view's on real recordings, where
+there is no truth.
 
 References
 ----------
@@ -36,10 +39,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.mirror import pair_costs
+from skelfuse.fusion.orientation import aim_directions, quat_angle_deg, swing_onto_aims
 
 __all__ = [
     "ErrorAccumulator",
     "ErrorStats",
+    "angle_stats",
+    "angular_errors",
     "best_lag",
     "error_stats",
     "group_means",
@@ -49,6 +55,7 @@ __all__ = [
     "lag_error_curve",
     "mean_stats",
     "swap_counts",
+    "view_orientation_agreement",
 ]
 
 
@@ -372,3 +379,73 @@ def jitter_sums(positions: np.ndarray) -> tuple[float, int]:
 def jitter_rms(sum_sq_mm2: float, count: int) -> float:
     """RMS second difference (mm/frame²) from ``jitter_sums`` (added over takes); NaN without a sample."""
     return float(np.sqrt(sum_sq_mm2 / count)) if count > 0 else float("nan")
+
+
+def angular_errors(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Angle of the rotation from each reference orientation to the estimate, degrees in [0, 180].
+
+    Parameters
+    ----------
+    estimate, reference : (..., 4) unit quaternions w, x, y, z (q and -q are the same orientation); NaN = none.
+
+    Returns
+    -------
+    (...) float64 degrees; NaN where either is missing.
+    """
+    estimate = np.asarray(estimate, dtype=np.float64)
+    reference = np.asarray(reference, dtype=np.float64)
+    if estimate.shape != reference.shape or estimate.shape[-1:] != (4,):
+        raise ValueError(
+            f"estimate and reference must be (..., 4) quaternions of one shape, got {estimate.shape}, {reference.shape}"
+        )
+    return quat_angle_deg(estimate, reference)
+
+
+def angle_stats(errors_deg: np.ndarray) -> dict[str, float]:
+    """Median, p90 and count of the finite angular errors (deg); NaN figures when there are none."""
+    values = np.asarray(errors_deg, dtype=np.float64).ravel()
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return {"median_deg": float("nan"), "p90_deg": float("nan"), "n": 0}
+    return {
+        "median_deg": float(np.median(values)),
+        "p90_deg": float(np.percentile(values, 90)),
+        "n": int(values.size),
+    }
+
+
+def view_orientation_agreement(
+    fused_orientations: np.ndarray,
+    fused_positions: np.ndarray,
+    view_orientations: np.ndarray,
+    *,
+    twist_only: bool = False,
+) -> np.ndarray:
+    """How far each view's joint orientations are from the fused ones, degrees: the real-data counterpart of
+    :func:`angular_errors`, where no truth exists (ground-truth-free; errors the views share are invisible).
+
+    Parameters
+    ----------
+    fused_orientations : (T, 32, 4) fused world quaternions of one person (NaN = none).
+    fused_positions : (T, 32, 3) the fused positions, mm (for ``twist_only``).
+    view_orientations : (T, S, 32, 4) that person's views' quaternions in the world frame
+        (:func:`skelfuse.fusion.orientation.views_to_world`); NaN = not seen. Views the realignment flipped
+        should be NaN here: their frames face the other way.
+    twist_only : bool
+        Swing each view onto the fused bones first, so that only the twist about the bone is compared (the
+        swing follows the fused positions by construction).
+
+    Returns
+    -------
+    (T, S, 32) float64 degrees, NaN where either is missing.
+    """
+    fused = np.asarray(fused_orientations, dtype=np.float64)
+    views = np.asarray(view_orientations, dtype=np.float64)
+    if views.ndim != 4 or fused.shape != (views.shape[0], *views.shape[2:]):
+        raise ValueError(
+            f"view_orientations must be (T, S, 32, 4) and fused_orientations (T, 32, 4); got {views.shape}, "
+            f"{fused.shape}"
+        )
+    if twist_only:
+        views = swing_onto_aims(views, aim_directions(fused_positions)[:, None])
+    return quat_angle_deg(views, fused[:, None])

@@ -64,6 +64,8 @@ from skelfuse.eval import paper_reference
 from skelfuse.eval.metrics import (
     ErrorAccumulator,
     ErrorStats,
+    angle_stats,
+    angular_errors,
     best_lag,
     group_means,
     jitter_rms,
@@ -73,12 +75,14 @@ from skelfuse.eval.metrics import (
     swap_counts,
 )
 from skelfuse.fusion import presets
+from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.progress import Progress
 from skelfuse.schema.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
 from skelfuse.sim.gestures import GESTURES, make_gesture
 from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import best_view_sensor, paper_rig
 
 __all__ = [
@@ -249,6 +253,8 @@ class TakeResult:
     info : per-take facts (frames, tracked and mirrored fractions, seconds spent)
     jitter : dict key -> group -> (sum of squared second differences, count), see ``metrics.jitter_sums``
     scenario : the scenario the take was simulated under
+    orientation : dict key -> group -> (n,) float32 angular errors (deg) against the true orientations, of the
+        outputs that compute orientations (ours, 4 sensors) and of the raw views (all finite samples)
     """
 
     gesture: str
@@ -259,6 +265,7 @@ class TakeResult:
     swaps: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     jitter: dict[str, dict[str, tuple[float, int]]] = field(default_factory=dict)
     scenario: str = "rear_mirroring"
+    orientation: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 def _world_skeletons(obs: Any) -> np.ndarray:
@@ -297,6 +304,28 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
         result = fuser.step(cand[t][None], conf[t][None], dt_s=dt_s)
         out[t] = np.asarray(result.positions)[0]
     return out
+
+
+def fuse_take_oriented(
+    run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, orientations: np.ndarray, fps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fuse_take` with the views' world orientations (T, S, 32, 4) as well: returns the fused positions
+    (the same as :func:`fuse_take`'s: orientations never change them) and (T, 32, 4) fused orientations (NaN
+    where the configuration computes none)."""
+    sensors = list(run.sensors)
+    cand = np.ascontiguousarray(candidates[:, sensors])
+    conf = np.ascontiguousarray(confidence[:, sensors])
+    views = np.ascontiguousarray(orientations[:, sensors])
+    fuser = Fuser(run.params(), n_bodies=1)
+    positions = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
+    quats = np.full((cand.shape[0], N_JOINTS, 4), np.nan)
+    dt_s = 1.0 / fps
+    for t in range(cand.shape[0]):
+        result = fuser.step(cand[t][None], conf[t][None], dt_s=dt_s, orientations=views[t][None])
+        positions[t] = np.asarray(result.positions)[0]
+        if result.orientations is not None:
+            quats[t] = result.orientations[0]
+    return positions, quats
 
 
 def evaluate_take(task: TakeTask) -> TakeResult:
@@ -343,10 +372,32 @@ def evaluate_take(task: TakeTask) -> TakeResult:
     for sensor in range(N_CAPTURE):
         score(_raw_key(sensor), capture[:, sensor], with_lag=True)
     score(BEST_VIEW_RAW, best_view, with_lag=True, protocols=("truth",))
+    # Orientations: truth from the motion, the views' as the trackers would report them (own random streams,
+    # so the positions above are the same with or without this), in the world by the calibrated poses.
+    true_quats = truth_orientations(truth, task.fps, seed=task.sim_seed)
+    view_quats = views_to_world(
+        observe_orientations(obs, true_quats, seed=task.sim_seed), obs.world_from_sensor_calibrated
+    )
+    orientation: dict[str, dict[str, np.ndarray]] = {}
+
+    def score_orientation(key: str, quats: np.ndarray) -> None:
+        errors = angular_errors(quats, true_quats)
+        orientation[key] = {
+            g: errors[:, idx][np.isfinite(errors[:, idx])].astype(np.float32) for g, idx in JOINT_GROUPS.items()
+        }
+
+    for sensor in range(N_CAPTURE):
+        score_orientation(_raw_key(sensor), view_quats[:, sensor])
+    score_orientation(BEST_VIEW_RAW, view_quats[:, N_CAPTURE])
+
     t1 = time.perf_counter()
     runs = fusion_runs(N_CAPTURE, task.eps_values, ours=task.ours)
     for run in runs:
-        fused = fuse_take(run, capture, confidence, task.fps)
+        if run.params().orientations and len(run.sensors) == N_CAPTURE:
+            fused, fused_quats = fuse_take_oriented(run, capture, confidence, view_quats[:, :N_CAPTURE], task.fps)
+            score_orientation(run.key, fused_quats)
+        else:
+            fused = fuse_take(run, capture, confidence, task.fps)
         score(run.key, fused, with_lag=len(run.sensors) == N_CAPTURE)
     t_fuse = time.perf_counter() - t1
 
@@ -363,7 +414,7 @@ def evaluate_take(task: TakeTask) -> TakeResult:
         "fuse_s": t_fuse,
         "n_fusion_steps": int(truth.shape[0]) * len(runs),
     }
-    return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps, jitter, task.scenario)
+    return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps, jitter, task.scenario, orientation)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -401,6 +452,7 @@ class PaperEvalResult:
     elapsed_s: float = 0.0
     files: list[str] = field(default_factory=list)
     jitter: dict[str, dict[str, float]] = field(default_factory=dict)
+    orientation: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
 
     # ---- derived views -------------------------------------------------------------------------------------
 
@@ -555,6 +607,7 @@ class PaperEvalResult:
                 "lag": self.lag,
                 "jitter_mm_per_frame2": self.jitter,
                 "swapped_fraction": self.swapped,
+                "orientation_error_deg": self.orientation,
                 "takes": self.takes,
                 "paper": {
                     "citation": paper_reference.CITATION,
@@ -695,7 +748,11 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
     lag_sums: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
     swap_sums: dict[str, np.ndarray] = {}
     jitter_pooled: dict[str, dict[str, tuple[float, int]]] = {}
+    orientation_pooled: dict[str, dict[str, list[np.ndarray]]] = {}
     for take in takes:
+        for key, by_group in take.orientation.items():
+            for group, values in by_group.items():
+                orientation_pooled.setdefault(key, {}).setdefault(group, []).append(values)
         for key, by_group in take.jitter.items():
             slot_j = jitter_pooled.setdefault(key, {})
             for group, (sq, n) in by_group.items():
@@ -724,6 +781,10 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
     infos = sorted((t.info for t in takes), key=lambda i: (gestures.index(i["gesture"]), i["facing_deg"]))
     swapped = {key: float(n[0] / n[1]) if n[1] > 0 else float("nan") for key, n in swap_sums.items()}
     jitter = {key: {g: jitter_rms(sq, n) for g, (sq, n) in by_group.items()} for key, by_group in jitter_pooled.items()}
+    orientation = {
+        key: {g: angle_stats(np.concatenate(parts)) for g, parts in by_group.items()}
+        for key, by_group in orientation_pooled.items()
+    }
     return PaperEvalResult(
         settings=settings,
         stats=stats,
@@ -732,6 +793,7 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
         swapped=swapped,
         elapsed_s=elapsed_s,
         jitter=jitter,
+        orientation=orientation,
     )
 
 

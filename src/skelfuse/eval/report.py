@@ -122,7 +122,8 @@ def format_scenario(result: PaperEvalResult) -> str:
     lines = _intro_lines(result)
     for exp in EXPERIMENTS:
         lines += _experiment_lines(result, exp)
-    lines += _per_joint_lines(result) + _dynamics_lines(result) + _simulated_data_lines(result)
+    lines += _per_joint_lines(result) + _dynamics_lines(result) + _orientation_lines(result)
+    lines += _simulated_data_lines(result)
     lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
     return "\n".join(lines)
 
@@ -285,6 +286,35 @@ def _dynamics_lines(result: PaperEvalResult) -> list[str]:
         cells = ["exact truth", "—"]
         for g in GROUP_NAMES:
             cells += ["—", "—", _f(result.jitter["exact_truth"].get(g), 2)]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
+
+
+def _orientation_lines(result: PaperEvalResult) -> list[str]:
+    """Angular error of the fused orientations (outputs that compute them) and of the raw views, against the
+    simulator's true orientations."""
+    if not result.orientation:
+        return []
+    keys = [k for k in (*result.ours, *[f"raw[{i}]" for i in range(4)], "best_view_raw") if k in result.orientation]
+    lines = [
+        "## Fused orientations, against the true orientations",
+        "",
+        "Angle of the rotation between each joint's orientation and the truth, degrees (median / p90 over all "
+        "frames and joints of the group, all takes). Truth: the motion's bones in the k4abt joint-frame "
+        "convention plus a simulated roll of the arm and hand bones; the views: truth seen through a simulated "
+        "tracker orientation error (sim/orientation.py, a model set from one real take, not a measurement of "
+        "the tracker); a mirrored view's frames face the other way (about 180 deg). docs/orientations.md.",
+        "",
+        "| output | " + " | ".join(f"{GROUP_LABELS[g]} median / p90 (deg)" for g in GROUP_NAMES) + " |",
+        "|---|" + "---|" * len(GROUP_NAMES),
+    ]
+    for key in keys:
+        by_group = result.orientation[key]
+        cells = [f"**{key} (ours)**" if is_ours(key) else key]
+        for g in GROUP_NAMES:
+            entry = by_group.get(g, {})
+            cells.append(f"{_f(entry.get('median_deg'))} / {_f(entry.get('p90_deg'))}")
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     return lines
@@ -685,8 +715,35 @@ def format_summary(suite: PaperEvalSuite) -> str:
                 + " mm (torso / upper / lower)."
             )
     lines += [""]
+    oriented = [(name, key) for name in names for key in results[name].ours if key in results[name].orientation]
+    if oriented:
+        lines += [
+            "## Fused orientations against the true orientations (ours, 4 sensors)",
+            "",
+            "Degrees, median / p90, torso / upper limb / lower limb; the best single capture view beside it "
+            "(the view with the lowest median). Simulated tracker orientation noise: a model, see each "
+            "scenario's report and docs/orientations.md.",
+            "",
+            "| scenario | output | fused | best raw view |",
+            "|---|---|---|---|",
+        ]
+        for name, key in oriented:
+            r = results[name]
+            raw = [k for k in (f"raw[{i}]" for i in range(4)) if k in r.orientation]
+            best = min(raw, key=lambda k: _mean([r.orientation[k][g]["median_deg"] for g in GROUP_NAMES]), default=None)
+
+            fused_cell = _orientation_cell(r, key)
+            best_cell = f"{_orientation_cell(r, best)} [{best}]" if best else "—"
+            lines.append(f"| {name} | {key} | {fused_cell} | {best_cell} |")
+        lines += [""]
     lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
     return "\n".join(lines)
+
+
+def _orientation_cell(result: PaperEvalResult, key: str) -> str:
+    """ "median (p90)" of each group of one output's angular errors, degrees."""
+    entry = result.orientation[key]
+    return " / ".join(f"{_f(entry[g]['median_deg'])} ({_f(entry[g]['p90_deg'])})" for g in GROUP_NAMES)
 
 
 def _mean(values: list[float]) -> float:

@@ -49,6 +49,8 @@ class PeopleResult:
     coasting : (P,) bool, no sensor saw the person in this frame (positions are predictions or NaN).
     assignment : (S, B) int64, output row of each input body (-1: padding, a tentative track, a duplicate).
     body_track_ids : (S, B) int64, track id of each input body, tentative tracks included (-1: none).
+    orientations : (P, J, 4) float64 or None, fused world quaternions w, x, y, z (``params.orientations``).
+    position_std : (P, J) float64 or None, mm, one-sigma position uncertainty per axis (``params.position_std``).
     """
 
     time_s: float
@@ -60,6 +62,8 @@ class PeopleResult:
     coasting: np.ndarray
     assignment: np.ndarray
     body_track_ids: np.ndarray
+    orientations: np.ndarray | None = None
+    position_std: np.ndarray | None = None
 
     @property
     def n_persons(self) -> int:
@@ -116,7 +120,12 @@ class PeopleFuser:
         self._stacked = None
 
     def step(
-        self, world_positions: np.ndarray, confidence: np.ndarray, valid: np.ndarray, time_s: float
+        self,
+        world_positions: np.ndarray,
+        confidence: np.ndarray,
+        valid: np.ndarray,
+        time_s: float,
+        world_orientations: np.ndarray | None = None,
     ) -> PeopleResult:
         """Associate, track and fuse one frame.
 
@@ -126,6 +135,8 @@ class PeopleFuser:
         confidence : (S, B, J) uint8.
         valid : (S, B) bool, the slot holds a body.
         time_s : frame time, s; must increase from step to step.
+        world_orientations : (S, B, J, 4) float or None, the bodies' joint quaternions in the world frame
+            (w, x, y, z; NaN = none), used with ``params.orientations``.
 
         Returns
         -------
@@ -171,6 +182,8 @@ class PeopleFuser:
 
         if P == 0:
             return PeopleResult(
+                orientations=np.zeros((0, N_JOINTS, 4)) if self.params.orientations else None,
+                position_std=np.zeros((0, N_JOINTS)) if self.params.position_std else None,
                 time_s=time_s,
                 track_ids=np.zeros(0, dtype=np.int64),
                 positions=np.zeros((0, N_JOINTS, 3)),
@@ -194,7 +207,12 @@ class PeopleFuser:
             state = cached[0]  # the same tracks in the same order, their states untouched since last frame
         else:
             state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
-        result, new_state = fuse(association.candidates[rows], association.confidence[rows], state, self.params, dt_s)
+        orientations = None
+        if world_orientations is not None and self.params.orientations:
+            orientations = gather_orientations(world_orientations, association.person_of_body, rows)
+        result, new_state = fuse(
+            association.candidates[rows], association.confidence[rows], state, self.params, dt_s, orientations
+        )
         row_states = _row_views(new_state)
         for track, row_state in zip(tracks, row_states, strict=True):
             track.fusion = row_state
@@ -209,7 +227,29 @@ class PeopleFuser:
             coasting=np.array([t.coasting(time_s) for t in tracks]),
             assignment=assignment,
             body_track_ids=body_track_ids,
+            orientations=result.orientations,
+            position_std=result.position_std,
         )
+
+
+def gather_orientations(orientations: np.ndarray, person_of_body: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(S, B, J, 4) per-body quaternions -> (P, S, J, 4) for the person rows ``rows`` (NaN: not seen),
+    the same gather as :func:`~skelfuse.fusion.association.gather_candidates` does for positions."""
+    orientations = np.asarray(orientations, dtype=np.float64)
+    if orientations.shape[:2] != person_of_body.shape or orientations.shape[2:] != (N_JOINTS, 4):
+        raise ValueError(
+            f"world_orientations must have shape {(*person_of_body.shape, N_JOINTS, 4)} (S, B, J, 4), "
+            f"got {orientations.shape}"
+        )
+    S = person_of_body.shape[0]
+    out_row = np.full(int(person_of_body.max(initial=-1)) + 2, -1, dtype=np.int64)
+    out_row[rows] = np.arange(rows.size)
+    out = np.full((rows.size, S, N_JOINTS, 4), np.nan)
+    sensor_idx, body_idx = np.nonzero(person_of_body >= 0)
+    target = out_row[person_of_body[sensor_idx, body_idx]]
+    keep = target >= 0
+    out[target[keep], sensor_idx[keep]] = orientations[sensor_idx[keep], body_idx[keep]]
+    return out
 
 
 def _row_views(state: FusionState) -> list[FusionState]:

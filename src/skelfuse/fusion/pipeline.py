@@ -19,6 +19,11 @@ Stages (each a pure function of its own module, so it can be tested and timed al
    prediction ``x + v dt`` for joints whose track is alive); or
    :func:`skelfuse.fusion.merge.merge_average`.
 4. :func:`skelfuse.fusion.filters.filter_step`: per-joint filter with coasting, or pass-through.
+5. Optional (``params.orientations``): :func:`skelfuse.fusion.orientation.fuse_orientations` on the filtered
+   positions and the views' world quaternions (``fuse(..., orientations=)``); views the realignment flipped
+   (any pair, for "paper") and views whose candidate was not merged into the joint are left out.
+6. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
+   uncertainty from the merged cluster's spread and a covariance recursion. Neither changes the positions.
 
 Quality fields: ``n_agree`` and ``confidence`` describe this frame's measurement, so a coasted (predicted
 only) joint reports 0 for both, as does a joint with no estimate.
@@ -33,8 +38,10 @@ import numpy as np
 
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
+from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
+from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step
 from skelfuse.schema.skeleton import N_JOINTS
 
 _ONES3 = np.ones(3)
@@ -50,12 +57,18 @@ class FusionResult:
     n_agree : (B, J) int16, sensor candidates in the winning cluster (0 = coasted/predicted or none).
     confidence : (B, J) uint8, highest tracker confidence among the merged candidates (0 if none).
     contributors : (B, S) bool, sensors whose candidates were merged into at least one joint of the body.
+    orientations : (B, J, 4) float64 world quaternions w, x, y, z (k4abt joint frames), NaN = unknown; None
+        unless ``params.orientations``.
+    position_std : (B, J) float64, mm, one-sigma position uncertainty per axis, NaN = no estimate; None unless
+        ``params.position_std``.
     """
 
     positions: np.ndarray
     n_agree: np.ndarray
     confidence: np.ndarray
     contributors: np.ndarray
+    orientations: np.ndarray | None = None
+    position_std: np.ndarray | None = None
 
 
 @dataclass
@@ -71,6 +84,9 @@ class FusionState:
     flip_counters : (B, 3) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
         and a simple majority (column 1) of the evidence disagreed with the anchor, and (column 2) the most
         views that saw the body since its last cold start (None reads as all 0).
+    orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
+    angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
+    position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
     """
 
     previous: np.ndarray
@@ -78,6 +94,9 @@ class FusionState:
     P: np.ndarray
     coast: np.ndarray
     flip_counters: np.ndarray | None = None
+    orientation: np.ndarray | None = None
+    angular_velocity: np.ndarray | None = None
+    position_cov: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -96,12 +115,16 @@ def init_state(n_bodies: int, params: FusionParams) -> FusionState:
         raise ValueError(f"params must be a FusionParams, got {type(params).__name__}")
     B = int(n_bodies)
     x, P, coast = init_filter_state(B * N_JOINTS)
+    orientation, angular_velocity = init_orientation_state(B) if params.orientations else (None, None)
     return FusionState(
         previous=np.full((B, N_JOINTS, 3), np.nan),
         x=x.reshape(B, N_JOINTS, 2, 3),
         P=P.reshape(B, N_JOINTS, 3),
         coast=coast.reshape(B, N_JOINTS),
         flip_counters=np.zeros((B, 3), dtype=np.int32),
+        orientation=orientation,
+        angular_velocity=angular_velocity,
+        position_cov=np.zeros((B, N_JOINTS, 3)) if params.position_std else None,
     )
 
 
@@ -140,6 +163,7 @@ def fuse(
     state: FusionState,
     params: FusionParams,
     dt_s: float = 1.0 / 30.0,
+    orientations: np.ndarray | None = None,
 ) -> tuple[FusionResult, FusionState]:
     """Fuse one instant of S sensors' skeletons of B associated bodies.
 
@@ -151,6 +175,10 @@ def fuse(
     params : FusionParams
     dt_s : float
         Seconds since the previous frame (used by the cv_kalman and alpha_beta filters).
+    orientations : (B, S, J, 4) float or None
+        The views' joint quaternions (w, x, y, z) in the world frame (:func:`skelfuse.fusion.orientation.
+        views_to_world`), NaN or all-zero = none. Used only with ``params.orientations``; None: the fused
+        orientations come from the bones and the history alone.
 
     Returns
     -------
@@ -170,7 +198,7 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    positions, conf, reference, streak = _realign(positions, conf, params, previous, state.flip_counters)
+    positions, conf, reference, streak, flipped = _realign(positions, conf, params, previous, state.flip_counters)
     merged = _merge(positions, conf, reference, previous, params)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
@@ -181,11 +209,28 @@ def fuse(
         params,
         dt_s,
     )
+    fused = out.reshape(B, J, 3)
+    orientation_out = orientation_state = angular_velocity = None
+    if params.orientations:
+        orientation_out, orientation_state, angular_velocity = _orientations(
+            fused, orientations, flipped, merged, state, params, dt_s
+        )
+    std = position_cov = None
+    if params.position_std:
+        r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
+        previous_cov = state.position_cov if state.position_cov is not None else np.zeros((B, J, 3))
+        std, position_cov = uncertainty_step(
+            previous_cov.reshape(B * J, 3), state.coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+        )
+        std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
+        position_cov = position_cov.reshape(B, J, 3)
     result = FusionResult(
-        positions=out.reshape(B, J, 3),
+        positions=fused,
         n_agree=merged.n_agree,
         confidence=merged.confidence,
         contributors=merged.members.any(axis=1),
+        orientations=orientation_out,
+        position_std=std,
     )
     new_state = FusionState(
         previous=merged.positions,
@@ -193,8 +238,45 @@ def fuse(
         P=P.reshape(B, J, 3),
         coast=coast.reshape(B, J),
         flip_counters=streak,
+        orientation=orientation_state,
+        angular_velocity=angular_velocity,
+        position_cov=position_cov,
     )
     return result, new_state
+
+
+def _orientations(
+    fused: np.ndarray,
+    orientations: np.ndarray | None,
+    flipped: np.ndarray | None,
+    merged: MergeResult,
+    state: FusionState,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 5: which views may give the twist, then :func:`fuse_orientations`."""
+    B = fused.shape[0]
+    usable = None
+    if orientations is not None:
+        orientations = np.asarray(orientations, dtype=np.float64)
+        if orientations.shape != (*merged.members.shape[:1], merged.members.shape[2], N_JOINTS, 4):
+            raise ValueError(
+                f"orientations must have shape (B, S, {N_JOINTS}, 4) = "
+                f"{(B, merged.members.shape[2], N_JOINTS, 4)}, got {orientations.shape}"
+            )
+        usable = np.transpose(merged.members, (0, 2, 1)).copy()  # (B, S, J): the view's position was merged
+        if flipped is not None:
+            usable &= ~flipped[:, :, None]
+    quats_prev, omega_prev = init_orientation_state(B) if state.orientation is None else (state.orientation, None)
+    if state.angular_velocity is not None:
+        omega_prev = state.angular_velocity
+    orientation_params = OrientationParams(
+        agree_deg=params.orientation_agree_deg, alpha=params.orientation_alpha, beta=params.orientation_beta
+    )
+    result, quats, omega = fuse_orientations(
+        fused, orientations, usable, quats_prev, omega_prev, orientation_params, dt_s
+    )
+    return result.quats, quats, omega
 
 
 def _previous_candidate(state: FusionState, params: FusionParams, dt_s: float) -> np.ndarray:
@@ -212,17 +294,17 @@ def _realign(
     params: FusionParams,
     previous: np.ndarray,
     streak: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """Realign; also return the reference positions of the result when they come for free (else None)
-    and the new flip counters."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
+    """Realign; also return the reference positions of the result when they come for free (else None),
+    the new flip counters and which views were flipped ((B, S) bool; None without realignment)."""
     B = positions.shape[0]
     if streak is None:
         streak = np.zeros((B, 3), dtype=np.int32)
     if params.realign is None:
-        return positions, conf, None, streak
+        return positions, conf, None, streak, None
     if params.realign == "temporal":
         # The static reference is needed only where the anchor lacks a pair: computed there, on demand.
-        out_positions, out_conf, _, streak = realign_temporal(
+        out_positions, out_conf, flipped, streak = realign_temporal(
             positions,
             conf,
             previous,
@@ -231,14 +313,15 @@ def _realign(
             params.recovery_share,
             majority_recovery_frames=params.majority_recovery_frames,
         )
-        return out_positions, out_conf, None, streak
+        return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)
     if params.realign == "paper":
-        out_positions, out_conf, _ = realign_paper(positions, conf, reference=reference)
+        out_positions, out_conf, swapped = realign_paper(positions, conf, reference=reference)
+        flipped = swapped.any(axis=-1)  # any pair swapped: the view's frames are not trusted
     else:
-        out_positions, out_conf, _ = realign_body(positions, conf, params.realign_passes, reference=reference)
+        out_positions, out_conf, flipped = realign_body(positions, conf, params.realign_passes, reference=reference)
     # Nothing swapped (the usual case): the reference of the realigned candidates is the one just computed.
-    return out_positions, out_conf, reference if out_positions is positions else None, streak
+    return out_positions, out_conf, reference if out_positions is positions else None, streak, flipped
 
 
 def _merge(
@@ -292,9 +375,15 @@ class Fuser:
         self.n_bodies = int(n_bodies)
         self.state = init_state(self.n_bodies, params)
 
-    def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
+    def step(
+        self,
+        candidates: np.ndarray,
+        confidence: np.ndarray,
+        dt_s: float = 1.0 / 30.0,
+        orientations: np.ndarray | None = None,
+    ) -> FusionResult:
         """Fuse one frame (see :func:`fuse`) and keep the new state."""
-        result, self.state = fuse(candidates, confidence, self.state, self.params, dt_s)
+        result, self.state = fuse(candidates, confidence, self.state, self.params, dt_s, orientations)
         return result
 
     def reset(self) -> None:

@@ -22,7 +22,8 @@ jitter; the reference candidate adds nothing once the labels are right (within 2
 costs a reference per frame), so it is off; cv_kalman with accel sigma 5000 mm/s^2, measurement sigma
 15 mm and R divided by the number of agreeing views halves the jitter at a lag under 0.1 frame (the
 paper's Kalman lags 8 frames). The filter's prediction as the previous candidate measured no better than
-the merged position, so trick 2 stays the paper's.
+the merged position, so trick 2 stays the paper's. "skelfuse" also outputs fused joint orientations and a
+per-joint position uncertainty (``orientations``, ``position_std``); they do not change the positions.
 """
 
 from __future__ import annotations
@@ -112,6 +113,17 @@ class FusionParams:
     alpha, beta : float
         "alpha_beta" gains of Algorithm 1 in Carraro et al. Default beta = alpha^2 / (2 - alpha), the
         Benedict-Bordner relation that balances noise reduction against manoeuvre tracking.
+    orientations : bool
+        Fuse joint orientations too (:mod:`skelfuse.fusion.orientation`): swing from the fused bones, twist
+        from the views' quaternions that agree, an alpha-beta rotation filter. Off in the paper's presets.
+    orientation_agree_deg : float
+        Views whose swung orientations are further apart than this (deg) do not agree (outliers are dropped).
+    orientation_alpha, orientation_beta : float
+        Gains of the rotation filter (beta default: Benedict-Bordner, as for ``alpha``/``beta``).
+    position_std : bool
+        Output a per-joint one-sigma position uncertainty (mm, per axis) from the spread of the merged
+        cluster and a constant-velocity covariance recursion fed with it (see
+        :func:`skelfuse.fusion.pipeline.uncertainty_step`). Off in the paper's presets.
     """
 
     min_confidence: int | None = int(Confidence.LOW)
@@ -136,6 +148,11 @@ class FusionParams:
     cv_scale_r_by_agree: bool = True
     alpha: float = 0.5
     beta: float = 0.5**2 / (2.0 - 0.5)
+    orientations: bool = False
+    orientation_agree_deg: float = 45.0
+    orientation_alpha: float = 0.5
+    orientation_beta: float = 0.5**2 / (2.0 - 0.5)
+    position_std: bool = False
 
     def __post_init__(self) -> None:
         if self.min_confidence is not None and not 0 <= int(self.min_confidence) <= int(Confidence.HIGH):
@@ -174,6 +191,15 @@ class FusionParams:
                 raise ValueError(f"FusionParams.{name} must be a finite number > 0, got {value!r}")
         if not (0.0 < self.alpha <= 1.0 and 0.0 <= self.beta < 2.0):
             raise ValueError(f"FusionParams alpha must be in (0, 1] and beta in [0, 2), got {self.alpha}, {self.beta}")
+        if not 0.0 < float(self.orientation_agree_deg) <= 180.0:
+            raise ValueError(
+                f"FusionParams.orientation_agree_deg must be in (0, 180], got {self.orientation_agree_deg!r}"
+            )
+        if not (0.0 < self.orientation_alpha <= 1.0 and 0.0 <= self.orientation_beta < 2.0):
+            raise ValueError(
+                "FusionParams orientation_alpha must be in (0, 1] and orientation_beta in [0, 2), got "
+                f"{self.orientation_alpha}, {self.orientation_beta}"
+            )
 
 
 def _one_of(name: str, value: object, allowed: tuple[object, ...]) -> None:
@@ -200,6 +226,8 @@ _PRESETS: dict[str, FusionParams] = {
         cv_accel_sigma_mm_s2=5000.0,
         cv_meas_sigma_mm=15.0,
         cv_scale_r_by_agree=True,
+        orientations=True,
+        position_std=True,
     ),
 }
 

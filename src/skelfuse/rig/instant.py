@@ -13,6 +13,8 @@ the offline fusion of the same frames" holds by construction. Cycle of :meth:`Gr
    <skelfuse.fusion.people.PeopleFuser.reset>`: tracks forgotten, ids keep counting up, never reused).
 4. :meth:`PeopleFuser.step <skelfuse.fusion.people.PeopleFuser.step>` at the group's time in seconds:
    association across sensors, stable track ids, per-track fusion.
+   With ``params.orientations`` the bodies' joint quaternions go along, rotated to the world frame by the
+   calibration (:func:`~skelfuse.fusion.orientation.views_to_world`).
 5. A :class:`~skelfuse.schema.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
    coasting past the filter's ``max_coast_frames`` has none and is left out), ascending track id.
 
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
+from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.people import PeopleFuser, PeopleResult
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.transform import apply_transform
@@ -72,6 +75,17 @@ def group_bodies(
     return positions, confidence, valid
 
 
+def group_orientations(frames: Mapping[str, SensorFrame], sensor_ids: Sequence[str], n_bodies: int) -> np.ndarray:
+    """(S, B, 32, 4) float64 sensor-frame joint quaternions of one instant, stacked like :func:`group_bodies`
+    (NaN in empty slots)."""
+    out = np.full((len(sensor_ids), n_bodies, N_JOINTS, 4), np.nan)
+    for row, sid in enumerate(sensor_ids):
+        frame = frames.get(sid)
+        if frame is not None and frame.n_bodies:
+            out[row, : frame.n_bodies] = frame.orientations
+    return out
+
+
 def bodies_to_world(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """(S, B, 32, 3) sensor-frame bodies -> world frame, mm, with the (S, 4, 4) poses; NaN stays NaN."""
     # apply_transform wants the sensor axis third from the end: (B, S, 32, 3) in, swapped back out.
@@ -89,6 +103,8 @@ def fused_frame(people: PeopleResult, time_us: int, sensor_ids: tuple[str, ...])
         confidence=people.confidence[keep].astype(np.uint8, copy=False),
         contributors=people.contributors[keep].astype(bool, copy=False),
         sensor_ids=sensor_ids,
+        orientations=None if people.orientations is None else people.orientations[keep],
+        position_std=None if people.position_std is None else people.position_std[keep],
     )
 
 
@@ -184,5 +200,9 @@ class GroupFuser:
         self.last_time_us = time_us
         positions, confidence, valid = group_bodies(group.frames, self.sensor_ids)
         world = bodies_to_world(self.world_from_sensor, positions)
-        people = self.people.step(world, confidence, valid, time_us / 1e6)
+        orientations = None
+        if self.params.orientations:
+            local = group_orientations(group.frames, self.sensor_ids, positions.shape[1])
+            orientations = np.swapaxes(views_to_world(np.swapaxes(local, 0, 1), self.world_from_sensor), 0, 1)
+        people = self.people.step(world, confidence, valid, time_us / 1e6, world_orientations=orientations)
         return FusedInstant(fused_frame(people, time_us, self.sensor_ids), world, valid, people, reset)

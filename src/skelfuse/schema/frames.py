@@ -86,6 +86,12 @@ class FusedFrame:
         Which of the rig's S sensors contributed at least one joint to each person.
     sensor_ids : tuple[str, ...]
         The rig's sensors, in the column order of ``contributors``.
+    orientations : (P, 32, 4) float64 or None
+        Fused joint orientations, quaternions w, x, y, z in the world frame, k4abt joint-axis convention
+        (docs/orientations.md); NaN where unknown. None: the producer does not compute them.
+    position_std : (P, 32) float64 or None
+        One-sigma position uncertainty per joint and axis, mm, from the data (docs/orientations.md); NaN where
+        no estimate. None: the producer does not compute it.
     """
 
     time_us: int
@@ -95,6 +101,8 @@ class FusedFrame:
     confidence: np.ndarray
     contributors: np.ndarray
     sensor_ids: tuple[str, ...] = field(default=())
+    orientations: np.ndarray | None = None
+    position_std: np.ndarray | None = None
 
     @property
     def n_persons(self) -> int:

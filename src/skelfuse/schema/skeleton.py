@@ -188,3 +188,126 @@ tables and the real-data statistics are kept per region)."""
 
 TORSO_TRACKING_JOINTS = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"]], dtype=np.int64)
 """The joints a body tracker needs to see to track a body at all."""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Joint orientation convention (k4abt joint frames). The SDK's body-joints page shows every joint's axes only as a
+# figure; the table below was MEASURED on the real andyj1 recordings (../shared/data/azure-kinect-andyj1, 5 files,
+# one subject, mostly facing the sensor; docs/orientations.md has the method and figures): each joint's local
+# axes against its bones and against the body's left / up / forward directions. Summary: the local X axis lies
+# along a bone (spine, left arm, right leg: pointing to the child; right arm, left leg: pointing to the parent),
+# and the other two axes follow the body: Z = the body's left on the spine and both legs, Y = forward on the left
+# arm, Y = backward on the right arm. Hand tips, feet and the face joints are rigid copies of another joint's
+# frame (measured to 1e-3). A quaternion q maps joint-local vectors to the parent frame: ``v_world = q v q*``.
+
+ORIENTATION_AIM = np.array(
+    [
+        # (from, to, sign): local axis sign*X points from joint `from` to joint `to`; -1 rows are derived joints.
+        [0, 1, 1],  # PELVIS: X up the spine
+        [1, 2, 1],  # SPINE_NAVEL
+        [2, 3, 1],  # SPINE_CHEST
+        [3, 26, 1],  # NECK
+        [4, 5, 1],  # CLAVICLE_LEFT: X out along the left arm
+        [5, 6, 1],  # SHOULDER_LEFT
+        [6, 7, 1],  # ELBOW_LEFT
+        [7, 8, 1],  # WRIST_LEFT
+        [8, 9, 1],  # HAND_LEFT
+        [-1, -1, 0],  # HANDTIP_LEFT = HAND_LEFT
+        [7, 10, 1],  # THUMB_LEFT
+        [11, 12, -1],  # CLAVICLE_RIGHT: X in along the right arm (towards the parent)
+        [12, 13, -1],  # SHOULDER_RIGHT
+        [13, 14, -1],  # ELBOW_RIGHT
+        [14, 15, -1],  # WRIST_RIGHT
+        [15, 16, -1],  # HAND_RIGHT
+        [-1, -1, 0],  # HANDTIP_RIGHT = HAND_RIGHT
+        [14, 17, -1],  # THUMB_RIGHT
+        [18, 19, -1],  # HIP_LEFT: X up the left leg (towards the parent)
+        [19, 20, -1],  # KNEE_LEFT
+        [19, 20, -1],  # ANKLE_LEFT: the shin (its own bone, to the foot, is not along any axis)
+        [-1, -1, 0],  # FOOT_LEFT = ANKLE_LEFT turned 90 deg about Z
+        [22, 23, 1],  # HIP_RIGHT: X down the right leg (towards the child)
+        [23, 24, 1],  # KNEE_RIGHT
+        [23, 24, 1],  # ANKLE_RIGHT: the shin
+        [-1, -1, 0],  # FOOT_RIGHT = ANKLE_RIGHT turned 90 deg about Z
+        [3, 26, 1],  # HEAD: X along neck -> head
+        [-1, -1, 0],  # NOSE = HEAD
+        [-1, -1, 0],  # EYE_LEFT = HEAD turned 90 deg about Z
+        [-1, -1, 0],  # EAR_LEFT = HEAD turned 180 deg about Z
+        [-1, -1, 0],  # EYE_RIGHT = HEAD turned 90 deg about Z
+        [-1, -1, 0],  # EAR_RIGHT = HEAD
+    ],
+    dtype=np.int64,
+)
+"""(32, 3) per joint: the bone (from, to) its local X axis follows and the sign (+1: X points from -> to)."""
+
+ORIENTATION_AIMED = ORIENTATION_AIM[:, 2] != 0
+"""(32,) bool: the joint's frame follows a bone of its own (False: a rigid copy, see ORIENTATION_DERIVED)."""
+
+_SQRT_HALF = float(np.sqrt(0.5))
+ORIENTATION_DERIVED = {
+    # joint: (source joint, local offset quaternion w, x, y, z):  q_joint = q_source * offset
+    J["HANDTIP_LEFT"]: (J["HAND_LEFT"], (1.0, 0.0, 0.0, 0.0)),
+    J["HANDTIP_RIGHT"]: (J["HAND_RIGHT"], (1.0, 0.0, 0.0, 0.0)),
+    J["FOOT_LEFT"]: (J["ANKLE_LEFT"], (_SQRT_HALF, 0.0, 0.0, _SQRT_HALF)),
+    J["FOOT_RIGHT"]: (J["ANKLE_RIGHT"], (_SQRT_HALF, 0.0, 0.0, _SQRT_HALF)),
+    J["NOSE"]: (J["HEAD"], (1.0, 0.0, 0.0, 0.0)),
+    J["EYE_LEFT"]: (J["HEAD"], (_SQRT_HALF, 0.0, 0.0, _SQRT_HALF)),
+    J["EAR_LEFT"]: (J["HEAD"], (0.0, 0.0, 0.0, 1.0)),
+    J["EYE_RIGHT"]: (J["HEAD"], (_SQRT_HALF, 0.0, 0.0, _SQRT_HALF)),
+    J["EAR_RIGHT"]: (J["HEAD"], (1.0, 0.0, 0.0, 0.0)),
+}
+"""Joints whose k4abt frame is a fixed rotation of another joint's frame (measured: identical to 1e-3 in every
+frame of the andyj1 recordings)."""
+
+ORIENTATION_DERIVED_SOURCE = np.array([ORIENTATION_DERIVED.get(j, (j, None))[0] for j in range(N_JOINTS)], np.int64)
+"""(32,) the joint whose frame each joint copies (itself for aimed joints)."""
+
+ORIENTATION_DERIVED_OFFSET = np.array(
+    [ORIENTATION_DERIVED.get(j, (j, (1.0, 0.0, 0.0, 0.0)))[1] for j in range(N_JOINTS)], dtype=np.float64
+)
+"""(32, 4) local offset quaternion of each joint's frame from its source's (identity for aimed joints)."""
+
+BODY_LEFT, BODY_UP, BODY_FORWARD = 0, 1, 2
+"""Body directions used by ORIENTATION_HINT: the person's left (hip to hip), up (pelvis to neck), forward."""
+
+ORIENTATION_HINT = np.array(
+    [
+        # (local axis 0..2, sign, body direction): local axis sign*e_axis points as close as it can to the body
+        # direction. Used only where no view gives the twist about the bone (a track's first frame without
+        # orientations); the measured convention, rounded to the nearest axis.
+        [2, 1, BODY_LEFT],  # PELVIS: Z left (Y forward)
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [1, 1, BODY_FORWARD],  # CLAVICLE_LEFT: Y forward (Z down in a T-pose)
+        [1, 1, BODY_FORWARD],
+        [1, 1, BODY_FORWARD],
+        [1, 1, BODY_FORWARD],
+        [1, 1, BODY_FORWARD],
+        [1, 1, BODY_FORWARD],
+        [1, 1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],  # CLAVICLE_RIGHT: Y backward (Z up in a T-pose)
+        [1, -1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],
+        [1, -1, BODY_FORWARD],
+        [2, 1, BODY_LEFT],  # HIP_LEFT: Z left (Y forward)
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],  # HIP_RIGHT: Z left (Y backward)
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],  # HEAD
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+        [2, 1, BODY_LEFT],
+    ],
+    dtype=np.int64,
+)
+"""(32, 3) per joint: (local axis, sign, body direction) that fixes the twist about the bone without a view."""

@@ -37,7 +37,17 @@ MAGIC = b"SKLF"
 VERSION_MAJOR = 1
 """Schema major version written and read. A reader rejects any other major."""
 VERSION_MINOR = 0
-"""Schema minor version written. A reader accepts any minor of its major (see docs/wire-format.md)."""
+"""Schema minor version of sensor frames, status, and fused frames without the 1.1 sections. A reader
+accepts any minor of its major (see docs/wire-format.md)."""
+FUSED_MINOR_WITH_SECTIONS = 1
+"""Minor version of a fused frame that carries orientations and/or position_std (schema 1.1). A fused frame
+without them is written as 1.0, byte for byte what a 1.0 writer produced, so 1.0 readers see no change."""
+FUSED_SECTION_ORIENTATIONS = 1
+"""Bit of the fused header's ``sections`` field (the 1.0 ``reserved`` u32): f64[P][32][4] orientations follow."""
+FUSED_SECTION_POSITION_STD = 2
+"""Bit of ``sections``: f64[P][32] position_std (mm) follow (after the orientations, when both are present)."""
+_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_SECTIONS, 3: VERSION_MINOR}  # by message kind byte
+_UNIT_TOLERANCE = 1e-3
 
 MAX_BODIES = 64
 """Most bodies in one sensor frame (the k4abt tracker reports a handful)."""
@@ -194,6 +204,28 @@ def _check_sensor_floats(floats: np.ndarray) -> None:
         )
 
 
+def _check_orientations(quats: np.ndarray) -> None:
+    """``quats``: (P, 32, 4). A joint is all NaN (unknown) or a finite unit quaternion."""
+    nan = np.isnan(quats)
+    if np.isinf(quats).any() or (nan.any(axis=-1) != nan.all(axis=-1)).any():
+        raise _Invalid(
+            "non_finite",
+            "orientations hold Inf or a joint with some but not all components NaN; an unknown "
+            "orientation is NaN in w, x, y and z",
+        )
+    norm = np.linalg.norm(np.where(nan, 0.0, quats), axis=-1)
+    if (np.abs(norm - 1.0)[~nan[..., 0]] > _UNIT_TOLERANCE).any():
+        raise _Invalid("bad_value", f"orientations hold a quaternion whose norm is not 1 (within {_UNIT_TOLERANCE})")
+
+
+def _check_position_std(std: np.ndarray) -> None:
+    """``std``: (P, 32) mm, NaN (no estimate) or finite and >= 0."""
+    if np.isinf(std).any():
+        raise _Invalid("non_finite", "position_std holds Inf; only NaN (no estimate) is allowed")
+    if (std < 0).any():
+        raise _Invalid("bad_value", "position_std holds a negative value")
+
+
 def _check_fused_positions(positions: np.ndarray) -> None:
     """``positions``: (P, 32, 3). NaN means "no estimate" for a whole joint; Inf is never valid."""
     if np.isfinite(positions).all():
@@ -326,8 +358,8 @@ def _read_prefix(view: memoryview, expected: MessageKind | None) -> tuple[Messag
             "the payload came from",
         )
     known_size = _HEADER_SIZES[kind]
-    # A newer minor may grow the header; the same or an older minor (there is none yet) must match it.
-    if header_size < known_size or (minor <= VERSION_MINOR and header_size != known_size):
+    # A newer minor may grow the header; the same or an older minor must match it.
+    if header_size < known_size or (minor <= _KNOWN_MINOR[int(kind)] and header_size != known_size):
         raise DecodeError(
             "bad_header",
             f"{_KIND_NAMES[kind]} payload rejected (bad_header): header size "
@@ -345,12 +377,12 @@ def _read_prefix(view: memoryview, expected: MessageKind | None) -> tuple[Messag
 _KIND_BY_BYTE = {int(kind): kind for kind in MessageKind}
 
 
-def _check_length(view: memoryview, end: int, minor: int, what: str) -> None:
+def _check_length(view: memoryview, end: int, minor: int, what: str, known_minor: int = VERSION_MINOR) -> None:
     if len(view) < end:
         raise DecodeError(
             "truncated", f"{what} payload rejected (truncated): {len(view)} bytes, the header's counts need {end}"
         )
-    if len(view) > end and minor <= VERSION_MINOR:
+    if len(view) > end and minor <= known_minor:
         raise DecodeError(
             "bad_length",
             f"{what} payload rejected (bad_length): {len(view)} bytes, the header's counts need exactly {end}",
@@ -510,7 +542,9 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
 
     Positions are sent as float64 (NaN = no estimate, whole joints only), track ids as int64, n_agree as
     int16, confidence as uint8, contributors as uint8 0/1, sensor ids as a table of u16-length-prefixed
-    UTF-8 strings.
+    UTF-8 strings. A frame with ``orientations`` and/or ``position_std`` is written as version 1.1: the header's
+    ``sections`` bits name them and they follow the sensor id table as float64 (NaN = unknown); a frame with
+    neither is written as 1.0.
 
     Raises
     ------
@@ -543,11 +577,12 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
         _check_sensor_ids(sensor_ids)
     except _Invalid as exc:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
+    sections, extra = _fused_sections(frame, n)
     table = b"".join([_U16.pack(len(raw)) + raw for raw in raw_ids])
     header = _FUSED_HEADER.pack(
         MAGIC,
         VERSION_MAJOR,
-        VERSION_MINOR,
+        FUSED_MINOR_WITH_SECTIONS if sections else VERSION_MINOR,
         MessageKind.FUSED_FRAME,
         0,
         FUSED_HEADER_SIZE,
@@ -556,11 +591,33 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
         n_sensors,
         _check_int(frame.time_us, _I64, "time_us"),
         len(table),
-        0,
+        sections,
     )
     return b"".join(
-        (header, track_ids.tobytes(), positions.tobytes(), n_agree.tobytes(), confidence, contributors, table)
+        (header, track_ids.tobytes(), positions.tobytes(), n_agree.tobytes(), confidence, contributors, table, *extra)
     )
+
+
+def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[bytes]]:
+    """The 1.1 sections of a fused frame: the ``sections`` bits and their bytes, in bit order."""
+    sections = 0
+    extra: list[bytes] = []
+    orientations = getattr(frame, "orientations", None)
+    position_std = getattr(frame, "position_std", None)
+    try:
+        if orientations is not None:
+            quats = _as_wire(orientations, _F8, (n, N_JOINTS, 4), "orientations", "f")
+            _check_orientations(quats)
+            sections |= FUSED_SECTION_ORIENTATIONS
+            extra.append(quats.tobytes())
+        if position_std is not None:
+            std = _as_wire(position_std, _F8, (n, N_JOINTS), "position_std", "f")
+            _check_position_std(std)
+            sections |= FUSED_SECTION_POSITION_STD
+            extra.append(std.tobytes())
+    except _Invalid as exc:
+        raise ValueError(f"fused frame cannot be sent: {exc}") from None
+    return sections, extra
 
 
 def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
@@ -568,7 +625,8 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
 
     Returns a :class:`~skelfuse.schema.frames.FusedFrame` owning fresh writable arrays: track_ids (P,) int64,
     positions (P, 32, 3) float64 mm world (NaN = no estimate), n_agree (P, 32) int16, confidence (P, 32)
-    uint8, contributors (P, S) bool, sensor_ids tuple of S str.
+    uint8, contributors (P, S) bool, sensor_ids tuple of S str; from a 1.1 payload also orientations (P, 32, 4)
+    float64 and/or position_std (P, 32) float64 mm where its ``sections`` bits say so (else None).
 
     Raises
     ------
@@ -580,14 +638,19 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     name = "fused frame"
     view = _buffer(data)
     _, minor, offset = _read_prefix(view, MessageKind.FUSED_FRAME)
-    (_, _, _, _, _, _, n_joints, n, n_sensors, time_us, table_size, _) = _FUSED_HEADER.unpack_from(view)
+    (_, _, _, _, _, _, n_joints, n, n_sensors, time_us, table_size, sections) = _FUSED_HEADER.unpack_from(view)
     _joints(n_joints, name)
     _cap(n, MAX_PERSONS, "persons", name)
     _cap(n_sensors, MAX_SENSORS, "sensors", name)
     _cap(table_size, n_sensors * (2 + MAX_ID_BYTES), "bytes of sensor id table", name)
     table_at = offset + n * FUSED_BYTES_PER_PERSON + n * n_sensors
     table_end = table_at + table_size
-    _check_length(view, table_end, minor, name)
+    # 1.0 readers ignore the reserved field; from 1.1 on its low bits name the sections after the table.
+    sections = sections if minor >= FUSED_MINOR_WITH_SECTIONS else 0
+    orientations_at = table_end
+    std_at = orientations_at + (32 * N_JOINTS * n if sections & FUSED_SECTION_ORIENTATIONS else 0)
+    end = std_at + (8 * N_JOINTS * n if sections & FUSED_SECTION_POSITION_STD else 0)
+    _check_length(view, end, minor, name, FUSED_MINOR_WITH_SECTIONS)
     table = view[:table_end]  # an id must not run past the declared table
     sensor_ids = []
     at = table_at
@@ -608,7 +671,16 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     n_agree = np.frombuffer(owned, _I2, rows, n_agree_at).reshape(n, N_JOINTS)
     confidence_at = n_agree_at + 2 * rows
     contributors_at = confidence_at + rows
+    orientations = position_std = None
+    if sections & FUSED_SECTION_ORIENTATIONS:
+        orientations = np.frombuffer(bytearray(view[orientations_at:std_at]), _F8).reshape(n, N_JOINTS, 4)
+    if sections & FUSED_SECTION_POSITION_STD:
+        position_std = np.frombuffer(bytearray(view[std_at:end]), _F8).reshape(n, N_JOINTS)
     try:
+        if orientations is not None:
+            _check_orientations(orientations)
+        if position_std is not None:
+            _check_position_std(position_std)
         _check_fused_positions(positions)
         _check_n_agree(n_agree)
         _check_confidence(bytes(owned[confidence_at:contributors_at]))
@@ -625,6 +697,8 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
         confidence=np.frombuffer(owned, _U1, rows, confidence_at).reshape(n, N_JOINTS),
         contributors=np.frombuffer(owned, np.bool_, n * n_sensors, contributors_at).reshape(n, n_sensors),
         sensor_ids=tuple(sensor_ids),
+        orientations=None if orientations is None else orientations.astype(np.float64, copy=False),
+        position_std=None if position_std is None else position_std.astype(np.float64, copy=False),
     )
 
 
@@ -768,6 +842,9 @@ def decode(data: bytes | bytearray | memoryview) -> SensorFrame | FusedFrame | N
 __all__ = [
     "FUSED_BYTES_PER_PERSON",
     "FUSED_HEADER_SIZE",
+    "FUSED_MINOR_WITH_SECTIONS",
+    "FUSED_SECTION_ORIENTATIONS",
+    "FUSED_SECTION_POSITION_STD",
     "MAGIC",
     "MAX_BODIES",
     "MAX_ID_BYTES",

@@ -1,0 +1,96 @@
+#!/usr/bin/env python3
+"""Measure the k4abt joint-frame convention on the real andyj1 recordings (docs/orientations.md).
+
+For every joint: how far the SDK's own local X axis is from the bone skelfuse aims it along
+(``skelfuse.schema.skeleton.ORIENTATION_AIM``): the angle of the smallest rotation that puts it there
+("swing"), and how far the SDK frame is from the frame built from the bones and the body alone (the fallback
+used without any view, ``ORIENTATION_HINT``). Also which quaternion component order the files really hold.
+
+    python scripts/measure_orientation_convention.py [DATA_DIR]
+
+DATA_DIR defaults to ../shared/data/azure-kinect-andyj1 (relative to the repository root).
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from skelfuse.fusion.orientation import (
+    aim_directions,
+    apply_derived,
+    body_hint_frames,
+    quat_angle_deg,
+    quat_rotate,
+    swing_onto_aims,
+)
+from skelfuse.schema.skeleton import JOINT_NAMES, ORIENTATION_AIMED, Confidence
+from skelfuse.sources.recorded import load_andyj1_csv
+
+FILES = (
+    "saved_data_2_3dev/joints_gen_master.csv",
+    "saved_data_2_3dev/joints_gen_sub1.csv",
+    "saved_data_2_3dev/joints_gen_sub2.csv",
+    "extrinsic_calculation/joints_sync_1.csv",
+    "extrinsic_calculation/joints_sync_2.csv",
+)
+
+
+def main(argv: list[str]) -> int:
+    root = Path(__file__).resolve().parents[1]
+    data = Path(argv[1]) if len(argv) > 1 else root.parent / "shared" / "data" / "azure-kinect-andyj1"
+    if not data.is_dir():
+        print(f"no andyj1 data at {data}; pass its folder as the first argument", file=sys.stderr)
+        return 2
+    positions, stored, confidence = [], [], []
+    for name in FILES:
+        rec = load_andyj1_csv(data / name)
+        positions.append(rec.positions[:, 0].astype(np.float64))
+        stored.append(rec.orientations[:, 0].astype(np.float64))
+        confidence.append(rec.confidence[:, 0])
+    p = np.concatenate(positions)
+    # The reader reorders the columns it was told are x, y, z, w into w, x, y, z: file column k is
+    # column_of[k] of what it returns.
+    columns = np.concatenate(stored)[..., [1, 2, 3, 0]]
+    conf = np.concatenate(confidence)
+    print(f"{p.shape[0]} frames from {len(FILES)} files in {data}")
+
+    aims = aim_directions(p)
+    print("\nWhich component order holds w, x, y, z? Mean |cos| between the SDK X axis and the aim bone:")
+    best = None
+    for order in itertools.permutations(range(4)):
+        q = columns[..., list(order)]
+        x_axis = quat_rotate(q / np.linalg.norm(q, axis=-1, keepdims=True), np.array([1.0, 0.0, 0.0]))
+        score = float(np.nanmean(np.abs(np.sum(x_axis * aims, axis=-1))[:, ORIENTATION_AIMED]))
+        if best is None or score > best[0]:
+            best = (score, order)
+        if order in ((0, 1, 2, 3), (3, 0, 1, 2)):
+            label = "file columns read as w,x,y,z" if order == (0, 1, 2, 3) else "as the header says (x,y,z,w)"
+            print(f"  {label}: {score:.3f}")
+    print(f"  best order {best[1]}: {best[0]:.3f}")
+    sdk = columns[..., list(best[1])]
+
+    swung = apply_derived(swing_onto_aims(sdk, aims))
+    hinted = apply_derived(body_hint_frames(p))
+    swing = quat_angle_deg(sdk, swung)
+    hint = quat_angle_deg(sdk, hinted)
+    print("\njoint            n   swing to our bone (deg)   bones + body hint (deg)")
+    print("                     median    p90            median    p90")
+    for j, name in enumerate(JOINT_NAMES):
+        seen = (conf[:, j] >= int(Confidence.LOW)) & np.isfinite(swing[:, j])
+        if not seen.any():
+            print(f"{name:14s} {0:5d}")
+            continue
+        s, h = swing[seen, j], hint[seen, j]
+        print(
+            f"{name:14s} {seen.sum():5d}   {np.median(s):6.1f} {np.percentile(s, 90):6.1f}"
+            f"          {np.median(h):6.1f} {np.percentile(h, 90):6.1f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv))

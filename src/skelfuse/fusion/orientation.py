@@ -1,0 +1,457 @@
+"""Fused joint orientations: swing from the fused bones, twist from the views that agree, filtered without lag.
+
+Every fused joint gets a quaternion (w, x, y, z) in the world frame, in the k4abt joint-frame convention of
+:data:`skelfuse.schema.skeleton.ORIENTATION_AIM` (docs/orientations.md): the joint's local X axis lies along a
+bone, the other two axes turn with the body. A bone direction fixes two of the three degrees of freedom of that
+frame (the *swing*); the third, the rotation about the bone (the *twist*), is what the views add.
+
+One step (:func:`fuse_orientations`), for B bodies, S views and the 32 joints at once, no loop over joints:
+
+1. Aim: for every joint with a bone of its own, the unit direction of that bone in the *fused* positions
+   (``sign * (p[to] - p[from])``). The fused frame's X axis is this direction exactly (to 1e-12).
+2. Candidates: each usable view's quaternion (already in the world frame, :func:`views_to_world`) is swung onto
+   the fused bone: the smallest rotation that takes the view's own X axis onto the aim. What is left of the
+   view is its twist. A view is usable for a joint when it holds a finite, non-zero quaternion, was not
+   mirrored (the caller passes the realignment's flip decision: a mirrored view's frames are those of a body
+   facing the other way, about 180 deg off, so they are left out, not remapped) and its candidate position
+   for that joint was merged (it agrees on where the joint is).
+3. Agreement: the candidate with the most others within ``agree_deg`` of it wins (ties: lowest view index);
+   the candidates within ``agree_deg`` of it are averaged (sign-aligned quaternion sum, normalized). All share
+   the aim, so the mean does too. A view whose twist disagrees by more is an outlier and ignored.
+4. Filter: an alpha-beta filter on the rotation (constant angular velocity model, the quaternion analogue of
+   :func:`skelfuse.fusion.filters.filter_step`'s "alpha_beta"): predict ``exp(w dt) q``, swing the prediction
+   onto this frame's aim, correct by ``alpha`` of the residual rotation, ``w += beta residual / dt``. A
+   constant rate of turn is followed without lag in steady state (measured: tests/unit/test_orientation.py).
+   Without a measurement the prediction is output (coasting) for as long as the position filter coasts.
+5. Without any view and any history (a track's first frame with no usable view), the twist comes from the
+   body: the hint axis of :data:`~skelfuse.schema.skeleton.ORIENTATION_HINT` is turned towards the person's
+   left / forward direction. Derived joints (hand tips, feet, face) are their source joint's frame times a
+   fixed offset (:data:`~skelfuse.schema.skeleton.ORIENTATION_DERIVED`).
+
+Pure numpy, no I/O; every function returns new arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from skelfuse.schema.skeleton import (
+    BODY_FORWARD,
+    BODY_LEFT,
+    BODY_UP,
+    N_JOINTS,
+    ORIENTATION_AIM,
+    ORIENTATION_AIMED,
+    ORIENTATION_DERIVED_OFFSET,
+    ORIENTATION_DERIVED_SOURCE,
+    ORIENTATION_HINT,
+    J,
+)
+
+_EPS = 1e-12
+_AIM_FROM = np.where(ORIENTATION_AIMED, ORIENTATION_AIM[:, 0], 0)
+_AIM_TO = np.where(ORIENTATION_AIMED, ORIENTATION_AIM[:, 1], 0)
+_AIM_SIGN = ORIENTATION_AIM[:, 2].astype(np.float64)
+_LOCAL_X = np.array([1.0, 0.0, 0.0])
+_HINT_LOCAL = np.eye(3)[ORIENTATION_HINT[:, 0]] * ORIENTATION_HINT[:, 1:2]  # (J, 3) local hint axis
+_HINT_BODY = ORIENTATION_HINT[:, 2]
+_DERIVED = np.flatnonzero(~ORIENTATION_AIMED)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Quaternion algebra (w, x, y, z), broadcast over leading axes.
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` over the last axis (3), without its axis juggling: the hot path calls it a dozen times."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` (apply b, then a)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """The inverse rotation of a unit quaternion."""
+    return np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4): ``q v q*``."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions; a zero or non-finite one becomes NaN."""
+    q = np.asarray(q, dtype=np.float64)
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    ok = np.isfinite(norm) & (norm > 1e-9)
+    return np.where(ok, q / np.where(ok, norm, 1.0), np.nan)
+
+
+def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion of a rotation vector (axis times angle, rad)."""
+    r = np.asarray(r, dtype=np.float64)
+    angle = np.linalg.norm(r, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a, with its limit 1/2 - a^2/48 near 0.
+    k = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle * angle / 48.0)
+    return np.concatenate([np.cos(half), k * r], axis=-1)
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (rad) of unit quaternions, the short way round (angle <= pi)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = np.where(q[..., :1] < 0.0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    k = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
+    return k * q[..., 1:]
+
+
+def quat_from_matrix(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w >= 0) of rotation matrices (..., 3, 3), by the largest-pivot method."""
+    R = np.asarray(R, dtype=np.float64)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    trace = m00 + m11 + m22
+    candidates = np.stack(
+        [
+            np.stack(
+                [1.0 + trace, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
+            ),
+            np.stack(
+                [
+                    R[..., 2, 1] - R[..., 1, 2],
+                    1.0 + m00 - m11 - m22,
+                    R[..., 0, 1] + R[..., 1, 0],
+                    R[..., 0, 2] + R[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    R[..., 0, 2] - R[..., 2, 0],
+                    R[..., 0, 1] + R[..., 1, 0],
+                    1.0 - m00 + m11 - m22,
+                    R[..., 1, 2] + R[..., 2, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    R[..., 1, 0] - R[..., 0, 1],
+                    R[..., 0, 2] + R[..., 2, 0],
+                    R[..., 1, 2] + R[..., 2, 1],
+                    1.0 - m00 - m11 + m22,
+                ],
+                -1,
+            ),
+        ],
+        axis=-2,
+    )
+    pivots = np.stack([trace, m00, m11, m22], axis=-1)
+    best = np.argmax(pivots, axis=-1)
+    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions; column k is the local axis k in the parent frame."""
+    return np.stack([quat_rotate(q, axis) for axis in np.eye(3)], axis=-1)
+
+
+def quat_angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle of the rotation between two orientations, degrees in [0, 180] (NaN where either is NaN)."""
+    dot = np.abs(np.sum(quat_normalize(a) * quat_normalize(b), axis=-1))
+    return np.degrees(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
+
+
+def swing_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vectors ``u`` onto unit vectors ``v`` (..., 3) -> (..., 4).
+
+    Opposite vectors (no unique smallest rotation) turn by 180 deg about an axis perpendicular to ``u``.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    w = 1.0 + np.sum(u * v, axis=-1, keepdims=True)
+    axis = _cross(u, v)
+    # Opposite: any perpendicular axis; cross with x, or with y where u is along x.
+    helper = np.where(np.abs(u[..., :1]) < 0.9, _LOCAL_X, np.array([0.0, 1.0, 0.0]))
+    perpendicular = _cross(u, np.broadcast_to(helper, u.shape))
+    opposite = w < 1e-9
+    q = np.where(opposite, np.concatenate([np.zeros_like(w), perpendicular], axis=-1), np.concatenate([w, axis], -1))
+    return quat_normalize(q)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Geometry of the fused skeleton.
+
+
+def aim_directions(positions: np.ndarray) -> np.ndarray:
+    """(..., 32, 3) unit world direction of every joint's local X axis (NaN: derived joint or missing bone)."""
+    p = np.asarray(positions, dtype=np.float64)
+    d = (p[..., _AIM_TO, :] - p[..., _AIM_FROM, :]) * _AIM_SIGN[:, None]
+    norm = np.linalg.norm(d, axis=-1, keepdims=True)
+    ok = (norm > 1e-6) & ORIENTATION_AIMED[:, None]
+    return np.where(ok, d / np.where(ok, norm, 1.0), np.nan)
+
+
+def body_directions(positions: np.ndarray) -> np.ndarray:
+    """(..., 3, 3): rows left, up, forward unit vectors of each body (hips for left, shoulders where hips are
+    missing; pelvis to neck for up; forward = left x up). NaN where the body lacks them."""
+    p = np.asarray(positions, dtype=np.float64)
+    hips = p[..., J["HIP_LEFT"], :] - p[..., J["HIP_RIGHT"], :]
+    shoulders = p[..., J["SHOULDER_LEFT"], :] - p[..., J["SHOULDER_RIGHT"], :]
+    left = np.where(np.isfinite(hips).all(axis=-1, keepdims=True), hips, shoulders)
+    up = p[..., J["NECK"], :] - p[..., J["PELVIS"], :]
+    up = up / np.linalg.norm(up, axis=-1, keepdims=True)
+    forward = _cross(left, up)
+    forward = forward / np.linalg.norm(forward, axis=-1, keepdims=True)
+    left = _cross(up, forward)
+    out = np.empty((*p.shape[:-2], 3, 3))
+    out[..., BODY_LEFT, :] = left
+    out[..., BODY_UP, :] = up
+    out[..., BODY_FORWARD, :] = forward
+    return out
+
+
+def frames_from_bones(aims: np.ndarray, hints: np.ndarray) -> np.ndarray:
+    """Orientations whose X axis is ``aims`` and whose hint axis points as close as it can to ``hints``.
+
+    Parameters
+    ----------
+    aims : (..., 32, 3) unit world aim of each joint (:func:`aim_directions`).
+    hints : (..., 32, 3) world direction the joint's hint axis (ORIENTATION_HINT) should follow.
+
+    Returns
+    -------
+    (..., 32, 4) quaternions; NaN where the aim is missing or the hint is parallel to it.
+    """
+    x = np.asarray(aims, dtype=np.float64)
+    h = hints - np.sum(hints * x, axis=-1, keepdims=True) * x
+    h_norm = np.linalg.norm(h, axis=-1, keepdims=True)
+    h = np.where(h_norm > 1e-6, h / np.where(h_norm > 1e-6, h_norm, 1.0), np.nan)
+    # The hint is local Y or Z (with a sign): y = sign*h for Y hints, z = sign*h for Z hints; the third by
+    # right-handedness (z = x cross y, y = z cross x).
+    is_y = (ORIENTATION_HINT[:, 0] == 1)[:, None]
+    sign = ORIENTATION_HINT[:, 1:2].astype(np.float64)
+    y_from_y = sign * h
+    z_from_z = sign * h
+    y = np.where(is_y, y_from_y, _cross(z_from_z, x))
+    z = np.where(is_y, _cross(x, y_from_y), z_from_z)
+    return quat_from_matrix_nan(np.stack([x, y, z], axis=-1))
+
+
+def quat_from_matrix_nan(R: np.ndarray) -> np.ndarray:
+    """:func:`quat_from_matrix` that passes NaN matrices through as NaN quaternions."""
+    finite = np.isfinite(R).all(axis=(-1, -2))
+    q = quat_from_matrix(np.where(finite[..., None, None], R, np.eye(3)))
+    return np.where(finite[..., None], q, np.nan)
+
+
+def body_hint_frames(positions: np.ndarray) -> np.ndarray:
+    """(..., 32, 4) orientations from the bones alone, the twist from the body's left/forward (ORIENTATION_HINT);
+    derived joints NaN (see :func:`apply_derived`). The simulator's procedural truth uses this too."""
+    aims = aim_directions(positions)
+    body = body_directions(positions)  # (..., 3, 3)
+    hints = body[..., _HINT_BODY, :]  # (..., 32, 3)
+    return frames_from_bones(aims, hints)
+
+
+def apply_derived(quats: np.ndarray) -> np.ndarray:
+    """Fill the derived joints (hand tips, feet, face) from their source joints and fixed offsets."""
+    q = np.array(quats, dtype=np.float64, copy=True)
+    q[..., _DERIVED, :] = quat_multiply(
+        q[..., ORIENTATION_DERIVED_SOURCE[_DERIVED], :], ORIENTATION_DERIVED_OFFSET[_DERIVED]
+    )
+    return q
+
+
+def swing_onto_aims(quats: np.ndarray, aims: np.ndarray) -> np.ndarray:
+    """Turn each orientation by the smallest rotation that puts its local X axis on ``aims`` (keeps its twist).
+
+    NaN where either is NaN.
+    """
+    current = quat_rotate(quats, _LOCAL_X)
+    return quat_normalize(quat_multiply(swing_between(current, aims), quats))
+
+
+def views_to_world(orientations: np.ndarray, world_from_sensor: np.ndarray) -> np.ndarray:
+    """Sensor-frame joint quaternions (..., S, J, 4) to the world frame with the (S, 4, 4) calibrations.
+
+    ``q_world = q_calibration * q_sensor``; an all-zero or non-finite quaternion comes out NaN.
+    """
+    T = np.asarray(world_from_sensor, dtype=np.float64)
+    q_cal = quat_from_matrix(T[:, :3, :3])  # (S, 4)
+    return quat_normalize(quat_multiply(q_cal[:, None, :], quat_normalize(orientations)))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The stage.
+
+
+@dataclass(frozen=True)
+class OrientationParams:
+    """Options of :func:`fuse_orientations`.
+
+    Attributes
+    ----------
+    agree_deg : float
+        Two views' swung orientations agree when they are at most this far apart (deg).
+    alpha, beta : float
+        Gains of the alpha-beta rotation filter. Default beta = alpha^2 / (2 - alpha) (Benedict-Bordner).
+    """
+
+    agree_deg: float = 45.0
+    alpha: float = 0.5
+    beta: float = 0.5**2 / (2.0 - 0.5)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.agree_deg) and 0.0 < self.agree_deg <= 180.0):
+            raise ValueError(f"OrientationParams.agree_deg must be in (0, 180], got {self.agree_deg!r}")
+        if not (0.0 < self.alpha <= 1.0 and 0.0 <= self.beta < 2.0):
+            raise ValueError(
+                f"OrientationParams alpha must be in (0, 1] and beta in [0, 2), got {self.alpha}, {self.beta}"
+            )
+
+
+@dataclass(frozen=True)
+class OrientationResult:
+    """Attributes: quats (B, 32, 4) world, NaN = unknown; n_views (B, 32) int16, views averaged into each
+    joint's twist (0: predicted, or from the body hint)."""
+
+    quats: np.ndarray
+    n_views: np.ndarray
+
+
+def init_orientation_state(n_bodies: int) -> tuple[np.ndarray, np.ndarray]:
+    """Empty rotation filter state: quats (B, 32, 4) all zero (= none) and angular velocity (B, 32, 3) rad/s."""
+    return np.zeros((n_bodies, N_JOINTS, 4)), np.zeros((n_bodies, N_JOINTS, 3))
+
+
+def view_consensus(
+    positions: np.ndarray, view_quats: np.ndarray, usable: np.ndarray, agree_deg: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 1-3: the views' orientations swung onto the fused bones and averaged over those that agree.
+
+    Parameters
+    ----------
+    positions : (B, 32, 3) fused positions, mm, world.
+    view_quats : (B, S, 32, 4) the views' quaternions in the world frame (NaN = none).
+    usable : (B, S, 32) bool, the view may contribute to the joint (not mirrored, position merged).
+    agree_deg : float
+
+    Returns
+    -------
+    quats : (B, 32, 4) the consensus (NaN where no usable view or no aim).
+    n_views : (B, 32) int16, the views averaged.
+    """
+    aims = aim_directions(positions)  # (B, J, 3)
+    swung = swing_onto_aims(view_quats, aims[:, None])  # (B, S, J, 4)
+    valid = np.asarray(usable, dtype=bool) & np.isfinite(swung).all(axis=-1)
+    q = np.where(valid[..., None], swung, 0.0)
+    dots = np.einsum("bsjk,btjk->bjst", q, q)  # (B, J, S, S) |cos(angle/2)| where both valid
+    agree = np.abs(dots) >= math.cos(math.radians(agree_deg) / 2.0)
+    agree &= np.transpose(valid, (0, 2, 1))[:, :, :, None] & np.transpose(valid, (0, 2, 1))[:, :, None, :]
+    support = agree.sum(axis=-1)  # (B, J, S)
+    best = np.argmax(support, axis=-1)  # (B, J): lowest index on ties
+    members = np.take_along_axis(agree, best[..., None, None], axis=-2)[..., 0, :]  # (B, J, S)
+    signs = np.sign(np.take_along_axis(dots, best[..., None, None], axis=-2)[..., 0, :])  # align to the winner
+    weights = members * np.where(signs == 0, 1.0, signs)
+    total = np.einsum("bjs,bsjk->bjk", weights, q)
+    n_views = members.sum(axis=-1).astype(np.int16)
+    # The mean of rotations that share an aim shares it too (up to rounding, ~1e-16): no re-swing needed.
+    return quat_normalize(np.where((n_views > 0)[..., None], total, np.nan)), n_views
+
+
+def fuse_orientations(
+    positions: np.ndarray,
+    view_quats: np.ndarray | None,
+    usable: np.ndarray | None,
+    quats_prev: np.ndarray,
+    omega_prev: np.ndarray,
+    params: OrientationParams,
+    dt_s: float,
+) -> tuple[OrientationResult, np.ndarray, np.ndarray]:
+    """One step of the orientation stage (module docstring) for B bodies.
+
+    Parameters
+    ----------
+    positions : (B, 32, 3) fused (filtered) positions, mm, world; NaN = none.
+    view_quats : (B, S, 32, 4) the views' world quaternions, or None (no view reports orientations).
+    usable : (B, S, 32) bool, or None with ``view_quats``.
+    quats_prev : (B, 32, 4) last output (zero or NaN rows: no history).
+    omega_prev : (B, 32, 3) angular velocity estimate, rad/s, world.
+    params : OrientationParams
+    dt_s : seconds since the previous step.
+
+    Returns
+    -------
+    result : OrientationResult
+    quats, omega : the new filter state (new arrays).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    B = positions.shape[0]
+    aims = aim_directions(positions)
+    if view_quats is None or usable is None or np.asarray(view_quats).shape[1] == 0:
+        measured = np.full((B, N_JOINTS, 4), np.nan)
+        n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
+    else:
+        measured, n_views = view_consensus(positions, view_quats, usable, params.agree_deg)
+    has_meas = np.isfinite(measured).all(axis=-1)
+
+    prev = quat_normalize(quats_prev)
+    has_prev = np.isfinite(prev).all(axis=-1)
+    omega = np.where(has_prev[..., None], np.asarray(omega_prev, dtype=np.float64), 0.0)
+    predicted = quat_multiply(quat_from_rotvec(omega * dt_s), prev)
+    has_aim = np.isfinite(aims).all(axis=-1)
+    # The prediction follows this frame's bone; without a bone it coasts on the rotation alone.
+    predicted = np.where(has_aim[..., None], swing_onto_aims(predicted, aims), predicted)
+
+    # Correct: the residual rotation from the prediction to the measurement (a twist about the aim).
+    residual = quat_to_rotvec(quat_multiply(measured, quat_conjugate(predicted)))  # (B, J, 3)
+    # Both share this frame's aim, so the residual turns about it and the corrected frame keeps it.
+    corrected = quat_normalize(quat_multiply(quat_from_rotvec(params.alpha * residual), predicted))
+    omega_new = omega + (params.beta / dt_s) * residual
+
+    # The body's own frame, only where neither a view nor the history gives the twist (a track's start).
+    need_hint = ~has_meas & ~has_prev & has_aim
+    hint = body_hint_frames(positions) if need_hint.any() else np.full((B, N_JOINTS, 4), np.nan)
+    both = (has_meas & has_prev)[..., None]
+    out = np.where(
+        both,
+        corrected,
+        np.where(has_meas[..., None], measured, np.where(has_prev[..., None], predicted, hint)),
+    )
+    omega_out = np.where(both, omega_new, np.where(has_prev[..., None] & ~has_meas[..., None], omega, 0.0))
+    # Nothing to aim and nothing to coast on, or no fused position: unknown (and the history is dropped).
+    out = np.where((has_aim | has_prev)[..., None], out, np.nan)
+    out = apply_derived(out)
+    out = np.where(np.isfinite(positions).all(axis=-1)[..., None], out, np.nan)
+    state_quats = np.where(np.isfinite(out), out, 0.0)
+    omega_out = np.where(np.isfinite(omega_out), omega_out, 0.0)
+    return OrientationResult(quats=out, n_views=np.where(has_meas, n_views, 0).astype(np.int16)), state_quats, omega_out

@@ -1,0 +1,102 @@
+"""Per-joint position uncertainty from the data: the spread of the merged cluster, carried through time.
+
+The position filter's own covariance (:mod:`skelfuse.fusion.filters`) is fed with a fixed measurement noise,
+so it converges to the same number for every joint that is seen: it says nothing about this joint, now.
+This stage runs the same constant-velocity covariance recursion (``cv_accel_sigma_mm_s2``) beside it, fed
+with a measurement variance taken from the data:
+
+* the sensors' candidates that were merged into the joint scatter around the merged position; their sum of
+  squared distances ``ss`` (mm^2, over the n members and three axes) gives a per-axis sample variance
+  ``ss / (3 (n - 1))``;
+* two or three views say little about a variance, so it is shrunk towards the nominal per-view noise
+  ``sigma0 = cv_meas_sigma_mm`` with the weight of ``nu0 = 2`` extra samples:
+  ``v = (ss / 3 + nu0 sigma0^2) / (n - 1 + nu0)`` (one view: ``v = sigma0^2``);
+* the merged position is the mean of n candidates: its variance is ``R = v / n``.
+
+The recursion starts a track at ``P = (R, 0, sigma_v0^2)``, predicts while the joint coasts (the uncertainty
+grows with the coasting) and is dropped with the position filter's track. With no position filter the output
+is ``sqrt(R)`` of the frame. Output: the one-sigma uncertainty per axis, mm (a 3D error is about sqrt(3)
+times larger), NaN where the joint has no position. Pure numpy, batched over all joints.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skelfuse.fusion.filters import _cv_model
+from skelfuse.fusion.presets import FusionParams
+
+PRIOR_SAMPLES = 2.0
+"""``nu0``: weight, in samples, of the nominal per-view noise in the measurement variance."""
+
+_GAIN_ROWS = np.array([0, 0, 1])
+_COV_ROWS = np.array([0, 1, 1])
+
+
+def measurement_variance(
+    candidates: np.ndarray, members: np.ndarray, merged: np.ndarray, n_agree: np.ndarray, sigma0_mm: float
+) -> np.ndarray:
+    """Per-axis variance (mm^2) of each merged position, from the spread of its cluster.
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) the (realigned) sensor candidates, mm; NaN = missing.
+    members : (B, J, S) bool, the candidates merged into each joint.
+    merged : (B, J, 3) the merged positions, mm.
+    n_agree : (B, J) number of members.
+    sigma0_mm : nominal per-view noise, mm.
+
+    Returns
+    -------
+    (B, J) float64, ``R = v / n`` (NaN where nothing was merged).
+    """
+    diff = np.asarray(candidates, dtype=np.float64) - np.asarray(merged, dtype=np.float64)[:, None]
+    sq = np.sum(diff * diff, axis=-1)  # (B, S, J)
+    ss = np.sum(np.where(np.transpose(members, (0, 2, 1)), sq, 0.0), axis=1)  # (B, J)
+    n = np.asarray(n_agree, dtype=np.float64)
+    v = (ss / 3.0 + PRIOR_SAMPLES * sigma0_mm**2) / (np.maximum(n - 1.0, 0.0) + PRIOR_SAMPLES)
+    return np.where(n > 0, v / np.maximum(n, 1.0), np.nan)
+
+
+def uncertainty_step(
+    P: np.ndarray,
+    coast_before: np.ndarray,
+    coast_after: np.ndarray,
+    r_mm2: np.ndarray,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the covariance recursion for N joints.
+
+    Parameters
+    ----------
+    P : (N, 3) (p_pos, p_pos_vel, p_vel) of the last step.
+    coast_before, coast_after : (N,) the position filter's coast counters before and after this frame
+        (-1 no track, 0 measured, k > 0 coasting).
+    r_mm2 : (N,) this frame's measurement variance (NaN = no measurement).
+    params : FusionParams (``filter``, ``cv_accel_sigma_mm_s2``, ``cv_velocity0_sigma_mm_s``).
+    dt_s : float
+
+    Returns
+    -------
+    std_mm : (N,) one-sigma per axis, mm (NaN: no track and no measurement).
+    P : (N, 3) the new covariance (zeros where no track).
+    """
+    r = np.asarray(r_mm2, dtype=np.float64)
+    if params.filter is None:
+        return np.sqrt(r), np.zeros_like(P)
+    cov_map, q_vec, _ = _cv_model(dt_s, params.cv_accel_sigma_mm_s2)
+    pred = P @ cov_map + q_vec
+    r_safe = np.where(np.isfinite(r), r, 1.0)[:, None]
+    gain = pred[:, :2] / (pred[:, :1] + r_safe)
+    upd = pred - gain[:, _GAIN_ROWS] * pred[:, _COV_ROWS]
+    start = np.stack(
+        [r_safe[:, 0], np.zeros_like(r_safe[:, 0]), np.full_like(r_safe[:, 0], params.cv_velocity0_sigma_mm_s**2)],
+        axis=-1,
+    )
+    measured = (coast_after == 0)[:, None]
+    tracked = (coast_before >= 0)[:, None]
+    coasting = (coast_after > 0)[:, None]
+    new_P = np.where(measured & tracked, upd, np.where(measured, start, np.where(coasting, pred, 0.0)))
+    alive = coast_after >= 0
+    return np.where(alive, np.sqrt(new_P[:, 0]), np.nan), new_P

@@ -1,0 +1,243 @@
+"""Ground-truth joint orientations of a simulated take, and the trackers' orientations as the views report them.
+
+Truth (:func:`truth_orientations`), in the k4abt joint-frame convention (docs/orientations.md), world frame:
+
+* the swing from the motion's own bones: every joint's X axis along its aim bone of the true positions,
+  the secondary axis towards the body's left / forward (:func:`skelfuse.fusion.orientation.body_hint_frames`);
+* procedural gestures: a twist about each arm and hand bone, a smooth random roll (a sum of two slow sines
+  per joint, up to :data:`ARM_TWIST_DEG`), so that the twist cannot be guessed from the body and must come
+  from the views. The gestures have no forearm roll of their own; this one is ASSUMED;
+* BVH motions (:func:`load_bvh_with_orientations`): the twist of the BVH segment each bone rides on (the
+  recorded motion's own joint rotations), fixed to the k4abt frame by the offset at the file's T-pose;
+* derived joints (hand tips, feet, face) copy their source joint (the SDK does the same, measured).
+
+Views (:func:`observe_orientations`): each sensor reports the truth seen through its TRUE pose, turned by a
+tracker error: per joint a slow AR(1) rotation vector (rho 0.9 per frame) plus white jitter, the sizes per
+body region in :class:`OrientationNoise`. The sizes are set from the real andyj1 3-sensor take (three views of
+the same frames, twist left after putting each view on the same bones: median disagreement torso 4-7 deg,
+knees 3.5-10, arms 10-21, head 10-24; frame-to-frame change 1-2 deg, hands 4 deg), divided by sqrt(2) for one
+view: a rough model of one short take, not a measurement of the tracker in general. Occluded joints get
+``occluded_factor`` times more. A mirrored view (``Observations.mirrored``) reports the frames of a body
+facing the other way: the true frames of the mirror joints turned 180 deg about the vertical (an ASSUMED
+model of the tracker's flip). Where a view tracked nothing the orientation is NaN.
+
+Nothing here changes the positions the simulator draws: orientations use their own random streams.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from skelfuse.fusion.orientation import (
+    aim_directions,
+    apply_derived,
+    body_hint_frames,
+    quat_conjugate,
+    quat_from_matrix,
+    quat_from_rotvec,
+    quat_multiply,
+    swing_onto_aims,
+)
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
+from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
+from skelfuse.sim.motion import Motion, facing_deg
+from skelfuse.sim.observe import Observations, ar1
+
+ARM_TWIST_DEG = 35.0
+"""Largest simulated roll of an arm or hand bone about itself, deg (assumed)."""
+
+_TWIST_REGIONS = ("arm", "hand")
+_TURN_180_Z = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def truth_orientations(positions: np.ndarray, fps: float, *, seed: int) -> np.ndarray:
+    """(T, 32, 4) float64 true world orientations of a take's (T, 32, 3) true positions (module docstring)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    T = positions.shape[0]
+    frames = body_hint_frames(positions)  # (T, J, 4), derived joints NaN
+    rng = np.random.default_rng([int(seed), 0x0F1E])
+    twisting = np.concatenate([BODY_REGIONS[r] for r in _TWIST_REGIONS])
+    t = np.arange(T)[:, None] / float(fps)
+    freq = rng.uniform(0.1, 0.5, (2, twisting.size))
+    phase = rng.uniform(0.0, 2.0 * np.pi, (2, twisting.size))
+    angle = (
+        0.5
+        * np.radians(ARM_TWIST_DEG)
+        * (np.sin(2 * np.pi * freq[0] * t + phase[0]) + np.sin(2 * np.pi * freq[1] * t + phase[1]))
+    )  # (T, n)
+    roll = np.zeros((T, N_JOINTS, 3))
+    roll[:, twisting, 0] = angle  # about the local X axis: the bone
+    return apply_derived(quat_multiply(frames, quat_from_rotvec(roll)))
+
+
+@dataclass(frozen=True)
+class OrientationNoise:
+    """Tracker orientation error per body region (see the module docstring for where the sizes come from).
+
+    Attributes
+    ----------
+    slow_sigma_deg : dict region -> SD of each axis of the slow (AR(1)) error rotation vector, deg.
+    slow_rho : AR(1) coefficient per frame.
+    white_sigma_deg : dict region -> SD of each axis of the white jitter, deg.
+    occluded_factor : multiplier of both for joints the view does not see.
+    """
+
+    slow_sigma_deg: dict[str, float] = field(
+        default_factory=lambda: {
+            "torso": 3.0,
+            "head": 7.0,
+            "face": 7.0,
+            "arm": 8.0,
+            "hand": 10.0,
+            "knee": 4.0,
+            "foot": 5.0,
+        }
+    )
+    slow_rho: float = 0.9
+    white_sigma_deg: dict[str, float] = field(
+        default_factory=lambda: {
+            "torso": 0.7,
+            "head": 1.0,
+            "face": 1.0,
+            "arm": 1.3,
+            "hand": 2.8,
+            "knee": 1.0,
+            "foot": 1.0,
+        }
+    )
+    occluded_factor: float = 2.0
+
+    def per_joint(self) -> tuple[np.ndarray, np.ndarray]:
+        """(32,) slow and white SDs in radians."""
+        slow = np.zeros(N_JOINTS)
+        white = np.zeros(N_JOINTS)
+        for region, joints in BODY_REGIONS.items():
+            slow[joints] = np.radians(self.slow_sigma_deg[region])
+            white[joints] = np.radians(self.white_sigma_deg[region])
+        return slow, white
+
+
+def observe_orientations(
+    obs: Observations, truth: np.ndarray, *, seed: int, noise: OrientationNoise | None = None
+) -> np.ndarray:
+    """The views' joint orientations of one simulated take, each in its sensor's own frame.
+
+    Parameters
+    ----------
+    obs : Observations of :func:`skelfuse.sim.observe.simulate` (its ``mirrored``, ``tracked``, ``occluded``
+        and true poses are used).
+    truth : (T, 32, 4) true world orientations (:func:`truth_orientations`).
+    seed : random seed of the tracker errors (separate from the position streams).
+    noise : OrientationNoise; default the module's.
+
+    Returns
+    -------
+    (T, S, 32, 4) float32 quaternions w, x, y, z in each sensor's frame; NaN where the view tracked nothing.
+    """
+    noise = OrientationNoise() if noise is None else noise
+    truth = np.asarray(truth, dtype=np.float64)
+    T, S = obs.n_frames, obs.n_sensors
+    slow_sd, white_sd = noise.per_joint()
+    sensor_from_world = quat_conjugate(quat_from_matrix(np.asarray(obs.world_from_sensor)[:, :3, :3]))  # (S, 4)
+    # A mirrored view: the frames of the mirror joints, turned 180 deg about the vertical.
+    mirrored_frames = quat_multiply(_TURN_180_Z, truth[:, MIRROR])
+    out = np.full((T, S, N_JOINTS, 4), np.nan, dtype=np.float32)
+    for s in range(S):  # a handful of sensors; everything inside is vectorized over frames and joints
+        rng = np.random.default_rng([int(seed), 0x0F1F, s])
+        slow = ar1(rng, T, (N_JOINTS, 3), noise.slow_rho, slow_sd[:, None])
+        white = rng.standard_normal((T, N_JOINTS, 3)) * white_sd[:, None]
+        factor = np.where(np.asarray(obs.occluded)[:, s, :, None], noise.occluded_factor, 1.0)
+        error = quat_from_rotvec(factor * (slow + white))
+        world = np.where(np.asarray(obs.mirrored)[:, s, None, None], mirrored_frames, truth)
+        seen = quat_multiply(sensor_from_world[s], quat_multiply(world, error))
+        tracked = np.asarray(obs.tracked)[:, s] & np.isfinite(np.asarray(obs.positions)[:, s]).all(axis=(-1, -2))
+        out[:, s] = np.where(tracked[:, None, None], seen, np.nan)
+    return out
+
+
+# The BVH segment whose rotation carries each k4abt joint's frame (its bone, and the twist about it); None for
+# the derived joints (copied from their source).
+_BVH_SEGMENT: dict[str, str] = {
+    "PELVIS": "hips",
+    "SPINE_NAVEL": "spine_low",
+    "SPINE_CHEST": "spine_high",
+    "NECK": "neck",
+    "HEAD": "head",
+    **{
+        f"{joint}_{side.upper()}": f"{side[0].lower()}_{segment}"
+        for side in ("Left", "Right")
+        for joint, segment in (
+            ("CLAVICLE", "collar"),
+            ("SHOULDER", "shoulder"),
+            ("ELBOW", "elbow"),
+            ("WRIST", "wrist"),
+            ("HAND", "hand"),
+            ("THUMB", "wrist"),
+            ("HIP", "upleg"),
+            ("KNEE", "knee"),
+            ("ANKLE", "ankle"),
+        )
+    },
+}
+_BVH_TO_WORLD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # as load_bvh: (x, y, z) -> (z, x, y)
+
+
+def load_bvh_with_orientations(
+    path: str | Path,
+    *,
+    fps_out: float = 30.0,
+    position_mm: tuple[float, float] = (0.0, 0.0),
+    facing_deg_: float = 0.0,
+    unit_mm: float = CMU_UNIT_MM,
+) -> tuple[Motion, np.ndarray]:
+    """A CMU BVH take as :func:`skelfuse.sim.bvh.load_bvh` loads it, and its true joint orientations.
+
+    Each k4abt joint's frame rides on one BVH segment (``_BVH_SEGMENT``): at the file's T-pose (frame 0,
+    which the CMU conversion prepends) the offset between that segment's rotation and the k4abt frame built
+    from the T-pose's bones and body (:func:`~skelfuse.fusion.orientation.body_hint_frames`) is fixed; in every
+    frame the segment's rotation times that offset gives the frame, swung onto the k4abt bone exactly (the
+    k4abt points are not all on the segment's axis). Rotations are taken at the nearest source frame (CMU's
+    120 Hz to 30 Hz is exact).
+
+    Returns
+    -------
+    motion : Motion, the same as ``load_bvh(path, fps_out=..., position_mm=..., facing_deg=..., unit_mm=...)``.
+    orientations : (T, 32, 4) float64 world quaternions w, x, y, z, k4abt convention.
+
+    Raises
+    ------
+    DataError
+        As :func:`~skelfuse.sim.bvh.load_bvh`.
+    """
+    path = Path(path)
+    motion = load_bvh(path, fps_out=fps_out, position_mm=position_mm, facing_deg=facing_deg_, unit_mm=unit_mm)
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read BVH file {path}: {exc}") from None
+    bvh = parse_bvh(text, source=str(path))
+    role = _roles(bvh, str(path))
+    world_rest = bvh_to_k4abt(bvh, source=str(path), unit_mm=unit_mm)[..., [2, 0, 1]]  # all frames, T-pose first
+    _, rotations = forward_kinematics(bvh)
+    joints = [J[name] for name in _BVH_SEGMENT]
+    segments = [role[_BVH_SEGMENT[name]] for name in _BVH_SEGMENT]
+    segment_quats = quat_from_matrix(_BVH_TO_WORLD @ rotations[:, segments])  # (F, n, 4), world axes
+    rest = body_hint_frames(world_rest[0])[joints]
+    offset = quat_multiply(quat_conjugate(segment_quats[0]), rest)  # fixed per joint
+    fps_in = 1.0 / bvh.frame_time_s
+    if abs(fps_in - round(fps_in)) < 1e-4 * fps_in:
+        fps_in = float(round(fps_in))
+    source = 1 + np.rint(np.arange(motion.n_frames) * fps_in / motion.fps).astype(np.int64)
+    source = np.minimum(source, segment_quats.shape[0] - 1)
+    # load_bvh turned the take about z so that its first frame faces facing_deg_: the same turn here.
+    unturned = Motion(motion.name, fps_in, world_rest[1:]).resampled(fps_out).positions[0]
+    turn = np.radians(facing_deg_ - float(facing_deg(unturned)))
+    q_turn = np.array([np.cos(turn / 2), 0.0, 0.0, np.sin(turn / 2)])
+    quats = np.full((motion.n_frames, N_JOINTS, 4), np.nan)
+    quats[:, joints] = quat_multiply(q_turn, quat_multiply(segment_quats[source], offset))
+    aims = aim_directions(motion.positions)
+    return motion, apply_derived(swing_onto_aims(quats, aims))

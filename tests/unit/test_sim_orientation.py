@@ -1,0 +1,99 @@
+"""The simulator's true orientations and the views' simulated orientations (sim/orientation.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skelfuse.fusion.orientation import aim_directions, quat_angle_deg, quat_rotate, views_to_world
+from skelfuse.schema.skeleton import BODY_REGIONS, ORIENTATION_AIMED, ORIENTATION_DERIVED
+from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.orientation import ARM_TWIST_DEG, OrientationNoise, observe_orientations, truth_orientations
+from skelfuse.sim.rig import paper_rig
+
+
+@pytest.fixture(scope="module")
+def take():
+    motion = make_gesture("walking", duration_s=3.0, fps=30.0, facing_deg=180.0, seed=5)
+    obs = simulate(motion, list(paper_rig(4)), load_profile(), seed=6)
+    truth = truth_orientations(obs.truth, 30.0, seed=6)
+    return obs, truth
+
+
+def test_truth_swing_follows_the_true_bones_exactly(take):
+    obs, truth = take
+    assert np.isfinite(truth).all()
+    assert np.allclose(np.linalg.norm(truth, axis=-1), 1.0, atol=1e-12)
+    x_axes = quat_rotate(truth, np.array([1.0, 0.0, 0.0]))
+    aims = aim_directions(obs.truth)
+    assert np.abs(x_axes[:, ORIENTATION_AIMED] - aims[:, ORIENTATION_AIMED]).max() < 1e-9
+    for joint, (source, offset) in ORIENTATION_DERIVED.items():
+        expected = quat_angle_deg(truth[:, joint], truth[:, source])
+        assert np.allclose(expected, quat_angle_deg(np.array([1.0, 0, 0, 0]), np.array(offset)), atol=1e-5)
+
+
+def test_truth_arms_roll_about_their_bones(take):
+    obs, truth = take
+    from skelfuse.fusion.orientation import body_hint_frames
+
+    roll = quat_angle_deg(truth, body_hint_frames(obs.truth))
+    arms = BODY_REGIONS["arm"]
+    assert 5.0 < np.median(roll[:, arms]) <= ARM_TWIST_DEG + 1e-9
+    assert np.allclose(roll[:, BODY_REGIONS["torso"]], 0.0, atol=1e-5)  # arccos near 1: ~1e-6 deg
+
+
+def test_views_report_truth_through_their_pose_with_the_modelled_noise(take):
+    obs, truth = take
+    views = observe_orientations(obs, truth, seed=7)
+    assert views.shape == (obs.n_frames, obs.n_sensors, 32, 4) and views.dtype == np.float32
+    world = views_to_world(views, obs.world_from_sensor)  # the true poses: only the tracker error remains
+    error = quat_angle_deg(world, truth[:, None])
+    tracked = obs.tracked & ~obs.mirrored
+    assert np.isnan(error[~obs.tracked]).all()
+    torso = error[:, :, BODY_REGIONS["torso"]][tracked]
+    arm = error[:, :, BODY_REGIONS["arm"]][tracked]
+    assert 1.0 < np.median(torso) < 10.0 < np.median(arm) * 2.0 < 60.0
+    assert np.median(torso) < np.median(arm)
+    # Mirrored frames face the other way: the torso about 180 deg off.
+    if obs.mirrored.any():
+        assert np.median(error[:, :, BODY_REGIONS["torso"]][obs.mirrored & obs.tracked]) > 150.0
+    # Deterministic in the seed; no noise gives the truth back.
+    np.testing.assert_array_equal(views, observe_orientations(obs, truth, seed=7))
+    quiet = OrientationNoise(
+        slow_sigma_deg=dict.fromkeys(BODY_REGIONS, 0.0), white_sigma_deg=dict.fromkeys(BODY_REGIONS, 0.0)
+    )
+    exact = views_to_world(observe_orientations(obs, truth, seed=7, noise=quiet), obs.world_from_sensor)
+    clean = obs.tracked & ~obs.mirrored
+    assert np.nanmax(quat_angle_deg(exact, truth[:, None])[clean]) < 0.01  # float32 rounding
+
+
+CMU = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmu-mocap"
+
+
+@pytest.mark.skipif(not (CMU / "131_03.bvh").is_file(), reason=f"CMU BVH files not found at {CMU}")
+def test_bvh_truth_follows_the_recorded_segment_rotations():
+    """BVH truth: swing on the k4abt bones to 1e-9, the torso's frame faces where the body faces, and the
+    arms' twist is the recorded one (it moves, unlike a frame built from the body alone)."""
+    from skelfuse.fusion.orientation import apply_derived, body_hint_frames
+    from skelfuse.schema.skeleton import J
+    from skelfuse.sim.bvh import load_bvh
+    from skelfuse.sim.motion import body_facing
+    from skelfuse.sim.orientation import load_bvh_with_orientations
+
+    motion, truth = load_bvh_with_orientations(CMU / "131_03.bvh", facing_deg_=30.0)
+    np.testing.assert_array_equal(motion.positions, load_bvh(CMU / "131_03.bvh", facing_deg=30.0).positions)
+    assert truth.shape == (motion.n_frames, 32, 4) and np.isfinite(truth).all()
+    x_axes = quat_rotate(truth, np.array([1.0, 0.0, 0.0]))
+    aims = aim_directions(motion.positions)
+    assert np.abs(x_axes[:, ORIENTATION_AIMED] - aims[:, ORIENTATION_AIMED]).max() < 1e-9
+    pelvis_y = quat_rotate(truth[:, J["PELVIS"]], np.array([0.0, 1.0, 0.0]))
+    pelvis_y[:, 2] = 0.0
+    pelvis_y /= np.linalg.norm(pelvis_y, axis=-1, keepdims=True)
+    facing = np.degrees(np.arccos(np.clip(np.sum(pelvis_y * body_facing(motion.positions), axis=-1), -1, 1)))
+    assert np.median(facing) < 20.0  # measured 10.9 deg
+    from_body = quat_angle_deg(truth, apply_derived(body_hint_frames(motion.positions)))
+    assert np.median(from_body[:, BODY_REGIONS["torso"]]) < 15.0  # measured 6.6 deg
+    assert np.median(from_body[:, BODY_REGIONS["arm"]]) > 20.0  # measured 42 deg: the recorded arm roll
