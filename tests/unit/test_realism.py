@@ -113,3 +113,18 @@ def test_sim_check_refuses_a_missing_real_take(tmp_path: Path, capsys: pytest.Ca
     code = main(["sim", "check", "--seeds", "1", "--duration", "2", "--data", str(tmp_path), "-q"])
     assert code == 2
     assert "--no-real" in capsys.readouterr().err
+
+
+def test_default_profile_lands_where_the_issue_found_it_outside() -> None:
+    """The statistics issue 11 measured outside the real range with the old profile, on two 20 s two-view squat
+    takes: each is now inside, or at least on the real side of where it was (old value in the comment)."""
+    result = realism.run_sim_check(load_profile(), seeds=(0, 1), duration_s=20.0)
+    value = {(r.statistic, r.group): r.value for r in result.rows}
+    assert value[("medium_rate", "torso")] >= 0.98  # was 0.96: thighs hid the pelvis and hips in a squat
+    assert value[("hand_partly_none", "hand")] <= 0.2  # was 0.72-0.80: NONE drawn per joint
+    assert value[("rho", "face")] < 0.8  # was 0.85-0.90, real 0.69-0.74
+    assert value[("scale_rho", "body")] < 0.93  # was 0.97, real 0.82-0.93
+    assert value[("low_episode_max", "knee")] >= 4  # was 1: leg LOW drawn per frame
+    assert value[("jump_low", "knee")] > 0.0  # was none: leg LOW only relabelled
+    assert value[("offset", "hand")] > 30.0  # was 22, real about 48
+    assert result.n_inside >= 40
