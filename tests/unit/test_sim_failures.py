@@ -83,3 +83,19 @@ def test_flip_reconverge_starts_each_burst_off_target() -> None:
     assert starts.size >= 2
     ids = obs.body_ids[:, 1]
     assert all(ids[s] != ids[s - 1] for s in starts)
+
+
+def test_partial_view_drags_the_visible_joints() -> None:
+    # a sensor 1.2 m away, low: the feet are below its field of view while the upper body is in it
+    from skelfuse.sim.rig import look_at
+
+    motion = make_gesture("hands_up_down", duration_s=4.0, seed=0)
+    near = [look_at("near", np.array([1200.0, 0.0, 1400.0]), np.array([0.0, 0.0, 1300.0]))]
+    plain = simulate(motion, near, BASE, seed=8)
+    dragged = simulate(motion, near, family_profile(BASE, "partial_view"), seed=8)
+    outside = plain.confidence[:, 0] == 0  # NONE: out of view (and the hands' NONE episodes)
+    assert outside[:, [20, 24]].mean() > 0.9  # the ankles are out of view
+    head = 26
+    err_plain = np.linalg.norm(_world(plain)[:, head] - plain.truth[:, head], axis=-1).mean()
+    err_dragged = np.linalg.norm(_world(dragged)[:, head] - dragged.truth[:, head], axis=-1).mean()
+    assert err_dragged > err_plain + 15.0  # the visible head is pulled along with the guessed legs

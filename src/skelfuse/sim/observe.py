@@ -161,6 +161,7 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "noise_gain_per_m",
         "noise_gain_per_mps",
         "lag_frames",
+        "partial_view_drag",
     ),
 }
 """TOML section of every SimProfile field (sections only organise the file)."""
@@ -254,6 +255,7 @@ class SimProfile:
     noise_gain_per_m: float = 0.0  # slow and white error grow by this fraction per metre beyond 2 m
     noise_gain_per_mps: float = 0.0  # ... and by this fraction per m/s of the joint's speed
     lag_frames: float = 0.0  # the tracker reports each joint this many frames late (all views)
+    partial_view_drag: float = 0.0  # body partly out of view: the rest moves this fraction of the out-of-view guesses
 
     def __post_init__(self) -> None:
         _validate(self, "<SimProfile>")
@@ -282,6 +284,7 @@ _PROBABILITIES = (
     "limb_swap_prob",
     "limb_swap_off_prob",
     "side_flip_prob",
+    "partial_view_drag",
 )
 _RHOS = ("occluded_rho", "hand_none_rho", "scale_slow_rho")
 _FLAGS = ("flip_restarts_fit",)
@@ -786,6 +789,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         lost = leg_low_episodes(rngs["confidence"], n, profile) & ~hidden
         gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
         noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile, lost, gain)
+        noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
         fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile)
         labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
 
@@ -963,6 +967,22 @@ def _timestamps(
     return np.where(dropped, -1, np.rint(device).astype(np.int64)), np.where(
         dropped, -1, np.rint(host).astype(np.int64)
     )
+
+
+def _partial_view_drag(noisy: np.ndarray, lab: np.ndarray, in_view: np.ndarray, drag: float) -> np.ndarray:
+    """A body partly outside the view: the fit to the visible part is dragged by the guessed part. Every in-view
+    joint moves by ``drag`` times the mean error of the out-of-view joints of its frame (failure family
+    "partial_view"); frames with the whole body in view are left alone."""
+    if drag <= 0:
+        return noisy
+    outside = ~in_view
+    count = outside.sum(axis=1)
+    partly = (count > 0) & (count < N_JOINTS)
+    if not partly.any():
+        return noisy
+    error = np.where(outside[:, :, None], noisy - lab, 0.0).sum(axis=1) / np.maximum(count, 1)[:, None]
+    shift = drag * error[:, None, :] * (partly[:, None] & in_view)[:, :, None]
+    return noisy + shift
 
 
 def _noise_gain(lab: np.ndarray, speed_mps: np.ndarray, profile: SimProfile) -> np.ndarray | None:
