@@ -77,3 +77,21 @@ def test_placement_honours_facing_and_position() -> None:
     pelvis_xy = motion.positions[:, J["PELVIS"], :2]
     centre = 0.5 * (pelvis_xy.min(axis=0) + pelvis_xy.max(axis=0))
     np.testing.assert_allclose(centre, [500.0, -300.0], atol=1e-6)
+
+
+def test_segment_and_repeat_cut_the_squats_out() -> None:
+    whole = load_bvh(DATA / "13_29.bvh", fps_out=30.0)
+    squats = load_bvh(DATA / "13_29.bvh", fps_out=30.0, start_s=31.5, end_s=37.5)
+    assert squats.duration_s == pytest.approx(6.0, abs=0.05)
+    # the README's squats: the pelvis drops by more than 200 mm in the segment, not in the first seconds
+    drop = squats.positions[:, J["PELVIS"], 2].max() - squats.positions[:, J["PELVIS"], 2].min()
+    assert drop > 200.0
+    assert whole.positions[:60, J["PELVIS"], 2].std() < squats.positions[:, J["PELVIS"], 2].std()
+    twice = load_bvh(DATA / "13_29.bvh", fps_out=30.0, start_s=31.5, end_s=37.5, repeat=2)
+    assert twice.n_frames == pytest.approx(2 * squats.n_frames, abs=2)
+    half = squats.n_frames
+    first, second = twice.positions[:half, J["PELVIS"], 2], twice.positions[half:, J["PELVIS"], 2]
+    assert second.min() == pytest.approx(first.min(), abs=5.0)  # the same squats again
+    assert second.max() == pytest.approx(first.max(), abs=5.0)
+    with pytest.raises(ValueError, match="segment"):
+        load_bvh(DATA / "13_29.bvh", start_s=100.0)

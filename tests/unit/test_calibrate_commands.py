@@ -186,18 +186,18 @@ def test_sphere_bad_inputs(tmp_path: Path, ball_folder: Path, plate_folder: Path
 # ------------------------------------------------------------------------------------------ skeleton takes
 
 
-@pytest.fixture(scope="module")
-def walk(tmp_path_factory):
-    """A 20 s simulated walk in the paper's 4-sensor rig, recorded as `skelfuse record` would write it."""
-    obs = simulate(make_gesture("walking", duration_s=20, seed=3, facing_deg=30), paper_rig(4), load_profile(), seed=3)
-    path = tmp_path_factory.mktemp("walk") / "walk.mcap"
+def _record(obs, path: Path, late_frames: dict[str, int] | None = None) -> Path:
+    """Write simulated observations as `skelfuse record` would; ``late_frames`` delays a sensor's skeletons by
+    that many frames (its timestamps unchanged): a sensor out of sync."""
+    late_frames = late_frames or {}
     with RecordingWriter(path, rig="lab", sensor_ids=obs.sensor_ids) as writer:
         for t in range(obs.n_frames):
             for s, sensor_id in enumerate(obs.sensor_ids):
                 if obs.dropped[t, s]:
                     continue
-                pos = obs.positions[t, s]
-                tracked = bool(obs.tracked[t, s] and np.isfinite(pos).all())
+                k = max(t - late_frames.get(sensor_id, 0), 0)
+                pos = obs.positions[k, s]
+                tracked = bool(obs.tracked[k, s] and np.isfinite(pos).all())
                 n = 1 if tracked else 0
                 orientations = np.zeros((n, N_JOINTS, 4), np.float32)
                 orientations[..., 0] = 1.0
@@ -210,12 +210,19 @@ def walk(tmp_path_factory):
                         body_ids=np.arange(n, dtype=np.uint32),
                         positions=(pos[None] if tracked else np.zeros((0, N_JOINTS, 3))).astype(np.float32),
                         orientations=orientations,
-                        confidence=(obs.confidence[t, s][None] if tracked else np.zeros((0, N_JOINTS))).astype(
+                        confidence=(obs.confidence[k, s][None] if tracked else np.zeros((0, N_JOINTS))).astype(
                             np.uint8
                         ),
                     )
                 )
-    return obs, path
+    return path
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    """A 20 s simulated walk in the paper's 4-sensor rig, recorded as `skelfuse record` would write it."""
+    obs = simulate(make_gesture("walking", duration_s=20, seed=3, facing_deg=30), paper_rig(4), load_profile(), seed=3)
+    return obs, _record(obs, tmp_path_factory.mktemp("walk") / "walk.mcap")
 
 
 SUBJECT_WORLD = np.array([0.0, 0.0, 900.0])  # the capture-area centre: translation errors are measured there
@@ -286,17 +293,18 @@ def test_skeleton_report_is_printed(walk, tmp_path: Path, capsys) -> None:
 
 
 def test_bad_verdict_exits_3_and_keeps_the_file(walk, tmp_path: Path, capsys) -> None:
-    _, recording = walk
+    obs, recording = walk
     out = tmp_path / "c.toml"
     out.write_text("# the good calibration\n")
-    # 15 frames (0.5 s): too few points for a trustworthy pose.
-    code = _run(["skeleton", "--recording", str(recording), "-o", str(out), "--max-frames", "15", "-q"])
+    # One sensor's skeletons half a second late: its corresponding points are wrong, no rigid fit explains them.
+    late = _record(obs, tmp_path / "late.mcap", late_frames={"capture_2": 15})
+    code = _run(["skeleton", "--recording", str(late), "-o", str(out), "--max-frames", "150", "-q"])
     assert code == EXIT_ATTENTION
     printed = capsys.readouterr().out
     assert "bad" in printed and "not written" in printed and "record a longer walk" in printed
     assert out.read_text() == "# the good calibration\n"
     assert (
-        _run(["skeleton", "--recording", str(recording), "-o", str(out), "--max-frames", "15", "-q", "--force"])
+        _run(["skeleton", "--recording", str(late), "-o", str(out), "--max-frames", "150", "-q", "--force"])
         == EXIT_ATTENTION
     )
     assert read_calibration(out).method == "skeleton"

@@ -60,6 +60,22 @@ def test_paper_kalman_equals_filterpy_with_nan_gaps():
             np.testing.assert_allclose(Ps[t, j, 0] * np.eye(3), kf.P, rtol=0, atol=1e-12)
 
 
+def test_paper_kalman_posterior_output_equals_filterpy_after_update():
+    rng = np.random.default_rng(SEED + 1)
+    params = FusionParams(filter="paper_kalman", max_coast_frames=1000, kalman_output="posterior")
+    z = _measurements(rng, gap_prob=0.0)
+    outs, _, _ = _run_batched(params, z, np.ones((T, N), int), np.full(T, 1 / 30))
+    for j in range(N):
+        kf = KalmanFilter(dim_x=3, dim_z=3)
+        kf.F, kf.H = np.eye(3), np.eye(3)
+        kf.Q, kf.R, kf.P = 0.01 * np.eye(3), 1.0 * np.eye(3), 1.0 * np.eye(3)
+        kf.x = z[0, j].reshape(3, 1).copy()
+        for t in range(1, T):
+            kf.predict()
+            kf.update(z[t, j].reshape(3, 1))
+            np.testing.assert_allclose(outs[t, j], kf.x[:, 0], rtol=0, atol=1e-12)  # output = posterior
+
+
 def test_paper_kalman_steady_state_gain_is_about_0095():
     params = FusionParams(filter="paper_kalman")
     x, P, coast = init_filter_state(1)

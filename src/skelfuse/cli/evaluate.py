@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.robustness import add_robustness_parser
 from skelfuse.eval import paper, real, report
 from skelfuse.eval.tracking import run_tracking_eval
 
@@ -67,6 +68,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_paper(eval_commands)
     _add_real(eval_commands)
     _add_tracking(eval_commands)
+    add_robustness_parser(eval_commands)
 
 
 def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

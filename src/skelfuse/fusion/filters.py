@@ -179,8 +179,12 @@ def _paper_kalman_step(
     # Measured: x^ = x~ + K (z - H x~); new track: z; coasting: x~ = x^ (A = I).
     new_pos = np.where(measured[:, None], pos + gain[:, None] * (z - pos), np.where(started[:, None], z, pos))
     new_p = np.where(measured, (1.0 - gain) * p_pred, np.where(started, params.kalman_p0_mm2, p_pred))
-    # Output the prediction x~ = x^_{t-1} (eq. 9); a new track outputs its first measurement.
-    out = np.where(alive[:, None], np.where(started[:, None], z, pos), np.nan)
+    # Output the prediction x~ = x^_{t-1} (eq. 9); a new track outputs its first measurement. Or, with
+    # kalman_output = "posterior", the state after this frame's update.
+    if params.kalman_output == "posterior":
+        out = np.where(alive[:, None], new_pos, np.nan)
+    else:
+        out = np.where(alive[:, None], np.where(started[:, None], z, pos), np.nan)
     # Velocity and the off-diagonal covariance stay 0 (new_pos and new_p are finite: z only where present).
     new_x = new_pos[:, None, :] * _POSITION_ROW
     new_P = new_p[:, None] * _P_POSITION

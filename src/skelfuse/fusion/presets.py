@@ -38,6 +38,7 @@ RealignMode = Literal["paper", "body", "temporal"]
 MergeMode = Literal["dbscan", "average"]
 FilterKind = Literal["paper_kalman", "cv_kalman", "alpha_beta"]
 PreviousCandidate = Literal["merged", "predicted"]
+KalmanOutput = Literal["predicted", "posterior"]
 
 REALIGN_MODES: tuple[str, ...] = ("paper", "body", "temporal")
 MERGE_MODES: tuple[str, ...] = ("dbscan", "average")
@@ -102,6 +103,9 @@ class FusionParams:
         "paper_kalman" measurement noise variance per axis, mm^2 (paper: 1.0).
     kalman_p0_mm2 : float
         "paper_kalman" initial state variance per axis, mm^2 (the paper does not say; filterpy's default 1).
+    kalman_output : {"predicted", "posterior"}
+        "paper_kalman" output: "predicted", the paper's literal eq. 9 (``x~_t = x^_{t-1}``, one frame behind the
+        measurement it has); "posterior", the filtered state after this frame's update (the fairer reading).
     cv_accel_sigma_mm_s2 : float
         "cv_kalman" white-noise acceleration standard deviation, mm/s^2 (discrete white noise model).
     cv_meas_sigma_mm : float
@@ -142,6 +146,7 @@ class FusionParams:
     kalman_q_mm2: float = 0.01
     kalman_r_mm2: float = 1.0
     kalman_p0_mm2: float = 1.0
+    kalman_output: KalmanOutput = "predicted"
     cv_accel_sigma_mm_s2: float = 5000.0
     cv_meas_sigma_mm: float = 15.0
     cv_velocity0_sigma_mm_s: float = 500.0
@@ -161,6 +166,7 @@ class FusionParams:
         _one_of("merge", self.merge, MERGE_MODES)
         _one_of("filter", self.filter, (*FILTER_KINDS, None))
         _one_of("previous_candidate", self.previous_candidate, ("merged", "predicted"))
+        _one_of("kalman_output", self.kalman_output, ("predicted", "posterior"))
         if int(self.recovery_frames) < 1:
             raise ValueError(f"FusionParams.recovery_frames must be >= 1, got {self.recovery_frames!r}")
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:

@@ -380,6 +380,9 @@ def load_bvh(
     facing_deg: float = 0.0,
     unit_mm: float = CMU_UNIT_MM,
     drop_first_frame: bool = True,
+    start_s: float = 0.0,
+    end_s: float | None = None,
+    repeat: int = 1,
 ) -> Motion:
     """Load a CMU BVH file as a k4abt :class:`Motion` in the world frame.
 
@@ -391,6 +394,11 @@ def load_bvh(
     facing_deg : direction, degrees counter-clockwise from world +x, the subject faces in its first frame.
     unit_mm : millimetres per BVH unit (CMU: 25.4 / 0.45 ≈ 56.44).
     drop_first_frame : drop frame 0, the T-pose the CMU conversion prepends.
+    start_s, end_s : keep only this segment of the take, s from its first (kept) frame; None: to the end.
+        E.g. 13_29.bvh's squats are ``start_s=31.5, end_s=37.5``.
+    repeat : play the segment this many times in a row (a longer take of a repeated movement). Each copy
+        starts where the recording's segment starts, so the seam jumps by however far the segment's last
+        frame is from its first: pick a segment that ends about where it begins.
 
     Returns
     -------
@@ -401,7 +409,11 @@ def load_bvh(
     ------
     DataError
         The file is missing, unreadable, or not a CMU-style BVH.
+    ValueError
+        ``repeat`` below 1, or a segment with fewer than two frames.
     """
+    if repeat < 1:
+        raise ValueError(f"repeat must be at least 1, got {repeat}")
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8", errors="strict")
@@ -418,7 +430,15 @@ def load_bvh(
     fps_in = 1.0 / bvh.frame_time_s
     if abs(fps_in - round(fps_in)) < 1e-4 * fps_in:  # CMU writes 1/120 s as ".0083333"
         fps_in = float(round(fps_in))
-    motion = Motion(path.stem, fps_in, positions).resampled(fps_out)
+    first = int(np.ceil(start_s * fps_in - 1e-9))
+    last = positions.shape[0] if end_s is None else int(np.floor(end_s * fps_in + 1e-9)) + 1
+    segment = positions[max(first, 0) : last]
+    if segment.shape[0] < 2:
+        raise ValueError(
+            f"{path}: the segment {start_s}..{end_s} s holds {segment.shape[0]} frame(s) of a "
+            f"{positions.shape[0] / fps_in:.1f} s take; pick start_s/end_s inside it"
+        )
+    motion = Motion(path.stem, fps_in, np.concatenate([segment] * repeat)).resampled(fps_out)
     return Motion(motion.name, motion.fps, _place(motion.positions, position_mm=position_mm, facing_deg_=facing_deg))
 
 

@@ -203,19 +203,38 @@ def _jump(a: _Angles, t: np.ndarray, rng: np.random.Generator, fps: float) -> di
     return {"plant": "both", "lift": lift}
 
 
+SQUAT_ARMS = ("forward", "crossed", "hanging")
+"""What the arms do in a squat repetition, drawn per repetition: raised forward for balance, folded in front of
+the chest (the real takes' occluder: DESIGN.md "arms held in front of the chest double the torso and leg
+disagreement"), or hanging."""
+
+
 def _squat(a: _Angles, t: np.ndarray, rng: np.random.Generator, fps: float) -> dict:
     period = 3.5 * rng.uniform(0.88, 1.12)
     depth = _raised_cosine(t / period) * rng.uniform(0.85, 1.0)
     a["pitch"] = 35.0 * depth
     a["navel_flex"] = -8.0 * depth
+    n_reps = int(np.floor(t[-1] / period)) + 1
+    styles = rng.integers(0, len(SQUAT_ARMS), n_reps)
+    rep = np.minimum(np.floor(t / period).astype(np.int64), n_reps - 1)
+    blend = _smoothstep((t - rep * period) / (0.25 * period))  # change style while standing
+    previous = styles[np.maximum(rep - 1, 0)]
+    for key, per_style in (
+        ("flex", lambda d: np.stack([80.0 * d, 65.0 + 0.0 * d, 10.0 * d])),
+        ("elbow", lambda d: np.stack([10.0 + 10.0 * d, 120.0 + 0.0 * d, 10.0 + 0.0 * d])),
+        ("twist", lambda d: np.stack([0.0 * d, -80.0 + 0.0 * d, 0.0 * d])),
+        ("add", lambda d: np.stack([0.0 * d, 15.0 + 0.0 * d, 0.0 * d])),
+        ("abd", lambda d: np.stack([8.0 + 0.0 * d, 0.0 * d, 8.0 + 0.0 * d])),
+    ):
+        table = per_style(depth)  # (styles, T)
+        track = table[previous, np.arange(t.size)] * (1 - blend) + table[styles[rep], np.arange(t.size)] * blend
+        for s in "lr":
+            a[f"{s}_{key}"] = track
     for s in "lr":
         a[f"{s}_hip_flex"] = 115.0 * depth
         a[f"{s}_knee"] = 105.0 * depth
         a[f"{s}_hip_abd"] = 8.0 * depth
         a[f"{s}_ankle"] = _foot_flat(a, s, a["pitch"])
-        a[f"{s}_flex"] = 80.0 * depth  # arms forward for balance
-        a[f"{s}_elbow"] = 10.0 + 10.0 * depth
-        a[f"{s}_abd"] = 8.0
     return {"plant": "both"}
 
 

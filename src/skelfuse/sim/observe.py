@@ -76,8 +76,14 @@ _TORSO_CAPSULE = np.array([c[0] in ("spine", "torso_side") for c in CAPSULES])
 _CAN_HIDE = ~(np.isin(np.arange(N_JOINTS), BODY_REGIONS["torso"])[:, None] & _TORSO_CAPSULE)
 """(32, C) whether capsule c can hide joint j: torso joints lie inside the trunk, which the tracker sees through
 its surface, so only limbs and the head can hide them."""
-_HAND_JOINTS = BODY_REGIONS["hand"]
-_LEG_JOINTS = np.concatenate([BODY_REGIONS["knee"], BODY_REGIONS["foot"]])
+_HAND_SIDES = tuple(np.array([J[f"{n}_{side}"] for n in ("HAND", "HANDTIP", "THUMB")]) for side in ("LEFT", "RIGHT"))
+_LEG_CHAINS = tuple(np.array([J[f"{n}_{side}"] for n in ("KNEE", "ANKLE", "FOOT")]) for side in ("LEFT", "RIGHT"))
+_TORSO_JOINTS_MASK = np.isin(np.arange(N_JOINTS), BODY_REGIONS["torso"])
+_LIMB_CHAINS = tuple(
+    tuple(np.array([J[f"{name}_{side}"] for name in names]) for side in ("LEFT", "RIGHT"))
+    for names in (("ELBOW", "WRIST", "HAND", "HANDTIP", "THUMB"), ("KNEE", "ANKLE", "FOOT"))
+)
+"""(left, right) joint chains of the arms and of the legs: what a single-limb left/right swap exchanges."""
 _FACE_JOINTS = BODY_REGIONS["face"]
 _FOOT_TIPS = np.array([J["FOOT_LEFT"], J["FOOT_RIGHT"]])
 
@@ -117,6 +123,7 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "occluded_sigma_mm",
         "occluded_jump_prob",
         "occluded_pull",
+        "torso_occluded_low_prob",
     ),
     "mirroring": (
         "away_threshold_deg",
@@ -126,7 +133,14 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "flip_off_prob_away",
         "flip_off_prob_front",
     ),
-    "confidence": ("hand_none_fraction_min", "hand_none_fraction_max", "hand_none_rho", "leg_low_prob"),
+    "confidence": (
+        "hand_none_fraction_min",
+        "hand_none_fraction_max",
+        "hand_none_rho",
+        "leg_low_prob",
+        "leg_low_length_alpha",
+        "leg_low_max_frames",
+    ),
     "scale": (
         "scale_view_sd",
         "scale_view_max",
@@ -136,6 +150,19 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "scale_max_shrink",
     ),
     "calibration": ("calibration_rotation_sd_deg", "calibration_translation_sd_mm"),
+    "failures": (
+        "limb_swap_prob",
+        "limb_swap_off_prob",
+        "side_flip_prob",
+        "side_flip_min_deg",
+        "flip_restarts_fit",
+        "common_offset_sigma_mm",
+        "common_slow_sigma_mm",
+        "noise_gain_per_m",
+        "noise_gain_per_mps",
+        "lag_frames",
+        "partial_view_drag",
+    ),
 }
 """TOML section of every SimProfile field (sections only organise the file)."""
 
@@ -151,7 +178,7 @@ class SimProfile:
     fps: float = 30.0  # device frame rate, Hz
     frame_interval_jitter_us: float = 12.0  # SD of the device frame interval, us
     device_time_start_us: float = 1_000_000.0  # master device timestamp of frame 0, us
-    subordinate_delay_us: float = 160.0  # depth delay per subordinate index, us
+    subordinate_delay_us: float = 1000.0  # depth delay per subordinate index, us
     subordinate_delay_spread_us: float = 67.0  # subordinate arrives up to this much early, us
     dropped_frame_prob: float = 0.000167  # per sensor and frame
     host_epoch_s: float = 1.7e9  # host clock at device time 0, s
@@ -164,10 +191,10 @@ class SimProfile:
     convergence_sigma_mm: float = 40.0  # per-axis SD of the initial error, mm
     # [noise]
     slow_rho: dict[str, float] = field(
-        default_factory=_groups(torso=0.92, head=0.92, face=0.9, arm=0.88, hand=0.85, knee=0.9, foot=0.9)
+        default_factory=_groups(torso=0.92, head=0.92, face=0.5, arm=0.88, hand=0.85, knee=0.9, foot=0.9)
     )  # AR(1) coefficient per frame
     slow_sigma_mm: dict[str, float] = field(
-        default_factory=_groups(torso=3.0, head=3.5, face=8.0, arm=9.0, hand=12.0, knee=6.0, foot=9.0)
+        default_factory=_groups(torso=3.0, head=2.5, face=8.0, arm=6.0, hand=12.0, knee=5.0, foot=5.5)
     )  # stationary SD of the slow error per axis, mm
     white_sigma_mm: dict[str, float] = field(
         default_factory=_groups(torso=1.5, head=1.5, face=2.0, arm=2.5, hand=3.5, knee=2.0, foot=2.5)
@@ -176,7 +203,7 @@ class SimProfile:
     jump_prob: float = 0.001  # per joint and frame, impulse into the slow error
     jump_sigma_mm: float = 60.0  # per-axis SD of an impulse, mm
     offset_sigma_mm: dict[str, float] = field(
-        default_factory=_groups(torso=2.0, head=2.5, face=11.0, arm=9.0, hand=15.0, knee=10.0, foot=17.0)
+        default_factory=_groups(torso=2.0, head=2.5, face=11.0, arm=18.0, hand=30.0, knee=10.0, foot=17.0)
     )  # SD of the constant per-view offset per axis, mm
     # [occlusion]
     capsule_radius_mm: dict[str, float] = field(
@@ -185,13 +212,14 @@ class SimProfile:
         )
     )  # body capsule radii, mm
     occlusion_margin_mm: float = 40.0  # occluder at least this far in front, mm
-    occluded_low_prob: float = 0.7  # P(LOW | occluded)
+    occluded_low_prob: float = 1.0  # P(LOW | occluded)
     occluded_rho: float = 0.9  # AR(1) coefficient of the guess error
     occluded_sigma_mm: dict[str, float] = field(
-        default_factory=_groups(torso=15.0, head=15.0, face=30.0, arm=45.0, hand=50.0, knee=40.0, foot=45.0)
+        default_factory=_groups(torso=8.0, head=15.0, face=30.0, arm=45.0, hand=50.0, knee=40.0, foot=45.0)
     )  # per-axis SD of the guess error, mm
     occluded_jump_prob: float = 0.25  # per frame, the guess is redrawn
     occluded_pull: float = 0.3  # pull towards a hanging-limb default pose
+    torso_occluded_low_prob: float = 0.0  # P(LOW | occluded) for torso joints (the trunk is seen around a limb)
     # [mirroring]
     away_threshold_deg: float = 110.0  # facing-away angle where flips can start
     hysteresis_deg: float = 20.0  # burst may continue down to threshold - this
@@ -203,17 +231,31 @@ class SimProfile:
     hand_none_fraction_min: float = 0.23  # hands NONE fraction, lower bound
     hand_none_fraction_max: float = 1.0  # hands NONE fraction, upper bound
     hand_none_rho: float = 0.9  # temporal correlation of hand NONE episodes
-    leg_low_prob: float = 0.01  # unoccluded leg joint labelled LOW anyway
+    leg_low_prob: float = 0.006  # per frame and leg: a LOW episode of an unoccluded knee/ankle/foot starts
+    leg_low_length_alpha: float = 1.2  # episode length floor(U ** (-1 / alpha)) frames: heavy-tailed
+    leg_low_max_frames: int = 15  # longest episode, frames
     # [scale]
     scale_view_sd: float = 0.015  # SD of a view's size level
     scale_view_max: float = 0.05  # clip of the view level's deviation
-    scale_slow_sd: float = 0.015  # SD of the slow size drift
-    scale_slow_rho: float = 0.98  # AR(1) coefficient of the drift per frame
+    scale_slow_sd: float = 0.008  # SD of the slow size drift
+    scale_slow_rho: float = 0.88  # AR(1) coefficient of the drift per frame
     scale_per_100mm_drop: float = 0.015  # shrink per 100 mm of pelvis drop
     scale_max_shrink: float = 0.11  # maximum pose shrink
     # [calibration]
     calibration_rotation_sd_deg: float = 0.75  # SD of the rotation error angle, deg
     calibration_translation_sd_mm: float = 6.0  # SD of the translation error per axis, mm
+    # [failures] (all off by default; sim/failures.py names the families that switch them on)
+    limb_swap_prob: float = 0.0  # per frame, view not facing away: one limb's left/right labels swap
+    limb_swap_off_prob: float = 0.2  # per frame: such a swap ends
+    side_flip_prob: float = 0.0  # per frame, view seeing the side: a whole-body mirror burst starts
+    side_flip_min_deg: float = 60.0  # side views: facing-away angle from this up to away_threshold_deg
+    flip_restarts_fit: float = 0.0  # 1: a mirror burst restarts the fit (convergence transient), 0: it does not
+    common_offset_sigma_mm: float = 0.0  # per axis: a constant error of the tracker's body model, shared by all views
+    common_slow_sigma_mm: float = 0.0  # per axis: a slow (slow_rho) error shared by all views
+    noise_gain_per_m: float = 0.0  # slow and white error grow by this fraction per metre beyond 2 m
+    noise_gain_per_mps: float = 0.0  # ... and by this fraction per m/s of the joint's speed
+    lag_frames: float = 0.0  # the tracker reports each joint this many frames late (all views)
+    partial_view_drag: float = 0.0  # body partly out of view: the rest moves this fraction of the out-of-view guesses
 
     def __post_init__(self) -> None:
         _validate(self, "<SimProfile>")
@@ -238,8 +280,14 @@ _PROBABILITIES = (
     "hand_none_fraction_min",
     "hand_none_fraction_max",
     "leg_low_prob",
+    "torso_occluded_low_prob",
+    "limb_swap_prob",
+    "limb_swap_off_prob",
+    "side_flip_prob",
+    "partial_view_drag",
 )
 _RHOS = ("occluded_rho", "hand_none_rho", "scale_slow_rho")
+_FLAGS = ("flip_restarts_fit",)
 
 
 def _validate(profile: SimProfile, source: str) -> None:
@@ -266,6 +314,11 @@ def _validate(profile: SimProfile, source: str) -> None:
                 raise bad(f.name, f"must not be negative, got {v!r}")
     if profile.white_dof <= 2.0:
         raise bad("white_dof", f"must be > 2 (finite variance), got {profile.white_dof!r}")
+    for name in _FLAGS:
+        if getattr(profile, name) not in (0.0, 1.0):
+            raise bad(name, f"must be 0 or 1, got {getattr(profile, name)!r}")
+    if profile.leg_low_length_alpha <= 0:
+        raise bad("leg_low_length_alpha", f"must be positive, got {profile.leg_low_length_alpha!r}")
     if profile.fps <= 0:
         raise bad("fps", f"must be positive, got {profile.fps!r}")
     if profile.hand_none_fraction_min > profile.hand_none_fraction_max:
@@ -520,7 +573,11 @@ def mirror_bursts(
     """(T,) bool: left/right flip bursts, a Markov chain driven by the facing angle (with hysteresis)."""
     uniform = rng.random(angle_deg.size)
     away = angle_deg > profile.away_threshold_deg
-    holdable = angle_deg > profile.away_threshold_deg - profile.hysteresis_deg
+    hold_from = profile.away_threshold_deg - profile.hysteresis_deg
+    if profile.side_flip_prob > 0:  # failure family "side_flips": side views flip too, and hold while sideways
+        hold_from = min(hold_from, profile.side_flip_min_deg)
+    holdable = angle_deg > hold_from
+    side = (angle_deg > profile.side_flip_min_deg) & ~away
     free = angle_deg <= profile.front_free_deg
     out = np.zeros(angle_deg.size, dtype=bool)
     state = False
@@ -532,8 +589,47 @@ def mirror_bursts(
             state = uniform[k] >= p_off
         elif away[k]:
             state = uniform[k] < profile.flip_on_prob
+        elif side[k]:
+            state = uniform[k] < profile.side_flip_prob
         out[k] = state
     return out
+
+
+def limb_swap_bursts(
+    rng: np.random.Generator, angle_deg: np.ndarray, eligible: np.ndarray, profile: SimProfile
+) -> np.ndarray:
+    """(T, 2) bool: bursts in which one limb pair (column 0 the arms, 1 the legs) has its left and right labels
+    swapped, in views that do not see the body from behind (failure family "limb_swaps"; the case the paper's
+    per-pair realignment targets). Each starts with ``limb_swap_prob`` per frame and pair and ends with
+    ``limb_swap_off_prob``."""
+    n = angle_deg.size
+    out = np.zeros((n, 2), dtype=bool)
+    if profile.limb_swap_prob <= 0:
+        return out
+    uniform = rng.random((n, 2))
+    allowed = eligible & (angle_deg <= profile.away_threshold_deg)
+    state = np.zeros(2, dtype=bool)
+    for k in range(n):  # a two-state chain per pair, vectorized over the pairs
+        state = np.where(state, uniform[k] >= profile.limb_swap_off_prob, uniform[k] < profile.limb_swap_prob)
+        state &= allowed[k]
+        out[k] = state
+    return out
+
+
+def _swap_limbs(
+    lab: np.ndarray, hidden: np.ndarray, in_view: np.ndarray, swaps: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Swap the left/right labels of the arm (``swaps[:, 0]``) and leg (``swaps[:, 1]``) chains where set."""
+    if not swaps.any():
+        return lab, hidden, in_view
+    lab, hidden, in_view = lab.copy(), hidden.copy(), in_view.copy()
+    for column, (left, right) in enumerate(_LIMB_CHAINS):
+        frames = swaps[:, column]
+        for array in (lab, hidden, in_view):
+            left_values = array[frames][:, left].copy()
+            array[np.ix_(frames, left)] = array[frames][:, right]
+            array[np.ix_(frames, right)] = left_values
+    return lab, hidden, in_view
 
 
 def symmetric_bone_lengths(truth: np.ndarray) -> np.ndarray:
@@ -574,7 +670,7 @@ def fit_body_model(noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarra
 def _sensor_rngs(seed: int, sensor_id: str) -> dict[str, np.random.Generator]:
     """Independent streams per sensor, keyed by its id: adding a sensor leaves the others' draws alone."""
     key = zlib.crc32(sensor_id.encode("utf-8"))
-    names = ("tracking", "noise", "confidence", "timing", "calibration", "scale")
+    names = ("tracking", "noise", "confidence", "timing", "calibration", "scale", "failures")
     return {name: np.random.default_rng([seed, key, idx]) for idx, name in enumerate(names)}
 
 
@@ -644,6 +740,8 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     times = np.arange(n) / profile.fps
     truth = motion.at_times(times)
     n_sensors = len(sensors)
+    seen = _common_mode(motion, times, truth, profile, np.random.default_rng([seed, 0xC033]))
+    speed_mps = np.linalg.norm(np.gradient(truth, axis=0), axis=-1) * profile.fps / 1000.0  # (T, 32)
 
     bone_lengths = symmetric_bone_lengths(truth)
     pelvis_z = truth[:, J["PELVIS"], 2]
@@ -666,7 +764,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     for index, sensor in enumerate(sensors):
         rngs = _sensor_rngs(seed, sensor.sensor_id)
         rotation = sensor.world_from_sensor[:3, :3]
-        physical = sensor.to_sensor(truth)  # (T, 32, 3) sensor frame
+        physical = sensor.to_sensor(seen)  # (T, 32, 3) sensor frame (seen = truth unless a common-mode family)
 
         # 1. visibility and tracking
         in_view = sensor.in_view(physical)
@@ -685,10 +783,15 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
 
         # 4-7. what the tracker reports: labels, error, body-model refit, confidence, timestamps
         lab, hidden, in_view = _label_space(physical, hidden, in_view, mirrored, forward_world[mirrored] @ rotation)
-        restarts = new_body & ~(mirrored & prev_tracked)
-        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile)
+        swaps = limb_swap_bursts(rngs["failures"], angle, tracked & ~mirrored, profile)
+        lab, hidden, in_view = _swap_limbs(lab, hidden, in_view, swaps)
+        restarts = new_body if profile.flip_restarts_fit else new_body & ~(mirrored & prev_tracked)
+        lost = leg_low_episodes(rngs["confidence"], n, profile) & ~hidden
+        gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
+        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile, lost, gain)
+        noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
         fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile)
-        labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile)
+        labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
 
         positions[tracked, index] = fitted[tracked].astype(np.float32)
         confidence[tracked, index] = labels[tracked]
@@ -749,11 +852,15 @@ def _tracker_error(
     bone_lengths: np.ndarray,
     down: np.ndarray,
     profile: SimProfile,
+    lost: np.ndarray | None = None,
+    gain: np.ndarray | None = None,
 ) -> np.ndarray:
     """Stage 4 of :func:`simulate`: constant offsets, slow AR(1) error with jumps, heavy-tailed white jitter, the
     pull of hidden joints toward a default pose plus their guess error, and the convergence after a (re)start.
 
-    ``restarts``: frames where the tracker starts a new fit; ``down``: world -z in the sensor frame.
+    ``restarts``: frames where the tracker starts a new fit; ``down``: world -z in the sensor frame; ``lost``:
+    (n, 32) visible joints the tracker lost for a moment (leg LOW episodes): they carry the guess error too,
+    without the pull; ``gain``: (n, 32) factor on the slow and white error (failure family "distance_speed").
     """
     n = lab.shape[0]
     offsets = noise.normal(0.0, 1.0, (N_JOINTS, 3)) * _group_values(profile.offset_sigma_mm)
@@ -763,8 +870,10 @@ def _tracker_error(
     white = student_t(noise, (n, N_JOINTS, 3), _group_values(profile.white_sigma_mm), profile.white_dof)
     guess = _occluded_guess_error(noise, n, profile)
     prior = _default_pose(lab, bone_lengths, down)
-    noisy = lab + offsets + slow + white
+    noisy = lab + offsets + (slow + white) * (1.0 if gain is None else gain[:, :, None])
     noisy = noisy + hidden[:, :, None] * (profile.occluded_pull * (prior - lab) + guess)
+    if lost is not None:
+        noisy = noisy + lost[:, :, None] * guess
     if profile.convergence_frames > 0:
         run_start = np.maximum.accumulate(np.where(restarts, np.arange(n), 0))
         since = np.arange(n) - run_start
@@ -787,22 +896,47 @@ def _body_model(
     return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift))
 
 
+def leg_low_episodes(rng: np.random.Generator, n: int, profile: SimProfile) -> np.ndarray:
+    """(n, 32) bool: short episodes in which the tracker loses a leg (its knee, ankle and foot) although it is
+    in view: each starts with ``leg_low_prob`` per frame and leg and lasts ``floor(U ** (-1 / alpha))`` frames
+    (at most ``leg_low_max_frames``), a heavy tail: real episodes last a median 1 frame, the longest 6-15."""
+    starts = rng.random((n, 2)) < profile.leg_low_prob
+    lengths = np.minimum(
+        np.floor((1.0 - rng.random((n, 2))) ** (-1.0 / profile.leg_low_length_alpha)), profile.leg_low_max_frames
+    ).astype(np.int64)
+    remaining = np.zeros(2, dtype=np.int64)
+    legs = np.zeros((n, 2), dtype=bool)
+    for k in range(n):  # a countdown per leg, vectorized over the legs
+        remaining = np.where(starts[k], np.maximum(remaining, lengths[k]), remaining)
+        legs[k] = remaining > 0
+        remaining = np.maximum(remaining - 1, 0)
+    out = np.zeros((n, N_JOINTS), dtype=bool)
+    for side, leg in enumerate(_LEG_CHAINS):
+        out[:, leg] = legs[:, side : side + 1]
+    return out
+
+
 def _confidence_labels(
-    conf_rng: np.random.Generator, hidden: np.ndarray, in_view: np.ndarray, profile: SimProfile
+    conf_rng: np.random.Generator,
+    hidden: np.ndarray,
+    in_view: np.ndarray,
+    profile: SimProfile,
+    lost: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Stage 6 of :func:`simulate`: (n, 32) confidence: MEDIUM, LOW for some leg frames and hidden joints, NONE
-    for hand episodes and joints out of view."""
+    """Stage 6 of :func:`simulate`: (n, 32) confidence: MEDIUM, LOW for hidden limb joints and lost legs (torso
+    joints rarely: the tracker sees the trunk around a limb), NONE for whole-hand episodes and out of view."""
     n = hidden.shape[0]
     labels = np.full((n, N_JOINTS), Confidence.MEDIUM, dtype=np.uint8)
-    leg_low = conf_rng.random((n, _LEG_JOINTS.size)) < profile.leg_low_prob
-    labels[:, _LEG_JOINTS] = np.where(leg_low, Confidence.LOW, Confidence.MEDIUM)
-    hidden_low = hidden & (conf_rng.random((n, N_JOINTS)) < profile.occluded_low_prob)
+    if lost is not None:
+        labels[lost] = Confidence.LOW
+    low_prob = np.where(_TORSO_JOINTS_MASK, profile.torso_occluded_low_prob, profile.occluded_low_prob)
+    hidden_low = hidden & (conf_rng.random((n, N_JOINTS)) < low_prob)
     labels[hidden_low] = Confidence.LOW
-    fraction = conf_rng.uniform(profile.hand_none_fraction_min, profile.hand_none_fraction_max, _HAND_JOINTS.size)
-    latent = ar1(conf_rng, n, (_HAND_JOINTS.size,), profile.hand_none_rho, 1.0)
-    hand_labels = labels[:, _HAND_JOINTS]
-    hand_labels[latent < ndtri(np.clip(fraction, 1e-9, 1 - 1e-9))] = Confidence.NONE
-    labels[:, _HAND_JOINTS] = hand_labels
+    fraction = conf_rng.uniform(profile.hand_none_fraction_min, profile.hand_none_fraction_max, len(_HAND_SIDES))
+    latent = ar1(conf_rng, n, (len(_HAND_SIDES),), profile.hand_none_rho, 1.0)
+    hand_none = latent < ndtri(np.clip(fraction, 1e-9, 1 - 1e-9))  # (n, 2): the tracker drops a whole hand
+    for side, joints in enumerate(_HAND_SIDES):
+        labels[np.ix_(hand_none[:, side], joints)] = Confidence.NONE
     labels[~in_view] = Confidence.NONE
     return labels
 
@@ -833,6 +967,48 @@ def _timestamps(
     return np.where(dropped, -1, np.rint(device).astype(np.int64)), np.where(
         dropped, -1, np.rint(host).astype(np.int64)
     )
+
+
+def _partial_view_drag(noisy: np.ndarray, lab: np.ndarray, in_view: np.ndarray, drag: float) -> np.ndarray:
+    """A body partly outside the view: the fit to the visible part is dragged by the guessed part. Every in-view
+    joint moves by ``drag`` times the mean error of the out-of-view joints of its frame (failure family
+    "partial_view"); frames with the whole body in view are left alone."""
+    if drag <= 0:
+        return noisy
+    outside = ~in_view
+    count = outside.sum(axis=1)
+    partly = (count > 0) & (count < N_JOINTS)
+    if not partly.any():
+        return noisy
+    error = np.where(outside[:, :, None], noisy - lab, 0.0).sum(axis=1) / np.maximum(count, 1)[:, None]
+    shift = drag * error[:, None, :] * (partly[:, None] & in_view)[:, :, None]
+    return noisy + shift
+
+
+def _noise_gain(lab: np.ndarray, speed_mps: np.ndarray, profile: SimProfile) -> np.ndarray | None:
+    """(n, 32) factor on a view's slow and white error: 1 + noise_gain_per_m per metre of depth beyond 2 m +
+    noise_gain_per_mps per m/s of the joint's speed (None when both gains are off)."""
+    if profile.noise_gain_per_m == 0 and profile.noise_gain_per_mps == 0:
+        return None
+    beyond_m = np.maximum(lab[..., 2] / 1000.0 - 2.0, 0.0)
+    return 1.0 + profile.noise_gain_per_m * beyond_m + profile.noise_gain_per_mps * speed_mps
+
+
+def _common_mode(
+    motion: Motion, times: np.ndarray, truth: np.ndarray, profile: SimProfile, rng: np.random.Generator
+) -> np.ndarray:
+    """(T, 32, 3) world joints as every tracker sees them: the truth, late by ``lag_frames`` and with a body-model
+    error shared by all views (a constant plus a slow AR(1) per joint and axis), which averaging views cannot
+    remove. The truth itself when the failure families that set these are off."""
+    seen = truth
+    if profile.lag_frames > 0:
+        seen = motion.at_times(np.maximum(times - profile.lag_frames / profile.fps, 0.0))
+    if profile.common_offset_sigma_mm > 0 or profile.common_slow_sigma_mm > 0:
+        n = truth.shape[0]
+        offset = rng.normal(0.0, profile.common_offset_sigma_mm, (N_JOINTS, 3))
+        slow = ar1(rng, n, (N_JOINTS, 3), _group_values(profile.slow_rho), profile.common_slow_sigma_mm)
+        seen = seen + offset + slow
+    return seen
 
 
 def _occluded_guess_error(rng: np.random.Generator, n: int, profile: SimProfile) -> np.ndarray:

@@ -148,3 +148,37 @@ def best_view_sensor(
         [subject_mm[0] + distance_mm * np.cos(angle), subject_mm[1] + distance_mm * np.sin(angle), height_mm]
     )
     return look_at(sensor_id, position, np.array([subject_mm[0], subject_mm[1], target_height_mm]))
+
+
+def arc_rig(
+    n_sensors: int = 2,
+    *,
+    spread_deg: float = 45.0,
+    distance_mm: float = 2250.0,
+    height_mm: float = 1000.0,
+    target_height_mm: float = 900.0,
+    facing_deg: float = 0.0,
+    subject_mm: tuple[float, float] = (0.0, 0.0),
+    prefix: str = "view",
+) -> list[VirtualSensor]:
+    """Sensors on an arc in front of a subject, ``spread_deg`` apart, all looking at the subject.
+
+    The layout of the real recordings the simulator is checked against (DESIGN.md "Real noise": two sensors
+    about 45° apart, subject 2-2.5 m away), as opposed to :func:`paper_rig`'s ring at 90°. The arc is centred
+    on the direction the subject faces (``facing_deg``, counter-clockwise from world +x), so with two
+    sensors each sees the subject 22.5° off its front. Named ``{prefix}_0`` ...; the first is the master.
+    """
+    if n_sensors < 1:
+        raise ValueError(f"arc_rig needs at least one sensor, got n_sensors={n_sensors}")
+    offsets = (np.arange(n_sensors) - (n_sensors - 1) / 2.0) * spread_deg
+    return [
+        best_view_sensor(
+            facing_deg + offset,
+            distance_mm=distance_mm,
+            height_mm=height_mm,
+            sensor_id=f"{prefix}_{idx}",
+            subject_mm=subject_mm,
+            target_height_mm=target_height_mm,
+        )
+        for idx, offset in enumerate(offsets)
+    ]

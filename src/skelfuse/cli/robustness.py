@@ -1,0 +1,70 @@
+"""``skelfuse eval robustness``: every fusion preset in every simulated failure world (``eval/robustness.py``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK, print_json
+from skelfuse.eval import robustness
+from skelfuse.progress import note
+
+QUICK = {"sensors": [3], "seeds": 2, "duration": 3.0}
+
+
+def _cmd_eval_robustness(args: argparse.Namespace) -> int:
+    sensors = args.sensors or (QUICK["sensors"] if args.quick else [2, 3, 4])
+    seeds = args.seeds or (QUICK["seeds"] if args.quick else 6)
+    duration = args.duration or (QUICK["duration"] if args.quick else 10.0)
+    families = args.families or list(robustness.FAMILY_NAMES)
+    if not args.quiet:
+        note(
+            f"eval robustness: {len(families)} families x {len(sensors)} rig sizes x {seeds} seeds, "
+            f"{duration:g} s takes, {len(robustness.PRESETS)} presets"
+        )
+    try:
+        result = robustness.run_robustness(
+            families=families,
+            sensors=sensors,
+            n_seeds=seeds,
+            duration_s=duration,
+            workers=args.workers,
+            progress=not args.quiet,
+        )
+    except ValueError as exc:
+        print(f"skelfuse: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print_json(result.to_dict())
+    else:
+        print(robustness.format_markdown(result), end="")
+    if args.strict and result.n_worse:
+        print(f"skelfuse: {result.n_worse} cell(s) where skelfuse is significantly worse than A1", file=sys.stderr)
+        return EXIT_ATTENTION
+    return EXIT_OK
+
+
+def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``eval robustness``."""
+    parser = eval_commands.add_parser(
+        "robustness",
+        help="every fusion preset in every simulated failure world, skelfuse against A1 with paired intervals",
+        description="Simulate takes in every failure family (skelfuse.sim.failures; docs/simulator.md) and their "
+        "mixture with 2-4 sensors, fuse them with A1, A3, A4, A5, A5post (posterior output) and skelfuse, and "
+        "report the error against exact truth per joint group, swapped left/right pairs and lag, with the paired "
+        "95%% confidence interval of skelfuse - A1 over seeds per cell; held-out worlds are marked.",
+    )
+    parser.add_argument("--quick", action="store_true", help="3 sensors, 2 seeds, 3 s takes (CI)")
+    parser.add_argument(
+        "--families", nargs="+", default=None, metavar="NAME", help="families to run (default: all and mixture)"
+    )
+    parser.add_argument("--sensors", nargs="+", type=int, default=None, help="rig sizes (default: 2 3 4)")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: 6; --quick 2)")
+    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS", help="take length (default: 10)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (default: %(default)s)")
+    parser.add_argument("--json", action="store_true", help="print the matrix as JSON")
+    parser.add_argument(
+        "--strict", action="store_true", help="exit 3 when skelfuse is significantly worse than A1 in any cell"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    parser.set_defaults(func=_cmd_eval_robustness)

@@ -1,0 +1,320 @@
+"""``skelfuse eval robustness``: every fusion preset in every failure world, against exact ground truth.
+
+The matrix: failure family (:data:`skelfuse.sim.failures.FAMILIES` and their mixture) x number of sensors
+(2-4, on the paper's ring, ``paper_rig(n)``) x seed. A seed picks the gesture (squat, random, hands up/down,
+walking, in turn) and the direction the subject faces (uniform), so every cell mixes front, side and rear
+views. Every preset fuses the same observations (common random numbers), so differences between presets are
+paired per take.
+
+Measured per take and preset, against the simulator's exact truth:
+
+- error: mean distance per joint group (the paper's torso / upper limb / lower limb of the 16 evaluated joints),
+  mm, over frames where the output has the joint (``missing`` counts the rest);
+- swapped: share of (frame, left/right pair) samples whose left and right are the wrong way round;
+- lag: the time shift (frames) that minimizes the mean distance of the output to the truth (positive = late).
+
+Per cell (family, sensors): the mean over seeds, and for skelfuse minus A1 per group the paired mean difference
+with its 95% t confidence interval over seeds. Verdict: "worse" when the whole interval is above 0 (skelfuse
+significantly worse than the plain average), "better" when it is below 0, "tie" otherwise.
+
+Held out: skelfuse's parameters were tuned (``scripts/tune_fusion.py``) on the default simulator, i.e. the
+``baseline`` and ``no_mirroring`` worlds, with seeds below :data:`HELD_OUT_SEED`. The matrix runs seeds from
+:data:`HELD_OUT_SEED` up, and every family but those two is a world no preset was tuned on: those cells are
+marked held out.
+
+Presets: the paper's A1, A3, A4, A5 (literal: the Kalman filter outputs its prediction, eq. 9), ``A5post`` (the
+same filter outputting its posterior, the fairer reading) and ``skelfuse``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from multiprocessing import get_context
+from typing import Any
+
+import numpy as np
+from scipy import stats as scipy_stats
+
+from skelfuse.eval.metrics import best_lag, lag_error_curve, swap_counts
+from skelfuse.eval.paper import fuse_sequence
+from skelfuse.fusion import presets
+from skelfuse.fusion.presets import FusionParams
+from skelfuse.progress import Progress
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, PAPER_REALIGN_PAIRS
+from skelfuse.sim.failures import FAMILIES, MIXTURE, family_profile
+from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.rig import paper_rig
+
+__all__ = [
+    "FAMILY_NAMES",
+    "GESTURES",
+    "HELD_OUT_SEED",
+    "PRESETS",
+    "TRAINING_FAMILIES",
+    "RobustnessResult",
+    "format_markdown",
+    "preset_params",
+    "run_robustness",
+]
+
+PRESETS: tuple[str, ...] = ("A1", "A3", "A4", "A5", "A5post", "skelfuse")
+FAMILY_NAMES: tuple[str, ...] = (*FAMILIES, MIXTURE.name)
+TRAINING_FAMILIES: tuple[str, ...] = ("baseline", "no_mirroring")
+"""The worlds skelfuse's parameters were tuned on (the default simulator, with and without rear mirroring)."""
+HELD_OUT_SEED = 1000
+"""The matrix uses seeds from here up; any tuning uses seeds below it."""
+GESTURES: tuple[str, ...] = ("squat", "random", "hands_up_down", "walking")
+GROUPS: tuple[str, ...] = tuple(JOINT_GROUPS)
+LAG_SHIFTS = np.arange(-3, 11)
+FPS = 30.0
+REFERENCE, CANDIDATE = "A1", "skelfuse"
+
+
+def preset_params(name: str) -> FusionParams:
+    """The parameters of a matrix preset: a fusion preset, or ``A5post`` (A5 outputting its posterior)."""
+    if name == "A5post":
+        return replace(presets.preset("A5"), kalman_output="posterior")
+    return presets.preset(name)
+
+
+@dataclass(frozen=True)
+class _Task:
+    family: str
+    n_sensors: int
+    seed: int
+    duration_s: float
+    presets: tuple[str, ...]
+
+
+def _run_take(task: _Task) -> dict[str, Any]:
+    """Simulate one take of one family and score every preset on it."""
+    rng = np.random.default_rng([task.seed, task.n_sensors])
+    gesture = GESTURES[task.seed % len(GESTURES)]
+    facing = float(rng.uniform(0.0, 360.0))
+    motion = make_gesture(gesture, duration_s=task.duration_s, fps=FPS, facing_deg=facing, seed=task.seed)
+    profile = family_profile(load_profile(), task.family)
+    obs = simulate(motion, paper_rig(task.n_sensors), profile, seed=task.seed)
+    world = obs.positions_world(calibrated=True)
+    world = np.where(obs.tracked[..., None, None], world, np.nan)
+    truth = np.asarray(obs.truth, dtype=np.float64)
+    scores: dict[str, Any] = {}
+    for name in task.presets:
+        fused = fuse_sequence(preset_params(name), world, obs.confidence, FPS)
+        dist = np.linalg.norm(fused - truth, axis=-1)  # (T, 32)
+        row: dict[str, float] = {}
+        for group, joints in JOINT_GROUPS.items():
+            values = dist[:, joints]
+            row[group] = float(np.nanmean(values)) if np.isfinite(values).any() else math.nan
+        row["missing"] = float(np.isnan(dist[:, EVAL_JOINTS]).mean())
+        swapped, valid = swap_counts(fused, truth, PAPER_REALIGN_PAIRS)
+        row["swapped"] = float(swapped.sum() / max(valid.sum(), 1))
+        sums, counts = lag_error_curve(fused[:, EVAL_JOINTS], truth[:, EVAL_JOINTS], LAG_SHIFTS)
+        row["lag"] = best_lag(sums, counts, LAG_SHIFTS)[0]
+        scores[name] = row
+    return {
+        "family": task.family,
+        "n_sensors": task.n_sensors,
+        "seed": task.seed,
+        "gesture": gesture,
+        "facing_deg": facing,
+        "mirrored": float(obs.mirrored[obs.tracked].mean()) if obs.tracked.any() else 0.0,
+        "scores": scores,
+    }
+
+
+def paired_interval(differences: Sequence[float], level: float = 0.95) -> tuple[float, float, float]:
+    """Mean and two-sided t confidence interval of paired differences (NaN half-width with one sample)."""
+    d = np.asarray([x for x in differences if math.isfinite(x)], dtype=np.float64)
+    if d.size == 0:
+        return math.nan, math.nan, math.nan
+    mean = float(d.mean())
+    if d.size < 2:
+        return mean, math.nan, math.nan
+    half = float(scipy_stats.t.ppf(0.5 + level / 2, d.size - 1) * d.std(ddof=1) / math.sqrt(d.size))
+    return mean, mean - half, mean + half
+
+
+def verdict(low: float, high: float) -> str:
+    """ "worse" / "better" when the interval of skelfuse - A1 lies wholly above / below 0, else "tie"."""
+    if math.isfinite(low) and low > 0:
+        return "worse"
+    if math.isfinite(high) and high < 0:
+        return "better"
+    return "tie"
+
+
+@dataclass
+class RobustnessResult:
+    """The matrix: ``takes`` holds every take's scores; ``cells`` the per-(family, sensors) summary."""
+
+    settings: dict[str, Any]
+    takes: list[dict[str, Any]]
+    cells: list[dict[str, Any]] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return _jsonable(
+            {"settings": self.settings, "cells": self.cells, "takes": self.takes, "elapsed_s": self.elapsed_s}
+        )
+
+    @property
+    def n_worse(self) -> int:
+        return sum(cell["verdict"][g] == "worse" for cell in self.cells for g in GROUPS)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _summarize(
+    takes: list[dict[str, Any]], families: Sequence[str], sensors: Sequence[int], names: Sequence[str]
+) -> list[dict[str, Any]]:
+    cells = []
+    for family in families:
+        for n in sensors:
+            rows = [t for t in takes if t["family"] == family and t["n_sensors"] == n]
+            if not rows:
+                continue
+            mean = {
+                name: {
+                    key: float(np.nanmean([r["scores"][name][key] for r in rows]))
+                    for key in (*GROUPS, "swapped", "lag", "missing")
+                }
+                for name in names
+            }
+            cell: dict[str, Any] = {
+                "family": family,
+                "n_sensors": n,
+                "held_out": family not in TRAINING_FAMILIES,
+                "n_seeds": len(rows),
+                "mean": mean,
+                "diff": {},
+                "verdict": {},
+            }
+            if REFERENCE in names and CANDIDATE in names:
+                for g in GROUPS:
+                    d = [r["scores"][CANDIDATE][g] - r["scores"][REFERENCE][g] for r in rows]
+                    m, low, high = paired_interval(d)
+                    cell["diff"][g] = {"mean": m, "low": low, "high": high}
+                    cell["verdict"][g] = verdict(low, high)
+            cells.append(cell)
+    return cells
+
+
+def run_robustness(
+    *,
+    families: Sequence[str] = FAMILY_NAMES,
+    sensors: Sequence[int] = (2, 3, 4),
+    n_seeds: int = 6,
+    duration_s: float = 10.0,
+    preset_names: Sequence[str] = PRESETS,
+    workers: int = 2,
+    progress: bool = False,
+) -> RobustnessResult:
+    """Run the matrix (seeds ``HELD_OUT_SEED`` .. ``HELD_OUT_SEED + n_seeds - 1`` in every cell)."""
+    unknown = [f for f in families if f not in FAMILY_NAMES]
+    if unknown:
+        raise ValueError(f"unknown failure families {unknown}; expected some of {', '.join(FAMILY_NAMES)}")
+    bad = [name for name in preset_names if name not in PRESETS]
+    if bad:
+        raise ValueError(f"unknown presets {bad}; expected some of {', '.join(PRESETS)}")
+    if any(n < 2 for n in sensors) or n_seeds < 1:
+        raise ValueError(f"need at least 2 sensors and 1 seed, got sensors={list(sensors)}, seeds={n_seeds}")
+    tasks = [
+        _Task(family, n, HELD_OUT_SEED + k, float(duration_s), tuple(preset_names))
+        for family in families
+        for n in sensors
+        for k in range(n_seeds)
+    ]
+    t0 = time.perf_counter()
+    bar = Progress(len(tasks), "eval robustness", enabled=None if progress else False)
+    takes: list[dict[str, Any]] = []
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            for take in pool.map(_run_take, tasks):
+                takes.append(take)
+                bar.update(note=f"{take['family']} x{take['n_sensors']}")
+    else:
+        for task in tasks:
+            takes.append(_run_take(task))
+            bar.update(note=task.family)
+    bar.close()
+    settings = {
+        "families": list(families),
+        "sensors": [int(n) for n in sensors],
+        "seeds": [HELD_OUT_SEED, HELD_OUT_SEED + n_seeds - 1],
+        "duration_s": float(duration_s),
+        "presets": list(preset_names),
+        "training_families": list(TRAINING_FAMILIES),
+    }
+    result = RobustnessResult(settings, takes, elapsed_s=time.perf_counter() - t0)
+    result.cells = _summarize(takes, families, sensors, preset_names)
+    return result
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    return f"{value:.{digits}f}" if math.isfinite(value) else "n/a"
+
+
+def format_markdown(result: RobustnessResult) -> str:
+    """The matrix as markdown: skelfuse - A1 per cell with its interval, then every preset's figures."""
+    s = result.settings
+    lines = [
+        f"Failure families {', '.join(s['families'])}; {', '.join(str(n) for n in s['sensors'])} sensors on the "
+        f"paper's ring; seeds {s['seeds'][0]}-{s['seeds'][1]} ({s['duration_s']:g} s takes, gestures in turn, "
+        "random facing); error = mean distance to the exact truth, mm. Held out (H): worlds no preset was tuned "
+        f"on (tuning used {', '.join(s['training_families'])}, seeds below {HELD_OUT_SEED}).",
+        "",
+    ]
+    if result.cells and result.cells[0]["diff"]:
+        n_cells = len(result.cells) * len(GROUPS)
+        lines += [
+            f"**skelfuse - A1, paired 95% CI over seeds: {result.n_worse} of {n_cells} (cell, group) significantly "
+            "worse.**",
+            "",
+            "| family | sensors | H | " + " | ".join(f"{g}: A1 / skelfuse / diff [95% CI]" for g in GROUPS) + " |",
+            "|---|---|---|" + "---|" * len(GROUPS),
+        ]
+        for cell in result.cells:
+            parts = []
+            for g in GROUPS:
+                d = cell["diff"][g]
+                mark = {"worse": " **worse**", "better": " better", "tie": ""}[cell["verdict"][g]]
+                parts.append(
+                    f"{_fmt(cell['mean'][REFERENCE][g])} / {_fmt(cell['mean'][CANDIDATE][g])} / "
+                    f"{_fmt(d['mean'])} [{_fmt(d['low'])}, {_fmt(d['high'])}]{mark}"
+                )
+            lines.append(
+                f"| {cell['family']} | {cell['n_sensors']} | {'H' if cell['held_out'] else ''} | "
+                + " | ".join(parts)
+                + " |"
+            )
+        lines.append("")
+    names = s["presets"]
+    lines += [
+        "Every preset: mean error over the three groups (mm) / swapped pairs (%) / lag (frames):",
+        "",
+        "| family | sensors | " + " | ".join(names) + " |",
+        "|---|---|" + "---|" * len(names),
+    ]
+    for cell in result.cells:
+        parts = []
+        for name in names:
+            m = cell["mean"][name]
+            overall = float(np.mean([m[g] for g in GROUPS]))
+            parts.append(f"{_fmt(overall)} / {_fmt(100 * m['swapped'])} / {_fmt(m['lag'], 2)}")
+        lines.append(f"| {cell['family']} | {cell['n_sensors']} | " + " | ".join(parts) + " |")
+    return "\n".join(lines) + "\n"
