@@ -391,3 +391,27 @@ def test_specs_offsets_and_duplicates(tmp_path: Path, sim_walk) -> None:
         open_inputs([str(path), str(path)])
     with pytest.raises(DataError, match="--time-offset for unknown sensor"):
         open_inputs([str(path)], time_offsets_ms={"nobody": 1.0})
+
+
+def test_a_mis_paired_take_is_flagged_and_the_timed_one_is_not(sim_walk, tmp_path: Path, capsys) -> None:
+    """The issue's take: the master starts 57 frames late. As andyj1 CSV (no timestamps) the frames can only
+    be paired by index, 57 frames off: the verdict must say so and not be good. As JSON (device timestamps)
+    the same files pair by time and calibrate well."""
+    from skelfuse.cli.common import EXIT_ATTENTION
+
+    recs = _recordings(sim_walk)
+    untimed = [
+        Recording(r.sensor_id, r.positions[k], r.orientations[k], r.confidence[k], r.body_ids[k], None)
+        for r in recs
+        for k in [r.body_ids[:, 0] >= 0]
+    ]
+    csv_takes = [f"--take={r.sensor_id}={write_andyj1(r, tmp_path / f'{r.sensor_id}.csv')}" for r in untimed]
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "skeleton", *csv_takes, "-o", str(out), "-q"]) == EXIT_ATTENTION
+    printed = capsys.readouterr()
+    assert "matched by INDEX" in printed.err
+    assert "frames look paired -57 frames off" in printed.out and "--time-offset ID=-1900" in printed.out
+    json_takes = [f"--take={write_offline_json(r, tmp_path / f'{r.sensor_id}.json')}" for r in recs]
+    assert main(["calibrate", "skeleton", *json_takes, "-o", str(out), "-q", "--force"]) == 0
+    printed = capsys.readouterr()
+    assert "matched by device timestamp" in printed.err and " good " in printed.out

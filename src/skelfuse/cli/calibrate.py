@@ -399,7 +399,7 @@ def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarr
             args.recording, by=by, sync=sync, max_frames=args.max_frames, progress=not args.quiet
         )
     else:
-        take = open_take(args, specs, cfg, quiet=args.quiet)
+        take = open_take(args, specs, cfg)  # what was assumed and how frames were matched: always said
         positions, confidence, ids = take_arrays(
             take, sync=cfg.sync if cfg is not None else None, max_frames=args.max_frames, progress=not args.quiet
         )

@@ -108,9 +108,13 @@ def band_pass(features: np.ndarray, short: int = 5, long: int = 45) -> np.ndarra
     values = np.where(valid, x, 0.0)
 
     def average(width: int) -> np.ndarray:
-        kernel = np.ones(width)
-        num = np.stack([np.convolve(c, kernel, "same") for c in values.T], axis=1)
-        den = np.stack([np.convolve(c, kernel, "same") for c in valid.T.astype(np.float64)], axis=1)
+        # centred window [k - width // 2, k + (width - 1) // 2], clipped at the ends, by cumulative sums
+        n = len(x)
+        lo = np.clip(np.arange(n) - width // 2, 0, n)
+        hi = np.clip(np.arange(n) + (width - 1) // 2 + 1, 0, n)
+        csum = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(values, axis=0)])
+        ccount = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(valid, axis=0)])
+        num, den = csum[hi] - csum[lo], ccount[hi] - ccount[lo]
         out = np.full_like(num, np.nan)
         enough = den >= width / 2
         out[enough] = num[enough] / den[enough]
