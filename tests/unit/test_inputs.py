@@ -8,6 +8,7 @@ subordinate's (as in the take of issue 9), written in each format by the format'
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -415,3 +416,62 @@ def test_a_mis_paired_take_is_flagged_and_the_timed_one_is_not(sim_walk, tmp_pat
     assert main(["calibrate", "skeleton", *json_takes, "-o", str(out), "-q", "--force"]) == 0
     printed = capsys.readouterr()
     assert "matched by device timestamp" in printed.err and " good " in printed.out
+
+
+# ------------------------------------------------------------------------------------------ where it is used
+
+
+def test_fuse_input_takes_json_views(sim_walk, tmp_path: Path, capsys) -> None:
+    """The issue's first try: `fuse --input master.json sub.json` fused (poses from a calibration file)."""
+    import csv
+
+    from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, write_calibration
+
+    recs = _recordings(sim_walk)
+    specs = [str(write_offline_json(r, tmp_path / f"{r.sensor_id}.json")) for r in recs]
+    cal = tmp_path / "cal.toml"
+    sensors = {
+        sid: SensorCalibration(sim_walk.world_from_sensor[s], "manual") for s, sid in enumerate(sim_walk.sensor_ids)
+    }
+    write_calibration(cal, CalibrationResult(sensors, "manual", sim_walk.sensor_ids[0]))
+    rig = tmp_path / "rig.toml"
+    sensor_tables = "".join(
+        f'[[sensors]]\nid = "{sid}"\nsource = "replay"\nreplay = {{ file = "{p}" }}\n'
+        for sid, p in zip(sim_walk.sensor_ids, specs, strict=True)
+    )
+    rig.write_text(f'[rig]\nname = "lab"\n[calibration]\nfile = "{cal}"\n{sensor_tables}')
+    out = tmp_path / "fused.csv"
+    assert main(["fuse", "--input", *specs, "--config", str(rig), "--output", str(out)]) == 0
+    assert "matched by device timestamp" in capsys.readouterr().err
+    with out.open() as handle:
+        rows = list(csv.DictReader(handle))
+    times = {int(r["time_us"]) for r in rows}
+    assert len(times) >= recs[0].n_frames - 10  # every instant both sensors saw, less the track's birth
+    pelvis_rows = [r for r in rows if r["joint_name"] == "PELVIS"]
+    pelvis = np.array([[float(r[k]) for k in ("x_mm", "y_mm", "z_mm")] for r in pelvis_rows])
+    frame = np.rint((np.array([int(r["time_us"]) for r in pelvis_rows]) - sim_walk.device_time_us[0, 0]) / (1e6 / 30))
+    truth_pelvis = sim_walk.truth[frame.astype(int), 0]
+    assert np.median(np.linalg.norm(pelvis - truth_pelvis, axis=1)) < 60.0
+
+
+def test_replay_source_reads_json_and_paces_files_of_one_sync_chain_together(sim_walk, tmp_path: Path) -> None:
+    """`[[sensors]] source = "replay"` with offline_processor JSON: frames come out (not 0), and a file that
+    starts 57 frames late is published 57 frame periods after its partner's first frame."""
+    from skelfuse.service.worker import ReplaySource
+
+    recs = _recordings(sim_walk)
+    paths = [write_offline_json(r, tmp_path / f"{r.sensor_id}.json") for r in recs]
+    anchor = int(min(r.device_time_us[0] for r in recs))
+    firsts = []
+    for rec, path in zip(recs, paths, strict=True):
+        source = ReplaySource(path, f"live-{rec.sensor_id}", anchor_us=anchor)  # a one-sensor file, any name
+        stream = source.frames()
+        started = time.monotonic_ns()
+        due0, frame0 = next(stream)
+        due1, _ = next(stream)
+        assert frame0.sensor_id == f"live-{rec.sensor_id}"
+        assert frame0.device_time_us == rec.device_time_us[0]
+        assert abs((due1 - due0) / 1e3 - 33_333) < 500
+        firsts.append(due0 - started)
+    late_ns = firsts[0] - firsts[1]
+    assert abs(late_ns / 1e9 - LATE_START / 30) < 0.05
