@@ -475,3 +475,37 @@ def test_replay_source_reads_json_and_paces_files_of_one_sync_chain_together(sim
         firsts.append(due0 - started)
     late_ns = firsts[0] - firsts[1]
     assert abs(late_ns / 1e9 - LATE_START / 30) < 0.05
+
+
+def test_an_mcap_round_trips_with_host_times_and_sequences(sim_walk, tmp_path: Path) -> None:
+    recs = _recordings(sim_walk)
+    first = tmp_path / "first.mcap"
+    write_mcap(open_inputs([str(write_offline_json(r, tmp_path / f"{r.sensor_id}.json")) for r in recs]), first)
+    host_shifted = [
+        Recording(
+            r.sensor_id,
+            r.positions,
+            r.orientations,
+            r.confidence,
+            r.body_ids,
+            r.device_time_us,
+            host_time_ns=r.device_time_us * 1000 + 12_345_678,
+            sequences=np.arange(r.n_frames) * 2,
+        )
+        for r in open_inputs([str(first)]).recordings
+    ]
+    take = open_inputs([str(first)])
+    take.recordings = tuple(host_shifted)
+    second = tmp_path / "second.mcap"
+    write_mcap(take, second)
+    for original, converted in zip(host_shifted, _convert(tmp_path, str(second)), strict=True):
+        _assert_same(original, converted)
+        np.testing.assert_array_equal(converted.host_time_ns, original.host_time_ns)
+        np.testing.assert_array_equal(converted.sequences, original.sequences)
+
+
+def test_a_damaged_mcap_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
+    with pytest.raises(DataError, match=r"cut\.mcap: the MCAP holds no sensor-frame channels; record one"):
+        open_inputs([str(path)])

@@ -139,7 +139,8 @@ class InputTake:
         """Every frame of every sensor in matching-time order, its device (and host) time on the matched clock.
 
         Device times are replaced by the matching time (offset applied; the frame index times the period
-        for index matching), so that any consumer groups them correctly.
+        for index matching), so that any consumer groups them correctly. A recorded host time (MCAP) is kept
+        (shifted by the sensor's offset); files without one get the matching time.
         """
         streams = []
         for order, recording in enumerate(self.recordings):
@@ -154,11 +155,16 @@ class InputTake:
                 cache[order] = list(recording.frames(round(self.period_us)))
             frame = cache[order][k]
             offset = int(self.offsets_us.get(recording.sensor_id, 0))
-            yield replace(
-                frame,
-                device_time_us=t if self.clock != "host" else frame.device_time_us + offset,
-                host_time_ns=t * 1000 if self.clock != "host" else int(frame.host_time_ns) + offset * 1000,
-            )
+            if self.clock == "host":
+                yield replace(
+                    frame,
+                    device_time_us=frame.device_time_us + offset,
+                    host_time_ns=int(frame.host_time_ns) + offset * 1000,
+                )
+                continue
+            # a recorded host time (MCAP) is kept, shifted with the offset; files without one get the match time
+            host_ns = t * 1000 if recording.host_time_ns is None else int(frame.host_time_ns) + offset * 1000
+            yield replace(frame, device_time_us=t, host_time_ns=host_ns)
 
     def records(self, rig: str) -> Iterator[RecordedFrame]:
         """The frames as :class:`RecordedFrame` envelopes for a replay: the sensor key of ``rig`` as topic,
