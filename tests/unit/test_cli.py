@@ -50,22 +50,25 @@ def test_unknown_gesture_is_a_usage_error(capsys: pytest.CaptureFixture[str]) ->
 def test_data_error_becomes_exit_2_with_message(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from skelfuse.eval import real
+    from skelfuse.eval import rig
 
     def missing(*_args: object, **_kwargs: object) -> None:
         raise DataError("no recording in /nowhere: pass --data")
 
-    monkeypatch.setattr(real, "run_real_eval", missing)
+    monkeypatch.setattr(rig, "run_rig_eval", missing)
     assert cli.main(["eval", "real", "--data", "/nowhere"]) == cli.EXIT_USAGE
-    assert "no recording in /nowhere" in capsys.readouterr().err
+    assert "/nowhere/joints_gen_master.csv: no such file" in capsys.readouterr().err
 
 
 def test_json_output_is_strict_json(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     import numpy as np
 
-    from skelfuse.eval import real
+    from skelfuse.cli import evaluate
+    from skelfuse.eval import rig
 
     result = SimpleNamespace(to_dict=lambda: {"value": np.float64(1.5), "rows": np.arange(2)})
-    monkeypatch.setattr(real, "run_real_eval", lambda *_a, **_k: result)
+    monkeypatch.setattr(rig, "run_rig_eval", lambda *_a, **_k: result)
+    monkeypatch.setattr(rig, "format_markdown", lambda *_a: "")
+    monkeypatch.setattr(evaluate, "open_take", lambda *_a, **_k: None)
     assert cli.main(["eval", "real", "--json"]) == cli.EXIT_OK
     assert json.loads(capsys.readouterr().out) == {"value": 1.5, "rows": [0, 1]}

@@ -118,7 +118,7 @@ def test_json_logs_are_one_object_per_line() -> None:
         ),
         pytest.param(
             ["fuse", "--input", "t.mcap", "--output", "f.csv"],
-            {"input": Path("t.mcap"), "output": Path("f.csv"), "config": None},
+            {"input": ["t.mcap"], "output": Path("f.csv"), "config": None},
             id="fuse-offline",
         ),
         pytest.param(
@@ -133,7 +133,7 @@ def test_json_logs_are_one_object_per_line() -> None:
         ),
         pytest.param(
             ["replay", "t.mcap", "--fast", "--rig", "lab2"],
-            {"file": Path("t.mcap"), "fast": True, "rig": "lab2", "speed": 1.0},
+            {"file": ["t.mcap"], "fast": True, "rig": "lab2", "speed": 1.0},
             id="replay",
         ),
         pytest.param(

@@ -66,6 +66,13 @@ Cycle
      3-second window: usable, record a longer walk);
    * ``bad``: anything worse, or no half-take estimate.
 
+   Thin evidence never passes as ``good`` (:func:`pairing_check`): a sensor whose frames hold an inlier in
+   under 70 % of the frames it and its best partner both saw gets ``check`` (under 40 %: ``bad``), and a
+   sensor whose pair fits far better with its frames shifted in time (residual below 0.75 x, as many
+   inlier frames; the shift proposed by the person's motion) gets ``bad`` with the shift and the
+   ``--time-offset`` that fixes it. Simulated 2-sensor walks: fraction 1.0 when paired right, 0.76-0.92
+   two frames off, 0.13-0.24 fifty-seven frames off (the real take of issue 9: 201 of 862 frames, 0.23).
+
    The master's pose is fixed, so its half-take agreement is 0 by definition; its verdict rests on its
    residual and point count.
 
@@ -87,6 +94,7 @@ from skelfuse.config.calibration_file import CalibrationResult, SensorCalibratio
 from skelfuse.fusion.mirror import pair_costs
 from skelfuse.fusion.transform import invert_transform, make_transform, transform_points
 from skelfuse.progress import Progress
+from skelfuse.rig.motion_sync import band_pass, estimate_lag, motion_features
 from skelfuse.schema.errors import CalibrationError
 from skelfuse.schema.skeleton import N_JOINTS, Confidence, J
 
@@ -125,6 +133,10 @@ class VerdictThresholds:
     check_half_translation_mm: float = 150.0
     check_residual_mm: float = 120.0
     check_min_points: int = 100
+    good_inlier_frame_fraction: float = 0.7
+    check_inlier_frame_fraction: float = 0.4
+    repaired_residual_ratio: float = 0.75
+    max_pairing_shift_frames: int = 150
 
 
 @dataclass(frozen=True)
@@ -202,6 +214,12 @@ class SensorQuality:
         take (translation at the subject); None where a half had too few points.
     verdict : "good", "check" or "bad".
     reasons : why the verdict is not "good" (empty when it is).
+    inlier_frame_fraction : of the frames in which this sensor and its best partner both saw the torso, the
+        share that hold an inlier of their pairwise fit (about 1 for a well paired take; frames paired in
+        time wrongly drop it: 0.13-0.24 in simulated walks shifted by 57 frames).
+    better_shift_frames, better_shift_rms_mm : where pairing this sensor's frames a few frames off fits much
+        better (see :func:`pairing_check`): the shift (frames of this sensor to move later) and the pairwise
+        residual there; None when the pairing as given is the best one tried.
     """
 
     sensor_id: str
@@ -211,6 +229,9 @@ class SensorQuality:
     half_translation_mm: float | None
     verdict: str
     reasons: tuple[str, ...] = ()
+    inlier_frame_fraction: float | None = None
+    better_shift_frames: int | None = None
+    better_shift_rms_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -769,9 +790,31 @@ def _make_progress(progress: bool | Progress, total: int, label: str) -> Progres
 
 
 def _verdict(
-    residual: float, n_points: int, half: tuple[float, float] | None, is_master: bool, th: VerdictThresholds
+    residual: float,
+    n_points: int,
+    half: tuple[float, float] | None,
+    is_master: bool,
+    th: VerdictThresholds,
+    pairing: PairingCheck | None = None,
 ) -> tuple[str, tuple[str, ...]]:
     bad, check = [], []
+    if pairing is not None:
+        fraction = pairing.inlier_frame_fraction
+        if pairing.better_shift_frames is not None:
+            bad.append(
+                f"frames look paired {pairing.better_shift_frames:+d} frames off: pairwise residual "
+                f"{pairing.rms_mm:.0f} mm as paired, {pairing.better_shift_rms_mm:.0f} mm with this sensor's frames "
+                f"shifted by {pairing.better_shift_frames:+d}; check the time matching (files without timestamps "
+                f"are paired by index) and pass --time-offset ID={pairing.better_shift_frames * 1000 / 30:+.0f} "
+                "(ms, at 30 fps) for this sensor"
+            )
+        if fraction < th.check_inlier_frame_fraction:
+            bad.append(
+                f"only {fraction:.0%} of the frames both sensors saw fit the pose (thin evidence: frames paired "
+                "wrongly in time, or a different person); check the time matching, record a longer walk"
+            )
+        elif fraction < th.good_inlier_frame_fraction:
+            check.append(f"only {fraction:.0%} of the frames both sensors saw fit the pose")
     if not np.isfinite(residual) or n_points < th.check_min_points:
         bad.append(f"{n_points} corresponding points (< {th.check_min_points})")
     elif n_points < th.good_min_points:
@@ -795,6 +838,113 @@ def _verdict(
     if check:
         return "check", tuple(check)
     return "good", ()
+
+
+@dataclass(frozen=True)
+class PairingCheck:
+    """Whether a sensor's frames are paired with its partner's at the right instants (see :func:`pairing_check`).
+
+    Attributes
+    ----------
+    partner : the sensor it was checked against (its pair with the most inliers).
+    inlier_frame_fraction : frames with an inlier / frames in which both saw the torso.
+    rms_mm : the pairwise residual as paired.
+    better_shift_frames, better_shift_rms_mm : a shift of this sensor's frames that fits much better, and
+        its residual; None when none did.
+    tried : the shifts that were refitted.
+    """
+
+    partner: str
+    inlier_frame_fraction: float
+    rms_mm: float
+    better_shift_frames: int | None = None
+    better_shift_rms_mm: float | None = None
+    tried: tuple[int, ...] = ()
+
+
+def _shifted(array: np.ndarray, column: int, shift: int, fill: float | int) -> np.ndarray:
+    """``array`` with ``array[k, column] = array[k + shift, column]`` (``fill`` beyond the ends)."""
+    out = array.copy()
+    moved = np.full_like(array[:, column], fill)
+    if shift >= 0:
+        moved[: len(array) - shift] = array[shift:, column]
+    else:
+        moved[-shift:] = array[: len(array) + shift, column]
+    out[:, column] = moved
+    return out
+
+
+def pairing_check(
+    pos: np.ndarray,
+    ok: np.ndarray,
+    edges: Sequence[_Edge],
+    sensor: int,
+    ids: Sequence[str],
+    opts: SkeletonCalibrationOptions,
+) -> PairingCheck | None:
+    """Is ``sensor`` paired in time with its partners? Frame fraction, and refits at suspicious shifts.
+
+    Evidence that frames are paired wrongly: few of the frames both sensors saw hold an inlier, or the
+    person's motion (:mod:`skelfuse.rig.motion_sync`, frame-invariant joint distances) matches best at a
+    shift of two frames or more. Only then (so a well paired take costs nothing) the pair is refitted with
+    this sensor's frames shifted around the motion's best shift (±3 frames) and to its next peaks (at most
+    five, within ``max_pairing_shift_frames``); the shift with the lowest residual below
+    ``repaired_residual_ratio`` times the residual as paired, with at least as many inlier frames, is
+    reported: the motion proposes, the geometry decides (a periodic motion alone would be ambiguous).
+    """
+    mine = [e for e in edges if sensor in (e.a, e.b)]
+    if not mine:
+        return None
+    edge = max(mine, key=lambda e: len(e.src))
+    a, b = edge.a, edge.b
+    partner = a if sensor == b else b
+    covisible = int((ok[:, a][:, MIDLINE_JOINTS] & ok[:, b][:, MIDLINE_JOINTS]).any(axis=1).sum())
+    n_inlier_frames = len(np.unique(edge.frames))
+    fraction = n_inlier_frames / covisible if covisible else 0.0
+    th = opts.verdict
+    lag = estimate_lag(
+        band_pass(motion_features(np.where(ok[:, a, :, None], pos[:, a], np.nan))),
+        band_pass(motion_features(np.where(ok[:, b, :, None], pos[:, b], np.nan))),
+        max_lag=th.max_pairing_shift_frames,
+    )
+    # a periodic motion alone is no evidence: it matches a step off about as well as it matches as paired
+    motion_says_off = (
+        lag.found
+        and abs(lag.lag) >= 2
+        and not lag.ambiguous
+        and not (np.isfinite(lag.score_at_zero) and lag.score_at_zero >= 0.8 * lag.score)
+    )
+    suspicious = fraction < th.good_inlier_frame_fraction or motion_says_off
+    if not suspicious or not lag.found:
+        return PairingCheck(ids[partner], fraction, edge.fit_rms)
+    candidates = [p for p in lag.peaks if p != 0][:5]
+    rng = np.random.default_rng(opts.seed)
+    tried: dict[int, tuple[int, float] | None] = {}
+
+    def refit(shift: int) -> tuple[int, float] | None:
+        # frame k of a is paired with frame k + shift of b
+        if shift not in tried:
+            trial = _fit_pair(_shifted(pos, b, shift, np.nan), _shifted(ok, b, shift, False), a, b, opts, rng)
+            tried[shift] = None if trial is None else (len(np.unique(trial.frames)), trial.fit_rms)
+        return tried[shift]
+
+    def better(shift: int) -> bool:
+        got = refit(shift)
+        return got is not None and got[0] >= n_inlier_frames and got[1] < th.repaired_residual_ratio * edge.fit_rms
+
+    # the motion's best shift is good to a few frames: search around it; the other peaks as they are
+    near_best = [c for c in range(lag.lag - 3, lag.lag + 4) if c != 0]
+    good = [c for c in dict.fromkeys(near_best + candidates) if better(c)]
+    best: tuple[int, float] | None = None
+    if good:
+        pick = min(good, key=lambda c: tried[c][1])  # type: ignore[index]
+        best = (pick, tried[pick][1])  # type: ignore[index]
+    candidates = sorted(tried)
+    if best is None:
+        return PairingCheck(ids[partner], fraction, edge.fit_rms, tried=tuple(candidates))
+    # as this sensor's shift: b's frames move by -shift to line up with a's; a's by +shift to line up with b's
+    shift = -best[0] if sensor == b else best[0]
+    return PairingCheck(ids[partner], fraction, edge.fit_rms, shift, best[1], tuple(candidates))
 
 
 def calibrate_from_skeletons(
@@ -881,12 +1031,14 @@ def calibrate_from_skeletons(
         bar.close()
 
     quality = {}
+    ok_all = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
     for s, sensor_id in enumerate(ids):
         (p1, f1), (p2, f2) = halves
         half = None
         if s != m and f1[s] and f2[s]:
             half = _pose_difference(p1[s], p2[s], _sensor_points(edges, s))
-        verdict, reasons = _verdict(float(residual[s]), int(counts[s]), half, s == m, opts.verdict)
+        pairing = None if s == m else pairing_check(pos, ok_all, edges, s, ids, opts)
+        verdict, reasons = _verdict(float(residual[s]), int(counts[s]), half, s == m, opts.verdict, pairing)
         quality[sensor_id] = SensorQuality(
             sensor_id=sensor_id,
             residual_mm=float(residual[s]),
@@ -895,6 +1047,9 @@ def calibrate_from_skeletons(
             half_translation_mm=None if half is None else half[1],
             verdict=verdict,
             reasons=reasons,
+            inlier_frame_fraction=None if pairing is None else pairing.inlier_frame_fraction,
+            better_shift_frames=None if pairing is None else pairing.better_shift_frames,
+            better_shift_rms_mm=None if pairing is None else pairing.better_shift_rms_mm,
         )
     pairs = tuple(
         PairFit(

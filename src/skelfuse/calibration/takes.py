@@ -1,7 +1,7 @@
 """Skeleton takes for calibration: every sensor's first body per instant, stacked as one array.
 
 From a ``skelfuse record`` MCAP (frames grouped by time, :class:`~skelfuse.rig.grouping.FrameGrouper`) or from
-one skeleton file per sensor.
+recordings of any format opened by :func:`skelfuse.recording.inputs.open_inputs` (frames matched in time).
 """
 
 from __future__ import annotations
@@ -11,15 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.calibration.skeleton import stack_sensor_takes
 from skelfuse.config import SyncConfig
 from skelfuse.progress import note
+from skelfuse.recording.inputs import InputTake, open_inputs
 from skelfuse.recording.mcap_io import RecordingReader
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import group_bodies
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import N_JOINTS
-from skelfuse.sources.recorded import load_andyj1_csv, load_offline_processor_json
 
 
 def load_recording_take(
@@ -100,35 +99,61 @@ def load_recording_take(
     return pos_arr, conf_arr, ids
 
 
-def load_file_takes(
-    takes: Sequence[tuple[str, Path]], *, max_frames: int | None = None
+def take_arrays(
+    take: InputTake,
+    *,
+    sync: SyncConfig | None = None,
+    max_frames: int | None = None,
+    progress: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    """Per-sensor skeleton files (andyj1 ``.csv`` or offline_processor ``.json``) as one synchronized take.
+    """An opened take (any format, :func:`skelfuse.recording.inputs.open_inputs`) as a one-person take.
 
-    Frames match by index (both formats hold one synchronized take per sensor); takes of different length
-    are cut to the shortest. Raises DataError for an unknown extension, a repeated sensor or a file with
-    several people.
+    Frames are matched in time as the take says (device clock with offsets, host time, or index: the take's
+    notes say which) and grouped into instants by :class:`~skelfuse.rig.grouping.FrameGrouper`; every
+    group is one frame of the take, and each sensor contributes its **first body** (NaN / NONE where it
+    has none), so files that start at different frames line up by time, not by index.
+
+    Returns positions (T, S, 32, 3) float64 mm, confidence (T, S, 32) uint8, sensor ids (input order).
+
+    Raises DataError when no instant holds a body.
     """
+    ids = take.sensor_ids
+    positions: list[np.ndarray] = []
+    confidence: list[np.ndarray] = []
+    for group in take.groups(sync):
+        pos, conf, _ = group_bodies(group.frames, ids)
+        if pos.shape[1] == 0:
+            pos, conf = np.full((len(ids), 1, N_JOINTS, 3), np.nan), np.zeros((len(ids), 1, N_JOINTS), np.uint8)
+        positions.append(pos[:, 0])
+        confidence.append(conf[:, 0])
+        if max_frames is not None and len(positions) >= max_frames:
+            break
+    if not positions:
+        raise DataError(f"the take ({', '.join(ids)}) holds no frames")
+    pos_arr, conf_arr = np.stack(positions), np.stack(confidence)
+    seen = np.isfinite(pos_arr).all(axis=-1).any(axis=-1)
+    if not seen.any():
+        raise DataError(
+            f"the take ({', '.join(ids)}): no sensor saw a body in {len(positions)} instants; record a person "
+            "walking through the shared space"
+        )
+    if progress:
+        both = int(seen.all(axis=1).sum())
+        per_sensor = ", ".join(f"{s}: {int(seen[:, i].sum())}" for i, s in enumerate(ids))
+        note(
+            f"take: {len(positions)} instants matched by {take.clock} time (frames with a body per sensor: "
+            f"{per_sensor}; with every sensor: {both})"
+        )
+    return pos_arr, conf_arr, ids
 
-    per_sensor: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for sensor_id, path in takes:
-        if sensor_id in per_sensor:
-            raise DataError(f"--take: sensor {sensor_id!r} given twice; one file per sensor")
-        suffix = path.suffix.lower()
-        if suffix == ".csv":
-            recording = load_andyj1_csv(path, sensor_id=sensor_id)
-        elif suffix == ".json":
-            recording = load_offline_processor_json(path, sensor_id=sensor_id)
-        else:
-            raise DataError(
-                f"--take {sensor_id}={path}: unknown file type {suffix or '(none)'!r}; expected an "
-                "andyj1 .csv or an offline_processor .json (or give an MCAP with --recording)"
-            )
-        per_sensor[sensor_id] = recording.single_body()
-    lengths = {s: len(p) for s, (p, _) in per_sensor.items()}
-    if len(set(lengths.values())) > 1:
-        note(f"note: takes differ in length ({lengths}); frames match by index, cut to the shortest")
-    positions, confidence, ids = stack_sensor_takes(per_sensor)
-    if max_frames is not None:
-        positions, confidence = positions[:max_frames], confidence[:max_frames]
-    return positions, confidence, ids
+
+def load_file_takes(
+    takes: Sequence[tuple[str, Path]], *, max_frames: int | None = None, progress: bool = False
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Per-sensor skeleton files of any format (``(sensor id, path)`` pairs) as one time-matched take.
+
+    Files with device timestamps are matched on them (whatever frame each starts at); files without
+    (andyj1 CSV) by index. See :func:`take_arrays`.
+    """
+    take = open_inputs([f"{sensor_id}={path}" for sensor_id, path in takes])
+    return take_arrays(take, max_frames=max_frames, progress=progress)

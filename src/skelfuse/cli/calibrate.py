@@ -38,9 +38,10 @@ from skelfuse.calibration.marker import calibrate_world_from_marker
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
 from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
-from skelfuse.calibration.takes import load_file_takes, load_recording_take
+from skelfuse.calibration.takes import load_recording_take, take_arrays
 from skelfuse.calibration.view import log_calibration
 from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK
+from skelfuse.cli.inputs import add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import load_rig_config
 from skelfuse.config.calibration_file import (
     CalibrationResult,
@@ -379,27 +380,29 @@ def _cmd_marker(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _parse_take(text: str) -> tuple[str, Path]:
-    sensor_id, sep, path = text.partition("=")
-    if not sep or not sensor_id or not path:
-        raise argparse.ArgumentTypeError(f"expected SENSOR=FILE (e.g. 000123412512=master.json), got {text!r}")
-    return sensor_id, Path(path)
-
-
 def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    if (args.recording is None) == (not args.take):
+    specs = ([str(args.recording)] if args.recording is not None else []) + list(args.take)
+    if not specs:
         raise ConfigError(
-            "give the walking take either as --recording REC.mcap (from `skelfuse record`) or as "
-            "--take SENSOR=FILE per sensor (andyj1 .csv / offline_processor .json), not both"
+            "give the walking take as --recording REC.mcap (from `skelfuse record`) or as --take [ID=]PATH per "
+            "sensor (any format of docs/recordings.md)"
         )
-    if args.recording is not None:
+    if (
+        args.recording is not None
+        and not args.take
+        and not (args.time_offset or args.registered)
+        and single_recorded_mcap(specs)
+    ):
         sync = cfg.sync if cfg is not None else None
         by = args.by or (sync.by if sync is not None else "device")
         positions, confidence, ids = load_recording_take(
             args.recording, by=by, sync=sync, max_frames=args.max_frames, progress=not args.quiet
         )
     else:
-        positions, confidence, ids = load_file_takes(args.take, max_frames=args.max_frames)
+        take = open_take(args, specs, cfg)  # what was assumed and how frames were matched: always said
+        positions, confidence, ids = take_arrays(
+            take, sync=cfg.sync if cfg is not None else None, max_frames=args.max_frames, progress=not args.quiet
+        )
     if len(ids) < 2:
         raise DataError(f"the take holds {len(ids)} sensor ({', '.join(ids)}); a calibration needs at least two")
     _check_known_sensors(ids, cfg, "the take")
@@ -531,25 +534,20 @@ def _add_take(parser: argparse.ArgumentParser) -> None:
         "--recording",
         type=Path,
         default=None,
-        metavar="REC.mcap",
-        help="a `skelfuse record` MCAP of one person walking; frames grouped by time, first body per sensor",
+        metavar="REC",
+        help="a recording of one person walking holding every sensor (a `skelfuse record` MCAP, a long CSV); "
+        "frames grouped by time, first body per sensor",
     )
     parser.add_argument(
         "--take",
-        type=_parse_take,
         action="append",
         default=[],
-        metavar="SENSOR=FILE",
-        help="instead of --recording: one skeleton file per sensor (andyj1 .csv or "
-        "offline_processor .json), frames matched by index; repeat per sensor",
+        metavar="[ID=]PATH",
+        help="one recording per sensor, any format of docs/recordings.md (offline_processor .json, extractor "
+        "folder, andyj1 .csv, long .csv, .mkv, MCAP); frames matched by device time where the files have it, "
+        "by index where not (the output says which); repeat per sensor",
     )
-    parser.add_argument(
-        "--by",
-        choices=["device", "host"],
-        default=None,
-        help="--recording: group frames by device time (wired sync) or host time (default: the "
-        "rig config's [sync] by, else device)",
-    )
+    add_input_options(parser)
     parser.add_argument(
         "--master",
         default=None,

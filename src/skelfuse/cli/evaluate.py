@@ -7,9 +7,13 @@ import sys
 from pathlib import Path
 
 from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.cli.robustness import add_robustness_parser
-from skelfuse.eval import paper, real, report
+from skelfuse.config import load_calibration
+from skelfuse.eval import paper, real, report, rig
+from skelfuse.eval.rig import DEFAULT_PRESETS
 from skelfuse.eval.tracking import run_tracking_eval
+from skelfuse.schema.errors import ConfigError
 
 
 def _cmd_eval_paper(args: argparse.Namespace) -> int:
@@ -33,16 +37,33 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_real(args: argparse.Namespace) -> int:
-    result = real.run_real_eval(args.data, eps_mm=args.eps)
+    specs = list(args.inputs)
+    if not specs:  # the andyj1 3-sensor take: one input among others, its subordinates already registered
+        specs = [f"{name}={args.data / file}" for name, file in real.VIEW_FILES.items()]
+        args.registered = True
+    if args.calibration is not None and args.auto_calibrate:
+        raise ConfigError("give --calibration FILE or --auto-calibrate, not both")
+    take = open_take(args, specs, quiet=args.json)
+    calibration = load_calibration(args.calibration) if args.calibration is not None else None
+    result = rig.run_rig_eval(
+        take,
+        calibration=calibration,
+        auto_calibrate=args.auto_calibrate,
+        presets=args.preset or rig.DEFAULT_PRESETS,
+        eps_mm=args.eps,
+        out_dir=args.out,
+        progress=not args.json,
+    )
+    text = rig.format_markdown(result)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "report.md").write_text(text + "\n", encoding="utf-8")
     if args.json:
         print_json(result.to_dict())
     else:
-        text = real.format_markdown(result)
         print(text)
         if args.out is not None:
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / "report.md").write_text(text + "\n", encoding="utf-8")
-            print(f"\nReport written to {args.out / 'report.md'}", file=sys.stderr)
+            print(f"\nReport and plots written to {args.out}/", file=sys.stderr)
     return EXIT_OK
 
 
@@ -105,19 +126,38 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
 def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     real = eval_commands.add_parser(
         "real",
-        help="fuse the real 3-sensor Azure Kinect take and report agreement, jitter and leave-one-out error",
+        help="report on any real recording of 2+ sensors: jitter, lag, agreement, gross errors, leave-one-out",
+        description="Fuse a real recording with each preset and compare, per joint group (torso, arms, hands, "
+        "legs, head), every preset with every single view: jitter, lag, agreement with each view where it is "
+        "MEDIUM, gross errors, mirrored frames, dropouts, track ids, and leave-one-out error with 3+ sensors "
+        "(docs/evaluation.md: what each metric can and cannot show). Without inputs: the andyj1 3-sensor take.",
     )
+    real.add_argument("inputs", nargs="*", metavar="[ID=]PATH", help=INPUT_HELP)
     real.add_argument(
         "--data",
         type=Path,
         default=_default_data_dir(),
-        help="folder with joints_gen_{master,sub1,sub2,sync}.csv (default: %(default)s)",
+        help="without inputs: the folder with joints_gen_{master,sub1,sub2}.csv (default: %(default)s)",
+    )
+    poses = real.add_mutually_exclusive_group()
+    poses.add_argument("--calibration", type=Path, default=None, metavar="FILE", help="the rig's calibration TOML")
+    poses.add_argument(
+        "--auto-calibrate",
+        action="store_true",
+        help="skeleton calibration on the first half of the take, metrics on the second half",
+    )
+    real.add_argument(
+        "--preset",
+        action="append",
+        default=[],
+        help=f"fusion preset to evaluate; repeatable (default: {', '.join(DEFAULT_PRESETS)})",
     )
     real.add_argument(
         "--eps", type=float, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
     )
     real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    real.add_argument("--out", type=Path, default=None, help="also write report.md into this folder")
+    real.add_argument("--out", type=Path, default=None, help="write report.md and the plots into this folder")
+    add_input_options(real)
     real.set_defaults(func=_cmd_eval_real)
 
 

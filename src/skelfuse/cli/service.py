@@ -15,9 +15,11 @@ from skelfuse.cli.common import (
     run_limits,
     zenoh_conf,
 )
+from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.export.csv import write_fused
 from skelfuse.recording import fuse_recording
+from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
@@ -94,13 +96,18 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if args.output is None:
         raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
     cfg = rig_config(args) if args.config is not None else None
-    frames = fuse_recording(args.input, rig_config=cfg, preset_name=args.preset, progress=not args.json)
+    take = open_take(args, args.input, cfg, quiet=args.json)
+    source: Path | InputTake = take
+    if single_recorded_mcap(args.input) and not (args.time_offset or args.registered or args.by):
+        # a skelfuse recording as it is: grouped on its recorded host arrival times, exactly as live
+        source = Path(args.input[0])
+    frames = fuse_recording(source, rig_config=cfg, preset_name=args.preset, progress=not args.json)
     try:
         rows = write_fused(frames, args.output)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     if args.json:
-        print_json({"input": args.input, "output": args.output, "rows": rows})
+        print_json({"input": [str(i) for i in args.input], "output": args.output, "rows": rows, "notes": take.notes})
     else:
         print(f"Fused {args.input} -> {args.output} ({rows} rows)", file=sys.stderr)
     return EXIT_OK
@@ -137,11 +144,16 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ConfigError(f"--rig: {exc}") from None
     cfg = rig_config(args) if args.config is not None else None
+    source: Path | InputTake
+    if single_recorded_mcap(args.file) and not (args.time_offset or args.registered):
+        source = Path(args.file[0])  # byte for byte, on the recorded keys
+    else:
+        source = open_take(args, args.file, cfg, quiet=args.json)
     report = run_replay(
-        args.file,
+        source,
         zenoh_conf(args, cfg),
         speed=None if args.fast else args.speed,
-        rig=args.rig,
+        rig=args.rig or (cfg.name if cfg is not None and not isinstance(source, Path) else None),
         limits=run_limits(args),
         lifecycle=Lifecycle("replay"),
     )
@@ -236,7 +248,9 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         metavar="RIG.toml",
         help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)",
     )
-    fuse.add_argument("--input", type=Path, default=None, metavar="FILE", help="offline: an MCAP recording")
+    fuse.add_argument(
+        "--input", nargs="+", default=None, metavar="[ID=]PATH", help=f"offline: the recording(s). {INPUT_HELP}"
+    )
     fuse.add_argument(
         "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
     )
@@ -282,6 +296,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     )
     view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
     fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_input_options(fuse)
     add_run_limits(fuse, "publishing N fused frames")
     add_zenoh_arguments(fuse)
     fuse.set_defaults(func=_cmd_fuse)
@@ -315,9 +330,11 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         "replay",
         help="republish a recording's sensor frames over zenoh (original or maximum speed)",
         description="Publish the sensor frames of an MCAP recording on their recorded keys, byte for byte, "
-        "paced by their recorded host time, so a session can be fused again live with other settings.",
+        "paced by their recorded host time, so a session can be fused again live with other settings. Other "
+        "formats (one file per sensor, or a long CSV) are matched in time and published on "
+        "skelfuse/<--rig, the config's rig, else replay>/sensors/<id>/skeletons, paced by their matched times.",
     )
-    replay.add_argument("file", type=Path, metavar="FILE", help="an MCAP recording made by skelfuse record")
+    replay.add_argument("file", nargs="+", metavar="[ID=]PATH", help=INPUT_HELP)
     replay.add_argument("--speed", type=float, default=1.0, help="playback speed (default: %(default)s)")
     replay.add_argument("--fast", action="store_true", help="as fast as possible")
     replay.add_argument(
@@ -331,6 +348,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
     )
     replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_input_options(replay)
     add_run_limits(replay, "publishing N frames")
     add_zenoh_arguments(replay)
     replay.set_defaults(func=_cmd_replay)

@@ -30,6 +30,7 @@ import numpy as np
 from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
 from skelfuse.fusion.presets import FusionParams, preset
 from skelfuse.progress import Progress
+from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
 from skelfuse.rig.grouping import FrameGrouper
 from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
@@ -58,10 +59,12 @@ def resolve_poses(
     world_from_sensor: Mapping[str, Any] | None = None,
     rig_config: RigConfig | None = None,
     recording: RecordingReader | None = None,
+    take: InputTake | None = None,
 ) -> np.ndarray:
     """(S, 4, 4) ``world_from_sensor`` of ``sensor_ids``, from the first source that has them.
 
-    Order: the explicit ``world_from_sensor`` mapping, the rig config, the recording's calibration metadata.
+    Order: the explicit ``world_from_sensor`` mapping, the rig config, the recording's calibration metadata
+    (or the opened take's: an MCAP's metadata, identity poses for ``--registered`` inputs).
 
     Raises
     ------
@@ -76,6 +79,9 @@ def resolve_poses(
         sources.append((f"rig config {rig_config.source}", rig_config.poses(required=False)))
     if recording is not None and recording.calibration:
         sources.append((f"calibration metadata of {recording.path}", recording.calibration))
+    if take is not None and take.poses:
+        what = "--registered identity poses" if take.registered else "calibration metadata of the recording"
+        sources.append((what, take.poses))
     tried = []
     for name, poses in sources:
         missing = [s for s in sensor_ids if s not in poses]
@@ -94,7 +100,8 @@ def resolve_poses(
         f"no calibration (world_from_sensor) for every sensor of the recording ({', '.join(sensor_ids)}): "
         f"{where}. Pass the rig config that holds the poses "
         f"([calibration] file or sensors[i].world_from_sensor), or pass world_from_sensor; recordings made "
-        f"with a calibrated rig carry it in their metadata"
+        f"with a calibrated rig carry it in their metadata; files already in one frame take --registered; "
+        f"`skelfuse calibrate skeleton` makes a calibration from a walk"
     )
 
 
@@ -103,7 +110,7 @@ def resolve_poses(
 
 
 def fuse_recording(
-    recording_path: str | os.PathLike[str],
+    recording_path: str | os.PathLike[str] | InputTake,
     *,
     rig_config: RigConfig | None = None,
     world_from_sensor: Mapping[str, Any] | None = None,
@@ -120,8 +127,9 @@ def fuse_recording(
 
     Parameters
     ----------
-    recording_path : str or Path
-        A skelfuse MCAP recording (a truncated one is read up to its last complete chunk).
+    recording_path : str, Path or InputTake
+        A skelfuse MCAP recording (a truncated one is read up to its last complete chunk), or a take opened
+        by :func:`skelfuse.recording.inputs.open_inputs` (any format, frames matched in time).
     rig_config : skelfuse.config.RigConfig, optional
         Poses of the sensors (``rig_config.poses()``), the fusion section and the grouping (``[sync]``).
     world_from_sensor : mapping sensor id -> (4, 4), optional
@@ -134,12 +142,12 @@ def fuse_recording(
         the paper's presets).
     by : {"device", "host"}, optional
         Group by device timestamps (hardware-synced rigs) or host timestamps. Default: the rig config's
-        ``[sync] by``, else "device".
+        ``[sync] by``, else "device". For an MCAP path only (an opened take has its matching clock).
     tolerance_us, deadline_us : int, optional
         Grouping window and how long an incomplete instant waits, on the recorded host clock. Default: the
         rig config's ``[sync]``, else :class:`skelfuse.config.SyncConfig`'s defaults (10 ms, 17 ms).
     start_ns, end_ns : int, optional
-        Log-time (host ns) window of the recording to fuse.
+        Log-time (host ns) window of an MCAP recording to fuse (ignored for an opened take).
     progress : bool
         Draw a progress bar on stderr (only when it is a terminal).
 
@@ -157,15 +165,39 @@ def fuse_recording(
         Missing / not-MCAP recording, no sensor channel, or no calibration for every sensor (see
         :func:`resolve_poses`).
     """
+    params = _params(rig_config, preset_name, eps_mm)
+    sync = rig_config.sync if rig_config is not None else SyncConfig()
+    if isinstance(recording_path, InputTake):
+        take = recording_path
+        poses = resolve_poses(take.sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, take=take)
+        grouper = take.grouper(sync, tolerance_us=tolerance_us, deadline_us=deadline_us)
+        return _fuse_take(take, poses, params, grouper, progress)
     reader = RecordingReader(recording_path)
     sensor_ids = reader.sensors
     if not sensor_ids:
         raise DataError(f"recording {reader.path} holds no sensor-frame channels; nothing to fuse")
     poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
-    params = _params(rig_config, preset_name, eps_mm)
-    sync = rig_config.sync if rig_config is not None else SyncConfig()
     grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
     return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+
+
+def _fuse_take(
+    take: InputTake, poses: np.ndarray, params: FusionParams, grouper: FrameGrouper, progress: bool
+) -> Iterator[FusedFrame]:
+    fuser = GroupFuser(take.sensor_ids, poses, params)
+    total = sum(r.n_frames for r in take.recordings)
+    bar = Progress(total, "fuse", enabled=None if progress else False)
+    host = take.clock == "host"
+    try:
+        for frame in take.frames():
+            now_ns = int(frame.host_time_ns) if host else int(frame.device_time_us) * 1000
+            for group in grouper.push(frame, now_ns):
+                yield fuser.step(group).frame
+            bar.update()
+        for group in grouper.flush():
+            yield fuser.step(group).frame
+    finally:
+        bar.close()
 
 
 def _fuse(

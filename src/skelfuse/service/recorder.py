@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 from skelfuse.config import RigConfig
 from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
+from skelfuse.recording.inputs import InputTake
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -136,7 +137,7 @@ class ReplayReport:
 
 
 def run_replay(
-    path: Path,
+    path: Path | InputTake,
     zenoh_conf: zenoh.Config,
     *,
     speed: float | None,
@@ -144,9 +145,22 @@ def run_replay(
     limits: RunLimits,
     lifecycle: Lifecycle,
 ) -> ReplayReport:
-    """Publish a recording's sensor frames at ``speed`` (None: as fast as possible)."""
+    """Publish a recording's sensor frames at ``speed`` (None: as fast as possible).
 
-    reader = RecordingReader(path)
+    ``path``: a skelfuse MCAP (payloads republished byte for byte on their recorded keys, paced by the
+    recorded host time) or a take of any format opened by :func:`skelfuse.recording.inputs.open_inputs`
+    (frames encoded and published under ``rig`` (default ``replay``), paced by their matched times).
+    """
+
+    if isinstance(path, InputTake):
+        take = path
+        reader = take.records(rig or "replay")
+        sensors = ", ".join(take.sensor_ids)
+        rig = None  # the records' topics already name the rig
+        path = Path(take.recordings[0].source)
+    else:
+        reader = RecordingReader(path)
+        sensors = ", ".join(reader.sensors)
     report = ReplayReport()
     with lifecycle.capture_signals():
         session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay")
@@ -158,7 +172,7 @@ def run_replay(
             log.info(
                 "replay: %s (%s) at %s",
                 path,
-                ", ".join(reader.sensors),
+                sensors,
                 "maximum speed" if speed is None else f"{speed:g}x",
             )
             for _, record in replay_frames(reader, speed=speed, sleep=lifecycle.wait):

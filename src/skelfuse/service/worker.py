@@ -26,8 +26,10 @@ Sources
     and the pose, like hardware-synced Kinects. ``sequence`` is ``n`` (a gap is a drop). The take loops, or
     with ``loop = False`` the worker stops at the end of the take.
 ``replay``
-    This sensor's frames of an MCAP recording (``sensors[i].replay``), paced by their recorded host
-    time at ``speed``. Device times are kept; with ``loop`` each pass is shifted by the recording's span
+    This sensor's frames of a recording (``sensors[i].replay``): an MCAP paced by its recorded host time,
+    any other format (offline_processor JSON, extractor CSV, long CSV, andyj1 CSV) by its device time from
+    the earliest first frame of the rig's replay files, at ``speed``. Device times are kept; with ``loop``
+    each pass is shifted by the recording's span
     so time keeps increasing.
 ``kinect``
     An Azure Kinect / Femto Bolt through :class:`skelfuse.sources.kinect.KinectSource` (pyk4a + k4abt, the
@@ -44,7 +46,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -52,7 +54,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
-from skelfuse.recording import RecordingReader
+from skelfuse.recording import RecordedFrame, RecordingReader
+from skelfuse.recording.inputs import open_inputs
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
@@ -61,6 +64,7 @@ from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_sessi
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import VirtualSensor
+from skelfuse.sources.formats import detect_format
 from skelfuse.sources.kinect import KinectSource
 from skelfuse.wire import keys
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
@@ -241,7 +245,12 @@ class SimSource:
 
 
 class ReplaySource:
-    """One sensor's frames of an MCAP recording, paced by recorded host time (see the module docstring)."""
+    """One sensor's frames of a recording, paced by recorded time (see the module docstring).
+
+    An MCAP is paced by its recorded host time. Any other format (:mod:`skelfuse.recording.inputs`) is paced
+    by its device time, from ``anchor_us`` (the earliest first frame of the rig's replay files, so that
+    workers started together publish the instants of a shared device clock together) when given.
+    """
 
     def __init__(
         self,
@@ -251,15 +260,29 @@ class ReplaySource:
         recorded_sensor: str | None = None,
         loop: bool = False,
         speed: float | None = 1.0,
+        anchor_us: int | None = None,
     ) -> None:
 
         self.sensor_id = sensor_id
         self.recorded_sensor = recorded_sensor or sensor_id
-        self.reader = RecordingReader(path)
-        if self.recorded_sensor not in self.reader.sensors:
+        self.anchor_ns = None if anchor_us is None else int(anchor_us) * 1000
+        if detect_format(path) == "mcap":
+            reader = RecordingReader(path)
+            held = reader.sensors
+            self._records: Callable[[], Iterable[RecordedFrame]] = lambda: reader.records(
+                sensors=[self.recorded_sensor]
+            )
+            self.anchor_ns = None
+        else:
+            take = open_inputs([str(path)])
+            held = take.sensor_ids
+            if self.recorded_sensor not in held and recorded_sensor is None and len(held) == 1:
+                self.recorded_sensor = held[0]  # a one-sensor file replays as this sensor, whatever its name
+            self._records = lambda: (r for r in take.records("replay") if r.sensor_id == self.recorded_sensor)
+        if self.recorded_sensor not in held:
             raise DataError(
                 f"recording {path} has no sensor {self.recorded_sensor!r}; it holds "
-                f"{', '.join(self.reader.sensors) or 'no sensors'} (set sensors[i].replay.sensor)"
+                f"{', '.join(held) or 'no sensors'} (set sensors[i].replay.sensor)"
             )
         self.loop = loop
         self.speed = speed
@@ -274,13 +297,14 @@ class ReplaySource:
             last_log = 0
             first_dev: int | None = None
             last_dev = 0
-            for record in self.reader.records(sensors=[self.recorded_sensor]):
+            for record in self._records():
                 frame = record.frame
                 if first_log is None:
                     first_log = record.log_time_ns
                     first_dev = frame.device_time_us
                 last_log, last_dev = record.log_time_ns, frame.device_time_us
-                offset = record.log_time_ns - first_log
+                anchor = self.anchor_ns if (pass_index == 0 and self.anchor_ns is not None) else first_log
+                offset = max(record.log_time_ns - anchor, 0)
                 due = start_ns + pass_offset_ns + (0 if self.speed is None else int(offset / self.speed))
                 yield (
                     due,
@@ -476,8 +500,25 @@ def check_source(cfg: RigConfig, sensor_id: str) -> None:
             f"{cfg.source}: sim sensor {sensor_id!r} needs sensors[i].world_from_sensor: the "
             "simulator observes the person from that (true) pose"
         )
-    if sensor.source == "replay" and sensor.replay is not None and not Path(sensor.replay.file).exists():
-        raise DataError(f"{cfg.source}: sensors[{sensor_id!r}].replay.file {sensor.replay.file} does not exist")
+    if sensor.source == "replay" and sensor.replay is not None:
+        if not Path(sensor.replay.file).exists():
+            raise DataError(f"{cfg.source}: sensors[{sensor_id!r}].replay.file {sensor.replay.file} does not exist")
+        detect_format(sensor.replay.file)  # an unknown format fails here, naming the known ones
+
+
+def replay_anchor_us(cfg: RigConfig) -> int | None:
+    """The earliest first device time over the rig's non-MCAP replay files (None when there are none).
+
+    Every replay worker paces its file from this instant, so files of one sync chain that start at different
+    frames are published in step (workers started together stay within their start-up jitter).
+    """
+    files = {s.replay.file for s in cfg.sensors if s.source == "replay" and s.replay is not None}
+    firsts = []
+    for file in sorted(files):
+        if Path(file).exists() and detect_format(file) != "mcap":
+            take = open_inputs([str(file)])
+            firsts += [int(take.match_times_us(r).min()) for r in take.recordings if r.n_frames]
+    return min(firsts) if firsts else None
 
 
 def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> FrameSource:
@@ -506,7 +547,12 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
         assert sensor.replay is not None
         loop = sensor.replay.loop if options.loop is None else options.loop
         return ReplaySource(
-            sensor.replay.file, sensor_id, recorded_sensor=sensor.replay.sensor, loop=loop, speed=options.speed
+            sensor.replay.file,
+            sensor_id,
+            recorded_sensor=sensor.replay.sensor,
+            loop=loop,
+            speed=options.speed,
+            anchor_us=replay_anchor_us(cfg),
         )
     if sensor.source == "kinect":
         return KinectFrameSource(cfg, sensor_id, subordinate_wait_s=options.subordinate_wait_s)

@@ -64,6 +64,18 @@ class Recording:
         Path of the file that was read.
     duplicates_dropped : int
         Frames dropped because the file wrote every frame twice (see :func:`load_andyj1_csv`); 0 otherwise.
+    host_time_ns : (T,) int64 or None
+        Host receive times where the file has them (skelfuse MCAP), else None.
+    sequences : (T,) int64 or None
+        The sensor's frame counters where the file has them (gaps are drops), else the frame index is used.
+    confidence_assumed : str or None
+        None when the confidence comes from the file; else what was assumed for a file that stores none
+        (``"medium"``, ``"low"`` or ``"unknown"``, see :data:`ASSUME_CONFIDENCE`).
+    file_format : str
+        The format the file was read as (``"andyj1"``, ``"offline_processor"``, ``"extractor"``, ``"long"``,
+        ``"mcap"``, ``"mkv"``).
+    notes : tuple of str
+        What the reader noticed and the user should hear (e.g. bodies without orientations).
     """
 
     sensor_id: str
@@ -74,6 +86,11 @@ class Recording:
     device_time_us: np.ndarray | None
     source: str = ""
     duplicates_dropped: int = 0
+    host_time_ns: np.ndarray | None = None
+    sequences: np.ndarray | None = None
+    confidence_assumed: str | None = None
+    file_format: str = ""
+    notes: tuple[str, ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -82,6 +99,11 @@ class Recording:
     @property
     def max_bodies(self) -> int:
         return int(self.positions.shape[1])
+
+    @property
+    def has_timestamps(self) -> bool:
+        """True when frames carry device timestamps; False when they only match by order (index)."""
+        return self.device_time_us is not None
 
     def frame_times_us(self, frame_period_us: int = FRAME_PERIOD_US) -> np.ndarray:
         """(T,) int64 device times: the recorded ones, else ``index * frame_period_us`` (match by order)."""
@@ -92,18 +114,19 @@ class Recording:
     def frames(self, frame_period_us: int = FRAME_PERIOD_US) -> Iterator[SensorFrame]:
         """Yield one :class:`SensorFrame` per recorded frame, padded body slots removed.
 
-        ``sequence`` is the frame index. Files without timestamps get ``device_time_us = index *
-        frame_period_us`` (30 fps by default); ``host_time_ns`` is the device time in ns, since recordings
-        carry no host clock.
+        ``sequence`` is the recorded sequence number, else the frame index. Files without timestamps get
+        ``device_time_us = index * frame_period_us`` (30 fps by default); ``host_time_ns`` is the recorded
+        host time where the file has one, else the device time in ns.
         """
         times_us = self.frame_times_us(frame_period_us)
         for index in range(self.n_frames):
             present = self.body_ids[index] >= 0
+            host_ns = int(times_us[index]) * 1000 if self.host_time_ns is None else int(self.host_time_ns[index])
             yield SensorFrame(
                 sensor_id=self.sensor_id,
-                sequence=index,
+                sequence=index if self.sequences is None else int(self.sequences[index]),
                 device_time_us=int(times_us[index]),
-                host_time_ns=int(times_us[index]) * 1000,
+                host_time_ns=host_ns,
                 body_ids=self.body_ids[index, present].astype(np.uint32),
                 positions=self.positions[index, present].copy(),
                 orientations=self.orientations[index, present].copy(),
@@ -161,6 +184,32 @@ _CONFIDENCE_SENTENCES: dict[str, Confidence] = {
         *[(str(int(level)), level) for level in Confidence],
     ]
 }
+
+
+ASSUME_CONFIDENCE: dict[str, Confidence] = {
+    "medium": Confidence.MEDIUM,
+    "low": Confidence.LOW,
+    "unknown": Confidence.MEDIUM,
+}
+"""What ``--assume-confidence`` gives every joint of a file that stores no confidence.
+
+* ``medium``: what the SDK reports for a normally tracked joint (HIGH never occurs) and what most joints
+  carry (torso and head about 100 %, unoccluded legs 97-100 %); occluded, predicted joints become MEDIUM
+  too, so fusion must reject them by geometry (as it must for the SDK's own over-confident MEDIUM).
+* ``low``: treat every joint as predicted (a cautious choice for takes with much occlusion; a skeleton
+  calibration uses MEDIUM joints only, so it finds nothing to fit on such a take).
+* ``unknown``: do not use confidence at all. Every joint gets one and the same level (stored as MEDIUM, so
+  that fusion prefers no joint over another; it is *not* the SDK's NONE, which means out of range), and
+  every metric that relies on MEDIUM is reported as meaningless for the input.
+"""
+
+
+def assumed_confidence_level(assume: str) -> Confidence:
+    """The level :data:`ASSUME_CONFIDENCE` gives for ``assume``; ValueError naming the choices otherwise."""
+    try:
+        return ASSUME_CONFIDENCE[assume]
+    except KeyError:
+        raise ValueError(f"assume_confidence must be one of {', '.join(ASSUME_CONFIDENCE)}, got {assume!r}") from None
 
 
 def parse_confidence(text: str) -> Confidence | None:
@@ -324,6 +373,7 @@ def load_andyj1_csv(
         device_time_us=None,
         source=str(path),
         duplicates_dropped=dropped,
+        file_format="andyj1",
     )
 
 
@@ -400,11 +450,33 @@ def _joint_array(where: str, value: Any, width: int, what: str) -> np.ndarray:
     return array
 
 
+JSON_CONFIDENCE_KEYS = ("joint_confidences", "joint_confidence_levels", "confidence_levels", "joint_confidence")
+"""Per-body keys holding 32 per-joint confidence levels, as tools that extend the offline_processor output
+write them (numbers 0-3, enum names or the SDK header's sentences); the first one present is used."""
+
+
+def _json_confidence(where: str, value: Any) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != N_JOINTS:
+        count = len(value) if isinstance(value, list) else type(value).__name__
+        raise DataError(f"{where}: the per-joint confidence holds {count} entries, expected {N_JOINTS} (one per joint)")
+    out = np.empty(N_JOINTS, dtype=np.uint8)
+    for joint, item in enumerate(value):
+        level = parse_confidence(str(item)) if isinstance(item, int | str) and not isinstance(item, bool) else None
+        if level is None:
+            raise DataError(
+                f"{where}: confidence of joint {joint} ({JOINT_NAMES[joint]}) is {item!r}; expected 0-3 "
+                "(NONE, LOW, MEDIUM, HIGH), an enum name or the SDK header's sentence"
+            )
+        out[joint] = int(level)
+    return out
+
+
 def load_offline_processor_json(
     path: str | Path,
     *,
     sensor_id: str | None = None,
     confidence: Confidence = OFFLINE_PROCESSOR_CONFIDENCE,
+    assume_confidence: str | None = None,
 ) -> Recording:
     """Read the JSON the Body Tracking SDK's offline_processor sample writes.
 
@@ -413,8 +485,11 @@ def load_offline_processor_json(
     ``joint_positions`` (32 x [x, y, z] mm), ``joint_orientations`` (32 x [w, x, y, z]).
 
     ``joint_names`` must name our 32 joints in SDK order (case-insensitive, with or without the
-    ``K4ABT_JOINT_`` prefix; the docs' "SPINE_NAVAL" spelling is accepted). The file stores no confidence:
-    every joint gets ``confidence`` (default MEDIUM, see :data:`OFFLINE_PROCESSOR_CONFIDENCE`).
+    ``K4ABT_JOINT_`` prefix; the docs' "SPINE_NAVAL" spelling is accepted). The sample stores no confidence:
+    every joint gets ``confidence`` (default MEDIUM, see :data:`OFFLINE_PROCESSOR_CONFIDENCE`), or the
+    level of ``assume_confidence`` (:data:`ASSUME_CONFIDENCE`), and the recording says it was assumed.
+    Variants that add a per-joint confidence per body (:data:`JSON_CONFIDENCE_KEYS`) are read as they are;
+    then every body must carry it.
 
     Raises
     ------
@@ -423,6 +498,8 @@ def load_offline_processor_json(
         ``num_bodies`` disagreeing with ``bodies``, or a non-finite value, naming the frame and body.
     """
     path = Path(path)
+    if assume_confidence is not None:
+        confidence = assumed_confidence_level(assume_confidence)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -449,6 +526,8 @@ def load_offline_processor_json(
 
     frames: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = []
     times: list[int] = []
+    confidence_key: str | None = None  # decided by the first body: every body must then carry it
+    decided = False
     for frame_index, frame in enumerate(root["frames"]):
         where = f"{path}: frames[{frame_index}]"
         _require_keys(where, frame, _JSON_FRAME_KEYS, "the frame")
@@ -469,14 +548,19 @@ def load_offline_processor_json(
                 raise DataError(f"{body_where}: body_id is {body['body_id']!r}, expected an integer")
             positions = _joint_array(body_where, body["joint_positions"], 3, "joint_positions")
             quats = _joint_array(body_where, body["joint_orientations"], 4, "joint_orientations")
-            parsed.append(
-                (
-                    int(body["body_id"]),
-                    positions.astype(np.float32),
-                    quats.astype(np.float32),
-                    np.full(N_JOINTS, int(confidence), dtype=np.uint8),
+            if not decided:
+                confidence_key = next((k for k in JSON_CONFIDENCE_KEYS if k in body), None)
+                decided = True
+            if confidence_key is None:
+                levels = np.full(N_JOINTS, int(confidence), dtype=np.uint8)
+            elif confidence_key not in body:
+                raise DataError(
+                    f"{body_where}: lacks {confidence_key!r}, which the file's first body carries; every body "
+                    "needs its per-joint confidence (or none has it)"
                 )
-            )
+            else:
+                levels = _json_confidence(f"{body_where}.{confidence_key}", body[confidence_key])
+            parsed.append((int(body["body_id"]), positions.astype(np.float32), quats.astype(np.float32), levels))
         frames.append(parsed)
 
     positions, orientations, conf, body_ids = _pad_bodies(frames)
@@ -488,4 +572,6 @@ def load_offline_processor_json(
         body_ids=body_ids,
         device_time_us=np.asarray(times, dtype=np.int64),
         source=str(path),
+        confidence_assumed=None if confidence_key is not None else (assume_confidence or confidence.name.lower()),
+        file_format="offline_processor",
     )

@@ -1,0 +1,93 @@
+"""The options every command that reads recordings shares, and opening them (``recording.inputs``).
+
+Not a command group: ``fuse --input``, ``replay``, ``calibrate skeleton|check``, ``eval real`` and
+``convert`` add these options with :func:`add_input_options` and open the take with :func:`open_take`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from skelfuse.config import RigConfig
+from skelfuse.recording.inputs import CLOCK_MODES, InputTake, open_inputs, parse_time_offsets
+from skelfuse.sources.formats import FORMATS, InputSpec, detect_format
+from skelfuse.sources.recorded import ASSUME_CONFIDENCE
+
+INPUT_HELP = (
+    "[ID=]PATH of a recording: a skelfuse MCAP, an Azure Kinect .mkv (needs the SDK), an offline_processor "
+    ".json, an azure-kinect-mkv-extractor camera folder, an andyj1 .csv or a long .csv (docs/recordings.md); "
+    "one per sensor, or one file holding several"
+)
+
+
+def add_input_options(parser: argparse.ArgumentParser, *, by: bool = True) -> None:
+    """``--format``, ``--assume-confidence``, ``--clock``, ``--time-offset``, ``--registered`` [, ``--by``]."""
+    group = parser.add_argument_group("reading recordings (docs/recordings.md)")
+    group.add_argument(
+        "--format", choices=FORMATS, default=None, help="read every input as this format (default: detect each)"
+    )
+    group.add_argument(
+        "--assume-confidence",
+        choices=tuple(ASSUME_CONFIDENCE),
+        default="medium",
+        help="confidence of every joint of a file that stores none (offline_processor JSON, a long CSV without "
+        "the column): medium, low, or unknown = do not use confidence (default: %(default)s); said in the output",
+    )
+    group.add_argument(
+        "--clock",
+        choices=CLOCK_MODES,
+        default="auto",
+        help="the files' device clocks: one sync chain (shared), unrelated (independent: the offset is "
+        "estimated from the motion and reported), or auto = shared where the time ranges overlap "
+        "(default: %(default)s)",
+    )
+    group.add_argument(
+        "--time-offset",
+        action="append",
+        default=[],
+        metavar="ID=MS",
+        help="add MS milliseconds to sensor ID's times before matching (overrides an estimate; repeatable)",
+    )
+    group.add_argument(
+        "--registered",
+        action="store_true",
+        help="the files' poses are already in one frame (e.g. the andyj1 subordinates): identity poses",
+    )
+    if by:
+        group.add_argument(
+            "--by",
+            choices=["device", "host"],
+            default=None,
+            help="match frames by device time or recorded host time (MCAP) (default: the config's [sync] by, "
+            "else device)",
+        )
+
+
+def single_recorded_mcap(specs: Sequence[str]) -> bool:
+    """True when ``specs`` is one plain path to a skelfuse MCAP (no ``ID=``)."""
+    if len(specs) != 1:
+        return False
+    spec = InputSpec.parse(specs[0])
+    return spec.sensor_id is None and spec.path.is_file() and detect_format(spec.path) == "mcap"
+
+
+def open_take(
+    args: argparse.Namespace, specs: Sequence[str], cfg: RigConfig | None = None, *, quiet: bool = False
+) -> InputTake:
+    """Open ``specs`` with the shared options; print what was assumed and how frames are matched on stderr."""
+    by = getattr(args, "by", None) or (cfg.sync.by if cfg is not None else "device")
+    take = open_inputs(
+        list(specs),
+        fmt=args.format,
+        assume_confidence=args.assume_confidence,
+        by=by,
+        clock=args.clock,
+        time_offsets_ms=parse_time_offsets(args.time_offset),
+        registered=args.registered,
+        fps=cfg.sync.fps if cfg is not None else 30.0,
+    )
+    if not quiet:
+        print(take.describe(), file=sys.stderr)
+    return take

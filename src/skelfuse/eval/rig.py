@@ -1,0 +1,452 @@
+"""``skelfuse eval real``: an honest report on any real recording of N >= 2 sensors, without ground truth.
+
+Cycle (:func:`run_rig_eval`)::
+
+    take = open_inputs(specs, ...)                       # any format, frames matched in time
+    poses = calibration file | --auto-calibrate | --registered | the MCAP's metadata
+    views  (T, S, 32, 3) world, confidence (T, S, 32)    # every instant, each sensor's first body
+    fused  (T, 32, 3) per preset                         # the product's own offline fusion (GroupFuser)
+    metrics per joint group (torso, arms, hands, legs, head) and per preset against every single view
+
+With ``--auto-calibrate`` the skeleton calibration is fitted on the first half of the instants and every
+metric is computed on the second half only, so agreement is not flattered by the fit (the fusion runs
+over the whole take; its filters are warm when the second half starts).
+
+The metrics (all in mm unless said; docs/evaluation.md says what each can and cannot show):
+
+``jitter``
+    median |p[t+1] - 2 p[t] + p[t-1]| over frames and the group's joints (mm/frame²): trembling and jumps.
+``lag``
+    per view, the shift (frames) maximizing the correlation of the fused and the view's joint velocities
+    over +-10 frames; positive = the fused output is late. A filter that lags shows here.
+``agreement``
+    median distance of the fused joint to each view's same joint where that view says MEDIUM. Meaningless
+    where confidence was assumed (the report says so): then it is the distance to every view.
+``gross``
+    share of joint-frames where the fused joint lies > 100 mm from every view that has the joint.
+``mirrored``
+    frames whose left/right axis points against the majority of the views (:func:`eval.real.mirrored_frames`).
+``dropouts``
+    share of instants where some view has the group but the fused output has none.
+``track_ids``
+    distinct track ids the fused person had over the take (1 = never lost).
+``leave-one-out`` (N >= 3)
+    fuse all views but one (the pure fuser, same preset) and measure the distance to the held-out view's
+    MEDIUM joints, next to each remaining single view's distance to the same joints.
+
+Cross-view metrics cannot see errors every view shares (a tracker's common bias, a person all sensors see
+from behind): they are lower bounds on the true error. The simulator (``skelfuse eval paper``) has truth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.calibration.skeleton import calibrate_from_skeletons
+from skelfuse.calibration.takes import take_arrays
+from skelfuse.eval.real import fuse_views, mirrored_frames
+from skelfuse.fusion.presets import preset
+from skelfuse.fusion.transform import apply_transform
+from skelfuse.recording.inputs import InputTake
+from skelfuse.recording.offline import fuse_recording
+from skelfuse.schema.errors import DataError
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS, Confidence, J
+
+REPORT_GROUPS: dict[str, np.ndarray] = {
+    name: np.array([J[n] for n in members], dtype=np.int64)
+    for name, members in {
+        "torso": (
+            "PELVIS",
+            "SPINE_NAVEL",
+            "SPINE_CHEST",
+            "NECK",
+            "CLAVICLE_LEFT",
+            "CLAVICLE_RIGHT",
+            "SHOULDER_LEFT",
+            "SHOULDER_RIGHT",
+            "HIP_LEFT",
+            "HIP_RIGHT",
+        ),
+        "arms": ("ELBOW_LEFT", "ELBOW_RIGHT", "WRIST_LEFT", "WRIST_RIGHT"),
+        "hands": ("HAND_LEFT", "HAND_RIGHT", "HANDTIP_LEFT", "HANDTIP_RIGHT", "THUMB_LEFT", "THUMB_RIGHT"),
+        "legs": ("KNEE_LEFT", "KNEE_RIGHT", "ANKLE_LEFT", "ANKLE_RIGHT", "FOOT_LEFT", "FOOT_RIGHT"),
+        "head": ("HEAD", "NOSE", "EYE_LEFT", "EYE_RIGHT", "EAR_LEFT", "EAR_RIGHT"),
+    }.items()
+}
+"""The report's joint groups: every joint in exactly one."""
+
+DEFAULT_PRESETS = ("skelfuse", "A5", "A1")
+GROSS_MM = 100.0
+MAX_LAG_FRAMES = 10
+TRACE_JOINT = "WRIST_RIGHT"
+
+
+# --------------------------------------------------------------------------------------------- metrics
+
+
+def median_jitter(positions: np.ndarray, joints: np.ndarray) -> float:
+    """Median |second difference| (mm/frame²) over frames and ``joints`` of (T, 32, 3); NaN-triples skipped."""
+    p = np.asarray(positions, dtype=np.float64)[:, joints]
+    if len(p) < 3:
+        return math.nan
+    second = np.linalg.norm(p[2:] - 2 * p[1:-1] + p[:-2], axis=-1)
+    second = second[np.isfinite(second)]
+    return float(np.median(second)) if second.size else math.nan
+
+
+def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES) -> float:
+    """The shift (frames) maximizing the correlation of fused and view velocities; + = fused is late.
+
+    Velocities are first differences of the group's joints, pooled over joints and axes; frames with a NaN
+    are left out per shift. NaN when fewer than 20 frames overlap at every shift.
+    """
+    vf = np.diff(np.asarray(fused, dtype=np.float64)[:, joints], axis=0).reshape(len(fused) - 1, -1)
+    vv = np.diff(np.asarray(view, dtype=np.float64)[:, joints], axis=0).reshape(len(view) - 1, -1)
+    best, best_r = math.nan, -math.inf
+    n = len(vf)
+    for shift in range(-max_lag, max_lag + 1):
+        # fused[t + shift] against view[t]: a late fused output matches at a positive shift
+        a = vf[max(shift, 0) : n + min(shift, 0)]
+        b = vv[max(-shift, 0) : n + min(-shift, 0)]
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 20:
+            continue
+        x, y = a[ok], b[ok]
+        denom = math.sqrt(float(np.sum(x * x)) * float(np.sum(y * y)))
+        r = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
+        if r > best_r:
+            best, best_r = float(shift), r
+    return best
+
+
+def gross_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray, limit_mm: float = GROSS_MM) -> float:
+    """Share of (frame, joint) with a fused joint and >= 1 view where the fused is > limit from every view."""
+    d = np.linalg.norm(views[:, :, joints] - fused[:, None, joints], axis=-1)  # (T, S, K)
+    has_view = np.isfinite(d).any(axis=1)
+    has_fused = np.isfinite(fused[:, joints]).all(axis=-1)
+    count = has_view & has_fused
+    if not count.any():
+        return math.nan
+    far = np.where(np.isfinite(d), d > limit_mm, True).all(axis=1)
+    return float((far & count).sum() / count.sum())
+
+
+def dropout_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray) -> float:
+    """Share of instants where some view has every joint of the group but the fused output has none of them."""
+    view_has = np.isfinite(views[:, :, joints]).all(axis=(-1, -2)).any(axis=1)
+    fused_has = np.isfinite(fused[:, joints]).all(axis=-1).any(axis=-1)
+    return float((view_has & ~fused_has).sum() / view_has.sum()) if view_has.any() else math.nan
+
+
+def median_distance(a: np.ndarray, b: np.ndarray, joints: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Median distance of (T, 32, 3) ``a`` and ``b`` over ``joints`` where both exist (and ``mask`` (T, 32))."""
+    d = np.linalg.norm(a[:, joints] - b[:, joints], axis=-1)
+    keep = np.isfinite(d)
+    if mask is not None:
+        keep &= mask[:, joints]
+    return float(np.median(d[keep])) if keep.any() else math.nan
+
+
+# ----------------------------------------------------------------------------------------------- result
+
+
+@dataclass
+class RigEvalResult:
+    """Everything :func:`run_rig_eval` measured; ``to_dict()`` is JSON-ready."""
+
+    sensors: list[str]
+    formats: dict[str, str]
+    time_matching: str
+    notes: list[str]
+    calibration: str
+    n_instants: int
+    evaluated: tuple[int, int]
+    confidence_meaningful: bool
+    presets: list[str]
+    groups: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    mirrored: dict[str, int] = field(default_factory=dict)
+    track_ids: dict[str, int] = field(default_factory=dict)
+    leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    plots: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _jsonable(asdict(self))
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, np.generic):
+        return _jsonable(value.item())
+    return value
+
+
+# ----------------------------------------------------------------------------------------------- running
+
+
+def _fused_person(
+    take: InputTake, poses: np.ndarray, preset_name: str, views: np.ndarray, eps_mm: float | None
+) -> tuple[np.ndarray, int]:
+    """(T, 32, 3) the fused person nearest the views' pelvis per instant, and how many track ids it had."""
+    frames = list(
+        fuse_recording(
+            take,
+            world_from_sensor=dict(zip(take.sensor_ids, poses, strict=True)),
+            preset_name=preset_name,
+            eps_mm=eps_mm,
+            progress=False,
+        )
+    )
+    if len(frames) != len(views):
+        raise DataError(f"internal: {len(frames)} fused instants for {len(views)} grouped instants")
+    out = np.full((len(frames), N_JOINTS, 3), np.nan)
+    ids: set[int] = set()
+    with np.errstate(invalid="ignore"):
+        anchor = np.nanmedian(views[:, :, J["PELVIS"]], axis=1) if views.size else np.zeros((0, 3))
+    for t, frame in enumerate(frames):
+        if frame.n_persons == 0:
+            continue
+        pelvis = frame.positions[:, J["PELVIS"]]
+        d = np.linalg.norm(pelvis - anchor[t], axis=-1) if np.isfinite(anchor[t]).all() else np.zeros(frame.n_persons)
+        d = np.where(np.isfinite(d), d, np.inf)
+        k = int(np.argmin(d))
+        out[t] = frame.positions[k]
+        ids.add(int(frame.track_ids[k]))
+    return out, len(ids)
+
+
+def _poses(
+    take: InputTake,
+    calibration: Mapping[str, np.ndarray] | None,
+    auto_calibrate: bool,
+    positions: np.ndarray,
+    confidence: np.ndarray,
+) -> tuple[np.ndarray, str, int]:
+    """(S, 4, 4) world_from_sensor, how they were obtained, and the first evaluated instant."""
+    ids = take.sensor_ids
+    if auto_calibrate:
+        half = len(positions) // 2
+        cal = calibrate_from_skeletons(positions[:half], confidence[:half], ids, progress=False)
+        verdicts = ", ".join(f"{s} {cal.quality[s].verdict}" for s in ids)
+        return (
+            cal.world_from_sensor_array(ids),
+            f"skeleton calibration on the first {half} instants (verdicts: {verdicts}); metrics on the rest",
+            half,
+        )
+    if calibration is not None:
+        missing = [s for s in ids if s not in calibration]
+        if missing:
+            raise DataError(
+                f"the calibration has no pose for {', '.join(missing)}; it holds {', '.join(calibration)}. "
+                "Calibrate with `skelfuse calibrate skeleton` or pass --auto-calibrate"
+            )
+        return np.stack([np.asarray(calibration[s], dtype=np.float64) for s in ids]), "calibration file", 0
+    if take.poses and all(s in take.poses for s in ids):
+        what = "identity (--registered: already in one frame)" if take.registered else "the recording's metadata"
+        return np.stack([take.poses[s] for s in ids]), what, 0
+    raise DataError(
+        f"no poses for {', '.join(ids)}: pass --calibration FILE, --auto-calibrate (fit on one half, evaluate on "
+        "the other) or --registered (files already in one frame)"
+    )
+
+
+def run_rig_eval(
+    take: InputTake,
+    *,
+    calibration: Mapping[str, np.ndarray] | None = None,
+    auto_calibrate: bool = False,
+    presets: Sequence[str] = DEFAULT_PRESETS,
+    eps_mm: float | None = None,
+    out_dir: Path | None = None,
+    progress: bool = True,
+) -> RigEvalResult:
+    """Evaluate every preset on ``take`` against its single views (see the module docstring).
+
+    Raises DataError for fewer than 2 sensors, no poses, or no instant with a body.
+    """
+    ids = take.sensor_ids
+    if len(ids) < 2:
+        raise DataError(f"eval real needs at least 2 sensors; the inputs hold {', '.join(ids)}")
+    for name in presets:
+        preset(name)  # unknown names fail before any work
+    positions, confidence, _ = take_arrays(take, progress=progress)
+    poses, how, first = _poses(take, calibration, auto_calibrate, positions, confidence)
+    world = apply_transform(poses, positions)  # (T, S, 32, 3)
+    meaningful = not take.confidence_unknown
+    medium = confidence >= int(Confidence.MEDIUM) if meaningful else np.isfinite(world).all(axis=-1)
+    evaluated = slice(first, len(world))
+    views = world[evaluated]
+    views_s = np.moveaxis(views, 1, 0)  # (S, T, 32, 3)
+    result = RigEvalResult(
+        sensors=list(ids),
+        formats=dict(take.formats),
+        time_matching=take.clock,
+        notes=list(take.notes),
+        calibration=how,
+        n_instants=len(world),
+        evaluated=(first, len(world)),
+        confidence_meaningful=meaningful,
+        presets=list(presets),
+    )
+    fused_by_preset: dict[str, np.ndarray] = {}
+    for name in presets:
+        fused_all, n_ids = _fused_person(take, poses, name, world, eps_mm)
+        fused_by_preset[name] = fused_all[evaluated]
+        result.track_ids[name] = n_ids
+    candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
+    for group, joints in REPORT_GROUPS.items():
+        rows: dict[str, dict[str, Any]] = {}
+        for label, seq in candidates.items():
+            is_view = label.startswith("view ")
+            others = [i for i, s in enumerate(ids) if not (is_view and label == f"view {s}")]
+            rows[label] = {
+                "jitter": median_jitter(seq, joints),
+                "agreement": {
+                    ids[i]: median_distance(seq, views[:, i], joints, medium[evaluated][:, i]) for i in others
+                },
+                "lag": {ids[i]: velocity_lag(seq, views[:, i], joints) for i in others} if not is_view else {},
+                "gross": gross_share(seq, views[:, others], joints),
+                "dropouts": dropout_share(seq, views, joints) if not is_view else math.nan,
+            }
+        result.groups[group] = rows
+    for label, seq in candidates.items():
+        others = [i for i, s in enumerate(ids) if label != f"view {s}"]
+        flags, _ = mirrored_frames(seq, views_s[others])
+        result.mirrored[label] = int(flags.sum())
+    if len(ids) >= 3:
+        conf_s = np.moveaxis(confidence, 1, 0)
+        for name in presets:
+            per_held: dict[str, dict[str, float]] = {}
+            for h, held in enumerate(ids):
+                rest = [i for i in range(len(ids)) if i != h]
+                fused = fuse_views(np.moveaxis(world[:, rest], 1, 0), conf_s[rest], name, eps_mm)[evaluated]
+                mask = medium[evaluated][:, h]
+                row = {"fused": median_distance(fused, views[:, h], np.arange(N_JOINTS), mask)}
+                for i in rest:
+                    row[f"view {ids[i]}"] = median_distance(views[:, i], views[:, h], np.arange(N_JOINTS), mask)
+                per_held[held] = row
+            result.leave_one_out[name] = per_held
+    if out_dir is not None:
+        result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
+    return result
+
+
+# ----------------------------------------------------------------------------------------------- output
+
+
+def _median(values: Any) -> float:
+    finite = [v for v in values if isinstance(v, float | int) and math.isfinite(v)]
+    return float(np.median(finite)) if finite else math.nan
+
+
+def _f(value: float, digits: int = 1) -> str:
+    return "n/a" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def format_markdown(result: RigEvalResult) -> str:
+    """The report as markdown: inputs, how they were matched and calibrated, one table per group."""
+    sensors = ", ".join(f"{s} ({result.formats.get(s, '?')})" for s in result.sensors)
+    lines = [
+        "# Real-data report",
+        "",
+        f"Sensors: {sensors}; frames matched by {result.time_matching} time; poses: {result.calibration}.",
+        f"Instants: {result.n_instants}, evaluated {result.evaluated[0]}..{result.evaluated[1]}.",
+        "",
+    ]
+    lines += [f"- {n}" for n in result.notes]
+    if not result.confidence_meaningful:
+        lines += [
+            "",
+            "**Confidence was assumed, not read:** 'agreement' is the distance to every view's joint, not to its "
+            "MEDIUM joints only, and leave-one-out uses every joint of the held-out view.",
+        ]
+    lines += [
+        "",
+        "Cross-view metrics are lower bounds: errors every view shares are invisible. Definitions and limits: "
+        "docs/evaluation.md.",
+        "",
+    ]
+    for group, rows in result.groups.items():
+        lines += [
+            f"## {group}",
+            "",
+            "| output | jitter mm/f² | agreement mm (median over views) | lag frames (median) | gross % | dropouts % |",
+            "|---|---|---|---|---|---|",
+        ]
+        for label, row in rows.items():
+            lines.append(
+                f"| {label} | {_f(row['jitter'])} | {_f(_median(row['agreement'].values()))} | "
+                f"{_f(_median(row['lag'].values()), 0) if row['lag'] else '-'} | {_f(100 * row['gross'])} | "
+                f"{_f(100 * row['dropouts']) if math.isfinite(row['dropouts']) else '-'} |"
+            )
+        lines.append("")
+    lines += ["## Whole skeleton", "", "| output | mirrored frames | track ids |", "|---|---|---|"]
+    for label, count in result.mirrored.items():
+        lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} |")
+    if result.leave_one_out:
+        lines += ["", "## Leave-one-out (median distance to the held-out view, mm)", ""]
+        for name, per_held in result.leave_one_out.items():
+            for held, row in per_held.items():
+                cells = ", ".join(f"{k} {_f(v)}" for k, v in row.items())
+                lines.append(f"- {name}, held out {held}: {cells}")
+    if result.plots:
+        lines += ["", "## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in result.plots]
+    return "\n".join(lines)
+
+
+def write_plots(
+    result: RigEvalResult, fused: Mapping[str, np.ndarray], views: np.ndarray, ids: Sequence[str], out_dir: Path
+) -> list[str]:
+    """Two PNGs in ``out_dir``: a joint's trace (fused vs views) and agreement by group and preset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    joint = J[TRACE_JOINT]
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    t = np.arange(len(views))
+    for axis, ax in enumerate(axes):
+        for i, s in enumerate(ids):
+            ax.plot(t, views[:, i, joint, axis], lw=0.8, alpha=0.6, label=f"view {s}")
+        for name, seq in fused.items():
+            ax.plot(t, seq[:, joint, axis], lw=1.4, label=name)
+        ax.set_ylabel(f"{'xyz'[axis]} mm")
+    axes[0].set_title(f"{JOINT_NAMES[joint]}: fused against the views (world frame)")
+    axes[-1].set_xlabel("instant")
+    axes[0].legend(fontsize=7, ncol=4)
+    fig.tight_layout()
+    path = out_dir / "trace.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    paths.append(str(path))
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    groups = list(result.groups)
+    labels = list(next(iter(result.groups.values())))
+    width = 0.8 / len(labels)
+    for k, label in enumerate(labels):
+        values = [_median(result.groups[g][label]["agreement"].values()) for g in groups]
+        ax.bar(np.arange(len(groups)) + k * width, values, width, label=label)
+    ax.set_xticks(np.arange(len(groups)) + 0.4 - width / 2, groups)
+    ax.set_ylabel("median distance to the views, mm")
+    ax.set_title("agreement with the views by joint group (lower bound on error)")
+    ax.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    path = out_dir / "agreement.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    paths.append(str(path))
+    return paths
