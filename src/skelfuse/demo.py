@@ -19,6 +19,7 @@ Two modes:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -42,13 +43,20 @@ from skelfuse.schema.errors import ServiceError
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS
 from skelfuse.service.lifecycle import Lifecycle
 from skelfuse.service.node import FusionNode, NodeOptions
-from skelfuse.service.viewer import ViewOptions, open_recording, stop_server
+from skelfuse.service.viewer import (
+    FLUSH_TIMEOUT_S,
+    ViewOptions,
+    has_display,
+    open_recording,
+    release_recording,
+    stop_server,
+)
 from skelfuse.service.worker import simulate_rig
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import paper_rig
-from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
+from skelfuse.sinks.rerun_sink import RerunSink
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
@@ -85,13 +93,6 @@ class DemoSummary:
         return asdict(self)
 
 
-def has_display() -> bool:
-    """Whether a viewer window can open here (a desktop session, or macOS / Windows)."""
-    if sys.platform in ("darwin", "win32"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
 def _group_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Mean distance per paper joint group over frames where the estimate exists; (T, 32, 3) inputs."""
     distance = np.linalg.norm(estimate - truth, axis=-1)
@@ -124,7 +125,6 @@ def run_demo_offline(
         the recording goes to ``skelfuse-demo.rrd``.
     realtime : pace frames at the sensors' 30 Hz; default: only when a live viewer is watching.
     """
-    import rerun as rr
 
     if duration_s <= 0:
         raise ValueError(f"--duration must be positive, got {duration_s}")
@@ -142,12 +142,9 @@ def run_demo_offline(
     if realtime is None:
         realtime = bool(spawn)
 
-    recording = rr.RecordingStream("skelfuse_demo")
-    if spawn:
-        recording.spawn(default_blueprint=default_blueprint())
-    else:
-        assert rrd_path is not None
-        recording.save(rrd_path, default_blueprint=default_blueprint())
+    recording, _ = open_recording(
+        ViewOptions(mode="spawn" if spawn else "save", file=rrd_path or DEFAULT_RRD, application_id="skelfuse_demo")
+    )
     sink = RerunSink(recording, observations.sensor_ids)
     sink.log_rig(observations.world_from_sensor_calibrated)
 
@@ -182,9 +179,11 @@ def run_demo_offline(
                 time.sleep(lag)
     if progress:
         print(f"\rskelfuse demo: fused {n_frames} frames.        ", file=sys.stderr)
-    recording.flush()
-    if rrd_path is not None:
-        recording.disconnect()
+    try:
+        recording.flush(timeout_sec=FLUSH_TIMEOUT_S)
+    except Exception as exc:  # a viewer that went away: its last frames are lost, the summary is not
+        log.warning("rerun: the view could not be flushed within %.1f s (%s)", FLUSH_TIMEOUT_S, exc)
+    release_recording(recording)
 
     single = {
         sensor_id: _group_errors(world[:, index], observations.truth)
@@ -384,19 +383,20 @@ class _Scorer:
         return len(fused), fused_errors, best, best_id, latency
 
 
-def _stop_process(process: Any, timeout_s: float = 5.0) -> None:
-    """SIGTERM the process group we started, then SIGKILL after ``timeout_s``."""
-
-    if process.poll() is not None:
-        return
-    try:
-        os.killpg(process.pid, signal.SIGTERM)
-        process.wait(timeout=timeout_s)
-    except ProcessLookupError:
-        pass
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait(timeout=timeout_s)
+def _stop_processes(processes: list[Any], timeout_s: float = 5.0) -> None:
+    """SIGTERM the process groups we started, all at once, then SIGKILL those left after ``timeout_s``."""
+    running = [p for p in processes if p.poll() is None]
+    for process in running:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    for process in running:
+        try:
+            process.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=timeout_s)
 
 
 def run_demo(
@@ -452,7 +452,7 @@ def run_demo(
         recording, server = open_recording(ViewOptions(mode="serve", application_id="skelfuse_demo"))
     else:
         recording, server = open_recording(
-            ViewOptions(mode="spawn" if spawn else "save", file=rrd_path, application_id="skelfuse_demo")
+            ViewOptions(mode="spawn" if spawn else "save", file=rrd_path or DEFAULT_RRD, application_id="skelfuse_demo")
         )
     workers: list[subprocess.Popen[bytes]] = []
     logs = []
@@ -532,15 +532,14 @@ def run_demo(
             if progress:
                 print("", file=sys.stderr)
     finally:
-        for process in workers:
-            _stop_process(process)
+        _stop_processes(workers)
         for log_file in logs:
             log_file.close()
         node_lifecycle.request_exit()
         node_thread.join(15.0)
         session.close()
-        if rrd_path is not None and not spawn:
-            recording.disconnect()
+        if recording is not None:
+            release_recording(recording)
         stop_server(server)
     elapsed = 0.0 if started is None else time.monotonic() - started
     n_fused, fused_errors, best, best_id, latency = scorer.scores()

@@ -51,6 +51,11 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
     r = cfg.rerun
     if args.no_view:
         return ViewOptions(mode="off")
+    if args.spawn or (args.rrd is not None and r.mode == "spawn" and not args.serve):
+        # --spawn with --rrd FILE: a viewer where one can open, else the view saved to FILE
+        return ViewOptions(
+            mode="spawn", file=args.rrd, grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors
+        )
     if args.rrd is not None:
         return ViewOptions(mode="save", file=args.rrd, log_sensors=r.log_sensors)
     if args.serve:
@@ -61,8 +66,6 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
             web_port=args.web_port if args.web_port is not None else r.web_port,
             log_sensors=r.log_sensors,
         )
-    if args.spawn:
-        return ViewOptions(mode="spawn", grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors)
     return ViewOptions(
         mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port, log_sensors=r.log_sensors
     )
@@ -250,8 +253,20 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         help="status period (default: [node] status_period_s)",
     )
     view = fuse.add_argument_group("live view (default: the config's [rerun])")
-    view.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="save the live view to FILE")
-    view.add_argument("--spawn", action="store_true", help="spawn a local Rerun viewer")
+    view.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help='save the live view to FILE; with --spawn (or [rerun] mode = "spawn"): where the view goes when no '
+        "viewer can open here",
+    )
+    view.add_argument(
+        "--spawn",
+        action="store_true",
+        help="spawn a local Rerun viewer (where none can open, e.g. no DISPLAY: one warning, then no view, or "
+        "--rrd FILE)",
+    )
     view.add_argument(
         "--serve",
         action="store_true",

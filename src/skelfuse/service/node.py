@@ -382,9 +382,15 @@ class FusionNode:
         """Open zenoh (retrying), serve until ``lifecycle.should_exit`` or the run limits, drain, close."""
         own_session = self.session is None
         session = self.session
+        self._started = time.monotonic()  # --duration counts from here, so an unreachable router cannot outlast it
         if session is None:
             assert self.zenoh_conf is not None
-            session = open_session(self.zenoh_conf, lifecycle=self.lifecycle, what=f"fusion node {self.name}")
+            session = open_session(
+                self.zenoh_conf,
+                lifecycle=self.lifecycle,
+                what=f"fusion node {self.name}",
+                deadline=self.options.limits.deadline(self._started),
+            )
             if session is None:
                 return self.report
         view, server = self._open_view()
@@ -416,6 +422,7 @@ class FusionNode:
             )
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
+            self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)
             # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
             subscriber.undeclare()
             deadline = time.monotonic() + self.options.drain_timeout_s
@@ -431,6 +438,7 @@ class FusionNode:
             publisher.undeclare()
             status_pub.undeclare()
         finally:
+            self.lifecycle.request_exit()
             self.ready.set()
             if view is not None:
                 view.close(timeout_s=0.5 if self.lifecycle.force_exit else 5.0)
@@ -459,7 +467,7 @@ class FusionNode:
     def _loop(self, samples: SampleQueue, publisher: Any, status_pub: Any, view: RerunView | None) -> None:
         period_s = self.options.status_period_s or self.cfg.node.status_period_s
         period_ns = int(period_s * 1e9)
-        start = time.monotonic()
+        start = getattr(self, "_started", None) or time.monotonic()
         next_status = time.monotonic_ns()
         last_status = next_status
         limits = self.options.limits

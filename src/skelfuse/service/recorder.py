@@ -58,7 +58,8 @@ def run_recorder(
     report = RecordReport(path)
     flush_s = cfg.record.flush_period_s
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what="recorder")
+        start = time.monotonic()
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="recorder", deadline=limits.deadline(start))
         if session is None:
             return report
         samples = SampleQueue()
@@ -74,7 +75,6 @@ def run_recorder(
             subscriber = session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples)
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
             log.info("recorder: writing rig %s's sensor frames to %s (flush every %.1f s)", cfg.name, path, flush_s)
-            start = time.monotonic()
             next_flush = start + flush_s
             while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
                 item = samples.get(timeout=0.05)
@@ -91,9 +91,11 @@ def run_recorder(
                 if time.monotonic() >= next_flush:
                     writer.flush()
                     next_flush = time.monotonic() + flush_s
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             subscriber.undeclare()
             token.undeclare()
         finally:
+            lifecycle.request_exit()
             writer.close()
             session.close()
     report.frames_written = writer.frames_written
@@ -123,12 +125,12 @@ def run_replay(
     reader = RecordingReader(path)
     report = ReplayReport()
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay")
+        start = time.monotonic()
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay", deadline=limits.deadline(start))
         if session is None:
             return report
         publishers: dict[str, object] = {}
         try:
-            start = time.monotonic()
             log.info(
                 "replay: %s (%s) at %s",
                 path,
@@ -146,6 +148,7 @@ def run_replay(
                 report.frames_out += 1
                 report.topics.add(topic)
         finally:
+            lifecycle.request_exit()
             session.close()
     log.info("replay: %d frames published on %d topics", report.frames_out, len(report.topics))
     return report

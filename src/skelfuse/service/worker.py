@@ -452,6 +452,7 @@ class KinectFrameSource:
     def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
 
         source = KinectSource.from_config(self.cfg, self.sensor_id)
+        source.ensure_available()  # missing pyk4a / SDKs: say so now, not after waiting for subordinates
         self._wait_for_subordinates()
         if self.should_exit():
             return
@@ -542,15 +543,19 @@ def run_capture_worker(
     check_source(cfg, sensor_id)
     report = WorkerReport()
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what=f"capture worker {name}")
+        started = time.monotonic()
+        session = open_session(
+            zenoh_conf, lifecycle=lifecycle, what=f"capture worker {name}", deadline=options.limits.deadline(started)
+        )
         if session is None:
             return report
         try:
             # The source is built after the session opened (simulating a take takes a second or two), so the
             # subscribers' declarations have reached this peer before its first frame is published.
             source = source if source is not None else make_source(cfg, sensor_id, options)
-            _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report)
+            _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report, started)
         finally:
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             session.close()
     log.info("capture worker %s stopped: %d frames published", name, report.frames_out)
     return report
@@ -565,6 +570,7 @@ def _publish_loop(
     options: WorkerOptions,
     lifecycle: Lifecycle,
     report: WorkerReport,
+    started: float | None = None,
 ) -> None:
     rig = cfg.name
     key = keys.sensor_skeletons(rig, sensor_id)
@@ -573,8 +579,8 @@ def _publish_loop(
     token = session.liveliness().declare_token(keys.alive(rig, name))
     period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
     limits = options.limits
-    start = time.monotonic()
-    deadline_ns = math.inf if limits.duration_s is None else time.monotonic_ns() + limits.duration_s * 1e9
+    start = started if started is not None else time.monotonic()
+    deadline_ns = math.inf if limits.duration_s is None else (start + limits.duration_s) * 1e9
     next_status = time.monotonic_ns()
     window_frames = 0
     last_status = next_status
@@ -582,7 +588,7 @@ def _publish_loop(
     last_error = ""
     stamps_host_time = bool(getattr(source, "stamps_host_time", False))
     if hasattr(source, "attach"):  # a kinect source orders camera starts across workers over this session
-        source.attach(session, should_exit=lambda: lifecycle.should_exit)
+        source.attach(session, should_exit=lambda: lifecycle.should_exit or time.monotonic_ns() >= deadline_ns)
     log.info("capture worker %s: publishing sensor %s (%s) on %s", name, sensor_id, type(source).__name__, key)
 
     def status(state: str) -> None:
@@ -650,10 +656,14 @@ def _publish_loop(
                     exc_info=log.isEnabledFor(logging.DEBUG),
                 )
                 status("degraded")
-                if lifecycle.wait(backoff):
+                if lifecycle.wait(min(backoff, max(0.0, (deadline_ns - time.monotonic_ns()) / 1e9))):
+                    return
+                if time.monotonic_ns() >= deadline_ns:
+                    log.info("capture worker %s: --duration reached while the source was failing", name)
                     return
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
     finally:
+        lifecycle.request_exit()
         status("stopped")
         token.undeclare()
         publisher.undeclare()

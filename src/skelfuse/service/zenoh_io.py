@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import queue
 import socket
 import time
@@ -69,10 +70,18 @@ class SampleQueue:
         return self._queue.qsize()
 
 
-def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: bool = True) -> zenoh.Session | None:
+def open_session(
+    conf: zenoh.Config,
+    *,
+    lifecycle: Lifecycle,
+    what: str,
+    retry: bool = True,
+    deadline: float = math.inf,
+) -> zenoh.Session | None:
     """Open a zenoh session; on failure log a clear message and retry with exponential backoff.
 
-    Returns None when an exit was asked for before the session opened.
+    Returns None when an exit was asked for, or the monotonic ``deadline`` (the node's ``--duration``)
+    passed, before the session opened.
 
     Raises
     ------
@@ -83,6 +92,9 @@ def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: 
 
     delay = BACKOFF_FIRST_S
     while not lifecycle.should_exit:
+        if time.monotonic() >= deadline:
+            log.error("%s: no zenoh session before the end of --duration; stopping", what)
+            return None
         try:
             return zenoh.open(conf)
         except Exception as exc:  # zenoh.ZError: endpoint in use, unreachable router, bad TLS files...
@@ -93,7 +105,7 @@ def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: 
             if not retry:
                 raise ServiceError(message) from None
             log.error("%s (retrying in %.1f s)", message, delay)
-            lifecycle.wait(delay)
+            lifecycle.wait(min(delay, max(0.0, deadline - time.monotonic())))
             delay = min(delay * 2, BACKOFF_MAX_S)
     return None
 
