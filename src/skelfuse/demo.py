@@ -93,6 +93,14 @@ class DemoSummary:
         return asdict(self)
 
 
+def _progress(text: str, *, final: bool = False) -> None:
+    """A progress line on stderr: redrawn in place on a terminal, one plain line each in a log file."""
+    if sys.stderr.isatty():
+        print(f"\r{text:<60}", end="\n" if final else "", file=sys.stderr, flush=True)
+    elif text:
+        print(text, file=sys.stderr, flush=True)
+
+
 def _group_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Mean distance per paper joint group over frames where the estimate exists; (T, 32, 3) inputs."""
     distance = np.linalg.norm(estimate - truth, axis=-1)
@@ -171,14 +179,14 @@ def run_demo_offline(
             fusion_ms=fusion_ns[frame] / 1e6,
             error_mm=float(np.nanmean(error)) if np.isfinite(error).any() else None,
         )
-        if progress and frame % 30 == 0:
-            print(f"\rskelfuse demo: frame {frame + 1}/{n_frames}", end="", file=sys.stderr, flush=True)
+        if progress and frame % (30 if sys.stderr.isatty() else 300) == 0:
+            _progress(f"skelfuse demo: frame {frame + 1}/{n_frames}")
         if realtime:
             lag = started + (frame + 1) * period_s - time.perf_counter()
             if lag > 0:
                 time.sleep(lag)
     if progress:
-        print(f"\rskelfuse demo: fused {n_frames} frames.        ", file=sys.stderr)
+        _progress(f"skelfuse demo: fused {n_frames} frames.", final=True)
     try:
         recording.flush(timeout_sec=FLUSH_TIMEOUT_S)
     except Exception as exc:  # a viewer that went away: its last frames are lost, the summary is not
@@ -521,16 +529,11 @@ def run_demo(
             while not lifecycle.should_exit and time.monotonic() < end:
                 _check_workers(workers, workdir)
                 lifecycle.wait(min(1.0, max(0.0, end - time.monotonic())))
-                if progress:
-                    print(
-                        f"\rskelfuse demo: {len(scorer.fused)} frames fused, {time.monotonic() - started:.0f}/"
-                        f"{duration_s:.0f} s",
-                        end="",
-                        file=sys.stderr,
-                        flush=True,
-                    )
+                elapsed_s = time.monotonic() - started
+                if progress and (sys.stderr.isatty() or int(elapsed_s) % 5 == 0 or elapsed_s >= duration_s):
+                    _progress(f"skelfuse demo: {len(scorer.fused)} frames fused, {elapsed_s:.0f}/{duration_s:.0f} s")
             if progress:
-                print("", file=sys.stderr)
+                _progress("", final=True)
     finally:
         _stop_processes(workers)
         for log_file in logs:

@@ -48,7 +48,7 @@ def test_unknown_gesture_is_a_usage_error(capsys: pytest.CaptureFixture[str]) ->
 
 
 def test_data_error_becomes_exit_2_with_message(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     from skelfuse.eval import real
 
@@ -56,7 +56,7 @@ def test_data_error_becomes_exit_2_with_message(
         raise DataError("no recording in /nowhere: pass --data")
 
     monkeypatch.setattr(real, "run_real_eval", missing)
-    assert cli.main(["eval", "real", "--data", "/nowhere"]) == cli.EXIT_USAGE
+    assert cli.main(["eval", "real", "--data", str(tmp_path)]) == cli.EXIT_USAGE  # a folder without the take
     assert "no recording in /nowhere" in capsys.readouterr().err
 
 

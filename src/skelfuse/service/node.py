@@ -358,6 +358,7 @@ class FusionNode:
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
         self.core = FusionCore(cfg)
+        self.pose_origin = cfg.describe_poses()
         self.zenoh_conf = zenoh_conf
         self.session = session
         self.recording = recording
@@ -420,6 +421,7 @@ class FusionNode:
                 self.cfg.fusion.preset,
                 keys.fused_skeletons(rig),
             )
+            log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
             self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)

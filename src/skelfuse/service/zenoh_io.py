@@ -96,7 +96,7 @@ def open_session(
             log.error("%s: no zenoh session before the end of --duration; stopping", what)
             return None
         try:
-            return zenoh.open(conf)
+            session = zenoh.open(conf)
         except Exception as exc:  # zenoh.ZError: endpoint in use, unreachable router, bad TLS files...
             message = (
                 f"{what}: cannot open the zenoh session: {exc}; check [zenoh] connect/listen endpoints "
@@ -107,7 +107,31 @@ def open_session(
             log.error("%s (retrying in %.1f s)", message, delay)
             lifecycle.wait(min(delay, max(0.0, deadline - time.monotonic())))
             delay = min(delay * 2, BACKOFF_MAX_S)
+            continue
+        log.info("%s: zenoh session open (%s)", what, describe_zenoh(conf))
+        return session
     return None
+
+
+def describe_zenoh(conf: zenoh.Config) -> str:
+    """Mode, endpoints and scouting of a zenoh config, in one line for start-up messages."""
+
+    def get(key: str) -> Any:
+        try:
+            return json.loads(conf.get_json(key))
+        except Exception:  # a key this zenoh version does not know: leave it out
+            return None
+
+    mode = get("mode") or "peer"
+    parts = [f"mode {mode}"]
+    for name in ("connect", "listen"):
+        endpoints = get(f"{name}/endpoints")
+        if isinstance(endpoints, dict):  # zenoh's per-mode defaults
+            endpoints = endpoints.get(mode)
+        parts.append(f"{name} {', '.join(endpoints) if endpoints else 'none'}")
+    multicast = get("scouting/multicast/enabled")
+    parts.append(f"multicast scouting {'off' if multicast is False else 'on'}")
+    return ", ".join(parts)
 
 
 def free_port(host: str = "127.0.0.1") -> int:
