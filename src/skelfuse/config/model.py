@@ -235,7 +235,8 @@ class RerunConfig:
 
 @dataclass(frozen=True)
 class RecordConfig:
-    """``[record]``: recording of the streams by the fusion node (``directory`` None: off)."""
+    """``[record]``: what ``skelfuse record`` records (``sensors``, ``fused``) and where (``directory`` None: the
+    current folder). The fusion node itself never records."""
 
     directory: Path | None = None
     flush_period_s: float = 1.0

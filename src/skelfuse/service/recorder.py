@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 from skelfuse.config import RigConfig
 from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
+from skelfuse.schema.errors import ConfigError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -53,8 +54,13 @@ def run_recorder(
 ) -> RecordReport:
     """Record every raw sensor frame of the rig to MCAP until a signal or the run limits."""
 
+    if not cfg.record.sensors and not cfg.record.fused:
+        raise ConfigError(f"{cfg.source}: [record] sensors and fused are both false: nothing to record")
     path = Path(output) if output is not None else default_recording_path(cfg)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if (
+        output is None
+    ):  # [record] directory is the operator's choice: create it; an explicit --output's folder must exist
+        path.parent.mkdir(parents=True, exist_ok=True)
     report = RecordReport(path)
     flush_s = cfg.record.flush_period_s
     with lifecycle.capture_signals():
@@ -72,9 +78,15 @@ def run_recorder(
             metadata={"recorder": "skelfuse record"},
         )
         try:
-            subscriber = session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples)
+            # [record] sensors: the raw sensor frames (what `fuse --input` and `replay` read back)
+            subscriber = (
+                session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples) if cfg.record.sensors else None
+            )
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
-            log.info("recorder: writing rig %s's sensor frames to %s (flush every %.1f s)", cfg.name, path, flush_s)
+            streams = ["sensor frames" if cfg.record.sensors else "no sensor frames ([record] sensors = false)"]
+            log.info(
+                "recorder: writing rig %s's %s to %s (flush every %.1f s)", cfg.name, ", ".join(streams), path, flush_s
+            )
             next_flush = start + flush_s
             while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
                 item = samples.get(timeout=0.05)
@@ -92,7 +104,8 @@ def run_recorder(
                     writer.flush()
                     next_flush = time.monotonic() + flush_s
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
-            subscriber.undeclare()
+            if subscriber is not None:
+                subscriber.undeclare()
             token.undeclare()
         finally:
             lifecycle.request_exit()
