@@ -42,6 +42,13 @@ def format_status(status: NodeStatus) -> str:
             )
         if rates:
             parts.append("sensors: " + ", ".join(rates))
+        moved = [
+            f"{sid} ({fit.get('median_mm')} mm off)"
+            for sid, fit in (info.get("pose_fit") or {}).items()
+            if fit.get("fits") is False
+        ]
+        if moved:
+            parts.append("POSE NO LONGER FITS: " + ", ".join(moved))
     else:
         parts.append(f"out {c.get('frames_out', 0)} ({info.get('rate_hz', 0) or 0:.1f} Hz)")
         if info.get("last_error"):
