@@ -147,7 +147,12 @@ def test_json_logs_are_one_object_per_line() -> None:
         ),
     ],
 )
-def test_parse_service_commands(argv: list[str], expected: dict[str, object]) -> None:
+def test_parse_service_commands(
+    argv: list[str], expected: dict[str, object], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # input files must exist: the parser checks them
+    for name in ("r.toml", "t.mcap"):
+        (tmp_path / name).write_text("")
     args = cli.build_parser().parse_args(argv)
     for key, value in expected.items():
         assert getattr(args, key) == value, key
@@ -177,7 +182,11 @@ def test_unknown_config_key_is_exit_2_naming_key_and_file(tmp_path: Path, capsys
     assert "status_perod_s" in err and str(bad) in err
 
 
-def test_offline_fuse_without_output_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+def test_offline_fuse_without_output_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("x.mcap").write_text("")
     assert cli.main(["fuse", "--input", "x.mcap"]) == cli.EXIT_USAGE
     assert "--output" in capsys.readouterr().err
 
