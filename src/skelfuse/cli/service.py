@@ -10,6 +10,7 @@ import sys
 from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
+    NON_NEGATIVE,
     OUTPUT_FILE,
     PORT,
     POSITIVE,
@@ -48,6 +49,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         speed=None if args.fast else args.speed,
         node_name=args.node,
         limits=run_limits(args),
+        take_origin_ns=round(args.take_origin * 1e9),
     )
     report = worker.run_capture_worker(
         cfg, args.sensor, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
@@ -212,6 +214,14 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         type=SEED,
         default=0,
         help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--take-origin",
+        type=NON_NEGATIVE,
+        default=0.0,
+        metavar="UNIX_SECONDS",
+        help="sim: Unix time at which the take's first frame plays; every worker of a rig must agree "
+        "(default: %(default)s, the take aligned on the Unix epoch)",
     )
     capture.add_argument(
         "--loop",

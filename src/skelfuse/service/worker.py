@@ -113,6 +113,7 @@ class WorkerOptions:
     status_period_s: float | None = None
     limits: RunLimits = field(default_factory=RunLimits)
     subordinate_wait_s: float = 30.0
+    take_origin_ns: int = 0
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -167,6 +168,9 @@ class SimSource:
     loop : bool
     clock_ns : callable
         Host clock (Unix ns) used to align instants across workers; injected by tests.
+    take_origin_ns : int
+        Unix ns at which take frame 0 plays (instant ``n`` shows take frame ``(n - n0) mod T``); every
+        worker of a rig must get the same. Default 0: the take is aligned on the Unix epoch.
     """
 
     def __init__(
@@ -179,6 +183,7 @@ class SimSource:
         seed: int = 0,
         loop: bool = True,
         clock_ns: Any = time.time_ns,
+        take_origin_ns: int = 0,
     ) -> None:
         sensor = cfg.sensor(sensor_id)
         if sensor.source != "sim":
@@ -192,11 +197,12 @@ class SimSource:
         self.fps = float(cfg.sync.fps)
         self.loop = loop
         self.clock_ns = clock_ns
+        self.origin_n = math.ceil(take_origin_ns / (1e9 / self.fps))
 
     def frame_at(self, n: int) -> SensorFrame | None:
         """The frame of instant ``n`` (take frame ``n mod T``); None where the simulated sensor dropped it."""
         obs, s = self.observations, self.column
-        f = n % obs.n_frames
+        f = (n - self.origin_n) % obs.n_frames
         if obs.dropped[f, s]:
             return None
         period_us = 1e6 / self.fps
@@ -232,7 +238,7 @@ class SimSource:
         first = n
         n_frames = self.observations.n_frames
         while True:
-            if not self.loop and n > first and n % n_frames == 0:
+            if not self.loop and n > first and (n - self.origin_n) % n_frames == 0:
                 return  # end of the take
             frame = self.frame_at(n)
             if frame is not None:
@@ -502,6 +508,7 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
             take_duration_s=options.take_duration_s,
             seed=options.seed,
             loop=True if options.loop is None else options.loop,
+            take_origin_ns=options.take_origin_ns,
         )
     if sensor.source == "replay":
         assert sensor.replay is not None
