@@ -57,7 +57,7 @@ from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import paper_rig
-from skelfuse.sinks.rerun_sink import RerunSink
+from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
@@ -164,6 +164,7 @@ def run_demo_offline(
     )
     sink = RerunSink(recording, observations.sensor_ids)
     sink.log_rig(observations.world_from_sensor_calibrated)
+    recording.send_blueprint(default_blueprint(observations.world_from_sensor_calibrated))
 
     fuser = Fuser(params, n_bodies=1)
     fused = np.full((n_frames, 32, 3), np.nan)

@@ -139,7 +139,8 @@ def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
         type=POSITIVE,
         default=None,
         metavar="SECONDS",
-        help="stop cleanly after this many seconds, counted from the start (default: run until SIGINT/SIGTERM)",
+        help="stop cleanly after this many seconds of work; a zenoh session that cannot open is given up after as "
+        "long (default: run until SIGINT/SIGTERM)",
     )
     flags = ("--max-messages", "--max-frames") if what.endswith("messages") else ("--max-frames",)
     parser.add_argument(

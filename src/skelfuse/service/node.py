@@ -385,7 +385,7 @@ class FusionNode:
         """Open zenoh (retrying), serve until ``lifecycle.should_exit`` or the run limits, drain, close."""
         own_session = self.session is None
         session = self.session
-        self._started = time.monotonic()  # --duration counts from here, so an unreachable router cannot outlast it
+        self._started = time.monotonic()  # an unreachable router cannot hold the node past --duration
         if session is None:
             assert self.zenoh_conf is not None
             session = open_session(
@@ -471,7 +471,7 @@ class FusionNode:
     def _loop(self, samples: SampleQueue, publisher: Any, status_pub: Any, view: RerunView | None) -> None:
         period_s = self.options.status_period_s or self.cfg.node.status_period_s
         period_ns = int(period_s * 1e9)
-        start = getattr(self, "_started", None) or time.monotonic()
+        start = time.monotonic()  # --duration of fusing; the wait for a session before is bounded by it too
         next_status = time.monotonic_ns()
         last_status = next_status
         limits = self.options.limits

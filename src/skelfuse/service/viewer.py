@@ -250,6 +250,10 @@ class RerunView:
         self.drawn = 0
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=max_pending)
         self.sink.log_rig(world_from_sensor)
+        try:  # the camera on this rig's people (open_recording sent the rig-independent default)
+            recording.send_blueprint(default_blueprint(world_from_sensor))
+        except Exception as exc:  # a viewer problem never stops the node
+            log.warning("rerun: could not send the view's layout: %s", exc)
         self._thread = threading.Thread(target=self._run, name="skelfuse-rerun", daemon=True)
         self._thread.start()
 

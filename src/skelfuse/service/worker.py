@@ -560,7 +560,7 @@ def run_capture_worker(
             # The source is built after the session opened (simulating a take takes a second or two), so the
             # subscribers' declarations have reached this peer before its first frame is published.
             source = source if source is not None else make_source(cfg, sensor_id, options)
-            _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report, started)
+            _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report)
         finally:
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             session.close()
