@@ -114,6 +114,10 @@ class WorkerOptions:
     limits: RunLimits = field(default_factory=RunLimits)
     subordinate_wait_s: float = 30.0
     take_origin_ns: int = 0
+    stall_timeout_s: float | None = 10.0
+    """Watchdog: a live source (one that yields ``None`` while it waits) that delivers no frame for this long
+    is treated as stalled (a body tracker that stopped producing results) and restarted like a source that
+    failed; counted in the status as ``stalls``. None: off."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -525,11 +529,16 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
 # The worker
 
 
+class SourceStalled(Exception):
+    """The watchdog's verdict: the source kept answering but delivered no frame for ``stall_timeout_s``."""
+
+
 @dataclass
 class WorkerReport:
     frames_out: int = 0
     restarts: int = 0
     late_publishes: int = 0
+    stalls: int = 0
 
 
 def run_capture_worker(
@@ -612,6 +621,7 @@ def _publish_loop(
             "frames_out": report.frames_out,
             "restarts": report.restarts,
             "late_publishes": report.late_publishes,
+            "stalls": report.stalls,
         }
         status_pub.put(
             encode_status(
@@ -624,6 +634,7 @@ def _publish_loop(
     try:
         while not lifecycle.should_exit:
             try:
+                last_frame_ns = time.monotonic_ns()
                 for due_ns, frame in source.frames():
                     now = time.monotonic_ns()
                     if now >= next_status:
@@ -632,7 +643,12 @@ def _publish_loop(
                     if due_ns > deadline_ns or lifecycle.should_exit:
                         return
                     if frame is None:  # a live device with nothing new within its read timeout
+                        silent_s = (now - last_frame_ns) / 1e9
+                        if options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
+                            report.stalls += 1
+                            raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
                         continue
+                    last_frame_ns = now
                     wait_ns = due_ns - time.monotonic_ns()
                     if wait_ns > 0 and lifecycle.wait(wait_ns / 1e9):
                         return
