@@ -76,7 +76,7 @@ def test_a_rig_whose_poses_fit_raises_nothing(rig: tuple[object, list[SimSource]
 
 
 def test_no_verdict_before_enough_instants_saw_the_sensor() -> None:
-    monitor = PoseFitMonitor(("a", "b"), window=10, min_frames=5)
+    monitor = PoseFitMonitor(("a", "b"), window=10, min_frames=5, check_every=1)
     far = np.zeros((2, 1, 32, 3))
     far[0] += 1000.0  # sensor a's body 1.7 m from the fused person
     fused = np.zeros((1, 32, 3))
