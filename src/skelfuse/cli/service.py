@@ -63,8 +63,7 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
     r = cfg.rerun
     if args.no_view:
         return ViewOptions(mode="off")
-    if args.spawn or (args.rrd is not None and r.mode == "spawn" and not args.serve):
-        # --spawn with --rrd FILE: a viewer where one can open, else the view saved to FILE
+    if args.spawn and not args.serve:  # with --rrd FILE: a viewer where one can open, else the view saved to FILE
         return ViewOptions(
             mode="spawn", file=args.rrd, grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors
         )
@@ -288,8 +287,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         type=OUTPUT_FILE,
         default=None,
         metavar="FILE",
-        help='save the live view to FILE; with --spawn (or [rerun] mode = "spawn"): where the view goes when no '
-        "viewer can open here",
+        help="save the live view to FILE; with --spawn: where the view goes when no viewer can open here",
     )
     view.add_argument(
         "--spawn",
