@@ -8,8 +8,12 @@ section by section. ``decode_fused`` is the part to port.
 Usage::
 
     pip install eclipse-zenoh
+    python scripts/example_subscriber.py --config config/rig-sim-4.toml     # rig name and [zenoh] from the config
     python scripts/example_subscriber.py --rig lab --max-messages 100
     python scripts/example_subscriber.py --rig lab --connect tcp/192.168.1.10:7447 --no-scouting
+
+It says which key it listens on and warns when nothing arrived after a few seconds (a wrong rig name is the
+usual cause: every rig publishes under its own ``skelfuse/<rig>/...``).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import struct
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Sequence
 from typing import Any
 
@@ -136,16 +141,48 @@ def describe(frame: dict[str, Any]) -> str:
     return " | ".join(parts)
 
 
+SILENCE_WARNING_S = 5.0
+"""Warn when no fused frame arrived this long after subscribing."""
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rig", default="default", help="subscribes to skelfuse/<rig>/fused/skeletons")
-    parser.add_argument("--mode", choices=("peer", "client"), default="peer", help="zenoh session mode")
+    parser.add_argument(
+        "--rig", default=None, help="subscribes to skelfuse/<rig>/fused/skeletons (or take it from --config)"
+    )
+    parser.add_argument(
+        "--config",
+        default=None,
+        metavar="RIG.toml",
+        help="a skelfuse rig config: its [rig] name, and its [zenoh] mode / connect / listen / multicast_scouting "
+        "unless given here",
+    )
+    parser.add_argument("--mode", choices=("peer", "client"), default=None, help="zenoh session mode (default: peer)")
     parser.add_argument("--connect", action="append", default=[], help="zenoh endpoint to connect to")
     parser.add_argument("--listen", action="append", default=[], help="zenoh endpoint to listen on")
     parser.add_argument("--no-scouting", action="store_true", help="disable multicast scouting")
     parser.add_argument("--max-messages", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.config is not None:
+        try:
+            with open(args.config, "rb") as handle:
+                rig = tomllib.load(handle)
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            parser.error(f"--config {args.config}: {exc}")
+        name = rig.get("rig", {}).get("name")
+        if args.rig is not None and name is not None and args.rig != name:
+            parser.error(f"--rig {args.rig} but {args.config} is rig {name!r}; give one of them")
+        args.rig = args.rig or name
+        section = rig.get("zenoh", {})
+        args.mode = args.mode or section.get("mode")
+        args.connect = args.connect or list(section.get("connect", []))
+        args.listen = args.listen or list(section.get("listen", []))
+        args.no_scouting = args.no_scouting or section.get("multicast_scouting") is False
+    if args.rig is None:
+        parser.error("say which rig to listen to: --rig NAME (the [rig] name of its config) or --config RIG.toml")
+    args.mode = args.mode or "peer"
+    return args
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -179,10 +216,28 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     with zenoh.open(config) as session:
         session.declare_subscriber(key, on_sample)
-        print(f"subscribed to {key}", file=sys.stderr)
-        deadline = None if args.duration is None else time.monotonic() + args.duration
+        endpoints = "; ".join(
+            f"{what} {', '.join(points)}"
+            for what, points in (("connect", args.connect), ("listen", args.listen))
+            if points
+        )
+        print(
+            f"listening on {key} (zenoh {args.mode}, {endpoints or 'default endpoints'}, multicast scouting "
+            f"{'off' if args.no_scouting else 'on'})",
+            file=sys.stderr,
+        )
+        started = time.monotonic()
+        deadline = None if args.duration is None else started + args.duration
+        warned = False
         try:
             while not done.is_set():
+                if not warned and received == 0 and time.monotonic() - started > SILENCE_WARNING_S:
+                    warned = True
+                    print(
+                        f"nothing received on {key} after {SILENCE_WARNING_S:.0f} s: is the fusion node running, "
+                        f"and is its rig {args.rig!r}? (`skelfuse status --config RIG.toml` shows what is up)",
+                        file=sys.stderr,
+                    )
                 timeout = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
                 if timeout <= 0:
                     break

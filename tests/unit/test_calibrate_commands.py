@@ -150,8 +150,9 @@ def test_marker_alone_and_its_errors(tmp_path: Path, ball_folder: Path, plate_fo
         _run(["marker", str(ball_folder), "-o", str(tmp_path / "x.toml"), "--master", "capture_0", "--fresh"])
     with pytest.raises(DataError, match=r"frame\(s\) \[3\] not found"):
         _run(["marker", str(plate_folder), "-o", str(tmp_path / "y.toml"), "--frame", "3"])
-    with pytest.raises(DataError, match=r"--calibration .* not found"):
+    with pytest.raises(SystemExit) as exit_info:  # refused by the parser: a usage error, exit 2
         _run(["marker", str(plate_folder), "-o", str(tmp_path / "z.toml"), "--calibration", str(tmp_path / "no.toml")])
+    assert exit_info.value.code == 2
 
 
 def test_sphere_bad_inputs(tmp_path: Path, ball_folder: Path, plate_folder: Path) -> None:
@@ -345,12 +346,22 @@ def test_take_files_and_bad_take_inputs(tmp_path: Path, walk, skeleton_file: Pat
         _run(["skeleton", "--take", "no-such-file"])
     with pytest.raises(DataError, match="renames a one-sensor file only"):
         _run(["skeleton", "--take", f"a={recording}", "--take", f"b={recording}"])
-    with pytest.raises(DataError, match="no such file"):
+    with pytest.raises(SystemExit) as refused:  # the parser refuses a missing input file: exit 2
         _run(["check", "--recording", str(tmp_path / "missing.mcap"), "--calibration", str(skeleton_file)])
+    assert refused.value.code == 2
     with pytest.raises(ConfigError, match="needs the stored calibration"):
         _run(["check", "--recording", str(recording)])
-    with pytest.raises(CalibrationError, match=r"none\.toml not found; make one first"):
+    with pytest.raises(SystemExit) as refused:
         _run(["check", "--recording", str(recording), "--calibration", str(tmp_path / "none.toml")])
+    assert refused.value.code == 2
+    rig = tmp_path / "rig-none.toml"  # a rig whose [calibration] file was never made: bad input, exit 2
+    rig.write_text('[rig]\nname = "r"\n[calibration]\nfile = "none.toml"\n[[sensors]]\nid = "a"\nsource = "sim"\n')
+    with pytest.raises(ConfigError, match=r"none\.toml not found; make one first"):
+        _run(["check", "--recording", str(recording), "--config", str(rig)])
+    garbage = tmp_path / "garbage.toml"
+    garbage.write_text("this is not = = toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        _run(["check", "--recording", str(recording), "--calibration", str(garbage)])
 
 
 def test_takes_from_per_sensor_json_files(tmp_path: Path, walk) -> None:

@@ -48,7 +48,7 @@ def test_unknown_gesture_is_a_usage_error(capsys: pytest.CaptureFixture[str]) ->
 
 
 def test_data_error_becomes_exit_2_with_message(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     from skelfuse.eval import rig
 
@@ -56,8 +56,8 @@ def test_data_error_becomes_exit_2_with_message(
         raise DataError("no recording in /nowhere: pass --data")
 
     monkeypatch.setattr(rig, "run_rig_eval", missing)
-    assert cli.main(["eval", "real", "--data", "/nowhere"]) == cli.EXIT_USAGE
-    assert "/nowhere/joints_gen_master.csv: no such file" in capsys.readouterr().err
+    assert cli.main(["eval", "real", "--data", str(tmp_path)]) == cli.EXIT_USAGE  # a folder without the take
+    assert "joints_gen_master.csv: no such file" in capsys.readouterr().err
 
 
 def test_json_output_is_strict_json(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:

@@ -107,8 +107,9 @@ def test_kinect_example_loads_and_says_how_to_get_a_calibration() -> None:
     assert tracker.processing_mode == "cuda" and tracker.model_path is not None
     with pytest.raises(ConfigError, match=r"skelfuse calibrate") as info:
         cfg.poses()
-    assert "does not exist yet" in str(info.value)
+    assert f"[calibration] file {cfg.calibration.file} does not exist" in str(info.value)
     assert cfg.poses(required=False) == {}
+    assert set(cfg.pose_sources().values()) == {"none"}
 
 
 def test_config_is_frozen_and_defaults_fill_in() -> None:

@@ -102,3 +102,50 @@ def test_person_clouds_are_drawn_in_metres_coloured_by_sensor(tmp_path: Path) ->
     np.testing.assert_allclose(np.array(columns["Points3D:positions"][0]), cloud.points / 1000.0, rtol=1e-6)
     expected = [int.from_bytes(bytes([*SENSOR_COLORS[i], 255]), "big") for i in (0, 2, 1)]
     assert columns["Points3D:colors"][0] == expected
+
+
+def test_fused_people_stand_out_and_everyone_is_labelled(tmp_path: Path) -> None:
+    from skelfuse.sinks import rerun_sink as sink_module
+
+    # Every fused colour is far from every sensor colour (RGB distance), and the fused skeleton is the thicker.
+    gaps = np.linalg.norm(
+        sink_module.TRACK_COLORS[:, None].astype(float) - sink_module.SENSOR_COLORS[None].astype(float), axis=-1
+    )
+    assert gaps.min() > 60.0, gaps.min()
+    assert sink_module.FUSED_BONE_RADIUS_M >= 3 * sink_module.SENSOR_BONE_RADIUS_M
+
+    recording = rr.RecordingStream("skelfuse_test")
+    path = tmp_path / "labels.rrd"
+    recording.save(path)
+    sink = RerunSink(recording, ["left", "right"])
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[1, :3, 3] = [2000.0, 0.0, 1000.0]
+    sink.log_rig(poses)
+    fused = np.zeros((2, N_JOINTS, 3))
+    fused[1] += 1000.0
+    fused[1, sink_module.HEAD] = np.nan  # no head estimate: no label for this person
+    sink.set_time(0.0)
+    sink.log_sensor_skeletons(np.zeros((2, 1, N_JOINTS, 3)))
+    sink.log_fused(fused, np.array([7, 8]))
+    recording.flush()
+    recording.disconnect()
+
+    columns = _columns(path)
+    assert columns["/world/sensors/right/label"]["Points3D:labels"][0] == ["right"]
+    np.testing.assert_allclose(columns["/world/sensors/right/label"]["Points3D:positions"][0], [[2.0, 0.0, 1.0]])
+    assert columns["/world/fused/labels"]["Points3D:labels"][0] == ["person 7"]
+    sensor_colour = np.array(columns["/world/sensors/left/skeleton/bones"]["LineStrips3D:colors"][0])
+    assert (sensor_colour & 0xFF < 255).all()  # RGBA packed: the sensors are half transparent
+
+
+def test_the_camera_looks_at_the_middle_of_the_rig() -> None:
+    from skelfuse.sim.rig import paper_rig
+    from skelfuse.sinks.rerun_sink import rig_eye
+
+    poses = np.stack([s.world_from_sensor for s in paper_rig(4)])
+    poses[:, 0, 3] += 5000.0  # the whole rig 5 m along x
+    eye = rig_eye(poses)
+    target = np.array(eye.look_target.as_arrow_array().to_pylist()[0])
+    position = np.array(eye.position.as_arrow_array().to_pylist()[0])
+    np.testing.assert_allclose(target, [5.0, 0.0, 0.9], atol=1e-6)
+    assert 2.2 < np.linalg.norm(position[:2] - target[:2]) < 6.0 and position[2] > 1.5  # outside, above the rig

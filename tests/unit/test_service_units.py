@@ -147,7 +147,12 @@ def test_json_logs_are_one_object_per_line() -> None:
         ),
     ],
 )
-def test_parse_service_commands(argv: list[str], expected: dict[str, object]) -> None:
+def test_parse_service_commands(
+    argv: list[str], expected: dict[str, object], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # input files must exist: the parser checks them
+    for name in ("r.toml", "t.mcap"):
+        (tmp_path / name).write_text("")
     args = cli.build_parser().parse_args(argv)
     for key, value in expected.items():
         assert getattr(args, key) == value, key
@@ -177,7 +182,11 @@ def test_unknown_config_key_is_exit_2_naming_key_and_file(tmp_path: Path, capsys
     assert "status_perod_s" in err and str(bad) in err
 
 
-def test_offline_fuse_without_output_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+def test_offline_fuse_without_output_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("x.mcap").write_text("")
     assert cli.main(["fuse", "--input", "x.mcap"]) == cli.EXIT_USAGE
     assert "--output" in capsys.readouterr().err
 
@@ -269,6 +278,9 @@ class _FakeKinect:
     def __init__(self, events: list[str], sensor_id: str) -> None:
         self.events, self.sensor_id = events, sensor_id
 
+    def ensure_available(self) -> None:
+        pass
+
     def open(self) -> None:
         self.events.append(f"open {self.sensor_id}")
 
@@ -343,6 +355,25 @@ def test_kinect_master_waits_for_subordinates_before_opening(
         frames.close()
     assert kinect_events == ["wait k s1,s2 7", "open m1", "close m1"]
     assert "s2 not started after 7 s" in caplog.text and "starting the master anyway" in caplog.text
+
+
+def test_kinect_master_without_pyk4a_fails_before_waiting_for_subordinates(
+    kinect_events: list[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from skelfuse.sources import kinect
+    from skelfuse.sources.kinect import KinectUnavailable
+
+    def missing(self: object) -> None:
+        raise KinectUnavailable("cannot import pyk4a (No module named 'pyk4a')")
+
+    monkeypatch.setattr(_FakeKinect, "ensure_available", missing)
+    assert kinect.KinectSource.from_config  # the fixture's fake
+    cfg = parse_rig_config(_KINECT_RIG)
+    source = make_source(cfg, "m1", WorkerOptions(subordinate_wait_s=30.0))
+    source.attach(_FakeSession(kinect_events), should_exit=lambda: False)  # type: ignore[attr-defined]
+    with pytest.raises(KinectUnavailable, match="pyk4a"):
+        next(source.frames())
+    assert kinect_events == []  # neither waited for the subordinates nor touched a device
 
 
 def test_kinect_subordinate_declares_its_camera_token_after_opening(kinect_events: list[str]) -> None:

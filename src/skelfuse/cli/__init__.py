@@ -11,8 +11,11 @@ import argparse
 import contextlib
 import faulthandler
 import logging
+import os
 import signal
 import sys
+import threading
+import time
 from collections.abc import Sequence
 
 from skelfuse import __version__
@@ -67,9 +70,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+EXIT_GRACE_S = 5.0
+"""Longest the interpreter's exit handlers may run once a command returned (the Rerun SDK's at-exit flush
+waits for a viewer that may never answer); past it the process ends with the command's exit status."""
+
+
+def _bound_exit(code: int, grace_s: float = EXIT_GRACE_S) -> None:
+    """End the process with ``code`` if the exit handlers still run ``grace_s`` seconds from now."""
+
+    def end() -> None:
+        time.sleep(grace_s)
+        with contextlib.suppress(Exception):
+            sys.stderr.write(f"skelfuse: exit handlers still running after {grace_s:.0f} s (a viewer?); exiting\n")
+            sys.stderr.flush()
+            sys.stdout.flush()
+        os._exit(code)
+
+    threading.Thread(target=end, name="skelfuse-exit-bound", daemon=True).start()
+
+
 def entrypoint() -> None:
     """Console-script entry point (``[project.scripts]``, ``python -m skelfuse``)."""
     if hasattr(signal, "SIGUSR1"):
         with contextlib.suppress(OSError, ValueError, AttributeError):  # no real stderr: skip it
             faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID` dumps a stuck node's stacks
-    sys.exit(main())
+    code = main()
+    _bound_exit(code)
+    sys.exit(code)

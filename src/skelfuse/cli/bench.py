@@ -8,7 +8,7 @@ from skelfuse.bench import fusion as bench_fusion
 from skelfuse.bench import latency
 from skelfuse.bench.depth import format_depth_bench, run_depth_bench
 from skelfuse.bench.people import bench_people, format_people_bench
-from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, print_json
+from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, preset_name, print_json
 
 
 def _cmd_bench_fusion(args: argparse.Namespace) -> int:
@@ -81,17 +81,17 @@ def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     )
     fusion.add_argument(
         "--sensors",
-        type=int,
+        type=COUNT,
         nargs="+",
         default=[1, 2, 4, 5, 8, 16],
         metavar="N",
         help="sensor counts (default: %(default)s)",
     )
     fusion.add_argument(
-        "--bodies", type=int, nargs="+", default=[1, 3, 6], metavar="N", help="body counts (default: %(default)s)"
+        "--bodies", type=COUNT, nargs="+", default=[1, 3, 6], metavar="N", help="body counts (default: %(default)s)"
     )
-    fusion.add_argument("--preset", default="A5", help="fusion preset to time (default: %(default)s)")
-    fusion.add_argument("--frames", type=int, default=300, help="timed frames per case (default: %(default)s)")
+    fusion.add_argument("--preset", type=preset_name, default="A5", help="fusion preset to time (default: %(default)s)")
+    fusion.add_argument("--frames", type=COUNT, default=300, help="timed frames per case (default: %(default)s)")
     fusion.add_argument("--quick", action="store_true", help="fewer frames and a few cases, for CI")
     fusion.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -103,10 +103,10 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
         "people",
         help="time per frame of multi-person fusion (association + tracks + fusion) on a simulated crowd",
     )
-    people.add_argument("--sensors", type=int, default=8, help="sensors in the rig (default: %(default)s)")
-    people.add_argument("--people", type=int, default=6, help="people in the crowd (default: %(default)s)")
-    people.add_argument("--frames", type=int, default=300, help="timed frames (default: %(default)s)")
-    people.add_argument("--preset", default="skelfuse", help="fusion preset (default: %(default)s)")
+    people.add_argument("--sensors", type=COUNT, default=8, help="sensors in the rig (default: %(default)s)")
+    people.add_argument("--people", type=COUNT, default=6, help="people in the crowd (default: %(default)s)")
+    people.add_argument("--frames", type=COUNT, default=300, help="timed frames (default: %(default)s)")
+    people.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
     people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     people.set_defaults(func=_cmd_bench_people)
 
@@ -123,7 +123,7 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
     )
     latency.add_argument(
         "--sensors",
-        type=int,
+        type=COUNT,
         nargs="+",
         default=[4, 5, 8],
         metavar="N",
@@ -131,7 +131,7 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
     )
     latency.add_argument(
         "--duration",
-        type=float,
+        type=POSITIVE,
         default=5.0,
         metavar="SECONDS",
         help="measured seconds per sensor count (default: %(default)s)",

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,7 +39,16 @@ from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibr
 from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
 from skelfuse.calibration.takes import load_recording_take, take_arrays
 from skelfuse.calibration.view import log_calibration
-from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK
+from skelfuse.cli.common import (
+    COUNT,
+    EXISTING_DIR,
+    EXISTING_FILE,
+    EXIT_ATTENTION,
+    EXIT_OK,
+    INDEX,
+    OUTPUT_FILE,
+    POSITIVE,
+)
 from skelfuse.cli.inputs import add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import load_rig_config
 from skelfuse.config.calibration_file import (
@@ -150,19 +158,6 @@ def _save_rrd(path: Path, result: CalibrationResult) -> None:
     recording.flush()
     recording.disconnect()
     note(f"calibration view saved to {path} (open it with `rerun {path}`)")
-
-
-def _positive(kind: type) -> Any:
-    def parse(text: str) -> Any:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-        return value
-
-    return parse
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -467,12 +462,15 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
     cfg = _rig(args)
     path = _stored_calibration_path(args, cfg, "calibrate check")
-    if not path.is_file():
-        raise CalibrationError(
+    if not path.is_file():  # bad input, exit 2 (docs/calibration.md): a check needs a stored calibration
+        raise ConfigError(
             f"calibration file {path} not found; make one first with `skelfuse calibrate skeleton` "
             "(or sphere, then marker)"
         )
-    stored = read_calibration(path)
+    try:
+        stored = read_calibration(path)
+    except CalibrationError as exc:  # a malformed stored file is bad input too, not a failed computation
+        raise ConfigError(str(exc)) from None
     positions, confidence, ids = _load_take(args, cfg)
     master = _check_master(args.master, ids, "the take") if args.master else _default_master(ids, cfg, stored.master)
     # Only residuals of a skeleton calibration measure the same thing as the check's (sphere centres do not).
@@ -513,7 +511,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _add_output(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="RIG.toml",
         help="the rig config: its sensors are checked, its sync master is the default master and "
@@ -522,7 +520,7 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--output",
         "-o",
-        type=Path,
+        type=OUTPUT_FILE,
         default=None,
         metavar="FILE",
         help=f"calibration TOML to write (default: the rig config's [calibration] file, else {DEFAULT_OUTPUT})",
@@ -532,7 +530,7 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
 def _add_take(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--recording",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="REC",
         help="a recording of one person walking holding every sensor (a `skelfuse record` MCAP, a long CSV); "
@@ -557,7 +555,7 @@ def _add_take(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-frames",
-        type=_positive(int),
+        type=COUNT,
         default=None,
         metavar="N",
         help="use only the first N frames of the take (default: all)",
@@ -589,22 +587,22 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
         "capture",
         help="grab colour (registered to depth) + depth frames from the rig's Azure Kinects into an RGB-D folder",
         description="Open every kinect sensor of the rig (pyk4a, the 'kinect' extra), subordinates first, and "
-        "write N synchronized frames per sensor: <out>/<sensor_id>/intrinsics.json, color_%%06d.png "
-        "(capture.transformed_color: colour warped into the depth camera), depth_%%06d.png (uint16 mm). Carry "
+        "write N synchronized frames per sensor: <out>/<sensor_id>/intrinsics.json, color_%06d.png "
+        "(capture.transformed_color: colour warped into the depth camera), depth_%06d.png (uint16 mm). Carry "
         "the ball through the space while it runs, or show the marker plate to the master.",
     )
-    capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    capture.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
     capture.add_argument("--out", type=Path, required=True, metavar="DIR", help="RGB-D folder to write")
     capture.add_argument(
         "--frames",
-        type=_positive(int),
+        type=COUNT,
         default=300,
         metavar="N",
         help="frames to write per sensor (default: %(default)s; the paper used 1000 ball positions)",
     )
     capture.add_argument(
         "--every",
-        type=_positive(int),
+        type=COUNT,
         default=3,
         metavar="K",
         help="keep every K-th synchronized capture, so the ball moves between frames "
@@ -625,21 +623,21 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
     )
     capture.add_argument(
         "--warmup",
-        type=int,
+        type=INDEX,
         default=30,
         metavar="N",
         help="captures dropped first while auto exposure settles (default: %(default)s)",
     )
     capture.add_argument(
         "--timeout-s",
-        type=_positive(float),
+        type=POSITIVE,
         default=2.0,
         metavar="SECONDS",
         help="longest wait for one capture (default: %(default)s)",
     )
     capture.add_argument(
         "--tolerance-ms",
-        type=_positive(float),
+        type=POSITIVE,
         default=5.0,
         metavar="MS",
         help="device times of one synchronized frame may differ by this much (default: %(default)s)",
@@ -658,7 +656,7 @@ def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     )
     sphere.add_argument(
         "folder",
-        type=Path,
+        type=EXISTING_DIR,
         metavar="DIR",
         help="RGB-D folder: DIR/<sensor_id>/intrinsics.json, color_%%06d.png, depth_%%06d.png",
     )
@@ -671,42 +669,42 @@ def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     )
     sphere.add_argument(
         "--radius-mm",
-        type=_positive(float),
+        type=POSITIVE,
         default=240.0,
         metavar="MM",
         help="the ball's radius, mm (default: %(default)s, the paper's red ball)",
     )
     sphere.add_argument(
         "--ball-sample",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="IMAGE",
         help="a crop showing only the ball, to learn its colour (default: a red ball model)",
     )
     sphere.add_argument(
         "--ransac-threshold-mm",
-        type=_positive(float),
+        type=POSITIVE,
         default=30.0,
         metavar="MM",
         help="ball centres farther than this from the fit are dropped as wrong detections (default: %(default)s)",
     )
     sphere.add_argument(
         "--min-frames",
-        type=_positive(int),
+        type=COUNT,
         default=10,
         metavar="N",
         help="fewest frames in which every sensor found the ball (default: %(default)s)",
     )
     sphere.add_argument(
         "--max-frames",
-        type=_positive(int),
+        type=COUNT,
         default=None,
         metavar="N",
         help="use only the first N frames (default: all)",
     )
     sphere.add_argument(
         "--rrd",
-        type=Path,
+        type=OUTPUT_FILE,
         default=None,
         metavar="FILE",
         help="also save the poses and ball centres as a Rerun .rrd to look at",
@@ -727,14 +725,14 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     )
     marker.add_argument(
         "folder",
-        type=Path,
+        type=EXISTING_DIR,
         metavar="DIR",
         help="RGB-D folder holding the master's view of the plate (DIR/<master>/...)",
     )
     _add_output(marker)
     marker.add_argument(
         "--calibration",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="FILE",
         help="sensor-to-sensor calibration to re-anchor (default: the output file when it exists)",
@@ -751,14 +749,14 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     )
     marker.add_argument(
         "--frame",
-        type=int,
+        type=INDEX,
         default=None,
         metavar="N",
         help="frame number to use (default: the first one of the master's folder)",
     )
     marker.add_argument(
         "--ids",
-        type=int,
+        type=INDEX,
         nargs=4,
         default=[0, 1, 2, 3],
         metavar=("ID0", "ID1", "ID2", "ID3"),
@@ -771,7 +769,7 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     )
     marker.add_argument(
         "--marker-mm",
-        type=_positive(float),
+        type=POSITIVE,
         default=None,
         metavar="MM",
         help="printed marker side, mm: enables the PnP cross-check of the depth centres",
@@ -784,7 +782,7 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
         "(default: %(default)s)",
     )
     marker.add_argument(
-        "--rrd", type=Path, default=None, metavar="FILE", help="also save the poses as a Rerun .rrd to look at"
+        "--rrd", type=OUTPUT_FILE, default=None, metavar="FILE", help="also save the poses as a Rerun .rrd to look at"
     )
     marker.set_defaults(func=_cmd_marker)
 
@@ -802,7 +800,7 @@ def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type
     _add_output(skeleton)
     skeleton.add_argument(
         "--anchor",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="FILE",
         help="a calibration (e.g. from `calibrate marker`) whose master pose defines the world instead of the floor",
@@ -822,35 +820,35 @@ def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     _add_take(check)
     check.add_argument(
         "--config",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="RIG.toml",
         help="the rig config (its [calibration] file is the default --calibration)",
     )
     check.add_argument(
         "--calibration",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="FILE",
         help="the stored calibration (default: the rig config's [calibration] file)",
     )
     check.add_argument(
         "--max-rotation-deg",
-        type=_positive(float),
+        type=POSITIVE,
         default=2.0,
         metavar="DEG",
         help="a sensor whose correction rotates more than this moved (default: %(default)s)",
     )
     check.add_argument(
         "--max-translation-mm",
-        type=_positive(float),
+        type=POSITIVE,
         default=30.0,
         metavar="MM",
         help="... or shifts the subject by more than this (default: %(default)s)",
     )
     check.add_argument(
         "--max-residual-growth-mm",
-        type=_positive(float),
+        type=POSITIVE,
         default=15.0,
         metavar="MM",
         help="warn when a residual grew by more than this since a skeleton calibration (default: %(default)s)",

@@ -4,18 +4,119 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from skelfuse.config import ZENOH_MODES, RigConfig, load_rig_config, zenoh_config
+from skelfuse.config.checks import did_you_mean
+from skelfuse.fusion.presets import ALL_PRESETS
 from skelfuse.schema.errors import ConfigError
-from skelfuse.service.lifecycle import RunLimits
+from skelfuse.service.lifecycle import FORCED_EXIT_CODE, RunLimits
 
 EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_USAGE = 2
 EXIT_ATTENTION = 3  # the result needs a person's attention: a "bad" calibration verdict, a moved sensor
+EXIT_STOP_TIMEOUT = FORCED_EXIT_CODE  # a daemon ended by its stop watchdog (service/lifecycle.py)
+EXIT_INTERRUPTED = 130
+"""The exit codes, one table in docs/service.md ("Exit codes"); argparse's usage errors are EXIT_USAGE too."""
+
+
+# -- argument types: every value is checked where it enters, argparse turns a failure into a usage error -----
+
+
+class Number:
+    """An argparse ``type`` for a number in a range: ``Number(float, gt=0)``, ``Number(int, ge=1, le=65535)``.
+
+    Rejects what is not a finite number of ``kind`` or lies outside the range with a message that says what
+    was expected; tests read ``kind`` and the bounds to feed each option the values it must refuse.
+    """
+
+    def __init__(
+        self, kind: type, *, gt: float | None = None, ge: float | None = None, le: float | None = None
+    ) -> None:
+        self.kind, self.gt, self.ge, self.le = kind, gt, ge, le
+        self.__name__ = kind.__name__  # argparse names the type in "invalid <name> value" messages
+
+    def describe(self) -> str:
+        what = "an integer" if self.kind is int else "a number"
+        bounds = [f"> {self.gt:g}" if self.gt is not None else "", f">= {self.ge:g}" if self.ge is not None else ""]
+        bounds.append(f"<= {self.le:g}" if self.le is not None else "")
+        return " ".join([what, " and ".join(b for b in bounds if b)]).strip()
+
+    def __call__(self, text: str) -> Any:
+        try:
+            value = self.kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}") from None
+        if (
+            not math.isfinite(value)
+            or (self.gt is not None and not value > self.gt)
+            or (self.ge is not None and not value >= self.ge)
+            or (self.le is not None and not value <= self.le)
+        ):
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
+        return value
+
+    def __repr__(self) -> str:
+        return f"Number({self.describe()})"
+
+
+POSITIVE = Number(float, gt=0)
+"""Seconds, speeds, sizes: a finite number > 0."""
+NON_NEGATIVE = Number(float, ge=0)
+COUNT = Number(int, ge=1)
+"""Frames, sensors, workers: an integer >= 1."""
+INDEX = Number(int, ge=0)
+SEED = Number(int)
+"""Any integer."""
+PORT = Number(int, ge=1, le=65535)
+
+
+class PathArg:
+    """An argparse ``type`` for a path that must exist (``file`` / ``dir``) or whose folder must (``output``)."""
+
+    def __init__(self, must: str) -> None:
+        if must not in ("file", "dir", "output", "any"):
+            raise ValueError(f"PathArg: unknown requirement {must!r}")
+        self.must = must
+        self.__name__ = "path"
+
+    def __call__(self, text: str) -> Path:
+        path = Path(text)
+        if self.must == "file" and not path.is_file():
+            problem = "is a folder, not a file" if path.is_dir() else "no such file"
+            raise argparse.ArgumentTypeError(f"{problem}: {text}")
+        if self.must == "dir" and not path.is_dir():
+            problem = "is a file, not a folder" if path.exists() else "no such folder"
+            raise argparse.ArgumentTypeError(f"{problem}: {text}")
+        if self.must == "output":
+            parent = path.parent if str(path.parent) else Path(".")
+            if not parent.is_dir():
+                raise argparse.ArgumentTypeError(f"the folder {parent} of {text} does not exist; create it first")
+            if path.is_dir():
+                raise argparse.ArgumentTypeError(f"{text} is a folder; give a file name")
+        return path
+
+    def __repr__(self) -> str:
+        return f"PathArg({self.must})"
+
+
+EXISTING_FILE = PathArg("file")
+EXISTING_DIR = PathArg("dir")
+OUTPUT_FILE = PathArg("output")
+"""A file to write: its folder must exist (it is never created behind the user's back)."""
+
+
+def preset_name(text: str) -> str:
+    """argparse ``type`` of ``--preset``: one of the fusion presets."""
+    if text not in ALL_PRESETS:
+        raise argparse.ArgumentTypeError(
+            f"unknown fusion preset {text!r}{did_you_mean(text, ALL_PRESETS)}; expected one of {', '.join(ALL_PRESETS)}"
+        )
+    return text
 
 
 def print_json(payload: dict[str, Any]) -> None:
@@ -35,13 +136,20 @@ def _json_default(value: Any) -> Any:
 def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument(
         "--duration",
-        type=float,
+        type=POSITIVE,
         default=None,
         metavar="SECONDS",
-        help="stop cleanly after this many seconds (default: run until SIGINT/SIGTERM)",
+        help="stop cleanly after this many seconds of work; a zenoh session that cannot open is given up after as "
+        "long (default: run until SIGINT/SIGTERM)",
     )
+    flags = ("--max-messages", "--max-frames") if what.endswith("messages") else ("--max-frames",)
     parser.add_argument(
-        "--max-frames", type=int, default=None, metavar="N", help=f"stop cleanly after {what} (default: no limit)"
+        *flags,
+        dest="max_frames",
+        type=COUNT,
+        default=None,
+        metavar="N",
+        help=f"stop cleanly after {what} (default: no limit)",
     )
 
 

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from skelfuse import demo
-from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, POSITIVE, SEED, preset_name, print_json
 from skelfuse.config import DEFAULT_PRESET
 
 
@@ -54,7 +53,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     demo.add_argument(
         "--duration",
-        type=float,
+        type=POSITIVE,
         default=20.0,
         metavar="SECONDS",
         help="how long to run, seconds of fused output (default: %(default)s); with --offline: the take's length",
@@ -66,11 +65,18 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="what the simulated person does (default: %(default)s)",
     )
     demo.add_argument(
-        "--preset", default=DEFAULT_PRESET, help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)"
+        "--preset",
+        type=preset_name,
+        default=DEFAULT_PRESET,
+        help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)",
     )
-    demo.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    demo.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
     demo.add_argument(
-        "--rrd", type=Path, default=None, metavar="FILE", help="save the recording to FILE instead of spawning a viewer"
+        "--rrd",
+        type=OUTPUT_FILE,
+        default=None,
+        metavar="FILE",
+        help="save the recording to FILE instead of spawning a viewer",
     )
     demo.add_argument(
         "--serve",

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.common import COUNT, EXISTING_DIR, EXISTING_FILE, EXIT_OK, POSITIVE, SEED, preset_name, print_json
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.cli.robustness import add_robustness_parser
 from skelfuse.config import load_calibration
@@ -104,21 +104,21 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     paper.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     paper.add_argument("--out", type=Path, default=Path("eval_out/paper"), help="output folder (default: %(default)s)")
     paper.add_argument("--no-files", action="store_true", help="write no output folder, only print")
-    paper.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    paper.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
     paper.add_argument(
         "--duration",
-        type=float,
+        type=POSITIVE,
         default=None,
         metavar="SECONDS",
         help="length of each simulated take (default: the paper's ~33 s, or short with --quick)",
     )
     paper.add_argument(
         "--profile",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         help="simulator noise profile TOML (default: the packaged Azure Kinect profile)",
     )
-    paper.add_argument("--workers", type=int, default=2, help="worker processes (default: %(default)s)")
+    paper.add_argument("--workers", type=COUNT, default=2, help="worker processes (default: %(default)s)")
     paper.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     paper.set_defaults(func=_cmd_eval_paper)
 
@@ -135,7 +135,7 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
     real.add_argument("inputs", nargs="*", metavar="[ID=]PATH", help=INPUT_HELP)
     real.add_argument(
         "--data",
-        type=Path,
+        type=EXISTING_DIR,
         default=_default_data_dir(),
         help="without inputs: the folder with joints_gen_{master,sub1,sub2}.csv (default: %(default)s)",
     )
@@ -153,7 +153,7 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
         help=f"fusion preset to evaluate; repeatable (default: {', '.join(DEFAULT_PRESETS)})",
     )
     real.add_argument(
-        "--eps", type=float, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
+        "--eps", type=POSITIVE, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
     )
     real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     real.add_argument("--out", type=Path, default=None, help="write report.md and the plots into this folder")
@@ -170,7 +170,7 @@ def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: i
         "fragmentation) and per-person accuracy against ground truth.",
     )
     tracking.add_argument("--quick", action="store_true", help="shorter takes, for CI")
-    tracking.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
-    tracking.add_argument("--preset", default="skelfuse", help="fusion preset (default: %(default)s)")
+    tracking.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    tracking.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
     tracking.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     tracking.set_defaults(func=_cmd_eval_tracking)

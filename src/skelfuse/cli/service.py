@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import logging
 import sys
 from pathlib import Path
 
 from skelfuse.cli.common import (
+    EXISTING_FILE,
     EXIT_OK,
+    NON_NEGATIVE,
+    OUTPUT_FILE,
+    PORT,
+    POSITIVE,
+    SEED,
+    Number,
     add_run_limits,
     add_zenoh_arguments,
+    preset_name,
     print_json,
     rig_config,
     run_limits,
@@ -29,6 +39,8 @@ from skelfuse.service.status import watch_status
 from skelfuse.service.viewer import ViewOptions
 from skelfuse.wire.keys import validate_name
 
+log = logging.getLogger("skelfuse.cli")
+
 
 def _cmd_capture(args: argparse.Namespace) -> int:
 
@@ -41,6 +53,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         speed=None if args.fast else args.speed,
         node_name=args.node,
         limits=run_limits(args),
+        take_origin_ns=round(args.take_origin * 1e9),
     )
     report = worker.run_capture_worker(
         cfg, args.sensor, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
@@ -54,6 +67,10 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
     r = cfg.rerun
     if args.no_view:
         return ViewOptions(mode="off")
+    if args.spawn and not args.serve:  # with --rrd FILE: a viewer where one can open, else the view saved to FILE
+        return ViewOptions(
+            mode="spawn", file=args.rrd, grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors
+        )
     if args.rrd is not None:
         return ViewOptions(mode="save", file=args.rrd, log_sensors=r.log_sensors)
     if args.serve:
@@ -64,8 +81,6 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
             web_port=args.web_port if args.web_port is not None else r.web_port,
             log_sensors=r.log_sensors,
         )
-    if args.spawn:
-        return ViewOptions(mode="spawn", grpc_port=args.grpc_port or r.grpc_port, log_sensors=r.log_sensors)
     return ViewOptions(
         mode=r.mode, file=r.file, bind=r.bind, grpc_port=r.grpc_port, web_port=r.web_port, log_sensors=r.log_sensors
     )
@@ -83,6 +98,10 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
         raise ConfigError("skelfuse fuse needs --config RIG.toml (live) or --input FILE --output OUT (offline)")
 
     cfg = rig_config(args)
+    if args.preset is not None and args.preset != cfg.fusion.preset:
+        log.info("fusion preset %s (--preset) instead of the config's %s", args.preset, cfg.fusion.preset)
+        cfg = dataclasses.replace(cfg, fusion=dataclasses.replace(cfg.fusion, preset=args.preset))
+        cfg.fusion.fusion_params()  # the config's [fusion.params] overrides must suit the new preset
     options = NodeOptions(
         node_name=args.node, status_period_s=args.status_period, limits=run_limits(args), view=_view_options(args, cfg)
     )
@@ -190,10 +209,11 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         "capture",
         help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
         description="Run the capture worker of one sensor of the rig: read its frames from its source (sim, "
-        "replay; kinect is a separate issue) and publish them over zenoh. Retries with backoff when the zenoh "
-        "session cannot open or the source fails. SIGINT/SIGTERM stop it cleanly.",
+        "replay or kinect, as its [[sensors]] source says; docs/service.md, docs/kinect.md) and publish them over "
+        "zenoh. Retries with backoff when the zenoh session cannot open or the source fails; a kinect source "
+        "without pyk4a / the SDKs stops it with exit status 1. SIGINT/SIGTERM stop it cleanly.",
     )
-    capture.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    capture.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
     capture.add_argument("--sensor", required=True, metavar="ID", help="which [[sensors]] id to publish")
     capture.add_argument(
         "--node", default=None, metavar="NAME", help="node name for status/liveliness keys (default: capture-<ID>)"
@@ -206,16 +226,24 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
     )
     capture.add_argument(
         "--take-duration",
-        type=float,
+        type=POSITIVE,
         default=20.0,
         metavar="SECONDS",
         help="sim: length of the simulated take before it loops (default: %(default)s)",
     )
     capture.add_argument(
         "--seed",
-        type=int,
+        type=SEED,
         default=0,
         help="sim: seed of the motion and (unless sensors[i].sim.seed) of the observations (default: %(default)s)",
+    )
+    capture.add_argument(
+        "--take-origin",
+        type=NON_NEGATIVE,
+        default=0.0,
+        metavar="UNIX_SECONDS",
+        help="sim: Unix time at which the take's first frame plays; every worker of a rig must agree "
+        "(default: %(default)s, the take aligned on the Unix epoch)",
     )
     capture.add_argument(
         "--loop",
@@ -223,7 +251,7 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         default=None,
         help="start the take / recording over at its end (default: sim loops, replay follows sensors[i].replay.loop)",
     )
-    capture.add_argument("--speed", type=float, default=1.0, help="replay: playback speed (default: %(default)s)")
+    capture.add_argument("--speed", type=POSITIVE, default=1.0, help="replay: playback speed (default: %(default)s)")
     capture.add_argument("--fast", action="store_true", help="replay: as fast as possible")
     capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     add_run_limits(capture, "publishing N frames")
@@ -243,7 +271,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     )
     fuse.add_argument(
         "--config",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="RIG.toml",
         help="the rig config (required live; offline: poses, [sync] and [fusion] of the rig)",
@@ -252,12 +280,17 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         "--input", nargs="+", default=None, metavar="[ID=]PATH", help=f"offline: the recording(s). {INPUT_HELP}"
     )
     fuse.add_argument(
-        "--output", type=Path, default=None, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet"
+        "--output",
+        type=OUTPUT_FILE,
+        default=None,
+        metavar="OUT",
+        help="offline: fused frames to OUT.csv or OUT.parquet",
     )
     fuse.add_argument(
         "--preset",
         default=None,
-        help=f"offline: fusion preset, {DEFAULT_PRESET} or the paper's A1..A5 "
+        type=preset_name,
+        help=f"fusion preset, {DEFAULT_PRESET} or the paper's A1..A5, live or offline "
         f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})",
     )
     fuse.add_argument(
@@ -268,14 +301,25 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     )
     fuse.add_argument(
         "--status-period",
-        type=float,
+        type=Number(float, gt=0, le=3600),
         default=None,
         metavar="SECONDS",
         help="status period (default: [node] status_period_s)",
     )
     view = fuse.add_argument_group("live view (default: the config's [rerun])")
-    view.add_argument("--rrd", type=Path, default=None, metavar="FILE", help="save the live view to FILE")
-    view.add_argument("--spawn", action="store_true", help="spawn a local Rerun viewer")
+    view.add_argument(
+        "--rrd",
+        type=OUTPUT_FILE,
+        default=None,
+        metavar="FILE",
+        help="save the live view to FILE; with --spawn: where the view goes when no viewer can open here",
+    )
+    view.add_argument(
+        "--spawn",
+        action="store_true",
+        help="spawn a local Rerun viewer (where none can open, e.g. no DISPLAY: one warning, then no view, or "
+        "--rrd FILE)",
+    )
     view.add_argument(
         "--serve",
         action="store_true",
@@ -285,11 +329,11 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         "--bind", default=None, metavar="ADDR", help="address to serve on (default: [rerun] bind, 127.0.0.1)"
     )
     view.add_argument(
-        "--grpc-port", type=int, default=None, metavar="PORT", help="gRPC port (default: [rerun] grpc_port, 9876)"
+        "--grpc-port", type=PORT, default=None, metavar="PORT", help="gRPC port (default: [rerun] grpc_port, 9876)"
     )
     view.add_argument(
         "--web-port",
-        type=int,
+        type=PORT,
         default=None,
         metavar="PORT",
         help="with --serve: also serve the web viewer on this port",
@@ -311,10 +355,10 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         "file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
         "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
     )
-    record.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    record.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
     record.add_argument(
         "--output",
-        type=Path,
+        type=OUTPUT_FILE,
         default=None,
         metavar="FILE",
         help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
@@ -335,14 +379,14 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         "skelfuse/<--rig, the config's rig, else replay>/sensors/<id>/skeletons, paced by their matched times.",
     )
     replay.add_argument("file", nargs="+", metavar="[ID=]PATH", help=INPUT_HELP)
-    replay.add_argument("--speed", type=float, default=1.0, help="playback speed (default: %(default)s)")
+    replay.add_argument("--speed", type=POSITIVE, default=1.0, help="playback speed (default: %(default)s)")
     replay.add_argument("--fast", action="store_true", help="as fast as possible")
     replay.add_argument(
         "--rig", default=None, metavar="NAME", help="publish under skelfuse/NAME/... instead of the recorded rig"
     )
     replay.add_argument(
         "--config",
-        type=Path,
+        type=EXISTING_FILE,
         default=None,
         metavar="RIG.toml",
         help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
@@ -361,8 +405,8 @@ def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         description="Subscribe to skelfuse/<rig>/status/* and print one line per status message (rates, "
         "counts, latency), or the documents as JSON lines with --json.",
     )
-    status.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
+    status.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
     status.add_argument("--json", action="store_true", help="print each status document as one JSON line")
-    add_run_limits(status, "N status messages")
+    add_run_limits(status, "printing N status messages")
     add_zenoh_arguments(status)
     status.set_defaults(func=_cmd_status)

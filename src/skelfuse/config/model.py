@@ -235,7 +235,8 @@ class RerunConfig:
 
 @dataclass(frozen=True)
 class RecordConfig:
-    """``[record]``: recording of the streams by the fusion node (``directory`` None: off)."""
+    """``[record]``: what ``skelfuse record`` records (``sensors``, ``fused``) and where (``directory`` None: the
+    current folder). The fusion node itself never records."""
 
     directory: Path | None = None
     flush_period_s: float = 1.0
@@ -305,29 +306,67 @@ class RigConfig:
     def poses(self, *, required: bool = True) -> dict[str, np.ndarray]:
         """``world_from_sensor`` (4x4 float64) per sensor id.
 
-        A pose from the calibration file (when ``[calibration] file`` is set and exists) wins over the
-        sensor's inline ``world_from_sensor`` (for sim sensors the inline pose is the true one; a
-        calibration is a measurement of it).
+        A pose from the calibration file (``[calibration] file``) wins over the sensor's inline
+        ``world_from_sensor`` (for sim sensors the inline pose is the true one; a calibration is a
+        measurement of it). :meth:`pose_sources` says which sensor's pose came from where.
+
+        Parameters
+        ----------
+        required : bool
+            Fusion needs a pose for every sensor from where the config says: then a ``[calibration] file``
+            that does not exist is an error (never a silent fall back to the inline poses). Without
+            ``required`` (a recorder, before the rig is calibrated) a missing file leaves the inline poses.
 
         Raises
         ------
         ConfigError
-            ``required`` and a sensor has no pose; or the calibration file is malformed.
+            ``required`` and a sensor has no pose or the calibration file does not exist; the calibration
+            file is malformed or names none of the rig's sensors.
         """
+        return {sid: pose for sid, (pose, _) in self._resolve_poses(required).items()}
+
+    def pose_sources(self) -> dict[str, str]:
+        """Where each sensor's pose comes from: ``"calibration file <path>"``, ``"inline world_from_sensor"``,
+        or ``"none"`` (for start-up messages; never raises for a missing pose or file)."""
+        resolved = self._resolve_poses(required=False)
+        return {sid: resolved[sid][1] if sid in resolved else "none" for sid in self.sensor_ids}
+
+    def describe_poses(self) -> str:
+        """One line: which sensors take their pose from where (``pose_sources`` grouped)."""
+        groups: dict[str, list[str]] = {}
+        for sid, where in self.pose_sources().items():
+            groups.setdefault(where, []).append(sid)
+        return "; ".join(f"{where}: {', '.join(ids)}" for where, ids in groups.items())
+
+    def _resolve_poses(self, required: bool) -> dict[str, tuple[np.ndarray, str]]:
         calibrated: dict[str, np.ndarray] = {}
         calibration_note = ""
-        if self.calibration.file is not None:
-            if self.calibration.file.exists():
-                calibrated = load_calibration(self.calibration.file)
+        file = self.calibration.file
+        if file is not None:
+            if file.exists():
+                calibrated = load_calibration(file)
+                unknown = sorted(set(calibrated) - set(self.sensor_ids))
+                if unknown and len(unknown) == len(calibrated):
+                    raise ConfigError(
+                        f"{self.source}: [calibration] file {file} holds poses of {', '.join(unknown)}, none of "
+                        f"which is a sensor of rig {self.name!r} ({', '.join(self.sensor_ids)}); point [calibration] "
+                        "file at this rig's calibration, or calibrate it with `skelfuse calibrate ...`"
+                    )
+            elif required:
+                raise ConfigError(
+                    f"{self.source}: [calibration] file {file} does not exist; calibrate the rig first "
+                    "(`skelfuse calibrate skeleton ...` or `calibrate sphere` / `marker`, docs/calibration.md), "
+                    "or remove the key to use the sensors' inline world_from_sensor"
+                )
             else:
-                calibration_note = f" (calibration file {self.calibration.file} does not exist yet)"
-        poses: dict[str, np.ndarray] = {}
+                calibration_note = f" (calibration file {file} does not exist yet)"
+        poses: dict[str, tuple[np.ndarray, str]] = {}
         for s in self.sensors:
             pose = calibrated.get(s.id)
-            if pose is None:
-                pose = s.pose()
             if pose is not None:
-                poses[s.id] = pose
+                poses[s.id] = (pose, f"calibration file {file}")
+            elif (inline := s.pose()) is not None:
+                poses[s.id] = (inline, "inline world_from_sensor")
         missing = [s for s in self.sensor_ids if s not in poses]
         if required and missing:
             raise ConfigError(

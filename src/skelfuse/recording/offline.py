@@ -18,6 +18,7 @@ CLI's ``skelfuse replay FILE`` publishes each yielded ``record.payload`` on ``re
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -36,6 +37,8 @@ from skelfuse.rig.grouping import FrameGrouper
 from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
+
+log = logging.getLogger("skelfuse.recording")
 
 __all__ = ["RESET_GAP_S", "fuse_recording", "replay_frames", "resolve_poses"]
 
@@ -76,6 +79,9 @@ def resolve_poses(
     if world_from_sensor is not None:
         sources.append(("world_from_sensor argument", world_from_sensor))
     if rig_config is not None:
+        _check_rig_matches(rig_config, sensor_ids, recording)
+        if rig_config.calibration.file is not None and not rig_config.calibration.file.exists():
+            rig_config.poses()  # raises the ConfigError that names the missing file and the fix
         sources.append((f"rig config {rig_config.source}", rig_config.poses(required=False)))
     if recording is not None and recording.calibration:
         sources.append((f"calibration metadata of {recording.path}", recording.calibration))
@@ -89,6 +95,9 @@ def resolve_poses(
             out = np.stack([np.asarray(poses[s], dtype=np.float64) for s in sensor_ids])
             if out.shape[1:] != (4, 4) or not np.isfinite(out).all():
                 raise DataError(f"the {name} holds a pose that is not a finite 4x4 matrix")
+            log.info(
+                "poses of %s: from the %s%s", ", ".join(sensor_ids), name, f" ({'; '.join(tried)})" if tried else ""
+            )
             return out
         tried.append(f"the {name} lacks {', '.join(missing)}")
     where = (
@@ -103,6 +112,29 @@ def resolve_poses(
         f"with a calibrated rig carry it in their metadata; files already in one frame take --registered; "
         f"`skelfuse calibrate skeleton` makes a calibration from a walk"
     )
+
+
+def _check_rig_matches(rig_config: RigConfig, sensor_ids: tuple[str, ...], recording: RecordingReader | None) -> None:
+    """A rig config given for a recording must be that recording's rig: its sensors, and (warned) its name."""
+    foreign = [s for s in sensor_ids if s not in rig_config.sensor_ids]
+    recorded_rig = recording.metadata.get("rig") if recording is not None else None
+    where = f"recording {recording.path}" if recording is not None else "the recording"
+    if foreign:
+        raise DataError(
+            f"the rig config {rig_config.source} (rig {rig_config.name!r}, sensors "
+            f"{', '.join(rig_config.sensor_ids) or 'none'}) is not the rig of {where} (rig {recorded_rig!r}, sensors "
+            f"{', '.join(sensor_ids)}): it has no sensor {', '.join(foreign)}. Pass the config of the rig that "
+            "recorded it, or leave the config out to fuse with the recording's own calibration"
+        )
+    if recorded_rig is not None and recorded_rig != rig_config.name:
+        log.warning(
+            "the rig config %s is rig %r but %s was recorded by rig %r; its sensor ids match, so its poses, "
+            "[sync] and [fusion] are used",
+            rig_config.source,
+            rig_config.name,
+            where,
+            recorded_rig,
+        )
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -175,7 +207,17 @@ def fuse_recording(
     reader = RecordingReader(recording_path)
     sensor_ids = reader.sensors
     if not sensor_ids:
-        raise DataError(f"recording {reader.path} holds no sensor-frame channels; nothing to fuse")
+        ended = " (it ends early: cut before its first complete chunk)" if reader.truncated else ""
+        raise DataError(f"recording {reader.path} holds no sensor-frame channels{ended}; nothing to fuse")
+    if reader.truncated or reader.bad_chunks:
+        log.warning(
+            "recording %s %s; fusing what it holds up to there%s",
+            reader.path,
+            "ends early (no footer: a recorder that was killed, or a file that was cut)"
+            if reader.truncated
+            else f"has {reader.bad_chunks} unreadable chunk(s)",
+            f" ({'; '.join(reader.problems[:3])})" if reader.problems else "",
+        )
     poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
     grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
     return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)

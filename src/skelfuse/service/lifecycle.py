@@ -17,14 +17,22 @@ shutdown by signal (systemd counts that as success; uvicorn re-raises the signal
 
 A node running in a thread (the demo's fusion node) gets its own :class:`Lifecycle` and is stopped with
 :meth:`Lifecycle.request_exit`; only the main thread installs signal handlers.
+
+The stop is bounded whatever a sink or a peer does: once a stop began (a signal, a run limit, an error
+leaving the block), a watchdog thread gives the node ``stop_timeout_s`` (:data:`STOP_TIMEOUT_S`) to leave
+:meth:`Lifecycle.capture_signals`; past it, it logs which node hung, dumps every thread's stack to stderr
+and ends the process with :data:`FORCED_EXIT_CODE`. The drains and flushes inside have their own shorter
+timeouts, so the watchdog only fires on a bug or a library call that ignores its timeout.
 """
 
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -37,6 +45,10 @@ log = logging.getLogger("skelfuse.service")
 
 HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 """Signals that shut a node down cleanly."""
+STOP_TIMEOUT_S = 15.0
+"""Longest a node may take from the start of its stop to its end before the watchdog ends the process."""
+FORCED_EXIT_CODE = 4
+"""Exit status of a process the stop watchdog had to end (docs/service.md, "Exit codes")."""
 
 
 class Lifecycle:
@@ -96,21 +108,47 @@ class Lifecycle:
         return self.should_exit
 
     @contextlib.contextmanager
-    def capture_signals(self) -> Iterator[None]:
+    def capture_signals(self, *, stop_timeout_s: float | None = STOP_TIMEOUT_S) -> Iterator[None]:
         """Route SIGINT/SIGTERM to :meth:`handle_exit` inside the block; restore the original handlers after.
 
-        Outside the main thread (where Python cannot install handlers) this does nothing: the owner of the
-        thread stops it with :meth:`request_exit`.
+        With ``stop_timeout_s``, a watchdog ends the process (:data:`FORCED_EXIT_CODE`) when the block has
+        not been left ``stop_timeout_s`` seconds after ``should_exit`` was set (nodes set it with
+        :meth:`request_exit` when a run limit is reached or their loop fails, before they clean up). Outside
+        the main thread (where Python cannot install handlers) this does
+        nothing: the owner of the thread stops it with :meth:`request_exit`.
         """
         if threading.current_thread() is not threading.main_thread():
             yield
             return
         original = {sig: signal.signal(sig, self.handle_exit) for sig in HANDLED_SIGNALS}
+        left = threading.Event()
+        if stop_timeout_s is not None:
+            threading.Thread(
+                target=self._stop_watchdog, args=(left, stop_timeout_s), name=f"{self.name}-stop-watchdog", daemon=True
+            ).start()
         try:
             yield
         finally:
+            left.set()
             for sig, handler in original.items():
                 signal.signal(sig, handler)
+
+    def _stop_watchdog(self, left: threading.Event, stop_timeout_s: float) -> None:
+        while not self.should_exit:
+            if left.wait(0.1):
+                return
+        if left.wait(stop_timeout_s):
+            return
+        log.error(
+            "%s: still stopping %.0f s after the stop began (a sink or a peer is blocking); ending the process "
+            "with status %d (stacks below)",
+            self.name,
+            stop_timeout_s,
+            FORCED_EXIT_CODE,
+        )
+        with contextlib.suppress(Exception):
+            faulthandler.dump_traceback(all_threads=True)
+        os._exit(FORCED_EXIT_CODE)
 
 
 @dataclass(frozen=True)

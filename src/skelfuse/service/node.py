@@ -45,6 +45,7 @@ from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -358,6 +359,8 @@ class FusionNode:
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
         self.core = FusionCore(cfg)
+        self.pose_origin = cfg.describe_poses()
+        self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf
         self.session = session
         self.recording = recording
@@ -382,9 +385,15 @@ class FusionNode:
         """Open zenoh (retrying), serve until ``lifecycle.should_exit`` or the run limits, drain, close."""
         own_session = self.session is None
         session = self.session
+        self._started = time.monotonic()  # an unreachable router cannot hold the node past --duration
         if session is None:
             assert self.zenoh_conf is not None
-            session = open_session(self.zenoh_conf, lifecycle=self.lifecycle, what=f"fusion node {self.name}")
+            session = open_session(
+                self.zenoh_conf,
+                lifecycle=self.lifecycle,
+                what=f"fusion node {self.name}",
+                deadline=self.options.limits.deadline(self._started),
+            )
             if session is None:
                 return self.report
         view, server = self._open_view()
@@ -414,8 +423,10 @@ class FusionNode:
                 self.cfg.fusion.preset,
                 keys.fused_skeletons(rig),
             )
+            log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
+            self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)
             # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
             subscriber.undeclare()
             deadline = time.monotonic() + self.options.drain_timeout_s
@@ -431,6 +442,7 @@ class FusionNode:
             publisher.undeclare()
             status_pub.undeclare()
         finally:
+            self.lifecycle.request_exit()
             self.ready.set()
             if view is not None:
                 view.close(timeout_s=0.5 if self.lifecycle.force_exit else 5.0)
@@ -459,7 +471,7 @@ class FusionNode:
     def _loop(self, samples: SampleQueue, publisher: Any, status_pub: Any, view: RerunView | None) -> None:
         period_s = self.options.status_period_s or self.cfg.node.status_period_s
         period_ns = int(period_s * 1e9)
-        start = time.monotonic()
+        start = time.monotonic()  # --duration of fusing; the wait for a session before is bounded by it too
         next_status = time.monotonic_ns()
         last_status = next_status
         limits = self.options.limits
@@ -491,6 +503,8 @@ class FusionNode:
         for out in outputs:
             publisher.put(out.payload)
             done_ns = time.monotonic_ns()
+            for change in self.pose_fit.update(out.sensors_world, out.frame.positions):
+                self._log_fit(change)
             fusion_ms = out.fusion_ns / 1e6
             self._fusion.append(fusion_ms)
             self._window_fusion.append(fusion_ms)
@@ -516,12 +530,34 @@ class FusionNode:
             if self.on_fused is not None:
                 self.on_fused(out)
 
+    def _log_fit(self, change: FitChange) -> None:
+        if change.fits:
+            log.info(
+                "fusion node %s: sensor %s fits the others again (median %.0f mm from the fused people)",
+                self.name,
+                change.sensor_id,
+                change.median_mm,
+            )
+            return
+        log.warning(
+            "fusion node %s: sensor %s's pose no longer fits the others: its bodies lie a median %.0f mm from the "
+            "fused people over its last %d instants (alarm above %.0f mm). Was it moved or knocked? Check with "
+            "`skelfuse calibrate check`, then recalibrate",
+            self.name,
+            change.sensor_id,
+            change.median_mm,
+            change.frames,
+            self.pose_fit.threshold_mm,
+            extra={"sensor": change.sensor_id, "alarm": "pose_moved"},
+        )
+
     def _state(self, now_ns: int) -> str:
         seen = [w.last_seen_ns for w in self.core._sensors.values()]
         if all(s is None for s in seen):
             return "starting"
         stale = any(s is None or now_ns - s > 1e9 for s in seen)
-        return "degraded" if stale else "running"
+        moved = any(fit["fits"] is False for fit in self.pose_fit.report().values())
+        return "degraded" if stale or moved else "running"
 
     def _publish_status(self, status_pub: Any, state: str, now_ns: int, window_s: float | None = None) -> None:
         core = self.core
@@ -554,6 +590,7 @@ class FusionNode:
             "window_s": round(window_s, 4),
             "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
             "sensors": sensors,
+            "pose_fit": self.pose_fit.report(),
             "unknown_ids": stats.unknown_ids,
             "rejects_unknown_sensor": dict(core.rejects.get(UNKNOWN_SENSOR, {})),
             "fusion_ms": _percentiles(self._window_fusion),

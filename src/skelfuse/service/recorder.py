@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 from skelfuse.config import RigConfig
 from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
 from skelfuse.recording.inputs import InputTake
+from skelfuse.schema.errors import ConfigError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -57,12 +58,18 @@ def run_recorder(
     """Record every raw sensor frame of the rig (and its fused stream, ``[record] fused``) to MCAP until a signal
     or the run limits."""
 
+    if not cfg.record.sensors and not cfg.record.fused:
+        raise ConfigError(f"{cfg.source}: [record] sensors and fused are both false: nothing to record")
     path = Path(output) if output is not None else default_recording_path(cfg)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if (
+        output is None
+    ):  # [record] directory is the operator's choice: create it; an explicit --output's folder must exist
+        path.parent.mkdir(parents=True, exist_ok=True)
     report = RecordReport(path)
     flush_s = cfg.record.flush_period_s
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what="recorder")
+        start = time.monotonic()
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="recorder", deadline=limits.deadline(start))
         if session is None:
             return report
         samples = SampleQueue()
@@ -75,18 +82,20 @@ def run_recorder(
             metadata={"recorder": "skelfuse record"},
         )
         try:
-            subscriber = session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples)
+            # [record] sensors: the raw sensor frames (what `fuse --input` and `replay` read back)
+            subscriber = (
+                session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples) if cfg.record.sensors else None
+            )
+            # [record] fused: the fused stream's payloads as received, on the fused key's channel
             fused_key = keys.fused_skeletons(cfg.name)
             fused_subscriber = session.declare_subscriber(fused_key, samples) if cfg.record.fused else None
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
+            streams = ["sensor frames" if cfg.record.sensors else "no sensor frames ([record] sensors = false)"]
+            if cfg.record.fused:
+                streams.append("fused frames")
             log.info(
-                "recorder: writing rig %s's sensor frames%s to %s (flush every %.1f s)",
-                cfg.name,
-                " and fused frames" if cfg.record.fused else "",
-                path,
-                flush_s,
+                "recorder: writing rig %s's %s to %s (flush every %.1f s)", cfg.name, ", ".join(streams), path, flush_s
             )
-            start = time.monotonic()
             next_flush = start + flush_s
             while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
                 item = samples.get(timeout=0.05)
@@ -106,11 +115,14 @@ def run_recorder(
                 if time.monotonic() >= next_flush:
                     writer.flush()
                     next_flush = time.monotonic() + flush_s
-            subscriber.undeclare()
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
+            if subscriber is not None:
+                subscriber.undeclare()
             if fused_subscriber is not None:
                 fused_subscriber.undeclare()
             token.undeclare()
         finally:
+            lifecycle.request_exit()
             writer.close()
             session.close()
     report.frames_written = writer.frames_written
@@ -163,12 +175,12 @@ def run_replay(
         sensors = ", ".join(reader.sensors)
     report = ReplayReport()
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay")
+        start = time.monotonic()
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay", deadline=limits.deadline(start))
         if session is None:
             return report
         publishers: dict[str, object] = {}
         try:
-            start = time.monotonic()
             log.info(
                 "replay: %s (%s) at %s",
                 path,
@@ -186,6 +198,7 @@ def run_replay(
                 report.frames_out += 1
                 report.topics.add(topic)
         finally:
+            lifecycle.request_exit()
             session.close()
     log.info("replay: %d frames published on %d topics", report.frames_out, len(report.topics))
     return report

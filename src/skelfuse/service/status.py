@@ -42,6 +42,13 @@ def format_status(status: NodeStatus) -> str:
             )
         if rates:
             parts.append("sensors: " + ", ".join(rates))
+        moved = [
+            f"{sid} ({fit.get('median_mm')} mm off)"
+            for sid, fit in (info.get("pose_fit") or {}).items()
+            if fit.get("fits") is False
+        ]
+        if moved:
+            parts.append("POSE NO LONGER FITS: " + ", ".join(moved))
     else:
         parts.append(f"out {c.get('frames_out', 0)} ({info.get('rate_hz', 0) or 0:.1f} Hz)")
         if info.get("last_error"):
@@ -55,13 +62,13 @@ def watch_status(
     """Print status messages until a signal or the limits (``max_frames``: messages); returns how many."""
     count = 0
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what="status")
+        start = time.monotonic()
+        session = open_session(zenoh_conf, lifecycle=lifecycle, what="status", deadline=limits.deadline(start))
         if session is None:
             return 0
         samples = SampleQueue()
         try:
             session.declare_subscriber(keys.all_status(cfg.name), samples)
-            start = time.monotonic()
             while not lifecycle.should_exit and not limits.reached(count, start):
                 item = samples.get(timeout=0.1)
                 if item is None:
@@ -86,5 +93,6 @@ def watch_status(
                     out.write(format_status(status) + "\n")
                 out.flush()
         finally:
+            lifecycle.request_exit()
             session.close()
     return count

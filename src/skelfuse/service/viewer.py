@@ -6,7 +6,10 @@ fused frame on the wire: when the viewer cannot keep up, frames are skipped for 
 
 Modes (``[rerun] mode`` or the command's flags):
 
-- ``spawn``: start a local viewer (``rr.RecordingStream.spawn``); it stays open when the node stops.
+- ``spawn``: start a local viewer (the ``rerun`` executable, in its own session); it stays open when the
+  node stops. Where no viewer can open (no ``DISPLAY`` / ``WAYLAND_DISPLAY``, or the viewer exits at
+  start-up) this is detected before anything is sent: the view falls back to ``file`` when one is given
+  (``fuse --spawn --rrd FILE``), else it is dropped with one warning; the node runs on without it.
 - ``serve``: start ``rerun --serve-grpc --bind <bind>`` (plus the web viewer with ``--web-viewer-port``)
   as a child process bound to 127.0.0.1 unless told otherwise, and stream to it. Viewers connect with
   ``rerun rerun+http://<bind>:<grpc_port>/proxy`` (or open ``http://<bind>:<web_port>``). The server is
@@ -22,7 +25,10 @@ import queue
 import shutil
 import signal
 import subprocess
+import sys
+import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,11 +42,28 @@ from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 log = logging.getLogger("skelfuse.service")
 
 VIEW_MODES = ("off", "spawn", "serve", "save")
+FLUSH_TIMEOUT_S = 2.0
+"""Longest a view may take to flush at shutdown; a viewer that does not take the data loses it."""
+SPAWN_SETTLE_S = 1.5
+"""A spawned viewer that is still alive this long after binding its port is taken as started (one that
+cannot open a window binds its port first, then exits)."""
+
+
+class ViewUnavailable(Exception):
+    """The live view cannot go where it was asked to (no display, a viewer that exits at start-up)."""
+
+
+def has_display() -> bool:
+    """Whether a viewer window can open here (a desktop session, or macOS / Windows)."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 @dataclass(frozen=True)
 class ViewOptions:
-    """Where the live view goes; see the module docstring for the modes."""
+    """Where the live view goes; see the module docstring for the modes (``file``: the .rrd of mode "save",
+    or with mode "spawn" where the view goes when no viewer can open)."""
 
     mode: str = "off"
     file: Path | None = None
@@ -57,14 +80,103 @@ class ViewOptions:
             raise ValueError("view mode 'save' needs a file (--rrd FILE)")
 
 
+def spawn_viewer(port: int, *, settle_s: float = SPAWN_SETTLE_S, timeout_s: float = 15.0) -> str:
+    """Start a local Rerun viewer listening on ``port`` (or use the one already there); its gRPC URL.
+
+    The viewer runs in its own session and stays open when the node stops (like ``rr.spawn``), but unlike
+    ``rr.spawn`` a viewer that cannot start is detected here, within about ``settle_s`` seconds, instead of
+    leaving the recording stream retrying (and its flush blocking) for ever.
+
+    Raises
+    ------
+    ViewUnavailable
+        No display, no ``rerun`` executable, or the viewer exited or never listened.
+    """
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    if not has_display():
+        raise ViewUnavailable("no display here (DISPLAY and WAYLAND_DISPLAY are unset)")
+    if wait_for_port(port, timeout_s=0.2):
+        return url  # a viewer is already listening there: stream to it
+    exe = shutil.which("rerun")
+    if exe is None:
+        raise ViewUnavailable("the `rerun` executable of rerun-sdk is not on PATH")
+    with tempfile.TemporaryFile() as errors:
+        viewer = subprocess.Popen(
+            [exe, "--port", str(port)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=errors,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + timeout_s
+        bound_at: float | None = None
+        while viewer.poll() is None and time.monotonic() < deadline:
+            if bound_at is None and wait_for_port(port, timeout_s=0.1):
+                bound_at = time.monotonic()
+            if bound_at is not None and time.monotonic() - bound_at >= settle_s:
+                return url
+            time.sleep(0.05)
+        if viewer.poll() is None:
+            stop_server(viewer)
+            raise ViewUnavailable(f"the viewer ({exe}) did not listen on port {port} within {timeout_s:.0f} s")
+        errors.seek(0)
+        lines = [ln for ln in errors.read().decode(errors="replace").splitlines() if "Error" in ln or "error" in ln]
+        why = lines[-1].strip() if lines else f"exit status {viewer.returncode}"
+        raise ViewUnavailable(f"the viewer exited at start-up: {why[-300:]}")
+
+
+_UNRELEASED: list[Any] = []
+"""Recording streams whose disconnect did not finish in time: kept referenced so that their (blocking)
+``__del__`` never runs on the node's thread; the process exit is bounded by the CLI (``EXIT_GRACE_S``)."""
+
+
+def release_recording(recording: Any, timeout_s: float = FLUSH_TIMEOUT_S) -> bool:
+    """Disconnect a recording stream from its sinks within ``timeout_s``; True when it finished.
+
+    Rerun's disconnect (and the ``__del__`` of a stream still connected) waits for a viewer that accepted
+    the connection but does not answer; done on a daemon thread, that wait cannot hold a stop.
+    """
+    done = threading.Event()
+
+    def disconnect() -> None:
+        try:
+            recording.disconnect()
+        except Exception as exc:  # a viewer that went away: nothing left to release
+            log.debug("rerun: disconnect failed: %s", exc)
+        done.set()
+
+    threading.Thread(target=disconnect, name="skelfuse-rerun-release", daemon=True).start()
+    if done.wait(timeout_s):
+        return True
+    _UNRELEASED.append(recording)
+    log.warning("rerun: the viewer did not take the end of the stream within %.1f s; leaving it", timeout_s)
+    return False
+
+
 def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] | None]:
-    """A ``rr.RecordingStream`` sending where ``options`` says, and the server process it started (serve)."""
+    """A ``rr.RecordingStream`` sending where ``options`` says, and the server process it started (serve).
+
+    Returns ``(None, None)`` where mode "spawn" cannot open a viewer and no fallback ``file`` is given
+    (logged once, as a warning that says what to do instead).
+    """
     import rerun as rr
 
     recording = rr.RecordingStream(options.application_id)
     server: subprocess.Popen[bytes] | None = None
     if options.mode == "spawn":
-        recording.spawn(port=options.grpc_port, default_blueprint=default_blueprint())
+        try:
+            recording.connect_grpc(spawn_viewer(options.grpc_port), default_blueprint=default_blueprint())
+        except ViewUnavailable as exc:
+            if options.file is not None:
+                log.warning("rerun: cannot open a viewer (%s); saving the view to %s instead", exc, options.file)
+                recording.save(options.file, default_blueprint=default_blueprint())
+                return recording, None
+            log.warning(
+                "rerun: cannot open a viewer (%s); running without a live view. Use --rrd FILE to save it, "
+                '--serve to serve it to remote viewers, or --no-view ([rerun] mode = "save" / "serve" / "off")',
+                exc,
+            )
+            return None, None
     elif options.mode == "save":
         assert options.file is not None
         recording.save(options.file, default_blueprint=default_blueprint())
@@ -138,6 +250,10 @@ class RerunView:
         self.drawn = 0
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=max_pending)
         self.sink.log_rig(world_from_sensor)
+        try:  # the camera on this rig's people (open_recording sent the rig-independent default)
+            recording.send_blueprint(default_blueprint(world_from_sensor))
+        except Exception as exc:  # a viewer problem never stops the node
+            log.warning("rerun: could not send the view's layout: %s", exc)
         self._thread = threading.Thread(target=self._run, name="skelfuse-rerun", daemon=True)
         self._thread.start()
 
@@ -190,14 +306,23 @@ class RerunView:
             except Exception:  # a viewer problem must never stop the node
                 log.exception("rerun: logging a frame failed")
 
-    def close(self, timeout_s: float = 5.0) -> None:
-        """Draw what is queued (up to ``timeout_s``), then flush the recording."""
+    def close(self, timeout_s: float = 5.0, flush_timeout_s: float = FLUSH_TIMEOUT_S) -> None:
+        """Draw what is queued (up to ``timeout_s``), then flush the recording (up to ``flush_timeout_s``).
+
+        Both waits are bounded: a viewer that stopped taking data costs the node at most their sum at shutdown.
+        """
+        deadline = time.monotonic() + timeout_s
         try:
             self._queue.put(None, timeout=timeout_s)
         except queue.Full:
             log.warning("rerun: view queue still full at shutdown; %d frames not drawn", self._queue.qsize())
-        self._thread.join(timeout_s)
+        self._thread.join(max(0.0, deadline - time.monotonic()))
         try:
-            self.recording.flush()
-        except Exception:
-            log.exception("rerun: flushing the recording failed")
+            self.recording.flush(timeout_sec=flush_timeout_s)
+        except Exception as exc:  # a viewer that went away: say so in one line, never block the stop
+            log.warning(
+                "rerun: the view could not be flushed within %.1f s (%s); its last frames are lost",
+                flush_timeout_s,
+                exc,
+            )
+        release_recording(self.recording, flush_timeout_s)

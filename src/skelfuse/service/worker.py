@@ -117,6 +117,11 @@ class WorkerOptions:
     status_period_s: float | None = None
     limits: RunLimits = field(default_factory=RunLimits)
     subordinate_wait_s: float = 30.0
+    take_origin_ns: int = 0
+    stall_timeout_s: float | None = 10.0
+    """Watchdog: a live source (one that yields ``None`` while it waits) that delivers no frame for this long
+    is treated as stalled (a body tracker that stopped producing results) and restarted like a source that
+    failed; counted in the status as ``stalls``. None: off."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -171,6 +176,9 @@ class SimSource:
     loop : bool
     clock_ns : callable
         Host clock (Unix ns) used to align instants across workers; injected by tests.
+    take_origin_ns : int
+        Unix ns at which take frame 0 plays (instant ``n`` shows take frame ``(n - n0) mod T``); every
+        worker of a rig must get the same. Default 0: the take is aligned on the Unix epoch.
     """
 
     def __init__(
@@ -183,6 +191,7 @@ class SimSource:
         seed: int = 0,
         loop: bool = True,
         clock_ns: Any = time.time_ns,
+        take_origin_ns: int = 0,
     ) -> None:
         sensor = cfg.sensor(sensor_id)
         if sensor.source != "sim":
@@ -196,11 +205,12 @@ class SimSource:
         self.fps = float(cfg.sync.fps)
         self.loop = loop
         self.clock_ns = clock_ns
+        self.origin_n = math.ceil(take_origin_ns / (1e9 / self.fps))
 
     def frame_at(self, n: int) -> SensorFrame | None:
         """The frame of instant ``n`` (take frame ``n mod T``); None where the simulated sensor dropped it."""
         obs, s = self.observations, self.column
-        f = n % obs.n_frames
+        f = (n - self.origin_n) % obs.n_frames
         if obs.dropped[f, s]:
             return None
         period_us = 1e6 / self.fps
@@ -236,7 +246,7 @@ class SimSource:
         first = n
         n_frames = self.observations.n_frames
         while True:
-            if not self.loop and n > first and n % n_frames == 0:
+            if not self.loop and n > first and (n - self.origin_n) % n_frames == 0:
                 return  # end of the take
             frame = self.frame_at(n)
             if frame is not None:
@@ -476,6 +486,7 @@ class KinectFrameSource:
     def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
 
         source = KinectSource.from_config(self.cfg, self.sensor_id)
+        source.ensure_available()  # missing pyk4a / SDKs: say so now, not after waiting for subordinates
         self._wait_for_subordinates()
         if self.should_exit():
             return
@@ -542,6 +553,7 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
             take_duration_s=options.take_duration_s,
             seed=options.seed,
             loop=True if options.loop is None else options.loop,
+            take_origin_ns=options.take_origin_ns,
         )
     if sensor.source == "replay":
         assert sensor.replay is not None
@@ -563,11 +575,16 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
 # The worker
 
 
+class SourceStalled(Exception):
+    """The watchdog's verdict: the source kept answering but delivered no frame for ``stall_timeout_s``."""
+
+
 @dataclass
 class WorkerReport:
     frames_out: int = 0
     restarts: int = 0
     late_publishes: int = 0
+    stalls: int = 0
 
 
 def run_capture_worker(
@@ -588,7 +605,10 @@ def run_capture_worker(
     check_source(cfg, sensor_id)
     report = WorkerReport()
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what=f"capture worker {name}")
+        started = time.monotonic()
+        session = open_session(
+            zenoh_conf, lifecycle=lifecycle, what=f"capture worker {name}", deadline=options.limits.deadline(started)
+        )
         if session is None:
             return report
         try:
@@ -597,6 +617,7 @@ def run_capture_worker(
             source = source if source is not None else make_source(cfg, sensor_id, options)
             _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report)
         finally:
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             session.close()
     log.info("capture worker %s stopped: %d frames published", name, report.frames_out)
     return report
@@ -611,6 +632,7 @@ def _publish_loop(
     options: WorkerOptions,
     lifecycle: Lifecycle,
     report: WorkerReport,
+    started: float | None = None,
 ) -> None:
     rig = cfg.name
     key = keys.sensor_skeletons(rig, sensor_id)
@@ -619,8 +641,8 @@ def _publish_loop(
     token = session.liveliness().declare_token(keys.alive(rig, name))
     period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
     limits = options.limits
-    start = time.monotonic()
-    deadline_ns = math.inf if limits.duration_s is None else time.monotonic_ns() + limits.duration_s * 1e9
+    start = started if started is not None else time.monotonic()
+    deadline_ns = math.inf if limits.duration_s is None else (start + limits.duration_s) * 1e9
     next_status = time.monotonic_ns()
     window_frames = 0
     last_status = next_status
@@ -628,7 +650,7 @@ def _publish_loop(
     last_error = ""
     stamps_host_time = bool(getattr(source, "stamps_host_time", False))
     if hasattr(source, "attach"):  # a kinect source orders camera starts across workers over this session
-        source.attach(session, should_exit=lambda: lifecycle.should_exit)
+        source.attach(session, should_exit=lambda: lifecycle.should_exit or time.monotonic_ns() >= deadline_ns)
     log.info("capture worker %s: publishing sensor %s (%s) on %s", name, sensor_id, type(source).__name__, key)
 
     def status(state: str) -> None:
@@ -645,6 +667,7 @@ def _publish_loop(
             "frames_out": report.frames_out,
             "restarts": report.restarts,
             "late_publishes": report.late_publishes,
+            "stalls": report.stalls,
         }
         status_pub.put(
             encode_status(
@@ -657,6 +680,7 @@ def _publish_loop(
     try:
         while not lifecycle.should_exit:
             try:
+                last_frame_ns = time.monotonic_ns()
                 for due_ns, frame in source.frames():
                     now = time.monotonic_ns()
                     if now >= next_status:
@@ -665,7 +689,12 @@ def _publish_loop(
                     if due_ns > deadline_ns or lifecycle.should_exit:
                         return
                     if frame is None:  # a live device with nothing new within its read timeout
+                        silent_s = (now - last_frame_ns) / 1e9
+                        if options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
+                            report.stalls += 1
+                            raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
                         continue
+                    last_frame_ns = now
                     wait_ns = due_ns - time.monotonic_ns()
                     if wait_ns > 0 and lifecycle.wait(wait_ns / 1e9):
                         return
@@ -696,10 +725,14 @@ def _publish_loop(
                     exc_info=log.isEnabledFor(logging.DEBUG),
                 )
                 status("degraded")
-                if lifecycle.wait(backoff):
+                if lifecycle.wait(min(backoff, max(0.0, (deadline_ns - time.monotonic_ns()) / 1e9))):
+                    return
+                if time.monotonic_ns() >= deadline_ns:
+                    log.info("capture worker %s: --duration reached while the source was failing", name)
                     return
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
     finally:
+        lifecycle.request_exit()
         status("stopped")
         token.undeclare()
         publisher.undeclare()

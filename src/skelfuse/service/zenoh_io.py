@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import queue
 import socket
 import time
@@ -69,10 +70,18 @@ class SampleQueue:
         return self._queue.qsize()
 
 
-def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: bool = True) -> zenoh.Session | None:
+def open_session(
+    conf: zenoh.Config,
+    *,
+    lifecycle: Lifecycle,
+    what: str,
+    retry: bool = True,
+    deadline: float = math.inf,
+) -> zenoh.Session | None:
     """Open a zenoh session; on failure log a clear message and retry with exponential backoff.
 
-    Returns None when an exit was asked for before the session opened.
+    Returns None when an exit was asked for, or the monotonic ``deadline`` (the node's ``--duration``)
+    passed, before the session opened.
 
     Raises
     ------
@@ -83,8 +92,11 @@ def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: 
 
     delay = BACKOFF_FIRST_S
     while not lifecycle.should_exit:
+        if time.monotonic() >= deadline:
+            log.error("%s: no zenoh session before the end of --duration; stopping", what)
+            return None
         try:
-            return zenoh.open(conf)
+            session = zenoh.open(conf)
         except Exception as exc:  # zenoh.ZError: endpoint in use, unreachable router, bad TLS files...
             message = (
                 f"{what}: cannot open the zenoh session: {exc}; check [zenoh] connect/listen endpoints "
@@ -93,9 +105,33 @@ def open_session(conf: zenoh.Config, *, lifecycle: Lifecycle, what: str, retry: 
             if not retry:
                 raise ServiceError(message) from None
             log.error("%s (retrying in %.1f s)", message, delay)
-            lifecycle.wait(delay)
+            lifecycle.wait(min(delay, max(0.0, deadline - time.monotonic())))
             delay = min(delay * 2, BACKOFF_MAX_S)
+            continue
+        log.info("%s: zenoh session open (%s)", what, describe_zenoh(conf))
+        return session
     return None
+
+
+def describe_zenoh(conf: zenoh.Config) -> str:
+    """Mode, endpoints and scouting of a zenoh config, in one line for start-up messages."""
+
+    def get(key: str) -> Any:
+        try:
+            return json.loads(conf.get_json(key))
+        except Exception:  # a key this zenoh version does not know: leave it out
+            return None
+
+    mode = get("mode") or "peer"
+    parts = [f"mode {mode}"]
+    for name in ("connect", "listen"):
+        endpoints = get(f"{name}/endpoints")
+        if isinstance(endpoints, dict):  # zenoh's per-mode defaults
+            endpoints = endpoints.get(mode)
+        parts.append(f"{name} {', '.join(endpoints) if endpoints else 'none'}")
+    multicast = get("scouting/multicast/enabled")
+    parts.append(f"multicast scouting {'off' if multicast is False else 'on'}")
+    return ", ".join(parts)
 
 
 def free_port(host: str = "127.0.0.1") -> int:

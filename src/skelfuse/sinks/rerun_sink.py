@@ -9,7 +9,9 @@ the tests each own theirs. Entities mirror the scene:
   skeleton is a sibling of the pose, not its child: a Rerun transform applies to the entity's whole
   subtree, so world-frame points under the posed entity would be transformed twice. Hide one sensor by
   hiding ``world/sensors/{id}``;
-- ``world/fused``: every fused person in one entity (joints + bones), one colour per track id;
+- ``world/fused``: every fused person in one entity (joints + bones), one colour per track id, drawn thick
+  and opaque in colours no sensor uses (sensors are thin and half transparent), ``world/fused/labels``: the
+  track id above each head; ``world/sensors/{id}/label``: the sensor's name at its position (static);
   ``world/fused/clouds/{track_id}``: a person's merged depth cloud (depth-level fusion), coloured by sensor;
 - ``metrics/...``: time series of fusion time and per-sensor rate.
 
@@ -47,9 +49,17 @@ SENSOR_COLORS = np.array(
 )
 """Okabe-Ito palette, readable by colour-blind users; sensors cycle through it."""
 TRACK_COLORS = np.array(
-    [[255, 40, 40], [40, 220, 90], [70, 120, 255], [255, 200, 0], [200, 60, 255], [0, 220, 220]],
+    [[255, 255, 255], [255, 0, 255], [255, 40, 40], [140, 255, 0], [255, 150, 200], [0, 255, 255]],
     dtype=np.uint8,
 )
+"""Fused people: white, magenta, red, lime, pink, cyan: saturated or white, each far from every sensor colour
+(``tests/unit/test_rerun_sink.py`` checks the distance)."""
+SENSOR_ALPHA = 140
+"""Sensors' skeletons are half transparent: the fused one, opaque and thicker, stands out in front of them."""
+FUSED_JOINT_RADIUS_M, FUSED_BONE_RADIUS_M = 0.03, 0.02
+SENSOR_JOINT_RADIUS_M, SENSOR_BONE_RADIUS_M = 0.01, 0.004
+LABEL_ABOVE_HEAD_M = 0.3
+HEAD = JOINT_NAMES.index("HEAD")
 
 
 def _bone_segments(skeletons_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,11 +69,26 @@ def _bone_segments(skeletons_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return segments[drawable], np.nonzero(drawable)[0]
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """A 3D view of the world beside the latency and rate plots."""
+def rig_eye(world_from_sensor: np.ndarray | None) -> rrb.EyeControls3D:
+    """A camera that frames the people: it looks at the middle of the sensors at chest height from a corner,
+    above and outside the rig (the sensors look inwards, so that is where people walk)."""
+    if world_from_sensor is None or len(world_from_sensor) == 0:
+        centre, radius = np.array([0.0, 0.0]), 2.5
+    else:
+        positions = np.asarray(world_from_sensor)[:, :2, 3] * MM_TO_M
+        centre = positions.mean(axis=0)
+        radius = max(float(np.linalg.norm(positions - centre, axis=1).max()), 1.0)
+    target = [float(centre[0]), float(centre[1]), 0.9]
+    offset = np.array([1.0, -1.0]) / np.sqrt(2.0) * radius * 1.6
+    position = [float(centre[0] + offset[0]), float(centre[1] + offset[1]), 0.9 + radius * 0.8]
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position, look_target=target, eye_up=[0.0, 0.0, 1.0])
+
+
+def default_blueprint(world_from_sensor: np.ndarray | None = None) -> rrb.Blueprint:
+    """A 3D view of the world, its camera on the people (:func:`rig_eye`), beside the latency and rate plots."""
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="Rig"),
+            rrb.Spatial3DView(origin="world", name="Rig", eye_controls=rig_eye(world_from_sensor)),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="metrics/fusion_ms", name="Fusion time (ms)"),
                 rrb.TimeSeriesView(origin="metrics/rate_hz", name="Sensor rate (Hz)"),
@@ -71,6 +96,7 @@ def default_blueprint() -> rrb.Blueprint:
             ),
             column_shares=[3, 1],
         ),
+        rrb.TimePanel(timeline=TIMELINE, expanded=False),  # the sensors' clock, not log time
         collapse_panels=True,
     )
 
@@ -148,6 +174,17 @@ class RerunSink:
                 ),
                 static=True,
             )
+            rec.log(
+                f"world/sensors/{sensor_id}/label",
+                rr.Points3D(
+                    pose[:3, 3] * MM_TO_M,
+                    labels=sensor_id,
+                    colors=SENSOR_COLORS[index % len(SENSOR_COLORS)],
+                    radii=0.04,
+                    show_labels=True,
+                ),
+                static=True,
+            )
 
     def set_time(self, time_s: float) -> None:
         """Put what follows on the device-time timeline."""
@@ -157,7 +194,7 @@ class RerunSink:
         """Each sensor's raw skeletons in the world frame: (S, B, 32, 3) mm, NaN where missing."""
         for index, sensor_id in enumerate(self.sensor_ids):
             skeletons = world_positions_mm[index] * MM_TO_M
-            color = SENSOR_COLORS[index % len(SENSOR_COLORS)]
+            color = np.append(SENSOR_COLORS[index % len(SENSOR_COLORS)], SENSOR_ALPHA).astype(np.uint8)
             finite = np.isfinite(skeletons).all(axis=-1)
             path = f"world/sensors/{sensor_id}/skeleton"
             self.recording.log(
@@ -167,11 +204,11 @@ class RerunSink:
                     keypoint_ids=np.nonzero(finite)[-1],
                     class_ids=0,
                     colors=color,
-                    radii=0.012,
+                    radii=SENSOR_JOINT_RADIUS_M,
                 ),
             )
             bones, _ = _bone_segments(skeletons)
-            self.recording.log(f"{path}/bones", rr.LineStrips3D(bones, colors=color, radii=0.005))
+            self.recording.log(f"{path}/bones", rr.LineStrips3D(bones, colors=color, radii=SENSOR_BONE_RADIUS_M))
 
     def log_fused(self, positions_mm: np.ndarray, track_ids: np.ndarray) -> None:
         """All fused persons in one entity: (P, 32, 3) mm world, one colour per track id."""
@@ -186,11 +223,25 @@ class RerunSink:
                 keypoint_ids=np.nonzero(finite)[1],
                 class_ids=0,
                 colors=colors[person],
-                radii=0.025,
+                radii=FUSED_JOINT_RADIUS_M,
             ),
         )
         segments, owner = _bone_segments(skeletons)
-        self.recording.log("world/fused/bones", rr.LineStrips3D(segments, colors=colors[owner], radii=0.012))
+        self.recording.log(
+            "world/fused/bones", rr.LineStrips3D(segments, colors=colors[owner], radii=FUSED_BONE_RADIUS_M)
+        )
+        heads = skeletons[:, HEAD]
+        labelled = np.isfinite(heads).all(axis=-1)
+        self.recording.log(
+            "world/fused/labels",
+            rr.Points3D(
+                heads[labelled] + [0.0, 0.0, LABEL_ABOVE_HEAD_M],
+                labels=[f"person {int(t)}" for t in np.asarray(track_ids)[labelled]],
+                colors=colors[labelled],
+                radii=0.001,
+                show_labels=True,
+            ),
+        )
 
     def log_person_clouds(self, clouds: Sequence[MergedCloud], track_ids: Sequence[int]) -> None:
         """Each person's merged depth cloud (depth-level fusion), coloured by the sensor each point came from

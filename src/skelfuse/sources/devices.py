@@ -27,7 +27,7 @@ from skelfuse.sources.k4abt import (
     device_handle,
     load_k4a,
 )
-from skelfuse.sources.kinect import PYK4A_INSTALL_HINT, KinectUnavailable
+from skelfuse.sources.kinect import KinectUnavailable
 
 FIRMWARE_BUILDS = ("release", "debug")
 FIRMWARE_SIGNATURES = ("msft", "test", "unsigned")
@@ -221,6 +221,11 @@ def format_devices(devices: list[DeviceInfo]) -> str:
     return "\n".join(lines)
 
 
+def _without_install_hint(message: str) -> str:
+    """The reason of a "cannot load" message without its install paragraph (said once, at the end)."""
+    return message.split("; install ")[0]
+
+
 def describe_environment(*, k4a_path: str | None = None, k4abt_path: str | None = None) -> str:
     """What of the Kinect stack is installed here, and how to install what is missing."""
     lines = [f"platform: {platform.system()} {platform.machine()}, Python {sys.version.split()[0]}"]
@@ -231,16 +236,16 @@ def describe_environment(*, k4a_path: str | None = None, k4abt_path: str | None 
         lines.append(f"libk4a (Sensor SDK): found ({getattr(k4a, '_name', '?')})")
     except K4ABTError as exc:
         ok = False
-        lines.append(f"libk4a (Sensor SDK): MISSING - {exc}")
+        lines.append(f"libk4a (Sensor SDK): MISSING - {_without_install_hint(str(exc))}")
     try:
         k4abt = K4abtLibrary.load(k4abt_path)
         lines.append(f"libk4abt (Body Tracking SDK): found ({k4abt.path}, ABI {k4abt.abi})")
     except K4ABTError as exc:
         ok = False
-        lines.append(f"libk4abt (Body Tracking SDK): MISSING - {exc}")
+        lines.append(f"libk4abt (Body Tracking SDK): MISSING - {_without_install_hint(str(exc))}")
     if importlib.util.find_spec("pyk4a") is None:
         ok = False
-        lines.append(f"pyk4a (skelfuse[kinect] extra): MISSING - {PYK4A_INSTALL_HINT}")
+        lines.append("pyk4a (skelfuse[kinect] extra): MISSING - pip install 'skelfuse[kinect]' (after the Sensor SDK)")
     else:
         try:
             import pyk4a  # noqa: F401

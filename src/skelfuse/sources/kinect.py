@@ -304,6 +304,16 @@ class KinectSource:
         self._k4abt = K4abtLibrary.load(self._k4abt)
         return self._k4abt
 
+    def ensure_available(self) -> None:
+        """Raise KinectUnavailable now when pyk4a or the Body Tracking SDK is missing (no device touched).
+
+        Workers call it before anything that waits (the master's wait for its subordinates), so a machine
+        without the SDKs is told so at once.
+        """
+        if self._pyk4a is None:
+            import_pyk4a()
+        self._library()
+
     def open(self) -> None:
         pyk4a = self._pyk4a if self._pyk4a is not None else import_pyk4a()
         library = self._library()  # before the device: a missing SDK is fatal, no need to touch USB

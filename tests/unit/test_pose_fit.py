@@ -1,0 +1,99 @@
+"""The live "sensor moved" alarm: a sensor whose pose no longer fits is named, the others are not.
+
+Truth: the simulator observes the person from the rig's true poses; the fusion core is given the same poses
+except for one sensor, displaced as if it had been knocked after calibration. The frames go through the
+node's real path (wire payloads, FusionCore: grouping, fusion), as they do live.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skelfuse.config import load_rig_config
+from skelfuse.service.node import FusionCore
+from skelfuse.service.pose_fit import PoseFitMonitor
+from skelfuse.service.worker import SimSource
+from skelfuse.wire import keys
+from skelfuse.wire.codec import encode_sensor_frame
+
+SIM_RIG = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
+
+
+@pytest.fixture(scope="module")
+def rig() -> tuple[object, list[SimSource]]:
+    cfg = load_rig_config(SIM_RIG)
+    first = SimSource(cfg, cfg.sensor_ids[0], take_duration_s=8.0, clock_ns=lambda: 10**18)
+    sources = []
+    for column, sensor_id in enumerate(first.observations.sensor_ids):
+        source = copy.copy(first)  # one simulation of the whole rig, one column per sensor
+        source.sensor_id, source.column = sensor_id, column
+        sources.append(source)
+    return cfg, sources
+
+
+def _run(cfg: object, sources: list[SimSource], poses: np.ndarray, monitor: PoseFitMonitor) -> list[object]:
+    core = FusionCore(cfg, poses=poses)  # type: ignore[arg-type]
+    changes = []
+    period_ns = 1e9 / 30.0
+    for n in range(150):
+        outputs = []
+        for source in sources:
+            frame = source.frame_at(n)
+            if frame is not None:
+                key = keys.sensor_skeletons(cfg.name, source.sensor_id)  # type: ignore[attr-defined]
+                outputs += core.receive(key, encode_sensor_frame(frame), int(n * period_ns) + 1000)
+        for out in outputs:
+            changes += monitor.update(out.sensors_world, out.frame.positions)
+    return changes
+
+
+def test_a_displaced_sensor_raises_the_alarm_and_only_it(rig: tuple[object, list[SimSource]]) -> None:
+    cfg, sources = rig
+    true = np.stack([cfg.poses()[s] for s in cfg.sensor_ids])  # type: ignore[attr-defined]
+    knocked = true.copy()
+    knocked[2, :3, 3] += [250.0, 0.0, 0.0]  # capture_2 pushed 25 cm sideways after calibration
+    monitor = PoseFitMonitor(cfg.sensor_ids, window=100, min_frames=60)  # type: ignore[attr-defined]
+    changes = _run(cfg, sources, knocked, monitor)
+    report = monitor.report()
+    assert [(c.sensor_id, c.fits) for c in changes] == [("capture_2", False)], changes
+    assert report["capture_2"]["fits"] is False
+    assert 150.0 < report["capture_2"]["median_mm"] < 350.0  # about the displacement
+    for sensor_id in ("capture_0", "capture_1", "capture_3"):
+        assert report[sensor_id]["fits"] is True and report[sensor_id]["median_mm"] < 60.0, report
+
+
+def test_a_rig_whose_poses_fit_raises_nothing(rig: tuple[object, list[SimSource]]) -> None:
+    cfg, sources = rig
+    true = np.stack([cfg.poses()[s] for s in cfg.sensor_ids])  # type: ignore[attr-defined]
+    monitor = PoseFitMonitor(cfg.sensor_ids, window=100, min_frames=60)  # type: ignore[attr-defined]
+    assert _run(cfg, sources, true, monitor) == []
+    assert all(fit["fits"] is True for fit in monitor.report().values())
+
+
+def test_no_verdict_before_enough_instants_saw_the_sensor() -> None:
+    monitor = PoseFitMonitor(("a", "b"), window=10, min_frames=5, check_every=1)
+    far = np.zeros((2, 1, 32, 3))
+    far[0] += 1000.0  # sensor a's body 1.7 m from the fused person
+    fused = np.zeros((1, 32, 3))
+    for _ in range(4):
+        assert monitor.update(far, fused) == []
+    assert monitor.report()["a"]["fits"] is None
+    (change,) = monitor.update(far, fused)
+    assert change.sensor_id == "a" and not change.fits and change.median_mm == pytest.approx(np.sqrt(3) * 1000)
+    nobody = np.full((2, 0, 32, 3), np.nan)
+    assert monitor.update(nobody, fused) == []  # an empty instant changes nothing
+
+
+def test_the_node_logs_and_reports_the_alarm(caplog: pytest.LogCaptureFixture) -> None:
+    from skelfuse.service.node import FusionNode
+    from skelfuse.service.pose_fit import FitChange
+
+    node = FusionNode(load_rig_config(SIM_RIG), None)
+    with caplog.at_level(logging.WARNING, logger="skelfuse.service.node"):
+        node._log_fit(FitChange("capture_2", False, 251.0, 150))
+    assert "sensor capture_2's pose no longer fits" in caplog.text and "calibrate check" in caplog.text

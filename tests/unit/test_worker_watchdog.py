@@ -1,0 +1,81 @@
+"""The capture worker's watchdog restarts a source whose tracker stalled or crashed, and its status says so.
+
+The source is a stand-in for a Kinect whose body tracker stops producing results (it keeps answering its
+read timeouts with nothing) or raises; the worker runs for real on a loopback zenoh session and its status
+messages are read back over zenoh.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from skelfuse.config import load_rig_config
+from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.worker import WorkerOptions, run_capture_worker
+from skelfuse.service.zenoh_io import free_port, loopback_config
+from skelfuse.wire import keys
+from skelfuse.wire.codec import decode_status
+
+SIM_RIG = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
+
+
+class StalledTracker:
+    """Yields nothing but read timeouts (a tracker that stopped), then, on its second start, raises (a crash)."""
+
+    stamps_host_time = True
+
+    def __init__(self) -> None:
+        self.sensor_id = "capture_0"
+        self.starts = 0
+
+    def frames(self) -> Iterator[tuple[int, Any]]:
+        self.starts += 1
+        if self.starts == 2:
+            raise RuntimeError("k4abt_tracker_pop_result() failed")
+        while True:
+            time.sleep(0.02)
+            yield time.monotonic_ns(), None
+
+
+def test_a_stalled_or_crashed_tracker_is_restarted_and_status_says_so() -> None:
+    cfg = load_rig_config(SIM_RIG)
+    port = free_port()
+    statuses: list[Any] = []
+    source = StalledTracker()
+    options = WorkerOptions(stall_timeout_s=0.4, status_period_s=0.2, limits=RunLimits(duration_s=3.0))
+    report: dict[str, Any] = {}
+    with zenoh.open(loopback_config(listen_port=port)) as session:
+        session.declare_subscriber(
+            keys.status(cfg.name, "capture-capture_0"), lambda s: statuses.append(decode_status(s.payload.to_bytes()))
+        )
+        worker = threading.Thread(
+            target=lambda: report.update(
+                r=run_capture_worker(
+                    cfg,
+                    "capture_0",
+                    loopback_config(connect_ports=[port]),
+                    options=options,
+                    lifecycle=Lifecycle("w"),
+                    source=source,
+                )
+            ),
+            daemon=True,
+        )
+        worker.start()
+        worker.join(30.0)
+        time.sleep(0.3)
+    assert not worker.is_alive()
+    result = report["r"]
+    assert source.starts >= 3  # stalled -> restarted -> crashed -> restarted again
+    assert result.stalls >= 1 and result.restarts >= 2
+    errors = {s.info.get("last_error") or "" for s in statuses}
+    assert any("SourceStalled" in e and "watchdog" in e for e in errors), errors
+    assert any("k4abt_tracker_pop_result() failed" in e for e in errors), errors
+    assert any(s.state == "degraded" for s in statuses)
+    assert max(s.counters.get("stalls", 0) for s in statuses) >= 1
