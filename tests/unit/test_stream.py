@@ -23,9 +23,11 @@ from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import Received, free_port, loopback_config
+from skelfuse.sim.gestures import make_gesture
 from skelfuse.stream import lsl
 from skelfuse.stream.daemon import BoundedSampleQueue, StreamReport, run_stream
 from skelfuse.stream.osc import MAX_DATAGRAM_BYTES, OscSender, frame_bundles
+from skelfuse.stream.vmc import VmcPerson, VmcSender, vmc_bundle
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_fused_frame, encode_sensor_frame
 
@@ -327,3 +329,48 @@ def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
     assert sender.sent == [1000, 3000] and sender.closed
     assert report.frames_in == 5 and report.frames_out == 2 and report.send_failures == 1
     assert sum(report.rejects.values()) == 2 and report.dropped == 0
+
+
+def _two_people(n_frames: int) -> list[FusedFrame]:
+    """Two walkers (track ids 4 and 9) as fused frames."""
+    a = make_gesture("walking", duration_s=n_frames / 30.0, fps=30.0, facing_deg=0.0, seed=1).positions
+    b = make_gesture("squat", duration_s=n_frames / 30.0, fps=30.0, facing_deg=90.0, seed=2).positions
+    b = b + np.array([1500.0, 0.0, 0.0])
+    return [
+        FusedFrame(
+            time_us=1_000_000 + t * 33_333,
+            track_ids=np.array([9, 4], np.int64),
+            positions=np.stack([b[t], a[t]]).astype(np.float64),
+            n_agree=np.full((2, N_JOINTS), 2, np.int16),
+            confidence=np.full((2, N_JOINTS), 2, np.uint8),
+            contributors=np.ones((2, 1), bool),
+            sensor_ids=("s0",),
+        )
+        for t in range(n_frames)
+    ]
+
+
+@pytest.mark.parametrize("person", [None, 9])
+def test_vmc_sender_drives_one_avatar_with_the_chosen_person(person: int | None) -> None:
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.settimeout(2.0)
+    sender = VmcSender("127.0.0.1", receiver.getsockname()[1], person=person)
+    expected = VmcPerson()  # the same retargeting, driven directly: what the receiver must get
+    chosen = 4 if person is None else person  # default: the lowest track id
+    got, want = [], []
+    try:
+        for frame in _two_people(40):
+            sender.send(frame)
+            messages = expected.messages(frame, chosen)
+            if messages:
+                want.append(vmc_bundle(messages).dgram)
+                got.append(receiver.recv(65536))
+    finally:
+        sender.close()
+        receiver.close()
+    assert len(want) == 40 - expected.warmup_frames + 1  # nothing while the person's armature is built
+    assert got == want
+    addresses = {m.address for m in OscBundle(got[-1])}
+    assert {"/VMC/Ext/Root/Pos", "/VMC/Ext/Bone/Pos", "/VMC/Ext/OK", "/VMC/Ext/T"} <= addresses
+    assert sender.stats.frames == 40 and sender.stats.datagrams == len(got) and sender.stats.send_errors == 0

@@ -1,8 +1,8 @@
-"""``skelfuse export FUSED --format csv|c3d|trc``: fused skeletons to the files other tools read.
+"""``skelfuse export FUSED --format csv|c3d|trc|bvh|fbx``: fused skeletons to the files other tools read.
 
 The input is a fused table (CSV/Parquet), a recording with its fused stream, or a recording of sensor frames
 fused on the way (:mod:`skelfuse.export.source`). CSV keeps every person in one table; the per-person formats
-(C3D, TRC) write one file per track id on the take's uniform time grid (:mod:`skelfuse.export.tracks`).
+(C3D, TRC, BVH, FBX) write one file per track id on the take's uniform time grid (:mod:`skelfuse.export.tracks`).
 """
 
 from __future__ import annotations
@@ -16,8 +16,10 @@ import numpy as np
 
 from skelfuse.cli.common import EXIT_OK, print_json, rig_config
 from skelfuse.config import DEFAULT_PRESET
+from skelfuse.export.bvh import write_bvh_arrays
 from skelfuse.export.c3d import write_c3d
 from skelfuse.export.csv import FUSED_FORMATS, write_fused
+from skelfuse.export.fbx import write_fbx_arrays
 from skelfuse.export.source import INPUT_FORMATS, FusedSource, open_fused
 from skelfuse.export.tracks import PersonTrack, TakeTracks, take_tracks
 from skelfuse.export.trc import write_trc
@@ -32,6 +34,47 @@ def _c3d(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Names
     return write_c3d(person, take, path, source=str(args.input))
 
 
+def _person_times_s(person: PersonTrack, take: TakeTracks) -> np.ndarray:
+    """Seconds after the take's first instant of each of the person's grid frames."""
+    return (person.first_frame + np.arange(person.n_frames)) / take.rate_hz
+
+
+def _note_retargeting(kind: str, path: Path, error: dict[str, dict[str, float]], args: argparse.Namespace) -> None:
+    """The armature's fit to the fused positions (fixed bone lengths cannot follow them exactly)."""
+    if not args.json:
+        body = error.get("body", {})
+        note(
+            f"{kind} {path.name}: retargeting error on the 16 body joints median {body.get('median', float('nan')):.1f}"
+            f" mm, p90 {body.get('p90', float('nan')):.1f} mm (docs/animation.md)"
+        )
+
+
+def _bvh(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
+    written = write_bvh_arrays(
+        path,
+        _person_times_s(person, take),
+        person.positions,
+        orientations=person.orientations,
+        fps=take.rate_hz,
+        track_id=person.track_id,
+    )
+    _note_retargeting("BVH", written.path, written.retargeting_error(), args)
+    return written.path
+
+
+def _fbx(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
+    written = write_fbx_arrays(
+        path,
+        _person_times_s(person, take),
+        person.positions,
+        orientations=person.orientations,
+        fps=take.rate_hz,
+        track_id=person.track_id,
+    )
+    _note_retargeting("FBX", written.path, written.retargeting_error(), args)
+    return written.path
+
+
 def _trc(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
     return write_trc(person, take, path, opensim_axes=not args.world_axes)
 
@@ -39,10 +82,8 @@ def _trc(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Names
 PER_PERSON_FORMATS: dict[str, tuple[str, PersonWriter]] = {
     "c3d": (".c3d", _c3d),
     "trc": (".trc", _trc),
-    # Registration point for BVH and FBX (issue 10x writes skelfuse/export/bvh.py `write_bvh` and
-    # skelfuse/export/fbx.py `write_fbx`): add "bvh": (".bvh", ...) and "fbx": (".fbx", ...) entries whose
-    # writer adapts (person, take, path, args) to those functions. Not registered in this branch: the modules
-    # are not in its tree.
+    "bvh": (".bvh", _bvh),
+    "fbx": (".fbx", _fbx),
 }
 """Formats written one file per person: extension and writer."""
 FORMATS = ("csv", *PER_PERSON_FORMATS)
@@ -183,7 +224,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``export``."""
     export = commands.add_parser(
         "export",
-        help="write fused skeletons as CSV/Parquet, C3D or OpenSim TRC (one file per person)",
+        help="write fused skeletons as CSV/Parquet, C3D, OpenSim TRC, BVH or FBX (one file per person)",
         description="Read fused skeletons from a fused table (.csv/.parquet), a recording's fused stream, or a "
         "recording of sensor frames (fused on the way, with --config's poses and [fusion] or the recording's "
         "calibration), and write them for other tools: csv = the fused table (docs/export.md); c3d = one C3D "

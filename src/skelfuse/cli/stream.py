@@ -1,14 +1,16 @@
-"""``skelfuse stream osc|lsl``: the stream daemon, a subscriber of the fused stream that re-sends it live."""
+"""``skelfuse stream osc|vmc|lsl``: the stream daemon, a subscriber of the fused stream that re-sends it live."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from collections.abc import Callable
-from pathlib import Path
 
 from skelfuse.cli.common import (
+    EXISTING_FILE,
     EXIT_OK,
+    INDEX,
+    PORT,
     add_run_limits,
     add_zenoh_arguments,
     print_json,
@@ -22,6 +24,7 @@ from skelfuse.service.lifecycle import Lifecycle
 from skelfuse.stream.daemon import FrameSender, run_stream
 from skelfuse.stream.lsl import LslOutlet
 from skelfuse.stream.osc import OscSender
+from skelfuse.stream.vmc import VmcSender
 from skelfuse.wire.keys import validate_name
 
 
@@ -46,13 +49,19 @@ def _lsl(cfg: RigConfig, args: argparse.Namespace) -> FrameSender:
     )
 
 
+def _vmc(cfg: RigConfig, args: argparse.Namespace) -> FrameSender:
+    s = cfg.stream
+    host, port = args.host or s.host, args.port or s.vmc_port
+    try:
+        return VmcSender(host, port, person=args.person)
+    except OSError as exc:  # the host name does not resolve
+        raise ConfigError(f"VMC receiver {host}:{port}: {exc}") from None
+
+
 PROTOCOLS: dict[str, Callable[[RigConfig, argparse.Namespace], FrameSender]] = {
     "osc": _osc,
     "lsl": _lsl,
-    # Registration point for VMC (issue 10x writes skelfuse/stream/vmc.py, a pure VMC message builder): add
-    # "vmc": a function returning a FrameSender that sends that builder's bundles to
-    # (args.host or cfg.stream.host, args.port or cfg.stream.vmc_port) over UDP, like OscSender. Not
-    # registered in this branch: the module is not in its tree.
+    "vmc": _vmc,
 }
 """Protocols of ``skelfuse stream``: a factory of the sender per protocol."""
 
@@ -94,18 +103,30 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``stream``."""
     stream = commands.add_parser(
         "stream",
-        help="stream daemon: re-send the fused skeletons live as OSC (UDP) or a Lab Streaming Layer stream",
+        help="stream daemon: re-send the fused skeletons live as OSC, VMC (UDP) or a Lab Streaming Layer stream",
         description="Subscribe to skelfuse/<rig>/fused/skeletons and re-send every fused frame: osc = one OSC "
-        "bundle per frame to [stream] host:osc_port (address scheme in docs/streaming.md); lsl = an LSL stream "
+        "bundle per frame to [stream] host:osc_port (address scheme in docs/streaming.md); vmc = one VMC bundle per "
+        "frame (one person's root and "
+        "humanoid bone local rotations, docs/animation.md) to [stream] host:vmc_port; lsl = an LSL stream "
         "of type Mocap named [stream] lsl_name (needs pylsl). Runs on any PC of the rig; a receiver that is gone "
         "never blocks fusion (UDP, a bounded queue that drops the oldest frame). SIGINT/SIGTERM: send what is "
         "queued (at most [stream] drain_timeout_s) and stop.",
     )
     stream.add_argument("protocol", choices=sorted(PROTOCOLS), help="what to send")
-    stream.add_argument("--config", type=Path, required=True, metavar="RIG.toml", help="the rig config")
-    stream.add_argument("--host", default=None, help="osc: the receiver's host (default: [stream] host)")
+    stream.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
+    stream.add_argument("--host", default=None, help="osc, vmc: the receiver's host (default: [stream] host)")
     stream.add_argument(
-        "--port", type=int, default=None, help="osc: the receiver's UDP port (default: [stream] osc_port)"
+        "--port",
+        type=PORT,
+        default=None,
+        help="osc, vmc: the receiver's UDP port (default: [stream] osc_port or vmc_port)",
+    )
+    stream.add_argument(
+        "--person",
+        type=INDEX,
+        default=None,
+        metavar="TRACK_ID",
+        help="vmc: the track id to drive the avatar with (default: the lowest track id in each frame)",
     )
     stream.add_argument(
         "--node", default=None, metavar="NAME", help="node name for the liveliness key (default: stream-<protocol>)"

@@ -28,6 +28,7 @@ data that turns them.
 
 from __future__ import annotations
 
+import socket
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +41,7 @@ from skelfuse.export.armature import Armature, build_armature, matrix_to_quatern
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import N_JOINTS, PARENTS, J
+from skelfuse.stream.osc import SendStats
 
 DEFAULT_PORT = 39539
 """The Marionette's usual UDP port (the spec's convention)."""
@@ -189,3 +191,50 @@ class VmcPerson:
             local[hold] = self._last_local[hold]
         self._last_local = local
         return vmc_messages(positions, self.armature, time_s=time_s, local_rotations=local)
+
+
+class VmcSender:
+    """Send one person of each fused frame as a VMC bundle to ``host:port`` over a non-blocking UDP socket.
+
+    VMC drives one avatar per receiver port, so one person is sent: ``person`` (a track id) when given, else the
+    lowest track id in the frame (the longest-lived person, since ids are never reused). Each track keeps its own
+    :class:`VmcPerson` (its armature is built from its own first frames); a track gone from the frame is
+    forgotten. A failed send (no receiver, full buffer) is counted, never raised or waited for.
+    """
+
+    def __init__(self, host: str, port: int = DEFAULT_PORT, *, person: int | None = None) -> None:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        family, _, _, _, self.address = infos[0]
+        self._socket = socket.socket(family, socket.SOCK_DGRAM)
+        self._socket.setblocking(False)
+        self.person = person
+        self.stats = SendStats()
+        self._people: dict[int, VmcPerson] = {}
+
+    def send(self, frame: FusedFrame) -> None:
+        present = [int(t) for t in np.asarray(frame.track_ids)]
+        for gone in set(self._people) - set(present):
+            del self._people[gone]
+        self.stats.frames += 1
+        wanted = self.person if self.person is not None else (min(present) if present else None)
+        if wanted is None or wanted not in present:
+            return
+        messages = self._people.setdefault(wanted, VmcPerson()).messages(frame, wanted)
+        if not messages:  # still building this person's armature
+            return
+        dgram = vmc_bundle(messages).dgram
+        try:
+            self._socket.sendto(dgram, self.address)
+        except OSError as exc:  # BlockingIOError (buffer full), ConnectionRefusedError (ICMP from a gone port)
+            self.stats.send_errors += 1
+            self.stats.last_error = f"{type(exc).__name__}: {exc}"
+            return
+        self.stats.datagrams += 1
+        self.stats.bytes += len(dgram)
+
+    def close(self) -> None:
+        self._socket.close()
+
+    def describe(self) -> str:
+        who = f"person {self.person}" if self.person is not None else "the lowest track id"
+        return f"VMC to udp://{self.address[0]}:{self.address[1]} ({who})"
