@@ -52,9 +52,9 @@ def main(argv: list[str]) -> int:
         stored.append(rec.orientations[:, 0].astype(np.float64))
         confidence.append(rec.confidence[:, 0])
     p = np.concatenate(positions)
-    # The reader reorders the columns it was told are x, y, z, w into w, x, y, z: file column k is
-    # column_of[k] of what it returns.
-    columns = np.concatenate(stored)[..., [1, 2, 3, 0]]
+    # The reader returns the quaternion columns in the file's order (it takes them as w, x, y, z, the
+    # order this script measures): every permutation of them is tried below.
+    columns = np.concatenate(stored)
     conf = np.concatenate(confidence)
     print(f"{p.shape[0]} frames from {len(FILES)} files in {data}")
 

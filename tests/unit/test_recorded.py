@@ -26,7 +26,7 @@ LOW_TEXT = "The joint is not observed(likely due to occlusion) - predicted joint
 
 
 def _block(body_id: int, offset: float, confidences: list[str] | None = None) -> list[str]:
-    """32 CSV rows of one body: position (j + offset, 2j, 3j), quaternion x y z w = (0.1, 0.2, 0.3, 0.9)."""
+    """32 CSV rows of one body: position (j + offset, 2j, 3j), quaternion columns (0.1, 0.2, 0.3, 0.9): w x y z."""
     rows = []
     for j in range(N_JOINTS):
         text = confidences[j] if confidences else MEDIUM_TEXT
@@ -52,7 +52,7 @@ def test_csv_round_trip_values_and_quaternion_order(tmp_path: Path) -> None:
     assert rec.device_time_us is None and rec.duplicates_dropped == 0
     np.testing.assert_allclose(rec.positions[0, 0, 5], [5.5, 10, 15])
     np.testing.assert_allclose(rec.positions[1, 0, 5], [15.5, 10, 15])
-    np.testing.assert_allclose(rec.orientations[0, 0, 3], [0.9, 0.1, 0.2, 0.3], rtol=1e-6)  # x y z w -> w x y z
+    np.testing.assert_allclose(rec.orientations[0, 0, 3], [0.1, 0.2, 0.3, 0.9], rtol=1e-6)  # as the file holds them
     assert rec.confidence[0, 0, 7] == Confidence.LOW and rec.confidence[0, 0, 6] == Confidence.MEDIUM
     np.testing.assert_array_equal(rec.body_ids, [[1], [1]])
 

@@ -251,8 +251,11 @@ def load_andyj1_csv(
 ) -> Recording:
     """Read one andyj1 CSV file (two header rows, then 32 rows per body and frame).
 
-    Columns: body id, joint index 0-31, position x y z (mm), orientation quaternion **x y z w**, confidence
-    as an English sentence, optionally a trailing empty column. Quaternions are reordered to w, x, y, z.
+    Columns: body id, joint index 0-31, position x y z (mm), orientation quaternion, confidence as an English
+    sentence, optionally a trailing empty column. The header names the quaternion columns x y z w, but the values
+    are in the SDK's own order w, x, y, z (measured on the real takes: read as w x y z, each joint's X axis lies
+    along its bone as the SDK documents, mean |cos| 0.98; read as the header says, 0.69; docs/orientations.md),
+    so they are taken as they stand.
     Blank lines are skipped. Frames have no timestamps: they match across files by order.
 
     Parameters
@@ -343,7 +346,7 @@ def load_andyj1_csv(
                 f"that starts at line {block_lines[-1]}"
             )
         pos[joint] = values[0:3]
-        quat[joint] = (values[6], values[3], values[4], values[5])  # x y z w -> w x y z
+        quat[joint] = values[3:7]  # w x y z, whatever the header says (see the docstring)
         conf[joint] = int(level)
         expected_joint += 1
         if expected_joint == N_JOINTS:
