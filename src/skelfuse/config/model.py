@@ -59,6 +59,9 @@ class SyncConfig:
         clock (a replay looped, all sensors restarted).
     resync_horizon_ms : float
         How far from the newest frame time a frame may lie before it counts as outside the window, ms.
+    max_ahead_ms, max_behind_ms : float
+        How far a frame's time may lie ahead of (in the future of) / behind its own sensor's learned clock
+        before it is rejected as off clock, ms (see :mod:`skelfuse.rig.grouping`, "Sensor clocks").
     """
 
     by: str = "device"
@@ -67,6 +70,16 @@ class SyncConfig:
     deadline_ms: float = 17.0
     resync_after_frames: int = 8
     resync_horizon_ms: float = 1000.0
+    max_ahead_ms: float = 100.0
+    max_behind_ms: float = 1000.0
+
+    @property
+    def max_ahead_us(self) -> int:
+        return round(self.max_ahead_ms * 1000)
+
+    @property
+    def max_behind_us(self) -> int:
+        return round(self.max_behind_ms * 1000)
 
     @property
     def frame_period_us(self) -> float:
@@ -222,6 +235,33 @@ class NodeConfig:
 
 
 @dataclass(frozen=True)
+class IntakeConfig:
+    """``[intake]``: what the fusion node accepts from any peer (every cap is a counted reject, never a crash).
+
+    Attributes
+    ----------
+    max_bodies_per_sensor : int
+        A sensor frame with more bodies is rejected (reason ``too_many_bodies``).
+    max_persons : int
+        Live tracks at most (at most the fused frame's 64); bodies that would start more are not tracked
+        (counted ``persons_refused``).
+    max_range_mm : float
+        A sensor frame with a joint farther than this from its sensor on any axis is rejected
+        (``out_of_volume``): a Kinect sees about 5.5 m at most.
+    max_payload_bytes : int
+        Larger sensor payloads are dropped on arrival, before they are copied (``oversized``).
+    max_queue : int
+        Samples waiting for the node's loop at most; beyond, new ones are dropped (``queue_full``).
+    """
+
+    max_bodies_per_sensor: int = 16
+    max_persons: int = 64
+    max_range_mm: float = 10_000.0
+    max_payload_bytes: int = 262_144
+    max_queue: int = 4096
+
+
+@dataclass(frozen=True)
 class RerunConfig:
     """``[rerun]``: the fusion node's live view."""
 
@@ -264,6 +304,7 @@ class RigConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     node: NodeConfig = field(default_factory=NodeConfig)
+    intake: IntakeConfig = field(default_factory=IntakeConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     source: str = "<dict>"

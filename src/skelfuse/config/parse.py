@@ -25,6 +25,7 @@ from skelfuse.config.model import (
     ZENOH_MODES,
     CalibrationConfig,
     FusionConfig,
+    IntakeConfig,
     KinectConfig,
     NodeConfig,
     RecordConfig,
@@ -103,6 +104,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
             name=t.string("name", None, check=lambda v: validate_name(v, "node")),
         )
         t.done()
+    intake = _parse_intake(top.table("intake"))
     rerun = _parse_rerun(top.table("rerun"))
     record = RecordConfig()
     if (t := top.table("record")) is not None:
@@ -124,6 +126,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         fusion=fusion,
         zenoh=zenoh,
         node=node,
+        intake=intake,
         rerun=rerun,
         record=record,
         source=source,
@@ -154,6 +157,8 @@ def _parse_sync(t: Table | None) -> SyncConfig:
         deadline_ms=t.number("deadline_ms", max(17.0, half_period_ms), lo=0.0, lo_open=True, hi=10_000.0, unit="ms"),
         resync_after_frames=t.integer("resync_after_frames", 8, lo=1, hi=10_000),
         resync_horizon_ms=t.number("resync_horizon_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
+        max_ahead_ms=t.number("max_ahead_ms", 100.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
+        max_behind_ms=t.number("max_behind_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
     )
     if sync.resync_horizon_ms <= sync.tolerance_ms:
         raise t.error(
@@ -416,6 +421,20 @@ def _parse_zenoh(t: Table | None) -> ZenohSection:
             raw[normalized] = value
     t.done()
     return dataclasses.replace(section, config=tuple(sorted(raw.items())))
+
+
+def _parse_intake(t: Table | None) -> IntakeConfig:
+    if t is None:
+        return IntakeConfig()
+    intake = IntakeConfig(
+        max_bodies_per_sensor=t.integer("max_bodies_per_sensor", 16, lo=1, hi=64),
+        max_persons=t.integer("max_persons", 64, lo=1, hi=64),
+        max_range_mm=t.number("max_range_mm", 10_000.0, lo=0.0, lo_open=True, hi=1e6, unit="mm"),
+        max_payload_bytes=t.integer("max_payload_bytes", 262_144, lo=1024, hi=64 * 1024 * 1024),
+        max_queue=t.integer("max_queue", 4096, lo=16, hi=1_000_000),
+    )
+    t.done()
+    return intake
 
 
 def _parse_rerun(t: Table | None) -> RerunConfig:
