@@ -149,6 +149,8 @@ class SimConfig:
 
     profile: Path | None = None
     seed: int | None = None
+    clock_offset_ms: float = 0.0
+    clock_jitter_ms: float = 0.0
 
 
 @dataclass(frozen=True)

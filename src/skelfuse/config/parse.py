@@ -209,7 +209,12 @@ def _parse_sensors(top: Table, source: str, base_dir: Path | None) -> tuple[Sens
             s_t = t.table("sim")
             sim = SimConfig()
             if s_t is not None:
-                sim = SimConfig(profile=s_t.path_value("profile", None), seed=s_t.integer("seed", None, lo=0))
+                sim = SimConfig(
+                    profile=s_t.path_value("profile", None),
+                    seed=s_t.integer("seed", None, lo=0),
+                    clock_offset_ms=s_t.number("clock_offset_ms", 0.0, lo=-3_600_000.0, hi=3_600_000.0, unit="ms"),
+                    clock_jitter_ms=s_t.number("clock_jitter_ms", 0.0, lo=0.0, hi=10_000.0, unit="ms"),
+                )
                 s_t.done()
             options["sim"] = sim
         for name in ("tracker",):
