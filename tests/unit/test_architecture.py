@@ -18,7 +18,18 @@ import skelfuse
 PACKAGE = Path(skelfuse.__file__).resolve().parent
 
 #: Third-party packages a function may import lazily: heavy to load, or optional (an extra).
-LAZY_ALLOWED = {"zenoh", "rerun", "cv2", "matplotlib", "pyarrow", "pyk4a", "bpy", "sklearn", "filterpy"}
+LAZY_ALLOWED = {
+    "zenoh",
+    "rerun",
+    "cv2",
+    "matplotlib",
+    "pyarrow",
+    "pyk4a",
+    "bpy",
+    "sklearn",
+    "filterpy",
+    "cryptography",  # only `skelfuse certs` needs it
+}
 #: Our modules that exist to wrap an optional dependency (the dev extra's scikit-learn and filterpy).
 LAZY_OURS_ALLOWED = {"skelfuse.bench.reference"}
 

@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from skelfuse import __version__
-from skelfuse.cli import bench, calibrate, demo, devices, evaluate, service
+from skelfuse.cli import bench, calibrate, demo, devices, evaluate, network, service
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
@@ -26,7 +26,7 @@ __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_USAGE", "build_parser", "entrypoint", 
 log = logging.getLogger("skelfuse")
 
 #: Command groups in the order ``skelfuse --help`` lists them.
-COMMAND_GROUPS = (demo, evaluate, bench, service, devices, calibrate)
+COMMAND_GROUPS = (demo, evaluate, bench, service, network, devices, calibrate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,6 +16,7 @@ from skelfuse.cli.common import (
     zenoh_conf,
 )
 from skelfuse.config import DEFAULT_PRESET, RigConfig
+from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.recording import fuse_recording, write_fused
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
@@ -40,7 +41,11 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         limits=run_limits(args),
     )
     report = worker.run_capture_worker(
-        cfg, args.sensor, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
+        cfg,
+        args.sensor,
+        zenoh_conf(args, cfg, identity=capture_identity(cfg.sensor(args.sensor).capture_host)),
+        options=options,
+        lifecycle=Lifecycle(f"capture-{args.sensor}"),
     )
     if args.json:
         print_json({"frames_out": report.frames_out, "restarts": report.restarts})
@@ -83,7 +88,9 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     options = NodeOptions(
         node_name=args.node, status_period_s=args.status_period, limits=run_limits(args), view=_view_options(args, cfg)
     )
-    report = run_fusion_node(cfg, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle("fusion"))
+    report = run_fusion_node(
+        cfg, zenoh_conf(args, cfg, identity=FUSION), options=options, lifecycle=Lifecycle("fusion")
+    )
     if args.json:
         print_json({"frames_in": report.frames_in, "frames_out": report.frames_out, "status": report.status})
     return EXIT_OK

@@ -166,6 +166,9 @@ class SensorConfig:
         Inline pose (sensor frame -> world, mm). For sim sensors it is also the true pose.
     sync : SensorSyncConfig
     kinect, replay, sim : the options of the sensor's source kind (None for the other kinds)
+    host : str or None
+        The capture PC that runs this sensor's worker (a name; default: the sensor id). Its certificate
+        (``skelfuse certs``) may publish only its own sensors' keys (the generated access control).
     """
 
     id: str
@@ -175,6 +178,12 @@ class SensorConfig:
     kinect: KinectConfig | None = None
     replay: ReplayConfig | None = None
     sim: SimConfig | None = None
+    host: str | None = None
+
+    @property
+    def capture_host(self) -> str:
+        """The capture PC's name (``host``, else the sensor id)."""
+        return self.host or self.id
 
     def pose(self) -> np.ndarray | None:
         """(4, 4) float64 inline ``world_from_sensor``, or None."""
@@ -219,13 +228,60 @@ class FusionConfig:
 
 @dataclass(frozen=True)
 class ZenohSection:
-    """``[zenoh]``: session settings for every node of the rig (see :func:`zenoh_config`)."""
+    """``[zenoh]``: session settings for every node of the rig (see :func:`zenoh_config`).
+
+    Attributes
+    ----------
+    mode, connect, listen, multicast_scouting : the session's mode, endpoints and UDP multicast scouting
+        (off unless set: production rigs use explicit endpoints; the demo turns it on).
+    reconnect_init_ms, reconnect_max_ms : connect retry period, first and longest (zenoh doubles it): how
+        soon a client is back after its router or peer restarts.
+    connect_timeout_ms : how long opening a session tries its connect endpoints before it fails (and the
+        node retries with backoff, still answering SIGTERM): a TLS refusal otherwise blocks forever.
+    max_message_bytes : larger messages are dropped by zenoh itself before they reach Python.
+    tls : ZenohTls or None
+        TLS / mutual TLS (``[zenoh.tls]``).
+    access_control : bool
+        The router enforces the access control generated from the rig (:mod:`skelfuse.config.access`).
+    config : raw ``[zenoh.config]`` key paths and values, applied first.
+    """
 
     mode: str = "peer"
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
-    multicast_scouting: bool = True
+    multicast_scouting: bool = False
+    reconnect_init_ms: int = 100
+    reconnect_max_ms: int = 1000
+    connect_timeout_ms: int = 2000
+    max_message_bytes: int = 1_048_576
+    tls: ZenohTls | None = None
+    access_control: bool = False
     config: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
+class ZenohTls:
+    """``[zenoh.tls]``: the rig's CA and this process's certificate (``skelfuse certs`` makes them).
+
+    Attributes
+    ----------
+    directory : Path or None
+        Where ``skelfuse certs`` wrote ``ca.pem`` and ``<identity>.pem`` / ``<identity>.key``; each process
+        picks its own identity (``fusion``, ``router``, ``capture-<host>``, ``app-<name>``).
+    ca, certificate, private_key : Path or None
+        Explicit files, overriding the directory's.
+    mutual : bool
+        Listeners require a client certificate signed by the CA (mutual TLS).
+    verify_name : bool
+        Clients check the listener's certificate name against the endpoint's host name.
+    """
+
+    directory: Path | None = None
+    ca: Path | None = None
+    certificate: Path | None = None
+    private_key: Path | None = None
+    mutual: bool = True
+    verify_name: bool = False
 
 
 @dataclass(frozen=True)

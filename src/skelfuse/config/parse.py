@@ -38,6 +38,7 @@ from skelfuse.config.model import (
     SyncConfig,
     TrackerConfig,
     ZenohSection,
+    ZenohTls,
 )
 from skelfuse.fusion import presets
 from skelfuse.schema.errors import ConfigError
@@ -48,6 +49,12 @@ _ZENOH_DEDICATED = {
     "connect/endpoints": "connect",
     "listen/endpoints": "listen",
     "scouting/multicast/enabled": "multicast_scouting",
+    "connect/retry": "reconnect_init_ms / reconnect_max_ms",
+    "connect/timeout_ms": "connect_timeout_ms",
+    "listen/retry": "reconnect_init_ms / reconnect_max_ms",
+    "transport/link/rx/max_message_size": "max_message_bytes",
+    "transport/link/tls": "[zenoh.tls]",
+    "access_control": "access_control",
 }
 
 
@@ -223,8 +230,9 @@ def _parse_sensors(top: Table, source: str, base_dir: Path | None) -> tuple[Sens
                     f"{source}: unknown key {t.key(name)}; did you mean {t.key('kinect.' + name)}? "
                     "(tracker settings live under [sensors.kinect.tracker])"
                 )
+        host = t.string("host", None, check=lambda v: validate_name(v, "capture host"))
         t.done()
-        sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, **options))
+        sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, host=host, **options))
     ids = [s.id for s in sensors]
     for idx, sensor_id in enumerate(ids):
         if sensor_id in ids[:idx]:
@@ -404,22 +412,54 @@ def _fusion_value(value: Any, f: dataclasses.Field[Any] | None, key: str, source
 def _parse_zenoh(t: Table | None) -> ZenohSection:
     if t is None:
         return ZenohSection()
+    tls = None
+    if (tls_t := t.table("tls")) is not None:
+        tls = ZenohTls(
+            directory=tls_t.path_value("directory", None),
+            ca=tls_t.path_value("ca", None),
+            certificate=tls_t.path_value("certificate", None),
+            private_key=tls_t.path_value("private_key", None),
+            mutual=tls_t.boolean("mutual", True),
+            verify_name=tls_t.boolean("verify_name", False),
+        )
+        if tls.directory is None and tls.ca is None:
+            raise ConfigError(f"{tls_t.source}: [zenoh.tls] needs directory (from `skelfuse certs`) or ca")
+        if (tls.certificate is None) != (tls.private_key is None):
+            raise ConfigError(f"{tls_t.source}: [zenoh.tls] certificate and private_key go together")
+        tls_t.done()
     section = ZenohSection(
         mode=t.string("mode", "peer", choices=ZENOH_MODES),
         connect=t.strings("connect", ()),
         listen=t.strings("listen", ()),
-        multicast_scouting=t.boolean("multicast_scouting", True),
+        multicast_scouting=t.boolean("multicast_scouting", False),
+        reconnect_init_ms=t.integer("reconnect_init_ms", 100, lo=10, hi=600_000, unit="ms"),
+        reconnect_max_ms=t.integer("reconnect_max_ms", 1000, lo=10, hi=600_000, unit="ms"),
+        connect_timeout_ms=t.integer("connect_timeout_ms", 2000, lo=100, hi=600_000, unit="ms"),
+        max_message_bytes=t.integer("max_message_bytes", 1_048_576, lo=65_536, hi=1 << 30, unit="bytes"),
+        tls=tls,
+        access_control=t.boolean("access_control", False),
     )
+    if section.reconnect_max_ms < section.reconnect_init_ms:
+        raise t.error(
+            t.key("reconnect_max_ms"),
+            f"a number >= reconnect_init_ms ({section.reconnect_init_ms})",
+            section.reconnect_max_ms,
+        )
+    if section.access_control and section.tls is None:
+        raise ConfigError(
+            f"{t.source}: zenoh.access_control needs [zenoh.tls]: the rules name certificates (`skelfuse certs`)"
+        )
     raw: dict[str, Any] = {}
     c = t.table("config")
     if c is not None:
         for key, value in c.data.items():
             c.used.add(key)
             normalized = key.strip("/")
-            if normalized in _ZENOH_DEDICATED:
+            dedicated = next((k for k in _ZENOH_DEDICATED if normalized == k or normalized.startswith(k + "/")), None)
+            if dedicated is not None:
                 raise ConfigError(
-                    f'{c.source}: key zenoh.config."{key}": set this with zenoh.'
-                    f"{_ZENOH_DEDICATED[normalized]} instead of the raw passthrough"
+                    f'{c.source}: key zenoh.config."{key}": set this with [zenoh] '
+                    f"{_ZENOH_DEDICATED[dedicated]} instead of the raw passthrough"
                 )
             if not normalized or " " in normalized:
                 raise c.error(f'zenoh.config."{key}"', "a zenoh config path like 'transport/unicast/max_links'", key)
