@@ -158,3 +158,17 @@ def test_router_enforces_mutual_tls_and_per_key_access(certs: Path, tmp_path: Pa
     finally:
         for session in reversed(sessions):
             session.close()
+
+
+def test_the_router_command_enforces_the_access_control_whatever_the_files_mode(certs: Path, tmp_path: Path) -> None:
+    import json
+
+    from skelfuse.cli import build_parser
+    from skelfuse.cli.network import router_config
+
+    cfg = _secured(two_pc_rig(), ZenohTls(directory=certs))
+    assert cfg.zenoh.mode == "peer"  # the rig's file says peer (or client, for its clients)
+    args = build_parser().parse_args(["router", "--config", str(RIG_SIM_4)])
+    conf = json.loads(str(router_config(args, cfg)))
+    assert conf["mode"] == "router" and conf["access_control"]["enabled"] is True
+    assert conf["transport"]["link"]["tls"]["listen_certificate"] == str(certs / "router.pem")

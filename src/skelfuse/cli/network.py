@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from skelfuse.cli.common import (
     EXIT_OK,
@@ -15,10 +16,18 @@ from skelfuse.cli.common import (
     run_limits,
     zenoh_conf,
 )
+from skelfuse.config import RigConfig
 from skelfuse.config.access import ROUTER, access_control, rig_identities
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.service.lifecycle import Lifecycle
 from skelfuse.service.router import run_router
+
+
+def router_config(args: argparse.Namespace, cfg: RigConfig) -> Any:
+    """The router's session config: the rig's [zenoh] and the flags, in router mode whatever [zenoh] mode
+    says (the rig's clients share the file), so its access control applies."""
+    args.zenoh_mode = "router"
+    return zenoh_conf(args, cfg, identity=ROUTER)
 
 
 def _cmd_router(args: argparse.Namespace) -> int:
@@ -26,8 +35,7 @@ def _cmd_router(args: argparse.Namespace) -> int:
     if args.print_access_control:
         print(json.dumps(access_control(cfg), indent=2))
         return EXIT_OK
-    conf = zenoh_conf(args, cfg, identity=ROUTER)
-    conf.insert_json5("mode", '"router"')
+    conf = router_config(args, cfg)
     return run_router(conf, lifecycle=Lifecycle("router"), limits=run_limits(args))
 
 
