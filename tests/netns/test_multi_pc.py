@@ -230,3 +230,103 @@ def test_router_tls_acl_and_a_delayed_link_fuse_like_offline(lab: Lab, tmp_path:
         np.testing.assert_array_equal(frame.contributors, expected.contributors)
     assert sum(bool(f.n_persons and f.contributors.all()) for f in both) >= 60
     assert lab.stop(router) == 0, lab.log(router)
+
+
+def _first_after(records: list[dict], key_suffix: str, t0: float) -> float | None:
+    times = [r["t"] for r in records if r["key"].endswith(key_suffix) and r["t"] > t0]
+    return min(times) if times else None
+
+
+@pytest.mark.soak  # restarts of the router and the node: ~2 min on a loaded 2-core machine
+def test_router_and_node_restarts_have_bounded_gaps(lab: Lab, tmp_path: Path) -> None:
+    """kill -9 the fusion node, then the router; restart each: fused output back within ~1 s of it being up.
+
+    "Up" is observable from outside: the node's first status after its restart, the router's listening socket.
+    The probe's receive times are on its monotonic clock; every namespace shares the host's clock.
+    """
+    config = write_rig(tmp_path)
+    cfg = load_rig_config(config)
+    make_rig_certificates(tmp_path / "certs", RIG, rig_identities(cfg, ("probe",)))
+    router_ns, fusion_ns, pc_a, pc_b, app_ns = (lab.namespace(t) for t in "rfabp")
+    endpoints = {ns: f"tls/{lab.link(router_ns, ns)[0]}:{PORT}" for ns in (fusion_ns, pc_a, pc_b, app_ns)}
+
+    def start_router():
+        return lab.skelfuse(
+            router_ns, "router", "router", "--config", str(config), "--zenoh-listen", f"tls/0.0.0.0:{PORT}"
+        )
+
+    def start_node():
+        return lab.skelfuse(
+            fusion_ns,
+            "node",
+            "fuse",
+            "--config",
+            str(config),
+            "--no-view",
+            "--duration",
+            "300",
+            "--zenoh-connect",
+            endpoints[fusion_ns],
+        )
+
+    router = start_router()
+    assert lab.wait_listening(router_ns, PORT), lab.log(router)
+    out = tmp_path / "probe.jsonl"
+    lab.probe(app_ns, "probe", "listen", str(config), "app-probe", endpoints[app_ns], str(out))
+    node = start_node()
+    for ns, sid in ((pc_a, "capture_0"), (pc_b, "capture_1")):
+        lab.skelfuse(
+            ns,
+            f"worker-{sid}",
+            "capture",
+            "--config",
+            str(config),
+            "--sensor",
+            sid,
+            "--take-duration",
+            "4",
+            "--duration",
+            "240",
+            "--zenoh-connect",
+            endpoints[ns],
+        )
+
+    def records() -> list[dict]:
+        return read_probe(out) if out.exists() else []
+
+    def wait(predicate, timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"timed out waiting for {what}\n{lab.log(node)}")
+
+    wait(lambda: sum(r["key"].endswith("fused/skeletons") for r in records()) >= 60, 120, "60 fused frames")
+    # 1. kill -9 the fusion node and start it again.
+    lab.stop(node, sig=9)
+    killed = time.monotonic()
+    node = start_node()
+    wait(lambda: _first_after(records(), "status/fusion", killed) is not None, 120, "the new node's first status")
+    wait(lambda: _first_after(records(), "fused/skeletons", killed) is not None, 30, "fused output after restart")
+    node_up = _first_after(records(), "status/fusion", killed)
+    node_gap = _first_after(records(), "fused/skeletons", killed) - node_up  # type: ignore[operator]
+    # 2. kill -9 the router and start it again: every client reconnects on its own.
+    time.sleep(2.0)
+    lab.stop(router, sig=9)
+    killed = time.monotonic()
+    time.sleep(1.0)
+    router = start_router()
+    assert lab.wait_listening(router_ns, PORT), lab.log(router)
+    router_up = time.monotonic()
+    wait(lambda: _first_after(records(), "fused/skeletons", router_up) is not None, 60, "fused output after router")
+    router_gap = _first_after(records(), "fused/skeletons", router_up) - router_up  # type: ignore[operator]
+    (tmp_path / "gaps.json").write_text(json.dumps({"node_gap_s": node_gap, "router_gap_s": router_gap}))
+    print(
+        f"node restart: fused {node_gap:.3f} s after its first status; router restart: fused {router_gap:.3f} s "
+        "after it listened"
+    )
+    # The node's first status comes once it subscribed; its first fused frame needs a new track's birth
+    # (3 instants, 0.1 s). The router: clients retry every 100 ms doubling to 1 s ([zenoh] reconnect_*).
+    assert node_gap <= 1.0
+    assert router_gap <= 1.5
