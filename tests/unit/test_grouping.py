@@ -468,3 +468,15 @@ def test_a_whole_pc_clock_step_is_relearned_without_losing_frames() -> None:
     assert stats.sensors["s2"].grouped + stats.sensors["s2"].late == 200
     assert stats.resyncs == 0
     assert sum(grp.complete for grp in groups) >= 190
+
+
+def test_on_time_frames_after_a_backlog_are_not_taken_for_the_future() -> None:
+    # s1's frames arrive 250 ms late for 2 s (a stalled tracker, a loaded PC), then on time again: the first
+    # on-time frames lie 250 ms "ahead" of the backlog's residuals but not ahead of s1's fastest delivery.
+    events = synced_stream(200, np.random.default_rng(SEED + 15))
+    delayed = [(a + 250_000_000, f) if f.sensor_id == "s1" and 30 <= f.sequence < 90 else (a, f) for a, f in events]
+    g = grouper(deadline_us=400_000)
+    groups = run(g, fix_per_sensor_order(delayed))
+    stats = g.stats
+    assert stats.sensors["s1"].off_clock == 0 and g.clock_estimates()["s1"].relearns == 0
+    assert len(groups) == 200 and all(grp.complete for grp in groups)

@@ -58,8 +58,10 @@ Sensor clocks (:class:`SensorClock`, one per sensor)
     Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual
     ``time - arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each
     sensor's offset (a running median) and drift (a slope) are estimated online, from that sensor's frames
-    only. A frame whose residual lies more than ``max_ahead_us`` ahead of (in the future of) its sensor's
-    offset, or more than ``max_behind_us`` behind it, is *off clock*: a peer stamping frames in the future or
+    only. A frame whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest
+    recent residual of its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's
+    shortest latency, while a backlog only makes frames late), or more than ``max_behind_us`` behind its
+    offset, is *off clock*: a peer stamping frames in the future or
     the past, a clock that stepped. It is held back by its sensor's clock and never reaches the grouping
     windows or counters above; when the sensor's next frame is on clock, the held frames are counted as
     ``off_clock`` and dropped. Only ``resync_after`` consecutive off-clock frames that agree with each other
@@ -107,6 +109,8 @@ DEFAULT_MAX_AHEAD_US = 100_000
 is stamped: only the latency's spread is legitimate here)."""
 DEFAULT_MAX_BEHIND_US = 1_000_000
 """How far (µs) a frame's time may lie behind its sensor's learned clock (a stalled tracker, a queue)."""
+CEILING_DECAY_US_PER_S = 1000.0
+"""How fast a sensor's fastest-delivery reference forgets (1 ms per s, far above any clock drift)."""
 CLOCK_WINDOW = 31
 """Frames in each sensor's running offset and phase estimates (about 1 s at 30 fps)."""
 _MAX_UNKNOWN_IDS = 16
@@ -229,6 +233,8 @@ class SensorClock:
         self._residuals: collections.deque[int] = collections.deque(maxlen=self.window)
         self._arrivals: collections.deque[int] = collections.deque(maxlen=self.window)
         self._offset_us: int | None = None
+        self._ceiling_us: float | None = None  # the largest recent residual (the fastest path), slowly decaying
+        self._last_arrival_us: int | None = None
         self._phases: collections.deque[float] = collections.deque(maxlen=self.window)
         self._far = 0
         self.held: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns) off clock
@@ -240,15 +246,24 @@ class SensorClock:
 
     def on_clock(self, time_us: int, arrival_us: int) -> bool:
         """Whether a frame's time agrees with this sensor's learned clock (always True before the first)."""
-        if self._offset_us is None:
+        if self._offset_us is None or self._ceiling_us is None:
             return True
-        error = time_us - arrival_us - self._offset_us
-        return -self.max_behind_us <= error <= self.max_ahead_us
+        residual = time_us - arrival_us
+        # Ahead: against the fastest delivery seen lately (a frame cannot beat its path's shortest latency), so
+        # on-time frames after a backlog are not mistaken for the future. Behind: against the median.
+        return residual - self._ceiling_us <= self.max_ahead_us and residual - self._offset_us >= -self.max_behind_us
 
     def learn(self, time_us: int, arrival_us: int) -> None:
         """Add an on-clock frame to the running estimates."""
-        self._residuals.append(int(time_us) - int(arrival_us))
+        residual = int(time_us) - int(arrival_us)
+        self._residuals.append(residual)
         self._arrivals.append(int(arrival_us))
+        if self._ceiling_us is None or self._last_arrival_us is None:
+            self._ceiling_us = float(residual)
+        else:
+            elapsed_s = max(int(arrival_us) - self._last_arrival_us, 0) / 1e6
+            self._ceiling_us = max(float(residual), self._ceiling_us - CEILING_DECAY_US_PER_S * elapsed_s)
+        self._last_arrival_us = int(arrival_us)
         self._offset_us = int(np.median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
 
     def hold(self, frame: SensorFrame, time_us: int, arrival_ns: int) -> tuple[list[tuple[SensorFrame, int, int]], int]:
@@ -276,6 +291,8 @@ class SensorClock:
         self._arrivals.clear()
         self._phases.clear()
         self._offset_us = None
+        self._ceiling_us = None
+        self._last_arrival_us = None
         self.relearns += 1
         return held, discarded
 
