@@ -32,7 +32,9 @@ def write_rig(
     tolerance_ms: float | None = None,
     status_period_s: float = 0.25,
     n_sensors: int = 4,
+    sim_clocks: dict[int, tuple[float, float]] | None = None,
 ) -> Path:
+    """A sim rig; ``sim_clocks``: sensor index -> (clock offset ms, clock jitter ms) of its emulated PC."""
     tolerance = tolerance_ms if tolerance_ms is not None else (10.0 if by == "device" else 13.0)
     lines = [
         "[rig]",
@@ -60,8 +62,11 @@ def write_rig(
             'source = "sim"',
             f"sync = {sync}",
             f"world_from_sensor = [{rows}]",
-            "",
         ]
+        if sim_clocks and index in sim_clocks:
+            offset_ms, jitter_ms = sim_clocks[index]
+            lines += [f"sim = {{ clock_offset_ms = {offset_ms}, clock_jitter_ms = {jitter_ms} }}"]
+        lines += [""]
     path = directory / f"rig-{by}.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

@@ -30,6 +30,7 @@ LAZY_ALLOWED = {
     "filterpy",
     "ezc3d",
     "pylsl",
+    "cryptography",  # only `skelfuse certs` needs it
 }
 #: Our modules that exist to wrap an optional dependency (the dev extra's scikit-learn and filterpy).
 LAZY_OURS_ALLOWED = {"skelfuse.bench.reference"}

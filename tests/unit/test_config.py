@@ -119,7 +119,7 @@ def test_config_is_frozen_and_defaults_fill_in() -> None:
     assert cfg.sync.fps == 30.0 and cfg.sync.tolerance_ms == 10.0 and cfg.sync.deadline_ms == 17.0
     assert cfg.fusion.preset == "skelfuse" and cfg.fusion.eps_mm is None
     assert cfg.fusion.fusion_params() == preset("skelfuse")  # the preset's own DBSCAN radius (75 mm)
-    assert cfg.zenoh.mode == "peer" and cfg.zenoh.multicast_scouting is True
+    assert cfg.zenoh.mode == "peer" and cfg.zenoh.multicast_scouting is False  # explicit endpoints by default
     assert cfg.node.status_period_s == 1.0 and cfg.node.name is None
     assert cfg.rerun.mode == "off" and cfg.rerun.bind == "127.0.0.1"
     assert cfg.record.directory is None
@@ -297,7 +297,7 @@ def test_kinect_defaults() -> None:
             "zenoh.config",
             {"scouting/multicast/enabled": False},
             r'zenoh\.config\."scouting/multicast/'
-            r'enabled": set this with zenoh\.multicast_scouting',
+            r'enabled": set this with \[zenoh\] multicast_scouting',
             id="zenoh-raw-duplicates-dedicated",
         ),
         pytest.param("rerun.mode", "save", r"rerun\.file is required when rerun\.mode = \"save\"", id="rerun-save"),

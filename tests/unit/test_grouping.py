@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from itertools import pairwise
 
 import numpy as np
@@ -195,7 +196,10 @@ def test_host_time_grouping_with_host_offsets_and_usb_jitter() -> None:
     assert all(grp.complete for grp in groups)
     for k, group in enumerate(groups):
         assert {f.sequence for f in group.frames.values()} == {k}
-        assert group.time_us == min(f.host_time_ns // 1000 for f in group.frames.values())
+        # Host mode groups on the rig's clock (each sensor's offset removed, stamp jitter smoothed out), so the
+        # instant's time is near the instant's true stamp (+30 ms latency), not one frame's stamp.
+        true_us = 1_700_000_000_000_000 + k * PERIOD_US + 30_000
+        assert abs(group.time_us - true_us) <= 6_000
 
 
 def test_device_grouping_would_fail_without_a_shared_epoch_so_host_mode_exists() -> None:
@@ -326,7 +330,7 @@ def test_property_accounting_and_time_order(events: list[tuple[int, int, int, in
         c = stats.sensors[sid]
         assert c.received == sum(f.sensor_id == sid for f in pushed)
         assert c.grouped == sum(f.sensor_id == sid for f in in_groups)
-        assert c.received == c.grouped + c.late + c.duplicate + c.out_of_window
+        assert c.received == c.grouped + c.late + c.duplicate + c.out_of_window + c.off_clock
     times = [grp.time_us for grp in groups]
     assert all(b > a for a, b in pairwise(times))
     for grp in groups:
@@ -348,3 +352,131 @@ def test_for_rig_takes_sensors_and_sync_settings_from_the_config() -> None:
     g = FrameGrouper.for_rig(cfg)
     assert g.expected_sensor_ids == cfg.sensor_ids
     assert (g.by, g.tolerance_us, g.deadline_us, g.resync_after) == ("device", 10_000, 17_000, 8)
+
+
+# -- sensor clocks: hostile stamps, offset and jittery PC clocks ---------------------------------------------
+
+
+def rig_stream(
+    n_frames: int,
+    rng: np.random.Generator,
+    *,
+    clock_offset_us: dict[str, int] | None = None,
+    clock_jitter_us: dict[str, float] | None = None,
+) -> list[tuple[int, SensorFrame]]:
+    """(arrival_ns on the node's monotonic clock, frame) of four capture PCs stamping host time.
+
+    Each PC stamps ``host_time_ns`` with its own wall clock: the true publish time plus that PC's offset plus
+    (optionally) a per-frame jitter of its clock reading; the node's arrival clock has an unrelated epoch
+    and sees 1-3 ms of network latency.
+    """
+    clock_offset_us = clock_offset_us or {}
+    clock_jitter_us = clock_jitter_us or {}
+    events = []
+    for k in range(n_frames):
+        true_us = 1_700_000_000_000_000 + k * PERIOD_US
+        for sid in SENSORS:
+            stamp_us = true_us + clock_offset_us.get(sid, 0) + int(rng.normal(0.0, clock_jitter_us.get(sid, 0.0)))
+            arrival_ns = (true_us - 1_699_999_000_000_000 + int(rng.uniform(1_000, 3_000))) * 1000
+            events.append((arrival_ns, frame(sid, 1000 + k, 0, stamp_us * 1000)))
+    return fix_per_sensor_order(events)
+
+
+@pytest.mark.parametrize("offset_ms", [5, -5, 100, -100, 500, -500])
+def test_host_grouping_holds_when_one_pc_clock_is_offset(offset_ms: int) -> None:
+    # Before per-sensor clocks: +100 ms made every instant hold only that sensor and dropped the others as late.
+    g = grouper(by="host", tolerance_us=13_000)
+    groups = run(g, rig_stream(300, np.random.default_rng(SEED + 10), clock_offset_us={"s2": offset_ms * 1000}))
+    stats = g.stats
+    assert len(groups) == 300 and all(grp.complete for grp in groups)
+    assert stats.totals.grouped == stats.totals.received == 1200
+    estimates = g.clock_estimates()
+    assert estimates["s2"].relative_offset_ms == pytest.approx(offset_ms, abs=2.0)
+    assert all(abs(estimates[sid].relative_offset_ms) < 2.0 for sid in ("s0", "s1", "s3"))  # type: ignore[arg-type]
+
+
+def test_host_grouping_holds_with_20ms_jitter_and_offset_on_one_pc_clock() -> None:
+    # 20 ms (one sigma) of jitter in one PC's clock readings used to split instants.
+    g = grouper(by="host", tolerance_us=13_000)
+    events = rig_stream(
+        300,
+        np.random.default_rng(SEED + 11),
+        clock_offset_us={"s1": 100_000},
+        clock_jitter_us={"s1": 20_000.0},
+    )
+    groups = run(g, events)
+    stats = g.stats
+    # The first frames teach each clock; after that every instant is complete.
+    assert len(groups) <= 302
+    assert sum(grp.complete for grp in groups) >= 295
+    assert stats.sensors["s1"].grouped >= 297
+    complete = [grp for grp in groups if grp.complete]
+    assert all({f.sequence for f in grp.frames.values()} == {grp.frames["s0"].sequence} for grp in complete)
+    times = [grp.time_us for grp in groups]
+    assert all(b > a for a, b in pairwise(times))
+
+
+def test_a_frame_a_second_from_the_future_moves_nothing() -> None:
+    # One forged frame per second stamped 0.9 s ahead on s1's key cut the output from 30 to ~4 instants/s.
+    rng = np.random.default_rng(SEED + 12)
+    events = synced_stream(300, rng)
+    forged = []
+    for k in range(15, 300, 30):
+        arrival_ns, real = next(e for e in events if e[1].sensor_id == "s1" and e[1].sequence == k)
+        forged.append((arrival_ns + 500, frame("s1", k + 27, real.device_time_us + 900_000)))
+    g = grouper()
+    groups = run(g, sorted(events + forged, key=lambda e: e[0]))
+    stats = g.stats
+    assert len(groups) == 300 and all(grp.complete for grp in groups)
+    assert stats.sensors["s1"].off_clock == len(forged) == 10
+    assert stats.totals.late == stats.totals.out_of_window == stats.totals.dropped == 0
+    assert stats.resyncs == 0
+
+
+def test_far_future_stamps_do_not_inflate_dropped_or_resync_the_rig() -> None:
+    rng = np.random.default_rng(SEED + 13)
+    events = synced_stream(180, rng)
+    t_burst = events[4 * 120][0]
+    # A burst at 1 kHz on s0's key (an attacker's loop): far-future stamps and sequences, amid the real frames.
+    burst = [(t_burst + 500 + i * 1_000_000, frame("s0", 10**10 + i, 10**13 + i * PERIOD_US)) for i in range(200)]
+    g = grouper()
+    groups = run(g, sorted(events + burst, key=lambda e: e[0]))
+    stats = g.stats
+    assert stats.resyncs == 0
+    assert stats.totals.dropped == 0  # not 10**10
+    assert stats.sensors["s0"].off_clock == 200
+    assert g.clock_estimates()["s0"].relearns == 0
+    assert len(groups) == 180 and all(grp.complete for grp in groups)
+
+
+def test_a_whole_pc_clock_step_is_relearned_without_losing_frames() -> None:
+    # s2's PC steps its clock by +3 s (an NTP step): after resync_after frames its clock re-learns, and its
+    # host-time frames are grouped again; the others never notice. The held frames come too late for their
+    # instants (emitted meanwhile without s2): at most resync_after of them are late.
+    events = rig_stream(200, np.random.default_rng(SEED + 14))
+    stepped = [
+        (a, dataclasses.replace(f, host_time_ns=f.host_time_ns + 3 * 10**9))
+        if f.sensor_id == "s2" and f.sequence >= 1100
+        else (a, f)
+        for a, f in events
+    ]
+    g = grouper(by="host", tolerance_us=13_000)
+    groups = run(g, stepped)
+    stats = g.stats
+    assert g.clock_estimates()["s2"].relearns == 1
+    assert stats.sensors["s2"].off_clock == 0 and stats.sensors["s2"].late <= 8
+    assert stats.sensors["s2"].grouped + stats.sensors["s2"].late == 200
+    assert stats.resyncs == 0
+    assert sum(grp.complete for grp in groups) >= 190
+
+
+def test_on_time_frames_after_a_backlog_are_not_taken_for_the_future() -> None:
+    # s1's frames arrive 250 ms late for 2 s (a stalled tracker, a loaded PC), then on time again: the first
+    # on-time frames lie 250 ms "ahead" of the backlog's residuals but not ahead of s1's fastest delivery.
+    events = synced_stream(200, np.random.default_rng(SEED + 15))
+    delayed = [(a + 250_000_000, f) if f.sensor_id == "s1" and 30 <= f.sequence < 90 else (a, f) for a, f in events]
+    g = grouper(deadline_us=400_000)
+    groups = run(g, fix_per_sensor_order(delayed))
+    stats = g.stats
+    assert stats.sensors["s1"].off_clock == 0 and g.clock_estimates()["s1"].relearns == 0
+    assert len(groups) == 200 and all(grp.complete for grp in groups)

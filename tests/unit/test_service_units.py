@@ -221,8 +221,8 @@ def test_sim_source_gives_each_worker_its_column_of_the_full_simulation(
 def test_core_groups_fuses_and_counts_rejects(rig: RigConfig, sim_frames: dict[str, SimSource]) -> None:
     core = FusionCore(rig)
     out = []
-    now = 0
     for n in range(100, 110):
+        now = n * 33_333_333  # arrivals keep the frames' pace (each sensor's clock is checked against them)
         for sid in rig.sensor_ids:
             frame = dataclasses.replace(sim_frames[sid].frame_at(n), host_time_ns=n)
             now += 1000

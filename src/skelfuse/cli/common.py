@@ -157,10 +157,14 @@ def rig_config(args: argparse.Namespace) -> RigConfig:
     return load_rig_config(args.config)
 
 
-def zenoh_conf(args: argparse.Namespace, cfg: RigConfig | None) -> Any:
+def zenoh_conf(args: argparse.Namespace, cfg: RigConfig | None, *, identity: str | None = None) -> Any:
+    """The session config: the rig's ``[zenoh]``, then the flags; ``identity`` (the command's own: ``fusion``,
+    ``capture-<host>``, ``router``) picks the certificate of ``[zenoh.tls]`` unless ``--zenoh-identity`` does."""
     if cfg is None:  # commands that may run without a rig config: zenoh defaults + flags
         cfg = RigConfig(name="skelfuse", sensors=(), source="<command line>")
-    return zenoh_config(cfg, **zenoh_flags(args))
+    flags = zenoh_flags(args)
+    flags["identity"] = getattr(args, "zenoh_identity", None) or identity
+    return zenoh_config(cfg, **flags)
 
 
 def run_limits(args: argparse.Namespace) -> RunLimits:
@@ -189,6 +193,13 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         default=False,
         help="disable multicast scouting (recommended with explicit endpoints)",
+    )
+    group.add_argument(
+        "--zenoh-identity",
+        metavar="NAME",
+        default=None,
+        help="whose certificate of [zenoh.tls] directory to use: fusion, router, capture-HOST, app-NAME "
+        "(default: the command's own role; apps need one)",
     )
     group.add_argument(
         "--zenoh-cfg",

@@ -27,6 +27,7 @@ from skelfuse.cli.common import (
 )
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import DEFAULT_PRESET, RigConfig
+from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
 from skelfuse.recording import fuse_recording
 from skelfuse.recording.inputs import InputTake
@@ -56,7 +57,11 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         take_origin_ns=round(args.take_origin * 1e9),
     )
     report = worker.run_capture_worker(
-        cfg, args.sensor, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle(f"capture-{args.sensor}")
+        cfg,
+        args.sensor,
+        zenoh_conf(args, cfg, identity=capture_identity(cfg.sensor(args.sensor).capture_host)),
+        options=options,
+        lifecycle=Lifecycle(f"capture-{args.sensor}"),
     )
     if args.json:
         print_json({"frames_out": report.frames_out, "restarts": report.restarts})
@@ -105,7 +110,9 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     options = NodeOptions(
         node_name=args.node, status_period_s=args.status_period, limits=run_limits(args), view=_view_options(args, cfg)
     )
-    report = run_fusion_node(cfg, zenoh_conf(args, cfg), options=options, lifecycle=Lifecycle("fusion"))
+    report = run_fusion_node(
+        cfg, zenoh_conf(args, cfg, identity=FUSION), options=options, lifecycle=Lifecycle("fusion")
+    )
     if args.json:
         print_json({"frames_in": report.frames_in, "frames_out": report.frames_out, "status": report.status})
     return EXIT_OK

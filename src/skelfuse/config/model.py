@@ -59,6 +59,9 @@ class SyncConfig:
         clock (a replay looped, all sensors restarted).
     resync_horizon_ms : float
         How far from the newest frame time a frame may lie before it counts as outside the window, ms.
+    max_ahead_ms, max_behind_ms : float
+        How far a frame's time may lie ahead of (in the future of) / behind its own sensor's learned clock
+        before it is rejected as off clock, ms (see :mod:`skelfuse.rig.grouping`, "Sensor clocks").
     """
 
     by: str = "device"
@@ -67,6 +70,16 @@ class SyncConfig:
     deadline_ms: float = 17.0
     resync_after_frames: int = 8
     resync_horizon_ms: float = 1000.0
+    max_ahead_ms: float = 100.0
+    max_behind_ms: float = 1000.0
+
+    @property
+    def max_ahead_us(self) -> int:
+        return round(self.max_ahead_ms * 1000)
+
+    @property
+    def max_behind_us(self) -> int:
+        return round(self.max_behind_ms * 1000)
 
     @property
     def frame_period_us(self) -> float:
@@ -136,6 +149,8 @@ class SimConfig:
 
     profile: Path | None = None
     seed: int | None = None
+    clock_offset_ms: float = 0.0
+    clock_jitter_ms: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -151,6 +166,9 @@ class SensorConfig:
         Inline pose (sensor frame -> world, mm). For sim sensors it is also the true pose.
     sync : SensorSyncConfig
     kinect, replay, sim : the options of the sensor's source kind (None for the other kinds)
+    host : str or None
+        The capture PC that runs this sensor's worker (a name; default: the sensor id). Its certificate
+        (``skelfuse certs``) may publish only its own sensors' keys (the generated access control).
     """
 
     id: str
@@ -160,6 +178,12 @@ class SensorConfig:
     kinect: KinectConfig | None = None
     replay: ReplayConfig | None = None
     sim: SimConfig | None = None
+    host: str | None = None
+
+    @property
+    def capture_host(self) -> str:
+        """The capture PC's name (``host``, else the sensor id)."""
+        return self.host or self.id
 
     def pose(self) -> np.ndarray | None:
         """(4, 4) float64 inline ``world_from_sensor``, or None."""
@@ -204,13 +228,60 @@ class FusionConfig:
 
 @dataclass(frozen=True)
 class ZenohSection:
-    """``[zenoh]``: session settings for every node of the rig (see :func:`zenoh_config`)."""
+    """``[zenoh]``: session settings for every node of the rig (see :func:`zenoh_config`).
+
+    Attributes
+    ----------
+    mode, connect, listen, multicast_scouting : the session's mode, endpoints and UDP multicast scouting
+        (off unless set: production rigs use explicit endpoints; the demo turns it on).
+    reconnect_init_ms, reconnect_max_ms : connect retry period, first and longest (zenoh doubles it): how
+        soon a client is back after its router or peer restarts.
+    connect_timeout_ms : how long opening a session tries its connect endpoints before it fails (and the
+        node retries with backoff, still answering SIGTERM): a TLS refusal otherwise blocks forever.
+    max_message_bytes : larger messages are dropped by zenoh itself before they reach Python.
+    tls : ZenohTls or None
+        TLS / mutual TLS (``[zenoh.tls]``).
+    access_control : bool
+        The router enforces the access control generated from the rig (:mod:`skelfuse.config.access`).
+    config : raw ``[zenoh.config]`` key paths and values, applied first.
+    """
 
     mode: str = "peer"
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
-    multicast_scouting: bool = True
+    multicast_scouting: bool = False
+    reconnect_init_ms: int = 100
+    reconnect_max_ms: int = 1000
+    connect_timeout_ms: int = 2000
+    max_message_bytes: int = 1_048_576
+    tls: ZenohTls | None = None
+    access_control: bool = False
     config: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
+class ZenohTls:
+    """``[zenoh.tls]``: the rig's CA and this process's certificate (``skelfuse certs`` makes them).
+
+    Attributes
+    ----------
+    directory : Path or None
+        Where ``skelfuse certs`` wrote ``ca.pem`` and ``<identity>.pem`` / ``<identity>.key``; each process
+        picks its own identity (``fusion``, ``router``, ``capture-<host>``, ``app-<name>``).
+    ca, certificate, private_key : Path or None
+        Explicit files, overriding the directory's.
+    mutual : bool
+        Listeners require a client certificate signed by the CA (mutual TLS).
+    verify_name : bool
+        Clients check the listener's certificate name against the endpoint's host name.
+    """
+
+    directory: Path | None = None
+    ca: Path | None = None
+    certificate: Path | None = None
+    private_key: Path | None = None
+    mutual: bool = True
+    verify_name: bool = False
 
 
 @dataclass(frozen=True)
@@ -219,6 +290,33 @@ class NodeConfig:
 
     status_period_s: float = 1.0
     name: str | None = None
+
+
+@dataclass(frozen=True)
+class IntakeConfig:
+    """``[intake]``: what the fusion node accepts from any peer (every cap is a counted reject, never a crash).
+
+    Attributes
+    ----------
+    max_bodies_per_sensor : int
+        A sensor frame with more bodies is rejected (reason ``too_many_bodies``).
+    max_persons : int
+        Live tracks at most (at most the fused frame's 64); bodies that would start more are not tracked
+        (counted ``persons_refused``).
+    max_range_mm : float
+        A sensor frame with a joint farther than this from its sensor on any axis is rejected
+        (``out_of_volume``): a Kinect sees about 5.5 m at most.
+    max_payload_bytes : int
+        Larger sensor payloads are dropped on arrival, before they are copied (``oversized``).
+    max_queue : int
+        Samples waiting for the node's loop at most; beyond, new ones are dropped (``queue_full``).
+    """
+
+    max_bodies_per_sensor: int = 16
+    max_persons: int = 64
+    max_range_mm: float = 10_000.0
+    max_payload_bytes: int = 262_144
+    max_queue: int = 4096
 
 
 @dataclass(frozen=True)
@@ -284,6 +382,7 @@ class RigConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     node: NodeConfig = field(default_factory=NodeConfig)
+    intake: IntakeConfig = field(default_factory=IntakeConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)

@@ -26,6 +26,7 @@ from skelfuse.config.model import (
     ZENOH_MODES,
     CalibrationConfig,
     FusionConfig,
+    IntakeConfig,
     KinectConfig,
     NodeConfig,
     RecordConfig,
@@ -39,6 +40,7 @@ from skelfuse.config.model import (
     SyncConfig,
     TrackerConfig,
     ZenohSection,
+    ZenohTls,
 )
 from skelfuse.fusion import presets
 from skelfuse.schema.errors import ConfigError
@@ -49,6 +51,12 @@ _ZENOH_DEDICATED = {
     "connect/endpoints": "connect",
     "listen/endpoints": "listen",
     "scouting/multicast/enabled": "multicast_scouting",
+    "connect/retry": "reconnect_init_ms / reconnect_max_ms",
+    "connect/timeout_ms": "connect_timeout_ms",
+    "listen/retry": "reconnect_init_ms / reconnect_max_ms",
+    "transport/link/rx/max_message_size": "max_message_bytes",
+    "transport/link/tls": "[zenoh.tls]",
+    "access_control": "access_control",
 }
 
 
@@ -105,6 +113,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
             name=t.string("name", None, check=lambda v: validate_name(v, "node")),
         )
         t.done()
+    intake = _parse_intake(top.table("intake"))
     rerun = _parse_rerun(top.table("rerun"))
     record = RecordConfig()
     if (t := top.table("record")) is not None:
@@ -127,6 +136,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         fusion=fusion,
         zenoh=zenoh,
         node=node,
+        intake=intake,
         rerun=rerun,
         record=record,
         stream=stream,
@@ -158,6 +168,8 @@ def _parse_sync(t: Table | None) -> SyncConfig:
         deadline_ms=t.number("deadline_ms", max(17.0, half_period_ms), lo=0.0, lo_open=True, hi=10_000.0, unit="ms"),
         resync_after_frames=t.integer("resync_after_frames", 8, lo=1, hi=10_000),
         resync_horizon_ms=t.number("resync_horizon_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
+        max_ahead_ms=t.number("max_ahead_ms", 100.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
+        max_behind_ms=t.number("max_behind_ms", 1000.0, lo=0.0, lo_open=True, hi=3_600_000.0, unit="ms"),
     )
     if sync.resync_horizon_ms <= sync.tolerance_ms:
         raise t.error(
@@ -208,7 +220,12 @@ def _parse_sensors(top: Table, source: str, base_dir: Path | None) -> tuple[Sens
             s_t = t.table("sim")
             sim = SimConfig()
             if s_t is not None:
-                sim = SimConfig(profile=s_t.path_value("profile", None), seed=s_t.integer("seed", None, lo=0))
+                sim = SimConfig(
+                    profile=s_t.path_value("profile", None),
+                    seed=s_t.integer("seed", None, lo=0),
+                    clock_offset_ms=s_t.number("clock_offset_ms", 0.0, lo=-3_600_000.0, hi=3_600_000.0, unit="ms"),
+                    clock_jitter_ms=s_t.number("clock_jitter_ms", 0.0, lo=0.0, hi=10_000.0, unit="ms"),
+                )
                 s_t.done()
             options["sim"] = sim
         for name in ("tracker",):
@@ -217,8 +234,9 @@ def _parse_sensors(top: Table, source: str, base_dir: Path | None) -> tuple[Sens
                     f"{source}: unknown key {t.key(name)}; did you mean {t.key('kinect.' + name)}? "
                     "(tracker settings live under [sensors.kinect.tracker])"
                 )
+        host = t.string("host", None, check=lambda v: validate_name(v, "capture host"))
         t.done()
-        sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, **options))
+        sensors.append(SensorConfig(id=sensor_id, source=kind, world_from_sensor=pose, sync=sync, host=host, **options))
     ids = [s.id for s in sensors]
     for idx, sensor_id in enumerate(ids):
         if sensor_id in ids[:idx]:
@@ -398,22 +416,54 @@ def _fusion_value(value: Any, f: dataclasses.Field[Any] | None, key: str, source
 def _parse_zenoh(t: Table | None) -> ZenohSection:
     if t is None:
         return ZenohSection()
+    tls = None
+    if (tls_t := t.table("tls")) is not None:
+        tls = ZenohTls(
+            directory=tls_t.path_value("directory", None),
+            ca=tls_t.path_value("ca", None),
+            certificate=tls_t.path_value("certificate", None),
+            private_key=tls_t.path_value("private_key", None),
+            mutual=tls_t.boolean("mutual", True),
+            verify_name=tls_t.boolean("verify_name", False),
+        )
+        if tls.directory is None and tls.ca is None:
+            raise ConfigError(f"{tls_t.source}: [zenoh.tls] needs directory (from `skelfuse certs`) or ca")
+        if (tls.certificate is None) != (tls.private_key is None):
+            raise ConfigError(f"{tls_t.source}: [zenoh.tls] certificate and private_key go together")
+        tls_t.done()
     section = ZenohSection(
         mode=t.string("mode", "peer", choices=ZENOH_MODES),
         connect=t.strings("connect", ()),
         listen=t.strings("listen", ()),
-        multicast_scouting=t.boolean("multicast_scouting", True),
+        multicast_scouting=t.boolean("multicast_scouting", False),
+        reconnect_init_ms=t.integer("reconnect_init_ms", 100, lo=10, hi=600_000, unit="ms"),
+        reconnect_max_ms=t.integer("reconnect_max_ms", 1000, lo=10, hi=600_000, unit="ms"),
+        connect_timeout_ms=t.integer("connect_timeout_ms", 2000, lo=100, hi=600_000, unit="ms"),
+        max_message_bytes=t.integer("max_message_bytes", 1_048_576, lo=65_536, hi=1 << 30, unit="bytes"),
+        tls=tls,
+        access_control=t.boolean("access_control", False),
     )
+    if section.reconnect_max_ms < section.reconnect_init_ms:
+        raise t.error(
+            t.key("reconnect_max_ms"),
+            f"a number >= reconnect_init_ms ({section.reconnect_init_ms})",
+            section.reconnect_max_ms,
+        )
+    if section.access_control and section.tls is None:
+        raise ConfigError(
+            f"{t.source}: zenoh.access_control needs [zenoh.tls]: the rules name certificates (`skelfuse certs`)"
+        )
     raw: dict[str, Any] = {}
     c = t.table("config")
     if c is not None:
         for key, value in c.data.items():
             c.used.add(key)
             normalized = key.strip("/")
-            if normalized in _ZENOH_DEDICATED:
+            dedicated = next((k for k in _ZENOH_DEDICATED if normalized == k or normalized.startswith(k + "/")), None)
+            if dedicated is not None:
                 raise ConfigError(
-                    f'{c.source}: key zenoh.config."{key}": set this with zenoh.'
-                    f"{_ZENOH_DEDICATED[normalized]} instead of the raw passthrough"
+                    f'{c.source}: key zenoh.config."{key}": set this with [zenoh] '
+                    f"{_ZENOH_DEDICATED[dedicated]} instead of the raw passthrough"
                 )
             if not normalized or " " in normalized:
                 raise c.error(f'zenoh.config."{key}"', "a zenoh config path like 'transport/unicast/max_links'", key)
@@ -453,6 +503,18 @@ def _nonempty(value: str) -> str:
     if not value.strip():
         raise ValueError("must not be empty")
     return value
+def _parse_intake(t: Table | None) -> IntakeConfig:
+    if t is None:
+        return IntakeConfig()
+    intake = IntakeConfig(
+        max_bodies_per_sensor=t.integer("max_bodies_per_sensor", 16, lo=1, hi=64),
+        max_persons=t.integer("max_persons", 64, lo=1, hi=64),
+        max_range_mm=t.number("max_range_mm", 10_000.0, lo=0.0, lo_open=True, hi=1e6, unit="mm"),
+        max_payload_bytes=t.integer("max_payload_bytes", 262_144, lo=1024, hi=64 * 1024 * 1024),
+        max_queue=t.integer("max_queue", 4096, lo=16, hi=1_000_000),
+    )
+    t.done()
+    return intake
 
 
 def _parse_rerun(t: Table | None) -> RerunConfig:

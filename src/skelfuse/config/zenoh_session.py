@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
-from skelfuse.config.model import ZENOH_MODES, RigConfig
+from skelfuse.config.access import access_control
+from skelfuse.config.model import ZENOH_MODES, RigConfig, ZenohTls
 from skelfuse.schema.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -21,8 +23,13 @@ def zenoh_config(
     connect: Sequence[str] | None = None,
     listen: Sequence[str] | None = None,
     multicast_scouting: bool | None = None,
+    identity: str | None = None,
 ) -> zenoh.Config:
     """The zenoh session config of a node: file < flags < ``--zenoh-cfg KEY:VALUE`` overrides.
+
+    ``identity`` (``fusion``, ``router``, ``capture-<host>``, ``app-<name>``; :mod:`skelfuse.config.access`)
+    picks this process's certificate from ``[zenoh.tls] directory``; a router with ``access_control = true``
+    enforces the rig's generated access control.
 
     Order of application (later wins), as in zenoh-python's ``examples/common/common.py``:
 
@@ -60,6 +67,18 @@ def zenoh_config(
     if z.listen:
         insert("listen/endpoints", json.dumps(list(z.listen)), f"{cfg.source}: zenoh.listen")
     insert("scouting/multicast/enabled", json.dumps(z.multicast_scouting), f"{cfg.source}: zenoh.multicast_scouting")
+    retry = {"period_init_ms": z.reconnect_init_ms, "period_max_ms": z.reconnect_max_ms, "period_increase_factor": 2}
+    insert("connect/retry", json.dumps(retry), f"{cfg.source}: zenoh.reconnect_init_ms / reconnect_max_ms")
+    effective_mode = mode if mode is not None else z.mode
+    if effective_mode == "client":  # peers and routers open without their connect endpoints and keep trying
+        insert("connect/timeout_ms", json.dumps(z.connect_timeout_ms), f"{cfg.source}: zenoh.connect_timeout_ms")
+    size = json.dumps(z.max_message_bytes)
+    insert("transport/link/rx/max_message_size", size, f"{cfg.source}: zenoh.max_message_bytes")
+    if z.tls is not None:
+        for key, value in tls_settings(z.tls, identity).items():
+            insert(f"transport/link/tls/{key}", json.dumps(value), f"{cfg.source}: [zenoh.tls]")
+    if z.access_control and effective_mode == "router":
+        insert("access_control", json.dumps(access_control(cfg)), f"{cfg.source}: zenoh.access_control")
 
     if mode is not None:
         if mode not in ZENOH_MODES:
@@ -78,3 +97,40 @@ def zenoh_config(
             raise ConfigError(f"--zenoh-cfg: expected KEY:VALUE (e.g. 'transport/unicast/max_links:2'), found {item!r}")
         insert(key.strip(), value.strip(), f"--zenoh-cfg {item!r}")
     return conf
+
+
+def tls_files(tls: ZenohTls, identity: str | None) -> dict[str, str]:
+    """The CA, certificate and key files of ``identity`` (explicit paths win over the directory's)."""
+    files: dict[str, str] = {}
+    ca = tls.ca or (tls.directory / "ca.pem" if tls.directory is not None else None)
+    if ca is not None:
+        files["ca"] = str(ca)
+    certificate, key = tls.certificate, tls.private_key
+    if certificate is None and tls.directory is not None and identity is not None:
+        certificate, key = tls.directory / f"{identity}.pem", tls.directory / f"{identity}.key"
+    if certificate is not None and key is not None:
+        files["certificate"], files["private_key"] = str(certificate), str(key)
+    for what, path in files.items():
+        if not Path(path).is_file():
+            raise ConfigError(
+                f"[zenoh.tls] {what} {path} does not exist; make the rig's certificates with `skelfuse certs "
+                f"--config RIG.toml --output DIR` (identity {identity or '?'})"
+            )
+    return files
+
+
+def tls_settings(tls: ZenohTls, identity: str | None) -> dict[str, object]:
+    """zenoh's ``transport/link/tls`` keys: the same certificate serves listening and connecting."""
+    files = tls_files(tls, identity)
+    settings: dict[str, object] = {
+        "enable_mtls": tls.mutual,
+        "verify_name_on_connect": tls.verify_name,
+    }
+    if "ca" in files:
+        settings["root_ca_certificate"] = files["ca"]
+    if "certificate" in files:
+        settings["listen_certificate"] = files["certificate"]
+        settings["listen_private_key"] = files["private_key"]
+        settings["connect_certificate"] = files["certificate"]
+        settings["connect_private_key"] = files["private_key"]
+    return settings

@@ -115,7 +115,7 @@ class PeopleFuser:
 
     def reset(self) -> None:
         """Forget every track (ids keep counting up: an id is never reused)."""
-        self.table = TrackTable(self.track_params, next_id=self.table.next_id)
+        self.table = TrackTable(self.track_params, next_id=self.table.next_id, births_refused=self.table.births_refused)
         self.last_time_s = None
         self._stacked = None
 

@@ -40,6 +40,9 @@ import numpy as np
 from skelfuse.fusion.association import DEFAULT_GATE_MM, N_DESCRIPTOR, Association
 from skelfuse.fusion.pipeline import FusionState
 
+MAX_TRACKS = 64
+"""Live tracks at most: the persons a fused frame may hold (``skelfuse.wire.codec.MAX_PERSONS``, checked by a
+test; the core cannot import the wire layer)."""
 TENTATIVE = "tentative"
 CONFIRMED = "confirmed"
 
@@ -58,6 +61,9 @@ class TrackParams:
     max_predict_s : the constant-velocity prediction never runs further ahead than this, s.
     velocity_smoothing : weight of the new velocity measurement in (0, 1].
     max_speed_mm_s : clamp of the torso speed, mm/s (a sprint is ~ 7000; indoors people walk ~ 1000-1500).
+    max_tracks : live tracks at most (tentative and confirmed); new persons beyond it are not tracked and are
+        counted in :attr:`TrackTable.births_refused`. The default is the fused frame's cap (64 persons), so
+        coasting tracks plus new bodies can never make a frame the wire format refuses.
     """
 
     gate_mm: float = DEFAULT_GATE_MM
@@ -68,8 +74,11 @@ class TrackParams:
     max_predict_s: float = 0.5
     velocity_smoothing: float = 0.5
     max_speed_mm_s: float = 3000.0
+    max_tracks: int = MAX_TRACKS
 
     def __post_init__(self) -> None:
+        if not 1 <= int(self.max_tracks) <= MAX_TRACKS:
+            raise ValueError(f"TrackParams.max_tracks must be in 1..{MAX_TRACKS}, got {self.max_tracks!r}")
         if int(self.birth_frames) < 1:
             raise ValueError(f"TrackParams.birth_frames must be >= 1, got {self.birth_frames!r}")
         for name in ("gate_mm", "timeout_s", "max_gate_mm", "max_speed_mm_s"):
@@ -151,11 +160,13 @@ class TrackTable:
     params : TrackParams
     tracks : dict[int, TrackState], in creation order (oldest first).
     next_id : the id the next new track gets.
+    births_refused : new persons not tracked because the table held ``params.max_tracks`` tracks.
     """
 
     params: TrackParams = field(default_factory=TrackParams)
     tracks: dict[int, TrackState] = field(default_factory=dict)
     next_id: int = 1
+    births_refused: int = 0
 
     def predict(self, time_s: float) -> Prediction:
         """Every track's predicted descriptor and gate at ``time_s``."""
@@ -216,7 +227,12 @@ class TrackTable:
                 [n_seen_rows[row] for row in hit_rows],
                 time_s,
             )
+        room = max(int(p.max_tracks) - len(self.tracks), 0)
         for row in range(K, association.n_persons):
+            if room == 0:
+                self.births_refused += 1  # row_ids[row] stays -1: its bodies are not tracked
+                continue
+            room -= 1
             track_id = self.next_id
             self.next_id += 1
             self.tracks[track_id] = TrackState(

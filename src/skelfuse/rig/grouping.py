@@ -39,7 +39,8 @@ Duplicates
     A second frame of one sensor for one group: the first is kept, the second counted as ``duplicate``.
 Drops
     Sequence gaps per sensor (``sequence`` jumping by more than one) are counted as ``dropped``; a sequence
-    going backwards (a restarted sensor or a looped replay) restarts the count for that sensor.
+    going backwards (a restarted sensor or a looped replay), or jumping further than the resync horizon's
+    worth of frames, restarts the count for that sensor (a forged sequence cannot inflate ``dropped``).
 Unknown sensors
     Frames of a sensor not in ``expected_sensor_ids`` are counted in ``unknown`` and ignored.
 Clock resets (resync rule)
@@ -47,23 +48,50 @@ Clock resets (resync rule)
     *out of window*: a sensor restarted with a new clock epoch, a replay looped, a clock jumped. It is held
     back. If an in-window frame arrives next, the held-back frames are counted as ``out_of_window`` and
     dropped: one sensor on a foreign clock is ignored while the others go on (it shows as missing). If
-    ``resync_after`` consecutive frames are out of window, the whole rig has moved to a new epoch: the
+    ``resync_after`` consecutive frames are out of window (from two sensors or more when the epoch knew
+    two), the whole rig has moved to a new epoch: the
     grouper emits every open group, forgets its time state (a new epoch begins, ``resyncs`` counts it) and
     replays the held-back frames into the new epoch, so none is lost. ``time_us`` may jump backwards across
     a resync, never within an epoch.
 
+Sensor clocks (:class:`SensorClock`, one per sensor)
+    Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual
+    ``time - arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each
+    sensor's offset (a running median) and drift (a slope) are estimated online, from that sensor's frames
+    only. A frame whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest
+    recent residual of its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's
+    shortest latency, while a backlog only makes frames late), or more than ``max_behind_us`` behind its
+    offset, is *off clock*: a peer stamping frames in the future or
+    the past, a clock that stepped. It is held back by its sensor's clock and never reaches the grouping
+    windows or counters above; when the sensor's next frame is on clock, the held frames are counted as
+    ``off_clock`` and dropped. Only ``resync_after`` consecutive off-clock frames that agree with each other
+    and span at least half their nominal duration of arrival time make that sensor's clock re-learn (a real
+    clock step or restart): they are then replayed in order, so a genuine epoch change loses no frame, while
+    a burst of forged frames (1 kHz) or one stamp per second in the future never moves anything.
+Host time across PCs (``by = "host"``)
+    Capture PCs' clocks may be offset by hundreds of ms and jitter by tens. In host mode frames are grouped
+    on the *corrected* time ``stamp - offset(sensor) + reference``: each sensor's stamps are moved onto the
+    node's arrival clock by that sensor's own offset, then shifted by one reference offset (the median of the
+    sensors' offsets when the clock epoch began, frozen for the epoch), so fused times stay near the rig's
+    majority clock. Stamp jitter is removed with the sequence numbers (frames of one sensor are one frame
+    period apart): the corrected time is ``sequence * period + median(phase)`` over the sensor's recent
+    frames, unless the sequence does not follow the period (then the corrected stamp itself is used). One
+    sensor's clock therefore never moves another sensor's times or the grouping windows.
 Accounting: every pushed frame of an expected sensor ends up in exactly one emitted group or in one of
-``late``, ``duplicate``, ``out_of_window`` (after :meth:`FrameGrouper.flush`; before it, frames may still be
-held in open groups or held back, see :attr:`FrameGrouper.n_held`).
+``late``, ``duplicate``, ``out_of_window``, ``off_clock`` (after :meth:`FrameGrouper.flush`; before it, frames
+may still be held in open groups, held back or held by a sensor clock, see :attr:`FrameGrouper.n_held`).
 """
 
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
+
+import numpy as np
 
 from skelfuse.schema.frames import SensorFrame
 
@@ -76,6 +104,15 @@ DEFAULT_RESYNC_AFTER = 8
 """Consecutive out-of-window frames that make the grouper start a new clock epoch (two frames of four sensors)."""
 DEFAULT_RESYNC_HORIZON_US = 1_000_000
 """How far (µs) from the newest frame time a frame may lie before it counts as out of window."""
+DEFAULT_MAX_AHEAD_US = 100_000
+"""How far (µs) a frame's time may lie ahead of its sensor's learned clock (a frame cannot arrive before it
+is stamped: only the latency's spread is legitimate here)."""
+DEFAULT_MAX_BEHIND_US = 1_000_000
+"""How far (µs) a frame's time may lie behind its sensor's learned clock (a stalled tracker, a queue)."""
+CEILING_DECAY_US_PER_S = 1000.0
+"""How fast a sensor's fastest-delivery reference forgets (1 ms per s, far above any clock drift)."""
+CLOCK_WINDOW = 31
+"""Frames in each sensor's running offset and phase estimates (about 1 s at 30 fps)."""
 _MAX_UNKNOWN_IDS = 16
 
 
@@ -127,6 +164,176 @@ class SensorCounters:
     dropped: int = 0
     duplicate: int = 0
     out_of_window: int = 0
+    off_clock: int = 0
+
+
+@dataclass(frozen=True)
+class ClockEstimate:
+    """One sensor's clock as the grouper sees it (for the node's status).
+
+    Attributes
+    ----------
+    offset_ms : float or None
+        Median of ``frame time - arrival`` over the sensor's recent frames, ms (its clock's offset from the
+        node's arrival clock plus its latency); None before the first frame.
+    relative_offset_ms : float or None
+        ``offset_ms`` minus the median over the rig's sensors: how far this sensor's clock is off the rig's
+        majority (what an operator compares across PCs).
+    drift_ppm : float or None
+        Slope of the residual over the arrival time, µs per s (ppm); None with too few frames.
+    jitter_ms : float or None
+        Median absolute deviation of the residual, ms.
+    relearns : int
+        Times the clock stepped and was re-learned.
+    """
+
+    offset_ms: float | None
+    relative_offset_ms: float | None
+    drift_ppm: float | None
+    jitter_ms: float | None
+    relearns: int
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        return dataclasses.asdict(self)
+
+
+class SensorClock:
+    """One sensor's clock against the node's arrival clock: offset, drift, off-clock frames, phase.
+
+    Pure: times are passed in. The residual of a frame is ``time_us - arrival_us``; its running median is the
+    offset. See the module docstring ("Sensor clocks") for the rules.
+
+    Parameters
+    ----------
+    period_us : float
+        Nominal frame period (1e6 / fps).
+    max_ahead_us, max_behind_us : int
+        A residual further ahead of / behind the offset is off clock.
+    relearn_after : int
+        Consecutive off-clock frames (agreeing with each other) that re-learn the clock.
+    window : int
+        Frames in the running estimates.
+    """
+
+    def __init__(
+        self,
+        *,
+        period_us: float,
+        max_ahead_us: int = DEFAULT_MAX_AHEAD_US,
+        max_behind_us: int = DEFAULT_MAX_BEHIND_US,
+        relearn_after: int = DEFAULT_RESYNC_AFTER,
+        window: int = CLOCK_WINDOW,
+    ) -> None:
+        self.period_us = float(period_us)
+        self.max_ahead_us = int(max_ahead_us)
+        self.max_behind_us = int(max_behind_us)
+        self.relearn_after = int(relearn_after)
+        self.window = int(window)
+        self.relearns = 0
+        self._residuals: collections.deque[int] = collections.deque(maxlen=self.window)
+        self._arrivals: collections.deque[int] = collections.deque(maxlen=self.window)
+        self._offset_us: int | None = None
+        self._ceiling_us: float | None = None  # the largest recent residual (the fastest path), slowly decaying
+        self._last_arrival_us: int | None = None
+        self._phases: collections.deque[float] = collections.deque(maxlen=self.window)
+        self._far = 0
+        self.held: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns) off clock
+
+    @property
+    def offset_us(self) -> int | None:
+        """The sensor's current offset (median residual), µs; None before its first frame."""
+        return self._offset_us
+
+    def on_clock(self, time_us: int, arrival_us: int) -> bool:
+        """Whether a frame's time agrees with this sensor's learned clock (always True before the first)."""
+        if self._offset_us is None or self._ceiling_us is None:
+            return True
+        residual = time_us - arrival_us
+        # Ahead: against the fastest delivery seen lately (a frame cannot beat its path's shortest latency), so
+        # on-time frames after a backlog are not mistaken for the future. Behind: against the median.
+        return residual - self._ceiling_us <= self.max_ahead_us and residual - self._offset_us >= -self.max_behind_us
+
+    def learn(self, time_us: int, arrival_us: int) -> None:
+        """Add an on-clock frame to the running estimates."""
+        residual = int(time_us) - int(arrival_us)
+        self._residuals.append(residual)
+        self._arrivals.append(int(arrival_us))
+        if self._ceiling_us is None or self._last_arrival_us is None:
+            self._ceiling_us = float(residual)
+        else:
+            elapsed_s = max(int(arrival_us) - self._last_arrival_us, 0) / 1e6
+            self._ceiling_us = max(float(residual), self._ceiling_us - CEILING_DECAY_US_PER_S * elapsed_s)
+        self._last_arrival_us = int(arrival_us)
+        self._offset_us = int(np.median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
+
+    def hold(self, frame: SensorFrame, time_us: int, arrival_ns: int) -> tuple[list[tuple[SensorFrame, int, int]], int]:
+        """Keep an off-clock frame.
+
+        Returns the held frames to replay when the clock must re-learn (else []), and how many held frames
+        were discarded to keep at most ``relearn_after`` (to be counted off clock).
+        """
+        self.held.append((frame, time_us, arrival_ns))
+        discarded = 0
+        if len(self.held) > self.relearn_after:
+            del self.held[0]
+            discarded = 1
+        if len(self.held) < self.relearn_after:
+            return [], discarded
+        residuals = np.array([t - a // 1000 for _, t, a in self.held], dtype=np.int64)
+        arrivals = [a // 1000 for _, _, a in self.held]
+        agree = int(residuals.max() - residuals.min()) <= self.max_ahead_us + self.max_behind_us
+        # A genuine clock step keeps the frame rate; a forged burst (1 kHz) arrives far faster than that.
+        paced = arrivals[-1] - arrivals[0] >= 0.5 * (len(arrivals) - 1) * self.period_us
+        if not (agree and paced):
+            return [], discarded
+        held, self.held = self.held, []
+        self._residuals.clear()
+        self._arrivals.clear()
+        self._phases.clear()
+        self._offset_us = None
+        self._ceiling_us = None
+        self._last_arrival_us = None
+        self.relearns += 1
+        return held, discarded
+
+    def drop_held(self) -> list[tuple[SensorFrame, int, int]]:
+        held, self.held = self.held, []
+        return held
+
+    def smoothed_us(self, sequence: int, corrected_us: int) -> int:
+        """A corrected host time with the stamp jitter removed, using the sequence number's frame grid.
+
+        ``corrected_us`` is this frame's stamp moved onto the rig's clock; the phase ``corrected - sequence *
+        period`` is steady for a sensor whose sequence counts its frames, so its running median times out the
+        jitter. A phase more than three frame periods from the median is not learned; two in a row restart
+        it (a restarted sequence, a sequence that does not count frames); then the corrected stamp itself is
+        used until three frames agree again.
+        """
+        grid_us = sequence * self.period_us
+        phase = corrected_us - grid_us
+        if self._phases and abs(phase - float(np.median(self._phases))) > 3 * self.period_us:
+            self._far += 1
+            if self._far < 2:
+                return int(corrected_us)  # one outlier: not learned
+            self._phases.clear()  # two in a row: a restarted sequence (or one that does not count frames)
+        self._far = 0
+        self._phases.append(phase)
+        if len(self._phases) < 3:
+            return int(corrected_us)
+        return round(grid_us + float(np.median(self._phases)))
+
+    def estimate(self, rig_offset_us: float | None) -> ClockEstimate:
+        if self._offset_us is None:
+            return ClockEstimate(None, None, None, None, self.relearns)
+        residuals = np.asarray(self._residuals, dtype=np.float64)
+        arrivals = np.asarray(self._arrivals, dtype=np.float64)
+        drift = None
+        if residuals.size >= 8 and np.ptp(arrivals) > 0:
+            x = (arrivals - arrivals.mean()) / 1e6
+            drift = round(float(np.dot(x, residuals - residuals.mean()) / np.dot(x, x)), 3)
+        jitter = float(np.median(np.abs(residuals - self._offset_us))) / 1000
+        relative = None if rig_offset_us is None else round((self._offset_us - rig_offset_us) / 1000, 3)
+        return ClockEstimate(round(self._offset_us / 1000, 3), relative, drift, round(jitter, 3), self.relearns)
 
 
 @dataclass
@@ -203,6 +410,8 @@ class FrameGrouper:
         Consecutive out-of-window frames that start a new clock epoch.
     resync_horizon_us : int
         Distance from the newest frame time beyond which a frame is out of window, µs.
+    max_ahead_us, max_behind_us : int
+        How far a frame's time may lie ahead of / behind its sensor's learned clock (see "Sensor clocks").
 
     Not thread-safe: call it from one thread (the fusion node's loop).
     """
@@ -217,6 +426,8 @@ class FrameGrouper:
         fps: float = 30.0,
         resync_after: int = DEFAULT_RESYNC_AFTER,
         resync_horizon_us: int = DEFAULT_RESYNC_HORIZON_US,
+        max_ahead_us: int = DEFAULT_MAX_AHEAD_US,
+        max_behind_us: int = DEFAULT_MAX_BEHIND_US,
     ) -> None:
         ids = tuple(expected_sensor_ids)
         if not ids or not all(isinstance(s, str) and s for s in ids):
@@ -241,6 +452,10 @@ class FrameGrouper:
             raise ValueError(
                 f"FrameGrouper resync_horizon_us must exceed tolerance_us ({tolerance_us}), got {resync_horizon_us!r}"
             )
+        if not (int(max_ahead_us) > 0 and int(max_behind_us) > 0):
+            raise ValueError(
+                f"FrameGrouper max_ahead_us and max_behind_us must be > 0, got {max_ahead_us!r}, {max_behind_us!r}"
+            )
         self.expected_sensor_ids = ids
         self.by: GroupBy = by
         self.tolerance_us = int(tolerance_us)
@@ -252,6 +467,17 @@ class FrameGrouper:
         self._stats = GrouperStats(sensors={sid: SensorCounters() for sid in ids})
         self._last_sequence: dict[str, int] = {}
         self._held_back: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns), out of window
+        self._clocks = {
+            sid: SensorClock(
+                period_us=1e6 / self.fps,
+                max_ahead_us=int(max_ahead_us),
+                max_behind_us=int(max_behind_us),
+                relearn_after=self.resync_after,
+            )
+            for sid in ids
+        }
+        # A sequence jump longer than the horizon's worth of frames is a restart, not drops.
+        self._max_sequence_gap = int(self.resync_horizon_us * self.fps / 1e6) + 1
         self._reset_epoch()
 
     @classmethod
@@ -278,6 +504,8 @@ class FrameGrouper:
             fps=sync.fps,
             resync_after=sync.resync_after_frames,
             resync_horizon_us=sync.resync_horizon_us,
+            max_ahead_us=sync.max_ahead_us,
+            max_behind_us=sync.max_behind_us,
         )
 
     # -- public -------------------------------------------------------------------------------------------
@@ -293,26 +521,39 @@ class FrameGrouper:
             if sensor_id not in self._stats.unknown_ids and len(self._stats.unknown_ids) < _MAX_UNKNOWN_IDS:
                 self._stats.unknown_ids.append(str(sensor_id))
             return self._emit_due(now_ns)
-        self._stats.sensors[sensor_id].received += 1
-        self._count_sequence(sensor_id, int(frame.sequence))
-        time_us = self._time_of(frame)
+        counters = self._stats.sensors[sensor_id]
+        counters.received += 1
+        raw_us = self._time_of(frame)
+        clock = self._clocks[sensor_id]
         emitted: list[FrameGroup] = []
-        if self._in_window(time_us):
-            self._drop_held_back()
-            self._place(frame, time_us, now_ns)
+        if clock.on_clock(raw_us, int(now_ns) // 1000):
+            counters.off_clock += len(clock.drop_held())
+            self._accept(frame, raw_us, int(now_ns), int(now_ns), emitted)
         else:
-            self._held_back.append((frame, time_us, now_ns))
-            if len(self._held_back) >= self.resync_after:
-                emitted.extend(self._resync())
+            replay, discarded = clock.hold(frame, raw_us, int(now_ns))
+            counters.off_clock += discarded
+            # Replayed after a clock step: their deadlines run from now, so the other sensors' frames of the
+            # same step (re-learned within a frame or two) still join their instants.
+            for held_frame, held_us, held_arrival_ns in replay:
+                self._accept(held_frame, held_us, held_arrival_ns, int(now_ns), emitted)
         emitted.extend(self._emit_due(now_ns))
         return emitted
+
+    def clock_estimates(self) -> dict[str, ClockEstimate]:
+        """Each expected sensor's clock: offset from the node's arrival clock, from the rig's median, drift."""
+        offsets = [c.offset_us for c in self._clocks.values() if c.offset_us is not None]
+        rig_offset = float(np.median(offsets)) if offsets else None
+        return {sid: clock.estimate(rig_offset) for sid, clock in self._clocks.items()}
 
     def poll(self, now_ns: int) -> list[FrameGroup]:
         """Emit the groups whose deadline passed by ``now_ns`` (or that became ready), oldest first."""
         return self._emit_due(now_ns)
 
     def flush(self) -> list[FrameGroup]:
-        """Emit every open group (end of stream, shutdown); held-back frames are counted out of window."""
+        """Emit every open group (end of stream, shutdown); held-back frames are counted out of window,
+        frames held by a sensor clock off clock."""
+        for sid, clock in self._clocks.items():
+            self._stats.sensors[sid].off_clock += len(clock.drop_held())
         self._drop_held_back()
         emitted = [self._emit(group) for group in self._open]
         self._open.clear()
@@ -335,22 +576,58 @@ class FrameGrouper:
     @property
     def n_held(self) -> int:
         """Frames not yet accounted for: in open groups, or held back as out of window."""
-        return sum(len(g.frames) for g in self._open) + len(self._held_back)
+        return (
+            sum(len(g.frames) for g in self._open)
+            + len(self._held_back)
+            + sum(len(c.held) for c in self._clocks.values())
+        )
 
     # -- internals ----------------------------------------------------------------------------------------
+
+    def _accept(
+        self, frame: SensorFrame, raw_us: int, arrival_ns: int, place_ns: int, emitted: list[FrameGroup]
+    ) -> None:
+        """An on-clock frame: learn its sensor's clock (``arrival_ns``), count its sequence, place it (its
+        group's deadline runs from ``place_ns``) or hold it back."""
+        clock = self._clocks[frame.sensor_id]
+        clock.learn(raw_us, arrival_ns // 1000)
+        self._count_sequence(frame.sensor_id, int(frame.sequence))
+        time_us = self._grouping_time(frame, raw_us, clock)
+        if self._in_window(time_us):
+            self._drop_held_back()
+            self._place(frame, time_us, place_ns)
+        else:
+            self._held_back.append((frame, time_us, place_ns))
+            # The whole rig moved only if more than one sensor did (when the epoch knew more than one): one
+            # sensor's re-learned clock replays its frames in a row and must not drag the others along.
+            movers = {f.sensor_id for f, _, _ in self._held_back}
+            if len(self._held_back) >= self.resync_after and len(movers) >= min(2, len(self._latest_by_sensor)):
+                emitted.extend(self._resync())
+
+    def _grouping_time(self, frame: SensorFrame, raw_us: int, clock: SensorClock) -> int:
+        """Device mode: the device time. Host mode: the stamp on the rig's clock, jitter removed."""
+        if self.by == "device":
+            return raw_us
+        assert clock.offset_us is not None  # learned just before
+        if self._reference_us is None:
+            offsets = [c.offset_us for c in self._clocks.values() if c.offset_us is not None]
+            self._reference_us = int(np.median(offsets))
+        corrected = raw_us - clock.offset_us + self._reference_us
+        return clock.smoothed_us(int(frame.sequence), corrected)
 
     def _reset_epoch(self) -> None:
         self._open: list[_OpenGroup] = []  # sorted by anchor
         self._emitted_until_us: int | None = None  # anchor of the newest emitted group
         self._newest_us: int | None = None  # newest in-window frame time
         self._latest_by_sensor: dict[str, int] = {}
+        self._reference_us: int | None = None  # host mode: the rig's clock offset for this epoch
 
     def _time_of(self, frame: SensorFrame) -> int:
         return int(frame.device_time_us) if self.by == "device" else int(frame.host_time_ns) // 1000
 
     def _count_sequence(self, sensor_id: str, sequence: int) -> None:
         last = self._last_sequence.get(sensor_id)
-        if last is not None and sequence > last + 1:
+        if last is not None and last + 1 < sequence <= last + self._max_sequence_gap:
             self._stats.sensors[sensor_id].dropped += sequence - last - 1
         if last is None or sequence != last:
             # Forward: the new last. Backwards: a restarted sensor or looped replay, count from here.

@@ -32,6 +32,7 @@ from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
 from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.people import PeopleFuser, PeopleResult
 from skelfuse.fusion.presets import FusionParams
+from skelfuse.fusion.tracks import MAX_TRACKS, TrackParams
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.rig.grouping import FrameGroup
 from skelfuse.schema.frames import FusedFrame, SensorFrame
@@ -148,6 +149,10 @@ class GroupFuser:
         Passed to :class:`~skelfuse.fusion.people.PeopleFuser`.
     reset_gap_s : float
         A longer gap between instants restarts the fusion state.
+    max_persons : int
+        Live tracks at most (bodies beyond are not tracked, counted in ``people.table.births_refused``).
+    first_track_id : int
+        The first track's id (the live node starts from a time-based epoch so ids continue across restarts).
 
     Attributes
     ----------
@@ -168,6 +173,8 @@ class GroupFuser:
         timeout_s: float = 1.0,
         duplicate_mm: float | None = DEFAULT_DUPLICATE_MM,
         reset_gap_s: float = RESET_GAP_S,
+        max_persons: int = MAX_TRACKS,
+        first_track_id: int = 1,
     ) -> None:
         self.sensor_ids = tuple(sensor_ids)
         poses = np.asarray(world_from_sensor, dtype=np.float64)
@@ -179,9 +186,11 @@ class GroupFuser:
         self.world_from_sensor = poses
         self.params = params
         self.reset_gap_s = float(reset_gap_s)
-        self.people = PeopleFuser(
-            params, gate_mm=gate_mm, birth_frames=birth_frames, timeout_s=timeout_s, duplicate_mm=duplicate_mm
+        track_params = TrackParams(
+            gate_mm=float(gate_mm), birth_frames=int(birth_frames), timeout_s=float(timeout_s), max_tracks=max_persons
         )
+        self.people = PeopleFuser(params, duplicate_mm=duplicate_mm, track_params=track_params)
+        self.people.table.next_id = int(first_track_id)
         self.last_time_us: int | None = None
 
     def reset(self) -> None:

@@ -64,6 +64,24 @@ UNKNOWN_SENSOR = "?"
 """Sensor name under which rejects of unparseable keys are counted."""
 LATENCY_WINDOW = 10_000
 """Latency samples kept for the "since start" percentiles (the most recent ones)."""
+OVERSIZED = "oversized"
+"""Node-level reject reason: a payload larger than ``[intake] max_payload_bytes`` (dropped unread)."""
+TOO_MANY_BODIES = "too_many_bodies"
+"""Node-level reject reason: more bodies than ``[intake] max_bodies_per_sensor``."""
+OUT_OF_VOLUME = "out_of_volume"
+"""Node-level reject reason: a joint farther than ``[intake] max_range_mm`` from its sensor."""
+FUSION_ERROR = "fusion_error"
+"""Node-level reject reason: an instant the core could not fuse or encode (logged; the node goes on)."""
+
+
+def time_based_first_track_id(unix_time_ns: int) -> int:
+    """The first track id of a node started at ``unix_time_ns``: milliseconds since the Unix epoch.
+
+    Track ids are never reused, across restarts too: a restarted node starts above every id the previous run
+    could have given, unless that run started more than 1000 tracks per second on average or the clock
+    stepped back. No state file is needed (a replaced PC continues the sequence).
+    """
+    return max(int(unix_time_ns) // 1_000_000, 1)
 
 
 def calibration_document(cfg: RigConfig, poses: np.ndarray) -> dict[str, Any]:
@@ -125,6 +143,8 @@ class FusionCore:
         Overrides ``cfg.fusion.fusion_params()``.
     poses : (S, 4, 4), optional
         Overrides ``cfg.poses()`` (rows in ``cfg.sensor_ids`` order).
+    first_track_id : int
+        The first track id (the live node passes :func:`time_based_first_track_id`).
 
     Attributes
     ----------
@@ -137,7 +157,14 @@ class FusionCore:
         Per sensor (from the key), rejects per reason (codec reasons, plus "key_mismatch", "bad_key").
     """
 
-    def __init__(self, cfg: RigConfig, *, params: FusionParams | None = None, poses: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        cfg: RigConfig,
+        *,
+        params: FusionParams | None = None,
+        poses: np.ndarray | None = None,
+        first_track_id: int = 1,
+    ) -> None:
         self.cfg = cfg
         self.sensor_ids = cfg.sensor_ids
         self.column = {sid: i for i, sid in enumerate(self.sensor_ids)}
@@ -147,7 +174,14 @@ class FusionCore:
         self.poses = np.asarray(poses, dtype=np.float64)
         self.params = params if params is not None else cfg.fusion.fusion_params()
         self.grouper = FrameGrouper.for_rig(cfg)
-        self.fuser = GroupFuser(self.sensor_ids, self.poses, self.params)
+        self.intake = cfg.intake
+        self.fuser = GroupFuser(
+            self.sensor_ids,
+            self.poses,
+            self.params,
+            max_persons=self.intake.max_persons,
+            first_track_id=first_track_id,
+        )
         self.frames_in = 0
         self.frames_out = 0
         self.groups_complete = 0
@@ -167,11 +201,32 @@ class FusionCore:
         except ValueError as exc:
             self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
             return self.poll(arrival_ns)
+        intake = self.intake
+        if len(payload) > intake.max_payload_bytes:
+            self._reject(key_sensor, OVERSIZED, f"{len(payload)} bytes, at most {intake.max_payload_bytes} ([intake])")
+            return self.poll(arrival_ns)
         try:
             frame = decode_sensor_frame(payload)
         except DecodeError as exc:
             self._reject(key_sensor, exc.reason, str(exc))
             return self.poll(arrival_ns)
+        if frame.n_bodies > intake.max_bodies_per_sensor:
+            self._reject(
+                key_sensor,
+                TOO_MANY_BODIES,
+                f"{frame.n_bodies} bodies, at most {intake.max_bodies_per_sensor} ([intake] max_bodies_per_sensor)",
+            )
+            return self.poll(arrival_ns)
+        if frame.n_bodies:
+            reach = float(np.abs(frame.positions).max())  # finite: the codec rejects NaN and Inf
+            if reach > intake.max_range_mm:
+                self._reject(
+                    key_sensor,
+                    OUT_OF_VOLUME,
+                    f"a joint {reach:.4g} mm from the sensor on one axis, at most {intake.max_range_mm:g} mm "
+                    f"([intake] max_range_mm)",
+                )
+                return self.poll(arrival_ns)
         if frame.sensor_id != key_sensor:
             self._reject(
                 key_sensor,
@@ -220,7 +275,11 @@ class FusionCore:
         for index, group in enumerate(groups):
             # Only the newest group of a push was completed by the pushed frame; older ones were pushed out.
             trigger = trigger_arrival_ns if index == len(groups) - 1 and group.complete else None
-            out.append(self._fuse(group, trigger))
+            try:
+                out.append(self._fuse(group, trigger))
+            except ValueError as exc:  # never expected (caps keep frames encodable); a daemon must not die of it
+                self.fuser.reset()
+                self._reject(UNKNOWN_SENSOR, FUSION_ERROR, f"instant at {group.time_us} µs not fused: {exc}")
         return out
 
     def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
@@ -242,6 +301,7 @@ class FusionCore:
     def sensor_report(self, now_ns: int, window_s: float) -> dict[str, dict[str, Any]]:
         """Per sensor: rate over the last window, last seen, grouper counters, rejects. Resets the window."""
         stats = self.grouper.stats
+        clocks = self.grouper.clock_estimates()
         report = {}
         for sid, window in self._sensors.items():
             counters = stats.sensors[sid]
@@ -254,8 +314,10 @@ class FusionCore:
                 "dropped": counters.dropped,
                 "duplicate": counters.duplicate,
                 "out_of_window": counters.out_of_window,
+                "off_clock": counters.off_clock,
                 "invalid": sum(window.rejects.values()),
                 "rejects": dict(window.rejects),
+                "clock": clocks[sid].to_dict(),
             }
             window.window_received = 0
         return report
@@ -308,19 +370,20 @@ class NodeReport:
     Attributes
     ----------
     frames_in, frames_out : int
-    fusion_ms : list of float
-        Time of each fusion step + encoding, ms.
-    added_ms : list of float
+    fusion_ms : deque of float
+        Time of each fusion step + encoding, ms (the latest :data:`LATENCY_WINDOW`: a daemon's record is
+        bounded).
+    added_ms : deque of float
         Arrival of the frame that completed an instant (zenoh callback) -> its fused frame handed to
-        zenoh, ms: the latency the node adds (complete instants only).
+        zenoh, ms: the latency the node adds (complete instants only; the latest :data:`LATENCY_WINDOW`).
     status : dict
         The last status document.
     """
 
     frames_in: int = 0
     frames_out: int = 0
-    fusion_ms: list[float] = field(default_factory=list)
-    added_ms: list[float] = field(default_factory=list)
+    fusion_ms: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=LATENCY_WINDOW))
+    added_ms: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=LATENCY_WINDOW))
     status: dict[str, Any] = field(default_factory=dict)
 
 
@@ -358,7 +421,7 @@ class FusionNode:
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
-        self.core = FusionCore(cfg)
+        self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()))
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf
@@ -374,6 +437,7 @@ class FusionNode:
         self._first_time_us: int | None = None
         self._rates: dict[str, float] | None = None
         self.view: RerunView | None = None
+        self._samples: SampleQueue | None = None
 
     def log_error(self, time_us: int, error_mm: float) -> None:
         """Draw an error against ground truth (simulated rigs) on the live view's time axis, if there is one."""
@@ -399,7 +463,8 @@ class FusionNode:
         view, server = self._open_view()
         self.view = view
         rig = self.cfg.name
-        samples = SampleQueue()
+        intake = self.cfg.intake
+        samples = self._samples = SampleQueue(max_items=intake.max_queue, max_payload_bytes=intake.max_payload_bytes)
         try:
             publisher = session.declare_publisher(keys.fused_skeletons(rig), express=True)
             status_pub = session.declare_publisher(keys.status(rig, self.name))
@@ -581,6 +646,10 @@ class FusionNode:
             "out_of_window": totals.out_of_window,
             "unknown": stats.unknown,
             "resyncs": stats.resyncs,
+            "off_clock": totals.off_clock,
+            "persons_refused": core.fuser.people.table.births_refused,
+            "samples_dropped": 0 if self._samples is None else self._samples.dropped,
+            "samples_oversized": 0 if self._samples is None else self._samples.oversized,
             "invalid": sum(reject_totals.values()),
         } | {f"rejects.{reason}": n for reason, n in sorted(reject_totals.items())}
         info = {

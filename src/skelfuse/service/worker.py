@@ -46,6 +46,7 @@ import logging
 import math
 import threading
 import time
+import zlib
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,6 +180,9 @@ class SimSource:
     take_origin_ns : int
         Unix ns at which take frame 0 plays (instant ``n`` shows take frame ``(n - n0) mod T``); every
         worker of a rig must get the same. Default 0: the take is aligned on the Unix epoch.
+
+    ``sensors[i].sim.clock_offset_ms`` / ``clock_jitter_ms`` emulate a capture PC whose wall clock is off
+    (and jittery): :meth:`host_time_ns` adds them to the host time the worker stamps.
     """
 
     def __init__(
@@ -206,6 +210,15 @@ class SimSource:
         self.loop = loop
         self.clock_ns = clock_ns
         self.origin_n = math.ceil(take_origin_ns / (1e9 / self.fps))
+        sim = sensor.sim
+        self.clock_offset_ns = round((sim.clock_offset_ms if sim is not None else 0.0) * 1e6)
+        self.clock_jitter_ns = (sim.clock_jitter_ms if sim is not None else 0.0) * 1e6
+        self._clock_rng = np.random.default_rng(zlib.crc32(sensor_id.encode()))
+
+    def host_time_ns(self) -> int:
+        """This emulated capture PC's wall clock: the host's, plus its configured offset and jitter."""
+        jitter = round(self._clock_rng.normal(0.0, self.clock_jitter_ns)) if self.clock_jitter_ns > 0 else 0
+        return self.clock_ns() + self.clock_offset_ns + jitter
 
     def frame_at(self, n: int) -> SensorFrame | None:
         """The frame of instant ``n`` (take frame ``n mod T``); None where the simulated sensor dropped it."""
@@ -649,6 +662,7 @@ def _publish_loop(
     backoff = BACKOFF_FIRST_S
     last_error = ""
     stamps_host_time = bool(getattr(source, "stamps_host_time", False))
+    stamp_host_time = getattr(source, "host_time_ns", time.time_ns)  # a sim source may emulate a PC's clock
     if hasattr(source, "attach"):  # a kinect source orders camera starts across workers over this session
         source.attach(session, should_exit=lambda: lifecycle.should_exit or time.monotonic_ns() >= deadline_ns)
     log.info("capture worker %s: publishing sensor %s (%s) on %s", name, sensor_id, type(source).__name__, key)
@@ -701,7 +715,7 @@ def _publish_loop(
                     if wait_ns < -5_000_000:
                         report.late_publishes += 1
                     if not stamps_host_time:
-                        frame = dataclasses.replace(frame, host_time_ns=time.time_ns())
+                        frame = dataclasses.replace(frame, host_time_ns=stamp_host_time())
                     publisher.put(encode_sensor_frame(frame))
                     report.frames_out += 1
                     window_frames += 1

@@ -42,16 +42,32 @@ class SampleQueue:
     """A zenoh subscriber callback that hands samples to one consumer thread.
 
     Use ``session.declare_subscriber(key, sample_queue)``; the consumer calls :meth:`get`.
+
+    Bounded, so no peer can raise the node's memory for good: a payload over ``max_payload_bytes`` is
+    dropped before it is copied (counted in :attr:`oversized`), and while ``max_items`` samples wait, new
+    ones are dropped (counted in :attr:`dropped`). None: no bound.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, max_items: int | None = None, max_payload_bytes: int | None = None) -> None:
         # queue.Queue, not SimpleQueue: CPython 3.11's SimpleQueue.get(timeout=...) can block forever when a
         # signal (SIGTERM) interrupts it in the main thread and the deadline passes meanwhile.
         self._queue: queue.Queue[Received] = queue.Queue()
+        self.max_items = max_items
+        self.max_payload_bytes = max_payload_bytes
+        self.dropped = 0
+        self.oversized = 0
 
     def __call__(self, sample: Any) -> None:
         # Runs on a zenoh thread: stamp first, copy, hand over; nothing that can raise on bad data.
-        self._queue.put(Received(time.monotonic_ns(), str(sample.key_expr), sample.payload.to_bytes()))
+        arrival_ns = time.monotonic_ns()
+        payload = sample.payload
+        if self.max_payload_bytes is not None and len(payload) > self.max_payload_bytes:
+            self.oversized += 1
+            return
+        if self.max_items is not None and self._queue.qsize() >= self.max_items:
+            self.dropped += 1
+            return
+        self._queue.put(Received(arrival_ns, str(sample.key_expr), payload.to_bytes()))
 
     def get(self, timeout: float | None) -> Received | None:
         """The next sample, waiting up to ``timeout`` seconds (None: forever); None when none came."""

@@ -1,0 +1,109 @@
+"""Several PCs: ``skelfuse router`` (the rig's zenoh router) and ``skelfuse certs`` (its CA and certificates)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from skelfuse.cli.common import (
+    EXIT_OK,
+    add_run_limits,
+    add_zenoh_arguments,
+    print_json,
+    rig_config,
+    run_limits,
+    zenoh_conf,
+)
+from skelfuse.config import RigConfig
+from skelfuse.config.access import ROUTER, access_control, rig_identities
+from skelfuse.service.certs import make_rig_certificates
+from skelfuse.service.lifecycle import Lifecycle
+from skelfuse.service.router import run_router
+
+
+def router_config(args: argparse.Namespace, cfg: RigConfig) -> Any:
+    """The router's session config: the rig's [zenoh] and the flags, in router mode whatever [zenoh] mode
+    says (the rig's clients share the file), so its access control applies."""
+    args.zenoh_mode = "router"
+    return zenoh_conf(args, cfg, identity=ROUTER)
+
+
+def _cmd_router(args: argparse.Namespace) -> int:
+    cfg = rig_config(args)
+    if args.print_access_control:
+        print(json.dumps(access_control(cfg), indent=2))
+        return EXIT_OK
+    conf = router_config(args, cfg)
+    return run_router(conf, lifecycle=Lifecycle("router"), limits=run_limits(args))
+
+
+def _cmd_certs(args: argparse.Namespace) -> int:
+    cfg = rig_config(args)
+    identities = rig_identities(cfg, tuple(args.app))
+    if args.only:
+        identities = [i for i in identities if i in set(args.only)] + [i for i in args.only if i not in identities]
+    print(f"skelfuse certs: rig {cfg.name}: CA and {len(identities)} certificates in {args.output}", flush=True)
+    issued = make_rig_certificates(Path(args.output), cfg.name, identities, sans=tuple(args.san), days=args.days)
+    rows = [
+        {
+            "identity": c.identity,
+            "common_name": c.common_name,
+            "certificate": str(c.certificate),
+            "key": str(c.private_key),
+        }
+        for c in issued
+    ]
+    if args.json:
+        print_json({"directory": str(args.output), "certificates": rows})
+    else:
+        for row in rows:
+            print(f"  {row['identity']:<24} CN {row['common_name']:<40} {row['certificate']}")
+        print(f"  copy ca.pem and each PC's own <identity>.pem/.key to it; keep ca.key off the rig ({args.output})")
+    return EXIT_OK
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``router`` and ``certs``."""
+    router = commands.add_parser(
+        "router",
+        help="run the rig's zenoh router (several PCs: capture PCs, fusion node and apps connect to it)",
+        description="Run zenoh's router from the Python package, with the rig's [zenoh] settings: listen "
+        "endpoints ([zenoh] listen or --zenoh-listen; default tcp/[::]:7447), mutual TLS ([zenoh.tls], "
+        "certificate 'router') and the access control generated from the rig ([zenoh] access_control = true). "
+        "See docs/multi-pc.md.",
+    )
+    router.add_argument("--config", required=True, type=Path, metavar="RIG.toml", help="the rig config")
+    router.add_argument(
+        "--print-access-control",
+        action="store_true",
+        help="print the access control generated from the rig (zenoh's JSON) and exit",
+    )
+    add_run_limits(router, "never")
+    add_zenoh_arguments(router)
+    router.set_defaults(func=_cmd_router)
+
+    certs = commands.add_parser(
+        "certs",
+        help="make the rig's certificate authority and one certificate per capture PC, fusion node, router, app",
+        description="Make (or reuse) the rig's CA in OUTPUT and issue one certificate per identity: router, "
+        "fusion, capture-<host> for every capture PC of the rig ([[sensors]] host, default the sensor id) and "
+        "app-<name> per --app. Point [zenoh.tls] directory at OUTPUT. See docs/multi-pc.md.",
+    )
+    certs.add_argument("--config", required=True, type=Path, metavar="RIG.toml", help="the rig config")
+    certs.add_argument("--output", required=True, type=Path, metavar="DIR", help="directory of the certificates")
+    certs.add_argument("--app", action="append", default=[], metavar="NAME", help="an app certificate (repeatable)")
+    certs.add_argument(
+        "--only", action="append", default=[], metavar="IDENTITY", help="issue only these identities (repeatable)"
+    )
+    certs.add_argument(
+        "--san",
+        action="append",
+        default=[],
+        metavar="NAME_OR_IP",
+        help="extra DNS name or IP address in every certificate (for [zenoh.tls] verify_name; repeatable)",
+    )
+    certs.add_argument("--days", type=int, default=825, help="validity in days (default: %(default)s)")
+    certs.add_argument("--json", action="store_true", help="a JSON summary on stdout")
+    certs.set_defaults(func=_cmd_certs)
