@@ -58,10 +58,13 @@ TABLES: dict[str, tuple[tuple[Any, ...], tuple[str, ...]]] = {
     "[calibration]": (("calibration",), ()),
     "[sync]": (("sync",), ()),
     "[fusion]": (("fusion",), ("params",)),
-    "[zenoh]": (("zenoh",), ("config",)),
+    "[zenoh]": (("zenoh",), ("config", "tls")),
+    "[zenoh.tls]": (("zenoh", "tls"), ()),
     "[node]": (("node",), ()),
     "[rerun]": (("rerun",), ()),
     "[record]": (("record",), ()),
+    "[intake]": (("intake",), ()),
+    "[stream]": (("stream",), ()),
 }
 
 
@@ -81,8 +84,14 @@ def documented_tables() -> dict[str, set[str]]:
     return tables
 
 
+#: tables that need a key of their own before the parser looks at the others
+REQUIRED_KEYS: dict[tuple[Any, ...], dict[str, Any]] = {("zenoh", "tls"): {"directory": "certs"}}
+
+
 def allowed_keys(path: tuple[Any, ...]) -> set[str]:
     data = copy.deepcopy(MINIMAL)
+    if path in REQUIRED_KEYS:
+        data.setdefault(path[0], {})[path[1]] = dict(REQUIRED_KEYS[path])
     target: Any = data
     for step in path:
         if isinstance(target, dict):

@@ -7,7 +7,6 @@ import csv
 import dataclasses
 import math
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -42,17 +41,16 @@ def fused_frames() -> list[FusedFrame]:
     return out
 
 
-def with_orientations(frame: FusedFrame) -> SimpleNamespace:
-    """The frame plus the optional fields issue 10's fused orientations add (a stand-in where FusedFrame lacks
-    them): unit quaternions w,x,y,z with one unknown joint, and a per-joint one-sigma uncertainty."""
+def with_orientations(frame: FusedFrame) -> FusedFrame:
+    """The frame with its optional fields filled: unit quaternions w,x,y,z with one unknown joint, and a
+    per-joint one-sigma position uncertainty."""
     rng = np.random.default_rng([SEED, frame.time_us])
     q = rng.normal(size=(frame.n_persons, N_JOINTS, 4))
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     if frame.n_persons:
         q[0, 3] = np.nan
     std = rng.uniform(2, 40, (frame.n_persons, N_JOINTS))
-    fields = {f.name: getattr(frame, f.name) for f in dataclasses.fields(frame)}
-    return SimpleNamespace(**fields, n_persons=frame.n_persons, orientations=q, position_std=std)
+    return dataclasses.replace(frame, orientations=q, position_std=std)
 
 
 def expected_rows(frames: list) -> list[tuple]:

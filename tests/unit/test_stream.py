@@ -48,16 +48,15 @@ def fused(persons: int = 2, time_us: int = 1_234_567_890_123, seed: int = 0) -> 
     )
 
 
-def with_orientations(frame: FusedFrame) -> SimpleNamespace:
-    """The frame plus the optional fused orientation / uncertainty fields (a stand-in where FusedFrame lacks
-    them)."""
+def with_orientations(frame: FusedFrame) -> FusedFrame:
+    """The frame with its optional fields filled: unit quaternions w,x,y,z with one unknown joint, and a
+    per-joint one-sigma position uncertainty."""
     rng = np.random.default_rng(1)
     q = rng.normal(size=(frame.n_persons, N_JOINTS, 4))
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q[0, 2] = np.nan
     std = rng.uniform(1, 30, (frame.n_persons, N_JOINTS))
-    fields = {f.name: getattr(frame, f.name) for f in dataclasses.fields(frame)}
-    return SimpleNamespace(**fields, n_persons=frame.n_persons, orientations=q, position_std=std)
+    return dataclasses.replace(frame, orientations=q, position_std=std)
 
 
 def decode(dgram: bytes) -> list[tuple[str, list]]:

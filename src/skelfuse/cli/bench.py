@@ -8,7 +8,7 @@ from skelfuse.bench import fusion as bench_fusion
 from skelfuse.bench import latency
 from skelfuse.bench.depth import format_depth_bench, run_depth_bench
 from skelfuse.bench.people import bench_people, format_people_bench
-from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, preset_name, print_json
+from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, SEED, preset_name, print_json
 
 
 def _cmd_bench_fusion(args: argparse.Namespace) -> int:
@@ -152,12 +152,12 @@ def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ign
         "the virtual image is not included (it needs the SDK and a GPU).",
     )
     depth.add_argument(
-        "--people", type=int, nargs="+", default=[1, 2, 3], metavar="N", help="people counts (default: %(default)s)"
+        "--people", type=COUNT, nargs="+", default=[1, 2, 3], metavar="N", help="people counts (default: %(default)s)"
     )
-    depth.add_argument("--sensors", type=int, default=4, help="sensors in the rig (default: %(default)s)")
-    depth.add_argument("--frames", type=int, default=30, help="frames per people count (default: %(default)s)")
-    depth.add_argument("--voxel", type=float, default=15.0, help="voxel edge, mm (default: %(default)s)")
+    depth.add_argument("--sensors", type=COUNT, default=4, help="sensors in the rig (default: %(default)s)")
+    depth.add_argument("--frames", type=COUNT, default=30, help="frames per people count (default: %(default)s)")
+    depth.add_argument("--voxel", type=POSITIVE, default=15.0, help="voxel edge, mm (default: %(default)s)")
     depth.add_argument("--no-icp", action="store_true", help="skip the variant with ICP refinement (the slow one)")
-    depth.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    depth.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
     depth.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     depth.set_defaults(func=_cmd_bench_depth)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.cli.common import EXIT_OK, print_json, rig_config
+from skelfuse.cli.common import COUNT, EXIT_OK, INDEX, POSITIVE, print_json, rig_config
 from skelfuse.config import DEFAULT_PRESET
 from skelfuse.export.bvh import write_bvh_arrays
 from skelfuse.export.c3d import write_c3d
@@ -243,17 +243,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="OUT",
         help="output file (default: the input's name with the format's extension; csv: .csv or .parquet)",
     )
-    export.add_argument("--person", type=int, default=None, metavar="TRACK_ID", help="only this track id")
+    export.add_argument("--person", type=INDEX, default=None, metavar="TRACK_ID", help="only this track id")
     export.add_argument(
         "--min-frames",
-        type=int,
+        type=COUNT,
         default=1,
         metavar="N",
         help="per-person formats: skip tracks shorter than N frames (default: %(default)s, every track)",
     )
     export.add_argument(
         "--rate",
-        type=float,
+        type=POSITIVE,
         default=None,
         metavar="HZ",
         help="per-person formats: the file's frame rate (default: from the timestamps, docs/export.md)",

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from skelfuse.cli.common import (
+    COUNT,
     EXIT_OK,
     add_run_limits,
     add_zenoh_arguments,
@@ -104,6 +105,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="NAME_OR_IP",
         help="extra DNS name or IP address in every certificate (for [zenoh.tls] verify_name; repeatable)",
     )
-    certs.add_argument("--days", type=int, default=825, help="validity in days (default: %(default)s)")
+    certs.add_argument("--days", type=COUNT, default=825, help="validity in days (default: %(default)s)")
     certs.add_argument("--json", action="store_true", help="a JSON summary on stdout")
     certs.set_defaults(func=_cmd_certs)

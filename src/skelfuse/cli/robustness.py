@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from skelfuse.cli.common import EXIT_ATTENTION, EXIT_OK, print_json
+from skelfuse.cli.common import COUNT, EXIT_ATTENTION, EXIT_OK, POSITIVE, print_json
 from skelfuse.eval import robustness
 from skelfuse.progress import note
 
@@ -58,10 +58,10 @@ def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:  #
     parser.add_argument(
         "--families", nargs="+", default=None, metavar="NAME", help="families to run (default: all and mixture)"
     )
-    parser.add_argument("--sensors", nargs="+", type=int, default=None, help="rig sizes (default: 2 3 4)")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: 6; --quick 2)")
-    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS", help="take length (default: 10)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (default: %(default)s)")
+    parser.add_argument("--sensors", nargs="+", type=COUNT, default=None, help="rig sizes (default: 2 3 4)")
+    parser.add_argument("--seeds", type=COUNT, default=None, help="seeds per cell (default: 6; --quick 2)")
+    parser.add_argument("--duration", type=POSITIVE, default=None, metavar="SECONDS", help="take length (default: 10)")
+    parser.add_argument("--workers", type=COUNT, default=2, help="worker processes (default: %(default)s)")
     parser.add_argument("--json", action="store_true", help="print the matrix as JSON")
     parser.add_argument(
         "--strict", action="store_true", help="exit 3 when skelfuse is significantly worse than A1 in any cell"

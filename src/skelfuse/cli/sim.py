@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.common import COUNT, EXIT_OK, POSITIVE, SEED, print_json
 from skelfuse.eval import realism
 from skelfuse.sim.observe import load_profile
 
@@ -52,10 +52,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "Markdown on stdout (the table in docs/simulator.md), or --json.",
     )
     check.add_argument("--profile", type=Path, default=None, help="simulator profile TOML (default: the packaged one)")
-    check.add_argument("--seeds", type=int, default=3, help="two-view takes, one per seed (default: %(default)s)")
-    check.add_argument("--seed", type=int, default=0, help="first seed (default: %(default)s)")
+    check.add_argument("--seeds", type=COUNT, default=3, help="two-view takes, one per seed (default: %(default)s)")
+    check.add_argument("--seed", type=SEED, default=0, help="first seed (default: %(default)s)")
     check.add_argument(
-        "--duration", type=float, default=20.0, metavar="SECONDS", help="length of each take (default: %(default)s)"
+        "--duration", type=POSITIVE, default=20.0, metavar="SECONDS", help="length of each take (default: %(default)s)"
     )
     check.add_argument(
         "--data",

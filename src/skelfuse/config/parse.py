@@ -503,6 +503,8 @@ def _nonempty(value: str) -> str:
     if not value.strip():
         raise ValueError("must not be empty")
     return value
+
+
 def _parse_intake(t: Table | None) -> IntakeConfig:
     if t is None:
         return IntakeConfig()
