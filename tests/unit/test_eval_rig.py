@@ -13,8 +13,16 @@ import pytest
 from test_inputs import _recordings, write_offline_json
 
 from skelfuse.cli import main
-from skelfuse.eval.rig import REPORT_GROUPS, dropout_share, gross_share, median_jitter, velocity_lag
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.eval.rig import (
+    REPORT_GROUPS,
+    _orientation_agreement,
+    dropout_share,
+    gross_share,
+    median_jitter,
+    velocity_lag,
+)
+from skelfuse.fusion.orientation import apply_derived, body_hint_frames, quat_from_rotvec, quat_multiply
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS
 from skelfuse.sim import load_profile, make_gesture, paper_rig, simulate
 
 
@@ -78,3 +86,21 @@ def test_eval_real_on_json_views_with_auto_calibration(three_view_take, tmp_path
         assert row["fused"] <= max(singles), held
     assert (out / "report.md").is_file() and (out / "trace.png").is_file() and (out / "agreement.png").is_file()
     assert "Leave-one-out" in (out / "report.md").read_text()
+
+
+def test_orientation_agreement_measures_the_twist_and_leaves_mirrored_views_out() -> None:
+    """Hand-made: view 0 is the fused frame twisted 10° about each bone, view 1 twisted 40°, view 2 mirrored
+    left/right in every frame (its frames face the other way: left out, NaN)."""
+    truth = make_gesture("walking", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=1).positions
+    fused_quats = apply_derived(body_hint_frames(truth))
+    twist = {0: 10.0, 1: 40.0, 2: 10.0}
+    view_quats = np.stack(
+        [quat_multiply(fused_quats, quat_from_rotvec(np.array([np.radians(twist[i]), 0.0, 0.0]))) for i in range(3)],
+        axis=1,
+    )  # (T, 3, 32, 4): a rotation about the local X axis, which lies along the bone
+    views = np.stack([truth, truth, truth[:, MIRROR]], axis=1)
+    got = _orientation_agreement(fused_quats, truth, view_quats, views, ("a", "b", "c"))
+    for group in ("torso", "arms", "legs"):
+        assert got[group]["a"] == pytest.approx(10.0, abs=1e-6)
+        assert got[group]["b"] == pytest.approx(40.0, abs=1e-6)
+        assert math.isnan(got[group]["c"])

@@ -50,7 +50,9 @@ import numpy as np
 
 from skelfuse.calibration.skeleton import calibrate_from_skeletons
 from skelfuse.calibration.takes import take_arrays
+from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
+from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.recording.inputs import InputTake
@@ -173,6 +175,7 @@ class RigEvalResult:
     mirrored: dict[str, int] = field(default_factory=dict)
     track_ids: dict[str, int] = field(default_factory=dict)
     leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    orientation_agreement: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -196,8 +199,9 @@ def _jsonable(value: Any) -> Any:
 
 def _fused_person(
     take: InputTake, poses: np.ndarray, preset_name: str, views: np.ndarray, eps_mm: float | None
-) -> tuple[np.ndarray, int]:
-    """(T, 32, 3) the fused person nearest the views' pelvis per instant, and how many track ids it had."""
+) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """(T, 32, 3) the fused person nearest the views' pelvis per instant, its (T, 32, 4) orientations (None where
+    the preset makes none), and how many track ids it had."""
     frames = list(
         fuse_recording(
             take,
@@ -210,6 +214,8 @@ def _fused_person(
     if len(frames) != len(views):
         raise DataError(f"internal: {len(frames)} fused instants for {len(views)} grouped instants")
     out = np.full((len(frames), N_JOINTS, 3), np.nan)
+    oriented = any(frame.orientations is not None for frame in frames)
+    quats = np.full((len(frames), N_JOINTS, 4), np.nan) if oriented else None
     ids: set[int] = set()
     with np.errstate(invalid="ignore"):
         anchor = np.nanmedian(views[:, :, J["PELVIS"]], axis=1) if views.size else np.zeros((0, 3))
@@ -221,8 +227,25 @@ def _fused_person(
         d = np.where(np.isfinite(d), d, np.inf)
         k = int(np.argmin(d))
         out[t] = frame.positions[k]
+        if quats is not None and frame.orientations is not None:
+            quats[t] = frame.orientations[k]
         ids.add(int(frame.track_ids[k]))
-    return out, len(ids)
+    return out, quats, len(ids)
+
+
+def _view_orientations(take: InputTake, poses: np.ndarray) -> np.ndarray:
+    """(T, S, 32, 4) each sensor's first body's joint orientations per instant, in the world frame (NaN where the
+    sensor had no body), grouped exactly as :func:`take_arrays` groups the positions."""
+    ids = take.sensor_ids
+    rows = []
+    for group in take.groups(None):
+        row = np.full((len(ids), N_JOINTS, 4), np.nan)
+        for i, sid in enumerate(ids):
+            frame = group.frames.get(sid)
+            if frame is not None and frame.n_bodies:
+                row[i] = frame.orientations[0]
+        rows.append(row)
+    return views_to_world(np.stack(rows) if rows else np.zeros((0, len(ids), N_JOINTS, 4)), poses)
 
 
 def _poses(
@@ -299,10 +322,22 @@ def run_rig_eval(
         presets=list(presets),
     )
     fused_by_preset: dict[str, np.ndarray] = {}
+    quats_by_preset: dict[str, np.ndarray] = {}
     for name in presets:
-        fused_all, n_ids = _fused_person(take, poses, name, world, eps_mm)
+        fused_all, quats_all, n_ids = _fused_person(take, poses, name, world, eps_mm)
         fused_by_preset[name] = fused_all[evaluated]
+        if quats_all is not None:
+            quats_by_preset[name] = quats_all[evaluated]
         result.track_ids[name] = n_ids
+    if quats_by_preset:
+        view_quats = _view_orientations(take, poses)
+        if len(view_quats) != len(world):
+            raise DataError(f"internal: {len(view_quats)} instants of orientations for {len(world)} of positions")
+        view_quats = view_quats[evaluated]
+        for name, quats in quats_by_preset.items():
+            result.orientation_agreement[name] = _orientation_agreement(
+                quats, fused_by_preset[name], view_quats, views, ids
+            )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
     for group, joints in REPORT_GROUPS.items():
         rows: dict[str, dict[str, Any]] = {}
@@ -339,6 +374,28 @@ def run_rig_eval(
     if out_dir is not None:
         result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
     return result
+
+
+def _orientation_agreement(
+    fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """Per group and view, the median twist angle (degrees) between the view's joint orientations and the fused
+    ones, leaving out the frames where that view is left/right mirrored against the fused skeleton (its frames
+    then face the other way). Only the twist about the bone is compared: the swing follows the fused positions
+    by construction (:func:`skelfuse.eval.metrics.view_orientation_agreement`)."""
+    views_quats = view_quats.copy()
+    for i in range(len(ids)):
+        flipped, _ = mirrored_frames(views[:, i], fused[None])
+        views_quats[flipped, i] = np.nan
+    angles = view_orientation_agreement(fused_quats, fused, views_quats, twist_only=True)  # (T, S, 32)
+    out: dict[str, dict[str, float]] = {}
+    for group, joints in REPORT_GROUPS.items():
+        out[group] = {}
+        for i, sid in enumerate(ids):
+            values = angles[:, i][:, joints]
+            values = values[np.isfinite(values)]
+            out[group][sid] = float(np.median(values)) if values.size else math.nan
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- output
@@ -393,6 +450,18 @@ def format_markdown(result: RigEvalResult) -> str:
     lines += ["## Whole skeleton", "", "| output | mirrored frames | track ids |", "|---|---|---|"]
     for label, count in result.mirrored.items():
         lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} |")
+    if result.orientation_agreement:
+        lines += [
+            "",
+            "## Orientation agreement (median twist about the bone between each view and the fused joint, degrees)",
+            "",
+            "| preset | group | " + " | ".join(result.sensors) + " |",
+            "|---|---|" + "---|" * len(result.sensors),
+        ]
+        for name, per_group in result.orientation_agreement.items():
+            for group, per_view in per_group.items():
+                cells = " | ".join(_f(per_view.get(s, math.nan)) for s in result.sensors)
+                lines.append(f"| {name} | {group} | {cells} |")
     if result.leave_one_out:
         lines += ["", "## Leave-one-out (median distance to the held-out view, mm)", ""]
         for name, per_held in result.leave_one_out.items():
