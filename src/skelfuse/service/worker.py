@@ -64,6 +64,7 @@ from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.formats import detect_format
 from skelfuse.sources.kinect import KinectSource
@@ -207,6 +208,10 @@ class SimSource:
         )
         self.column = list(self.observations.sensor_ids).index(sensor_id)
         self.fps = float(cfg.sync.fps)
+        # the views' joint orientations (tracker-like noise around the true ones; NaN where nothing is tracked)
+        orientation_seed = seed if observation_seed is None else observation_seed
+        truth = truth_orientations(self.observations.truth, self.fps, seed=orientation_seed)
+        self.orientations = observe_orientations(self.observations, truth, seed=orientation_seed)[:, self.column]
         self.loop = loop
         self.clock_ns = clock_ns
         self.origin_n = math.ceil(take_origin_ns / (1e9 / self.fps))
@@ -240,7 +245,10 @@ class SimSource:
             positions = np.zeros((0, N_JOINTS, 3), dtype=np.float32)
             confidence = np.zeros((0, N_JOINTS), dtype=np.uint8)
         orientations = np.zeros((len(body_ids), N_JOINTS, 4), dtype=np.float32)
-        orientations[..., 0] = 1.0  # the simulator has no joint orientations: identity quaternions
+        orientations[..., 0] = 1.0  # identity where the simulated tracker gives none (never NaN on the wire)
+        if len(body_ids):
+            seen = np.isfinite(self.orientations[f]).all(axis=-1)
+            orientations[0, seen] = self.orientations[f, seen]
         return SensorFrame(
             sensor_id=self.sensor_id,
             sequence=n,
