@@ -105,7 +105,8 @@ _ANDYJ1_SENTENCE = {
 
 
 def write_andyj1(recording: Recording, path: Path) -> Path:
-    """andyj1's layout: two header rows, 32 rows per body (frames without a body cannot be written)."""
+    """andyj1's layout: two header rows, 32 rows per body (frames without a body cannot be written); the
+    quaternion in w, x, y, z order under a header that says x,y,z,w, as the real files have it."""
     lines = ["Joint positions and orientations", "Body ID,Joint #,x,y,z,x,y,z,w,Confidence Level"]
     for t in range(recording.n_frames):
         for b in np.nonzero(recording.body_ids[t] >= 0)[0]:
@@ -113,7 +114,7 @@ def write_andyj1(recording: Recording, path: Path) -> Path:
                 x, y, z = (repr(float(v)) for v in recording.positions[t, b, j])
                 w, qx, qy, qz = (repr(float(v)) for v in recording.orientations[t, b, j])
                 sentence = _ANDYJ1_SENTENCE[int(recording.confidence[t, b, j])]
-                lines.append(f"{int(recording.body_ids[t, b])},{j},{x},{y},{z},{qx},{qy},{qz},{w},{sentence},")
+                lines.append(f"{int(recording.body_ids[t, b])},{j},{x},{y},{z},{w},{qx},{qy},{qz},{sentence},")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 

@@ -169,9 +169,10 @@ def test_the_node_report_keeps_a_bounded_record() -> None:
 
 def test_track_ids_continue_after_a_restart(rig: RigConfig, sources: dict[str, SimSource]) -> None:
     # Docs say ids are never reused; a restarted node started again at 1.
-    first = time_based_first_track_id(1_764_000_000 * 10**9)
-    later = time_based_first_track_id(1_764_000_060 * 10**9)  # restarted a minute later
-    assert later - first == 60_000  # room for 1000 new tracks per second of the previous run
+    first = time_based_first_track_id(1_770_000_000 * 10**9)
+    later = time_based_first_track_id(1_770_000_060 * 10**9)  # restarted a minute later
+    assert later - first == 60  # room for one new track per second of the previous run
+    assert time_based_first_track_id(3_900_000_000 * 10**9) < 2**31  # a 32-bit int holds ids until 2094 (3.9e9 s: 2093)
     core = FusionCore(rig, first_track_id=later)
     outs = []
     for n in range(100, 104):

@@ -283,7 +283,7 @@ def test_real_sdk_frames_lie_along_our_bones():
 
     rec = load_andyj1_csv(DATA / "extrinsic_calculation" / "joints_sync_1.csv")
     positions = rec.positions[:, 0].astype(np.float64)
-    sdk = rec.orientations[:, 0].astype(np.float64)[..., [1, 2, 3, 0]]  # the file holds w, x, y, z
+    sdk = rec.orientations[:, 0].astype(np.float64)  # w, x, y, z as the file holds them
     swing = orient.quat_angle_deg(sdk, orient.swing_onto_aims(sdk, orient.aim_directions(positions)))
     torso_and_limbs = [
         J[n] for n in ("PELVIS", "SPINE_CHEST", "SHOULDER_LEFT", "ELBOW_RIGHT", "HIP_LEFT", "KNEE_RIGHT")

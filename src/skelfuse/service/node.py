@@ -74,14 +74,20 @@ FUSION_ERROR = "fusion_error"
 """Node-level reject reason: an instant the core could not fuse or encode (logged; the node goes on)."""
 
 
+TRACK_ID_EPOCH_S = 1_767_225_600
+"""2026-01-01T00:00:00Z: the live node's track ids count seconds from here (see time_based_first_track_id)."""
+
+
 def time_based_first_track_id(unix_time_ns: int) -> int:
-    """The first track id of a node started at ``unix_time_ns``: milliseconds since the Unix epoch.
+    """The first track id of a node started at ``unix_time_ns``: whole seconds since 2026-01-01 UTC.
 
     Track ids are never reused, across restarts too: a restarted node starts above every id the previous run
-    could have given, unless that run started more than 1000 tracks per second on average or the clock
-    stepped back. No state file is needed (a replaced PC continues the sequence).
+    could have given, unless that run started more tracks than seconds went by before the restart (a person
+    walking in starts one track) or the clock stepped back. No state file is needed (a replaced PC continues the
+    sequence). The ids stay below 2**31 until 2094, so every consumer can hold them in a 32-bit signed integer
+    (OSC's ``i``, C3D parameters, LSL, most game engines).
     """
-    return max(int(unix_time_ns) // 1_000_000, 1)
+    return max(int(unix_time_ns) // 1_000_000_000 - TRACK_ID_EPOCH_S, 1)
 
 
 def calibration_document(cfg: RigConfig, poses: np.ndarray) -> dict[str, Any]:
