@@ -199,7 +199,8 @@ class VmcSender:
     VMC drives one avatar per receiver port, so one person is sent: ``person`` (a track id) when given, else the
     lowest track id in the frame (the longest-lived person, since ids are never reused). Each track keeps its own
     :class:`VmcPerson` (its armature is built from its own first frames); a track gone from the frame is
-    forgotten. A failed send (no receiver, full buffer) is counted, never raised or waited for.
+    forgotten. ``/VMC/Ext/T`` counts seconds from the first frame this sender saw. A failed send (no receiver,
+    full buffer) is counted, never raised or waited for.
     """
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, person: int | None = None) -> None:
@@ -210,6 +211,7 @@ class VmcSender:
         self.person = person
         self.stats = SendStats()
         self._people: dict[int, VmcPerson] = {}
+        self._first_time_us: int | None = None
 
     def send(self, frame: FusedFrame) -> None:
         present = [int(t) for t in np.asarray(frame.track_ids)]
@@ -219,7 +221,11 @@ class VmcSender:
         wanted = self.person if self.person is not None else (min(present) if present else None)
         if wanted is None or wanted not in present:
             return
-        messages = self._people.setdefault(wanted, VmcPerson()).messages(frame, wanted)
+        if self._first_time_us is None:
+            self._first_time_us = int(frame.time_us)
+        # /VMC/Ext/T is a float32 on the wire: seconds since this sender's first frame, not since 1970
+        time_s = (int(frame.time_us) - self._first_time_us) * 1e-6
+        messages = self._people.setdefault(wanted, VmcPerson()).messages(frame, wanted, time_s=time_s)
         if not messages:  # still building this person's armature
             return
         dgram = vmc_bundle(messages).dgram
