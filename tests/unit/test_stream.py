@@ -359,9 +359,11 @@ def test_vmc_sender_drives_one_avatar_with_the_chosen_person(person: int | None)
     chosen = 4 if person is None else person  # default: the lowest track id
     got, want = [], []
     try:
-        for frame in _two_people(40):
+        frames = _two_people(40)
+        for frame in frames:
             sender.send(frame)
-            messages = expected.messages(frame, chosen)
+            # /VMC/Ext/T: seconds since the sender's first frame
+            messages = expected.messages(frame, chosen, time_s=(frame.time_us - frames[0].time_us) * 1e-6)
             if messages:
                 want.append(vmc_bundle(messages).dgram)
                 got.append(receiver.recv(65536))
