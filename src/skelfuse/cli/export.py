@@ -49,30 +49,23 @@ def _note_retargeting(kind: str, path: Path, error: dict[str, dict[str, float]],
         )
 
 
-def _bvh(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
-    written = write_bvh_arrays(
-        path,
-        _person_times_s(person, take),
-        person.positions,
-        orientations=person.orientations,
-        fps=take.rate_hz,
-        track_id=person.track_id,
-    )
-    _note_retargeting("BVH", written.path, written.retargeting_error(), args)
-    return written.path
+def _armature_writer(write: Callable[..., Any], kind: str) -> PersonWriter:
+    """A per-person writer for a format written from the fitted armature (BVH, FBX): it prints the retargeting
+    error of each file it writes."""
 
+    def writer(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
+        written = write(
+            path,
+            _person_times_s(person, take),
+            person.positions,
+            orientations=person.orientations,
+            fps=take.rate_hz,
+            track_id=person.track_id,
+        )
+        _note_retargeting(kind, written.path, written.retargeting_error(), args)
+        return written.path
 
-def _fbx(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
-    written = write_fbx_arrays(
-        path,
-        _person_times_s(person, take),
-        person.positions,
-        orientations=person.orientations,
-        fps=take.rate_hz,
-        track_id=person.track_id,
-    )
-    _note_retargeting("FBX", written.path, written.retargeting_error(), args)
-    return written.path
+    return writer
 
 
 def _trc(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Namespace) -> Path:
@@ -82,8 +75,8 @@ def _trc(person: PersonTrack, take: TakeTracks, path: Path, args: argparse.Names
 PER_PERSON_FORMATS: dict[str, tuple[str, PersonWriter]] = {
     "c3d": (".c3d", _c3d),
     "trc": (".trc", _trc),
-    "bvh": (".bvh", _bvh),
-    "fbx": (".fbx", _fbx),
+    "bvh": (".bvh", _armature_writer(write_bvh_arrays, "BVH")),
+    "fbx": (".fbx", _armature_writer(write_fbx_arrays, "FBX")),
 }
 """Formats written one file per person: extension and writer."""
 FORMATS = ("csv", *PER_PERSON_FORMATS)

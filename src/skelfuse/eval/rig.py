@@ -58,30 +58,19 @@ from skelfuse.fusion.transform import apply_transform
 from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS, Confidence, J
+from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES, N_JOINTS, Confidence, J
 
 REPORT_GROUPS: dict[str, np.ndarray] = {
-    name: np.array([J[n] for n in members], dtype=np.int64)
-    for name, members in {
-        "torso": (
-            "PELVIS",
-            "SPINE_NAVEL",
-            "SPINE_CHEST",
-            "NECK",
-            "CLAVICLE_LEFT",
-            "CLAVICLE_RIGHT",
-            "SHOULDER_LEFT",
-            "SHOULDER_RIGHT",
-            "HIP_LEFT",
-            "HIP_RIGHT",
-        ),
-        "arms": ("ELBOW_LEFT", "ELBOW_RIGHT", "WRIST_LEFT", "WRIST_RIGHT"),
-        "hands": ("HAND_LEFT", "HAND_RIGHT", "HANDTIP_LEFT", "HANDTIP_RIGHT", "THUMB_LEFT", "THUMB_RIGHT"),
-        "legs": ("KNEE_LEFT", "KNEE_RIGHT", "ANKLE_LEFT", "ANKLE_RIGHT", "FOOT_LEFT", "FOOT_RIGHT"),
-        "head": ("HEAD", "NOSE", "EYE_LEFT", "EYE_RIGHT", "EAR_LEFT", "EAR_RIGHT"),
+    name: np.concatenate([BODY_REGIONS[r] for r in regions])
+    for name, regions in {
+        "torso": ("torso",),
+        "arms": ("arm",),
+        "hands": ("hand",),
+        "legs": ("knee", "foot"),
+        "head": ("head", "face"),
     }.items()
 }
-"""The report's joint groups: every joint in exactly one."""
+"""The report's joint groups, unions of the body regions (schema): every joint in exactly one."""
 
 DEFAULT_PRESETS = ("skelfuse", "A5", "A1")
 GROSS_MM = 100.0
