@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from skelfuse.bench.latency import synthetic_frames
+from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_config, wait_for_port
-from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
 from skelfuse.wire.codec import decode_fused_frame, decode_status, encode_sensor_frame
 
@@ -55,17 +55,7 @@ def write_rig(directory: Path, n_sensors: int) -> Path:
         "status_period_s = 1.0",
         "",
     ]
-    for index, sensor in enumerate(paper_rig(n_sensors)):
-        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
-        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += [
-            "[[sensors]]",
-            f'id = "{sensor.sensor_id}"',
-            'source = "sim"',
-            f"sync = {sync}",
-            f"world_from_sensor = [{rows}]",
-            "",
-        ]
+    lines += sim_sensor_tables(n_sensors)
     path = directory / "rig-soak.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

@@ -30,6 +30,7 @@ import tempfile
 import threading
 import time
 import time as _time
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -266,6 +267,26 @@ TAKE_ORIGIN_DELAY_S = 8.0
 STARTUP_TIMEOUT_S = 90.0
 
 
+def sim_sensor_tables(n_sensors: int, extra: Mapping[int, Sequence[str]] | None = None) -> list[str]:
+    """Rig TOML lines for the paper's ring of ``n_sensors`` simulated sensors: one wired sync chain (the first
+    sensor the master, subordinates 160 µs apart) and the true poses; ``extra[i]`` adds lines to sensor i's table.
+    The demo's rig, the service tests and the soak script all write their sensors with it."""
+    lines: list[str] = []
+    for index, sensor in enumerate(paper_rig(n_sensors)):
+        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
+        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
+        lines += [
+            "[[sensors]]",
+            f'id = "{sensor.sensor_id}"',
+            'source = "sim"',
+            f"sync = {sync}",
+            f"world_from_sensor = [{rows}]",
+            *(extra or {}).get(index, ()),
+            "",
+        ]
+    return lines
+
+
 def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> Path:
     """Write the demo's rig config (the paper's 4-sensor layout, wired sync emulated) into ``directory``.
 
@@ -295,17 +316,7 @@ def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> 
         "multicast_scouting = false",
         "",
     ]
-    for index, sensor in enumerate(paper_rig(n_sensors)):
-        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
-        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += [
-            "[[sensors]]",
-            f'id = "{sensor.sensor_id}"',
-            'source = "sim"',
-            f"sync = {sync}",
-            f"world_from_sensor = [{rows}]",
-            "",
-        ]
+    lines += sim_sensor_tables(n_sensors)
     path = directory / "rig.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

@@ -19,9 +19,9 @@ from conftest import HERE, Lab
 
 from skelfuse.config import load_rig_config
 from skelfuse.config.access import rig_identities
+from skelfuse.demo import sim_sensor_tables
 from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.service.certs import make_rig_certificates
-from skelfuse.sim.rig import paper_rig
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
 pytestmark = pytest.mark.service
@@ -55,18 +55,7 @@ def write_rig(directory: Path) -> Path:
         f'directory = "{directory / "certs"}"',
         "",
     ]
-    for index, sensor in enumerate(paper_rig(2)):
-        sync = '{ role = "master" }' if index == 0 else '{ role = "subordinate", delay_us = 160 }'
-        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += [
-            "[[sensors]]",
-            f'id = "{sensor.sensor_id}"',
-            'source = "sim"',
-            f"sync = {sync}",
-            f'host = "pc-{"ab"[index]}"',
-            f"world_from_sensor = [{rows}]",
-            "",
-        ]
+    lines += sim_sensor_tables(2, {0: ['host = "pc-a"'], 1: ['host = "pc-b"']})
     path = directory / "rig.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
-from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
 
@@ -53,20 +53,11 @@ def write_rig(
         "multicast_scouting = false",
         "",
     ]
-    for index, sensor in enumerate(paper_rig(n_sensors)):
-        sync = '{ role = "master" }' if index == 0 else f'{{ role = "subordinate", delay_us = {160 * index} }}'
-        rows = ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in sensor.world_from_sensor)
-        lines += [
-            "[[sensors]]",
-            f'id = "{sensor.sensor_id}"',
-            'source = "sim"',
-            f"sync = {sync}",
-            f"world_from_sensor = [{rows}]",
-        ]
-        if sim_clocks and index in sim_clocks:
-            offset_ms, jitter_ms = sim_clocks[index]
-            lines += [f"sim = {{ clock_offset_ms = {offset_ms}, clock_jitter_ms = {jitter_ms} }}"]
-        lines += [""]
+    clocks = {
+        index: [f"sim = {{ clock_offset_ms = {offset_ms}, clock_jitter_ms = {jitter_ms} }}"]
+        for index, (offset_ms, jitter_ms) in (sim_clocks or {}).items()
+    }
+    lines += sim_sensor_tables(n_sensors, clocks)
     path = directory / f"rig-{by}.toml"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
