@@ -139,6 +139,35 @@ class SendStats:
     last_error: str = ""
 
 
+class UdpOut:
+    """A non-blocking UDP socket to one receiver that counts what it sends: a failed send (no receiver, a full
+    buffer) is counted in ``stats``, never raised or waited for, so a receiver that is gone never blocks fusion.
+    The OSC and VMC senders share it."""
+
+    def __init__(self, host: str, port: int) -> None:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)  # resolved once, here
+        family, _, _, _, self.address = infos[0]
+        self._socket = socket.socket(family, socket.SOCK_DGRAM)
+        self._socket.setblocking(False)
+        self.stats = SendStats()
+
+    def send(self, dgram: bytes) -> None:
+        try:
+            self._socket.sendto(dgram, self.address)
+        except OSError as exc:  # BlockingIOError (buffer full), ConnectionRefusedError (ICMP from a gone port)
+            self.stats.send_errors += 1
+            self.stats.last_error = f"{type(exc).__name__}: {exc}"
+            return
+        self.stats.datagrams += 1
+        self.stats.bytes += len(dgram)
+
+    def close(self) -> None:
+        self._socket.close()
+
+    def url(self) -> str:
+        return f"udp://{self.address[0]}:{self.address[1]}"
+
+
 class OscSender:
     """Send each fused frame as OSC bundles to ``host:port`` over a non-blocking UDP socket.
 
@@ -157,27 +186,18 @@ class OscSender:
             raise ValueError(f"OSC units must be one of {', '.join(UNIT_SCALE)}, got {units!r}")
         self.prefix = prefix
         self.units = units
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-        family, _, _, _, self.address = infos[0]
-        self._socket = socket.socket(family, socket.SOCK_DGRAM)
-        self._socket.setblocking(False)
-        self.stats = SendStats()
+        self._out = UdpOut(host, port)
+        self.stats = self._out.stats
+        self.address = self._out.address
 
     def send(self, frame: FusedFrame) -> None:
         """Send one frame; a failed send (no receiver, full buffer) is counted, never raised or waited for."""
         for dgram in frame_bundles(frame, counter=self.stats.frames, prefix=self.prefix, units=self.units):
-            try:
-                self._socket.sendto(dgram, self.address)
-            except OSError as exc:  # BlockingIOError (buffer full), ConnectionRefusedError (ICMP from a gone port)
-                self.stats.send_errors += 1
-                self.stats.last_error = f"{type(exc).__name__}: {exc}"
-                continue
-            self.stats.datagrams += 1
-            self.stats.bytes += len(dgram)
+            self._out.send(dgram)
         self.stats.frames += 1
 
     def close(self) -> None:
-        self._socket.close()
+        self._out.close()
 
     def describe(self) -> str:
-        return f"OSC to udp://{self.address[0]}:{self.address[1]}{self.prefix} ({self.units})"
+        return f"OSC to {self._out.url()}{self.prefix} ({self.units})"

@@ -28,7 +28,6 @@ data that turns them.
 
 from __future__ import annotations
 
-import socket
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,7 +40,7 @@ from skelfuse.export.armature import Armature, build_armature, matrix_to_quatern
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import N_JOINTS, PARENTS, J
-from skelfuse.stream.osc import SendStats
+from skelfuse.stream.osc import UdpOut
 
 DEFAULT_PORT = 39539
 """The Marionette's usual UDP port (the spec's convention)."""
@@ -204,12 +203,10 @@ class VmcSender:
     """
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, person: int | None = None) -> None:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-        family, _, _, _, self.address = infos[0]
-        self._socket = socket.socket(family, socket.SOCK_DGRAM)
-        self._socket.setblocking(False)
+        self._out = UdpOut(host, port)
+        self.stats = self._out.stats
+        self.address = self._out.address
         self.person = person
-        self.stats = SendStats()
         self._people: dict[int, VmcPerson] = {}
         self._first_time_us: int | None = None
 
@@ -228,19 +225,11 @@ class VmcSender:
         messages = self._people.setdefault(wanted, VmcPerson()).messages(frame, wanted, time_s=time_s)
         if not messages:  # still building this person's armature
             return
-        dgram = vmc_bundle(messages).dgram
-        try:
-            self._socket.sendto(dgram, self.address)
-        except OSError as exc:  # BlockingIOError (buffer full), ConnectionRefusedError (ICMP from a gone port)
-            self.stats.send_errors += 1
-            self.stats.last_error = f"{type(exc).__name__}: {exc}"
-            return
-        self.stats.datagrams += 1
-        self.stats.bytes += len(dgram)
+        self._out.send(vmc_bundle(messages).dgram)
 
     def close(self) -> None:
-        self._socket.close()
+        self._out.close()
 
     def describe(self) -> str:
         who = f"person {self.person}" if self.person is not None else "the lowest track id"
-        return f"VMC to udp://{self.address[0]}:{self.address[1]} ({who})"
+        return f"VMC to {self._out.url()} ({who})"
