@@ -56,3 +56,23 @@ def test_time_must_increase() -> None:
     assert result.n_persons == 0 and result.positions.shape == (0, 32, 3)
     with pytest.raises(ValueError, match="increase"):
         fuser.step(*empty, 0.0)
+
+
+def test_coasting_tracks_with_orientations_are_fused_when_no_body_is_seen() -> None:
+    """Regression: the orientation gather sized its row map by the highest row a body took, so a frame where
+    two confirmed tracks coast (nobody seen) raised IndexError instead of predicting both."""
+    pose = make_gesture("squat", duration_s=0.2, seed=1).positions[0]  # (J, 3) world mm
+    bodies = np.stack([pose, pose + np.array([2000.0, 0.0, 0.0])])  # two people 2 m apart
+    quats = np.zeros((2, 2, 32, 4))
+    quats[..., 0] = 1.0
+    world = np.stack([bodies, bodies])  # (S=2, B=2, J, 3): both sensors see both
+    conf = np.full((2, 2, 32), 2, np.uint8)
+    fuser = PeopleFuser(preset("skelfuse"), birth_frames=1)
+    seen = fuser.step(world, conf, np.ones((2, 2), bool), 0.0, world_orientations=quats)
+    assert seen.track_ids.tolist() == [1, 2]
+    nobody = fuser.step(
+        np.full_like(world, np.nan), np.zeros_like(conf), np.zeros((2, 2), bool), 1 / 30, world_orientations=quats
+    )
+    assert nobody.track_ids.tolist() == [1, 2] and nobody.coasting.all()
+    np.testing.assert_allclose(nobody.positions, seen.positions, atol=50.0)  # predicted, not lost
+    assert nobody.orientations is not None and np.isfinite(nobody.orientations[:, 0]).all()

@@ -209,7 +209,9 @@ class PeopleFuser:
             state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
         orientations = None
         if world_orientations is not None and self.params.orientations:
-            orientations = gather_orientations(world_orientations, association.person_of_body, rows)
+            orientations = gather_orientations(
+                world_orientations, association.person_of_body, rows, association.n_persons
+            )
         result, new_state = fuse(
             association.candidates[rows], association.confidence[rows], state, self.params, dt_s, orientations
         )
@@ -232,9 +234,12 @@ class PeopleFuser:
         )
 
 
-def gather_orientations(orientations: np.ndarray, person_of_body: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(S, B, J, 4) per-body quaternions -> (P, S, J, 4) for the person rows ``rows`` (NaN: not seen),
-    the same gather as :func:`~skelfuse.fusion.association.gather_candidates` does for positions."""
+def gather_orientations(
+    orientations: np.ndarray, person_of_body: np.ndarray, rows: np.ndarray, n_persons: int
+) -> np.ndarray:
+    """(S, B, J, 4) per-body quaternions -> (P, S, J, 4) for the person rows ``rows`` of the ``n_persons``
+    association rows (NaN: not seen), the same gather as
+    :func:`~skelfuse.fusion.association.gather_candidates` does for positions."""
     orientations = np.asarray(orientations, dtype=np.float64)
     if orientations.shape[:2] != person_of_body.shape or orientations.shape[2:] != (N_JOINTS, 4):
         raise ValueError(
@@ -242,7 +247,7 @@ def gather_orientations(orientations: np.ndarray, person_of_body: np.ndarray, ro
             f"got {orientations.shape}"
         )
     S = person_of_body.shape[0]
-    out_row = np.full(int(person_of_body.max(initial=-1)) + 2, -1, dtype=np.int64)
+    out_row = np.full(int(n_persons) + 1, -1, dtype=np.int64)  # a coasting track's row may exceed every body's
     out_row[rows] = np.arange(rows.size)
     out = np.full((rows.size, S, N_JOINTS, 4), np.nan)
     sensor_idx, body_idx = np.nonzero(person_of_body >= 0)
