@@ -61,8 +61,104 @@ _HINT_BODY = ORIENTATION_HINT[:, 2]
 _DERIVED = np.flatnonzero(~ORIENTATION_AIMED)
 
 
-# ----------------------------------------------------------------------------------------------------------------
-# Quaternion algebra (w, x, y, z), broadcast over leading axes.
+def _product_table(terms: dict[int, list[tuple[int, int, float]]], n_out: int, n_a: int, n_b: int) -> np.ndarray:
+    """(n_a * n_b, n_out) matrix M with ``out = (a outer b).reshape(n_a * n_b) @ M``: a bilinear product as one
+    outer product and one matrix product (2 numpy calls instead of a dozen on the hot path)."""
+    table = np.zeros((n_a * n_b, n_out))
+    for out_index, parts in terms.items():
+        for i, k, sign in parts:
+            table[i * n_b + k, out_index] = sign
+    table.setflags(write=False)
+    return table
+
+
+# Hamilton product a * b: out[i] = sum sign * a[j] * b[k].
+_QMUL = _product_table(
+    {
+        0: [(0, 0, 1.0), (1, 1, -1.0), (2, 2, -1.0), (3, 3, -1.0)],
+        1: [(0, 1, 1.0), (1, 0, 1.0), (2, 3, 1.0), (3, 2, -1.0)],
+        2: [(0, 2, 1.0), (1, 3, -1.0), (2, 0, 1.0), (3, 1, 1.0)],
+        3: [(0, 3, 1.0), (1, 2, 1.0), (2, 1, -1.0), (3, 0, 1.0)],
+    },
+    4,
+    4,
+    4,
+)
+# a * conj(b): the conjugate's signs folded in.
+_QMUL_CONJ = _QMUL * np.array([1.0, -1.0, -1.0, -1.0] * 4)[:, None]
+_QMUL_CONJ.setflags(write=False)
+# The local X axis of q, minus (1, 0, 0): (-2(y^2 + z^2), 2(xy + wz), 2(xz - wy)) from q outer q.
+_XAXIS = _product_table(
+    {0: [(2, 2, -2.0), (3, 3, -2.0)], 1: [(1, 2, 2.0), (0, 3, 2.0)], 2: [(1, 3, 2.0), (0, 2, -2.0)]}, 3, 4, 4
+)
+# u x v from u outer v.
+_CROSS = _product_table(
+    {0: [(1, 2, 1.0), (2, 1, -1.0)], 1: [(2, 0, 1.0), (0, 2, -1.0)], 2: [(0, 1, 1.0), (1, 0, -1.0)]}, 3, 3, 3
+)
+
+
+_DERIVED_SOURCE = ORIENTATION_DERIVED_SOURCE[_DERIVED]
+_DERIVED_OFFSETS = ORIENTATION_DERIVED_OFFSET[_DERIVED][None]  # (1, n_derived, 4)
+
+
+def _einsum_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...k,...k->...", a, b)
+
+
+_dot = getattr(np, "vecdot", _einsum_dot)
+"""Dot product over the last axis, broadcast (``np.vecdot`` from numpy 2.0, one ufunc call; einsum before)."""
+
+
+def _bilinear(a: np.ndarray, b: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``(a outer b) @ table`` over the last axes, a and b of the same leading shape."""
+    outer = a[..., :, None] * b[..., None, :]
+    shape = outer.shape[:-2]
+    return (outer.reshape(-1, table.shape[0]) @ table).reshape(*shape, table.shape[1])
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`quat_multiply` for arrays of the same shape (the hot path's form)."""
+    return _bilinear(a, b, _QMUL)
+
+
+def _normalize(q: np.ndarray) -> np.ndarray:
+    """:func:`quat_normalize` with fewer numpy calls: unit rows, NaN where zero or non-finite."""
+    norm = np.sqrt(_dot(q, q))[..., None]
+    out = np.full(q.shape, np.nan)
+    np.divide(q, norm, out=out, where=(norm > 1e-9) & (norm < np.inf))  # NaN compares False: stays NaN
+    return out
+
+
+def _swing_onto(quats: np.ndarray, aims: np.ndarray) -> np.ndarray:
+    """:func:`swing_onto_aims` for arrays of the same leading shape: the smallest rotation from the quaternion's
+    X axis onto the aim, times the quaternion, normalized."""
+    x_axis = _bilinear(quats, quats, _XAXIS)
+    x_axis[..., 0] += 1.0
+    w = 1.0 + _dot(x_axis, aims)[..., None]
+    swing = np.concatenate([w, _bilinear(x_axis, aims, _CROSS)], axis=-1)
+    opposite = w < 1e-9
+    if opposite.any():  # rare: the X axis points exactly away from the aim
+        swing = np.where(opposite, swing_between(x_axis, aims), swing)
+    return _normalize(_qmul(_normalize(swing), quats))
+
+
+def _rotvec_to_quat(r: np.ndarray) -> np.ndarray:
+    """:func:`quat_from_rotvec` (the hot path's form)."""
+    angle = np.sqrt(_dot(r, r))[..., None]
+    half = 0.5 * angle
+    k = 0.5 - angle * angle / 48.0  # sin(a/2)/a near 0
+    np.divide(np.sin(half), angle, out=k, where=angle > 1e-8)
+    return np.concatenate([np.cos(half), k * r], axis=-1)
+
+
+def _quat_to_rotvec_fast(q: np.ndarray) -> np.ndarray:
+    """:func:`quat_to_rotvec` (the hot path's form)."""
+    sign = np.where(q[..., :1] < 0.0, -1.0, 1.0)
+    vec = q[..., 1:] * sign
+    s = np.sqrt(_dot(vec, vec))[..., None]
+    k = np.full(s.shape, 2.0)
+    np.divide(2.0 * np.arctan2(s, q[..., :1] * sign), s, out=k, where=s > 1e-12)
+    return k * vec
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -370,22 +466,30 @@ def view_consensus(
     quats : (B, 32, 4) the consensus (NaN where no usable view or no aim).
     n_views : (B, 32) int16, the views averaged.
     """
-    aims = aim_directions(positions)  # (B, J, 3)
-    swung = swing_onto_aims(view_quats, aims[:, None])  # (B, S, J, 4)
-    valid = np.asarray(usable, dtype=bool) & np.isfinite(swung).all(axis=-1)
+    return _consensus(aim_directions(positions), view_quats, usable, agree_deg)
+
+
+def _consensus(
+    aims: np.ndarray, view_quats: np.ndarray, usable: np.ndarray, agree_deg: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`view_consensus` from the aims, laid out (B, J, S) so that every step is one batched call."""
+    B, S, J = np.shape(usable)
+    quats = np.asarray(view_quats, dtype=np.float64).transpose(0, 2, 1, 3)  # (B, J, S, 4)
+    swung = _swing_onto(quats, aims[:, :, None, :])  # (B, J, S, 4)
+    valid = np.asarray(usable, dtype=bool).transpose(0, 2, 1) & (swung[..., 0] == swung[..., 0])  # NaN rows
     q = np.where(valid[..., None], swung, 0.0)
-    dots = np.einsum("bsjk,btjk->bjst", q, q)  # (B, J, S, S) |cos(angle/2)| where both valid
+    dots = q @ q.swapaxes(-1, -2)  # (B, J, S, S) |cos(angle/2)| where both valid
     agree = np.abs(dots) >= math.cos(math.radians(agree_deg) / 2.0)
-    agree &= np.transpose(valid, (0, 2, 1))[:, :, :, None] & np.transpose(valid, (0, 2, 1))[:, :, None, :]
-    support = agree.sum(axis=-1)  # (B, J, S)
-    best = np.argmax(support, axis=-1)  # (B, J): lowest index on ties
-    members = np.take_along_axis(agree, best[..., None, None], axis=-2)[..., 0, :]  # (B, J, S)
-    signs = np.sign(np.take_along_axis(dots, best[..., None, None], axis=-2)[..., 0, :])  # align to the winner
-    weights = members * np.where(signs == 0, 1.0, signs)
-    total = np.einsum("bjs,bsjk->bjk", weights, q)
-    n_views = members.sum(axis=-1).astype(np.int16)
+    agree &= valid[..., :, None] & valid[..., None, :]
+    best = np.argmax(agree.sum(axis=-1), axis=-1).ravel()  # (B*J,): lowest index on ties
+    lanes = np.arange(B * J)
+    members = agree.reshape(B * J, S, S)[lanes, best]  # (B*J, S)
+    signs = np.sign(dots.reshape(B * J, S, S)[lanes, best])  # align to the winner
+    weights = np.where(members, np.where(signs == 0, 1.0, signs), 0.0)
+    total = (weights[:, None, :] @ q.reshape(B * J, S, 4))[:, 0].reshape(B, J, 4)
+    n_views = members.sum(axis=-1).astype(np.int16).reshape(B, J)
     # The mean of rotations that share an aim shares it too (up to rounding, ~1e-16): no re-swing needed.
-    return quat_normalize(np.where((n_views > 0)[..., None], total, np.nan)), n_views
+    return _normalize(np.where((n_views > 0)[..., None], total, np.nan)), n_views
 
 
 def fuse_orientations(
@@ -421,37 +525,36 @@ def fuse_orientations(
         measured = np.full((B, N_JOINTS, 4), np.nan)
         n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
     else:
-        measured, n_views = view_consensus(positions, view_quats, usable, params.agree_deg)
-    has_meas = np.isfinite(measured).all(axis=-1)
+        measured, n_views = _consensus(aims, view_quats, usable, params.agree_deg)
+    has_meas = (measured[..., 0] == measured[..., 0])[..., None]  # a consensus row is all finite or all NaN
 
-    prev = quat_normalize(quats_prev)
-    has_prev = np.isfinite(prev).all(axis=-1)
-    omega = np.where(has_prev[..., None], np.asarray(omega_prev, dtype=np.float64), 0.0)
-    predicted = quat_multiply(quat_from_rotvec(omega * dt_s), prev)
-    has_aim = np.isfinite(aims).all(axis=-1)
+    prev = _normalize(np.asarray(quats_prev, dtype=np.float64))
+    has_prev = (prev[..., 0] == prev[..., 0])[..., None]
+    omega = np.where(has_prev, np.asarray(omega_prev, dtype=np.float64), 0.0)
+    predicted = _qmul(_rotvec_to_quat(omega * dt_s), prev)
+    has_aim = (aims[..., 0] == aims[..., 0])[..., None]
     # The prediction follows this frame's bone; without a bone it coasts on the rotation alone.
-    predicted = np.where(has_aim[..., None], swing_onto_aims(predicted, aims), predicted)
+    predicted = np.where(has_aim, _swing_onto(predicted, aims), predicted)
 
     # Correct: the residual rotation from the prediction to the measurement (a twist about the aim).
-    residual = quat_to_rotvec(quat_multiply(measured, quat_conjugate(predicted)))  # (B, J, 3)
+    residual = _quat_to_rotvec_fast(_bilinear(measured, predicted, _QMUL_CONJ))  # (B, J, 3)
     # Both share this frame's aim, so the residual turns about it and the corrected frame keeps it.
-    corrected = quat_normalize(quat_multiply(quat_from_rotvec(params.alpha * residual), predicted))
-    omega_new = omega + (params.beta / dt_s) * residual
+    corrected = _normalize(_qmul(_rotvec_to_quat(params.alpha * residual), predicted))
 
     # The body's own frame, only where neither a view nor the history gives the twist (a track's start).
     need_hint = ~has_meas & ~has_prev & has_aim
-    hint = body_hint_frames(positions) if need_hint.any() else np.full((B, N_JOINTS, 4), np.nan)
-    both = (has_meas & has_prev)[..., None]
-    out = np.where(
-        both,
-        corrected,
-        np.where(has_meas[..., None], measured, np.where(has_prev[..., None], predicted, hint)),
-    )
-    omega_out = np.where(both, omega_new, np.where(has_prev[..., None] & ~has_meas[..., None], omega, 0.0))
+    both = has_meas & has_prev
+    if need_hint.any():
+        fallback = np.where(has_prev, predicted, body_hint_frames(positions))
+    else:
+        fallback = predicted  # where has_prev is False here, has_aim is too (or has_meas): masked below
+    out = np.where(both, corrected, np.where(has_meas, measured, fallback))
+    omega_out = np.where(both, omega + (params.beta / dt_s) * residual, np.where(has_prev & ~has_meas, omega, 0.0))
     # Nothing to aim and nothing to coast on, or no fused position: unknown (and the history is dropped).
-    out = np.where((has_aim | has_prev)[..., None], out, np.nan)
-    out = apply_derived(out)
-    out = np.where(np.isfinite(positions).all(axis=-1)[..., None], out, np.nan)
-    state_quats = np.where(np.isfinite(out), out, 0.0)
+    out = np.where(has_aim | has_prev, out, np.nan)
+    out[..., _DERIVED, :] = _bilinear(out[..., _DERIVED_SOURCE, :], _DERIVED_OFFSETS, _QMUL)  # apply_derived
+    out = np.where(np.isfinite(positions).all(axis=-1, keepdims=True), out, np.nan)
+    state_quats = np.where(out == out, out, 0.0)
     omega_out = np.where(np.isfinite(omega_out), omega_out, 0.0)
-    return OrientationResult(quats=out, n_views=np.where(has_meas, n_views, 0).astype(np.int16)), state_quats, omega_out
+    n_views = np.where(has_meas[..., 0], n_views, 0).astype(np.int16)
+    return OrientationResult(quats=out, n_views=n_views), state_quats, omega_out
