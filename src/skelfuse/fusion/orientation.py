@@ -406,6 +406,22 @@ def views_to_world(orientations: np.ndarray, world_from_sensor: np.ndarray) -> n
     return quat_normalize(quat_multiply(q_cal[:, None, :], quat_normalize(orientations)))
 
 
+def calibration_quat_matrices(world_from_sensor: np.ndarray) -> np.ndarray:
+    """(S, 4, 4) matrices ``M`` with ``q_cal[s] * q == q @ M[s]``: :func:`views_to_world`'s rotation as one
+    matrix product per sensor, computed once per rig (see :func:`views_to_world_by_matrix`)."""
+    T = np.asarray(world_from_sensor, dtype=np.float64)
+    q_cal = quat_from_matrix(T[:, :3, :3])  # (S, 4)
+    return np.einsum("sj,jki->ski", q_cal, _QMUL.reshape(4, 4, 4))
+
+
+def views_to_world_by_matrix(orientations: np.ndarray, matrices: np.ndarray) -> np.ndarray:
+    """:func:`views_to_world` for sensor-major quaternions (S, ..., 4) with :func:`calibration_quat_matrices`:
+    one batched matrix product and one normalization (an all-zero or non-finite quaternion comes out NaN)."""
+    q = np.asarray(orientations, dtype=np.float64)
+    S = q.shape[0]
+    return _normalize((q.reshape(S, -1, 4) @ matrices).reshape(q.shape))
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # The stage.
 

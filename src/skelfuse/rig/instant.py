@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
-from skelfuse.fusion.orientation import views_to_world
+from skelfuse.fusion.orientation import calibration_quat_matrices, views_to_world_by_matrix
 from skelfuse.fusion.people import PeopleFuser, PeopleResult
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.tracks import MAX_TRACKS, TrackParams
@@ -61,30 +61,44 @@ def group_bodies(
     confidence : (S, B, 32) uint8, 0 in empty slots.
     valid : (S, B) bool, the slot holds a body.
     """
-    S = len(sensor_ids)
-    present = [(row, frames[sid]) for row, sid in enumerate(sensor_ids) if sid in frames]
-    B = max((frame.n_bodies for _, frame in present), default=0)
-    positions = np.full((S, B, N_JOINTS, 3), np.nan)
-    confidence = np.zeros((S, B, N_JOINTS), dtype=np.uint8)
-    valid = np.zeros((S, B), dtype=bool)
-    for row, frame in present:
-        n = frame.n_bodies
-        if n:
-            positions[row, :n] = frame.positions
-            confidence[row, :n] = frame.confidence
-            valid[row, :n] = True
+    positions, confidence, valid, _ = _stack_group(frames, sensor_ids, orientations=False)
     return positions, confidence, valid
 
 
 def group_orientations(frames: Mapping[str, SensorFrame], sensor_ids: Sequence[str], n_bodies: int) -> np.ndarray:
     """(S, B, 32, 4) float64 sensor-frame joint quaternions of one instant, stacked like :func:`group_bodies`
     (NaN in empty slots)."""
-    out = np.full((len(sensor_ids), n_bodies, N_JOINTS, 4), np.nan)
-    for row, sid in enumerate(sensor_ids):
-        frame = frames.get(sid)
-        if frame is not None and frame.n_bodies:
-            out[row, : frame.n_bodies] = frame.orientations
-    return out
+    *_, orientations = _stack_group(frames, sensor_ids, orientations=True, n_bodies=n_bodies)
+    assert orientations is not None
+    return orientations
+
+
+def _stack_group(
+    frames: Mapping[str, SensorFrame], sensor_ids: Sequence[str], *, orientations: bool, n_bodies: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`group_bodies` (and the orientations) with one concatenation and one scatter per array, whatever
+    the number of sensors (no per-sensor numpy calls)."""
+    S = len(sensor_ids)
+    present = [(row, frames[sid]) for row, sid in enumerate(sensor_ids) if sid in frames]
+    present = [(row, frame) for row, frame in present if frame.n_bodies]
+    counts = [frame.n_bodies for _, frame in present]
+    B = max(counts, default=0) if n_bodies is None else int(n_bodies)
+    positions = np.full((S, B, N_JOINTS, 3), np.nan)
+    confidence = np.zeros((S, B, N_JOINTS), dtype=np.uint8)
+    valid = np.zeros((S, B), dtype=bool)
+    quats = np.full((S, B, N_JOINTS, 4), np.nan) if orientations else None
+    if present:
+        rows = np.repeat([row for row, _ in present], counts)
+        cols = np.concatenate([_ARANGE[:n] for n in counts]) if len(present) > 1 else _ARANGE[: counts[0]]
+        positions[rows, cols] = np.concatenate([frame.positions for _, frame in present])
+        confidence[rows, cols] = np.concatenate([frame.confidence for _, frame in present])
+        valid[rows, cols] = True
+        if quats is not None:
+            quats[rows, cols] = np.concatenate([frame.orientations for _, frame in present])
+    return positions, confidence, valid, quats
+
+
+_ARANGE = np.arange(1024)  # body slot indices (a frame holds at most wire.codec.MAX_BODIES = 64)
 
 
 def bodies_to_world(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -184,6 +198,7 @@ class GroupFuser:
                 f"{', '.join(self.sensor_ids)}; got {poses.shape}"
             )
         self.world_from_sensor = poses
+        self._orientation_matrices = calibration_quat_matrices(poses)  # the poses' rotations, once
         self.params = params
         self.reset_gap_s = float(reset_gap_s)
         track_params = TrackParams(
@@ -207,11 +222,10 @@ class GroupFuser:
         if reset:
             self.people.reset()
         self.last_time_us = time_us
-        positions, confidence, valid = group_bodies(group.frames, self.sensor_ids)
+        positions, confidence, valid, local = _stack_group(
+            group.frames, self.sensor_ids, orientations=self.params.orientations
+        )
         world = bodies_to_world(self.world_from_sensor, positions)
-        orientations = None
-        if self.params.orientations:
-            local = group_orientations(group.frames, self.sensor_ids, positions.shape[1])
-            orientations = np.swapaxes(views_to_world(np.swapaxes(local, 0, 1), self.world_from_sensor), 0, 1)
+        orientations = None if local is None else views_to_world_by_matrix(local, self._orientation_matrices)
         people = self.people.step(world, confidence, valid, time_us / 1e6, world_orientations=orientations)
         return FusedInstant(fused_frame(people, time_us, self.sensor_ids), world, valid, people, reset)
