@@ -1,25 +1,24 @@
 """Several people: association + tracks + the fusion pipeline, one fused skeleton per confirmed track.
 
 :class:`PeopleFuser` is the stateful front of the multi-person core; every step is pure numpy apart from
-the per-track bookkeeping (a dict of a handful of tracks). Cycle of :meth:`PeopleFuser.step`:
+the track table's row bookkeeping. Cycle of :meth:`PeopleFuser.step`:
 
 1. :meth:`TrackTable.predict <skelfuse.fusion.tracks.TrackTable.predict>`: where every track should be now.
 2. :func:`~skelfuse.fusion.association.associate`: sensor bodies -> person rows (gated Hungarian per
    sensor on the mirror-invariant torso descriptor; leftovers clustered across sensors into new persons).
 3. :meth:`TrackTable.update <skelfuse.fusion.tracks.TrackTable.update>`: hits, misses, births, deaths.
 4. Fusion: the candidates of every *confirmed* live track (seen or coasting) are stacked as rows B = P and
-   fused by ONE :func:`~skelfuse.fusion.pipeline.fuse` call, with the tracks' own FusionState rows stacked
-   the same way and written back afterwards. A track is first fused in the frame it is confirmed (fresh
-   state). A coasting track is fused with all-NaN candidates, so the pipeline's filter predicts it (for at
-   most ``params.max_coast_frames`` frames, NaN afterwards) while the track itself lives up to
-   ``timeout_s``.
+   fused by ONE :func:`~skelfuse.fusion.pipeline.fuse` call on the tracks' own FusionState rows (the table's
+   whole state when every track is confirmed, else its confirmed rows, written back afterwards). A track
+   is first fused in the frame it is confirmed (fresh state, made at its birth). A coasting track is fused
+   with all-NaN candidates, so the pipeline's filter predicts it (for at most ``params.max_coast_frames``
+   frames, NaN afterwards) while the track itself lives up to ``timeout_s``.
 
 Only confirmed tracks appear in the output, in ascending track id order.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -28,7 +27,7 @@ import numpy as np
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM, associate
 from skelfuse.fusion.pipeline import FusionState, fuse, init_state
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.fusion.tracks import TrackParams, TrackTable, stack_states
+from skelfuse.fusion.tracks import TrackParams, TrackTable, put_state, take_state
 from skelfuse.schema.skeleton import N_JOINTS
 
 DEFAULT_DT_S = 1.0 / 30.0
@@ -109,15 +108,11 @@ class PeopleFuser:
         self.duplicate_mm = duplicate_mm
         self.table = TrackTable(track_params)
         self.last_time_s: float | None = None
-        # Last fused state of all output tracks and its 1-row views (one per track, in output order): when
-        # the next frame fuses exactly these tracks, the stacked state is reused instead of re-stacked.
-        self._stacked: tuple[FusionState, list[FusionState]] | None = None
 
     def reset(self) -> None:
         """Forget every track (ids keep counting up: an id is never reused)."""
         self.table = TrackTable(self.track_params, next_id=self.table.next_id, births_refused=self.table.births_refused)
         self.last_time_s = None
-        self._stacked = None
 
     def step(
         self,
@@ -156,7 +151,8 @@ class PeopleFuser:
         self.last_time_s = time_s
         valid = np.asarray(valid, dtype=bool)
 
-        prediction = self.table.predict(time_s)
+        table = self.table
+        prediction = table.predict(time_s)
         association = associate(
             world_positions,
             confidence,
@@ -167,14 +163,14 @@ class PeopleFuser:
             track_gate_mm=prediction.gate_mm,
             duplicate_mm=self.duplicate_mm,
         )
-        row_ids = self.table.update(prediction, association, time_s)
+        row_ids = table.update(prediction, association, time_s, self._init_fusion)
 
-        # Confirmed live tracks, ascending id; their association rows.
-        row_of_id = {int(tid): row for row, tid in enumerate(row_ids) if tid >= 0}
-        out_ids = sorted(tid for tid, t in self.table.tracks.items() if t.confirmed and tid in row_of_id)
+        # Confirmed live tracks (table rows, ascending id) and their association rows.
+        out_idx = np.flatnonzero(table.confirmed)
+        every = out_idx.size == table.n_tracks
+        rows = table.association_rows if every else table.association_rows[out_idx]
         S = valid.shape[0]
-        P = len(out_ids)
-        rows = np.array([row_of_id[tid] for tid in out_ids], dtype=np.int64)
+        P = out_idx.size
         out_row_of_assoc = np.full(association.n_persons + 1, -1, dtype=np.int64)  # last slot: "-1" lookups
         out_row_of_assoc[rows] = np.arange(P)
         assignment = out_row_of_assoc[association.person_of_body]
@@ -194,19 +190,8 @@ class PeopleFuser:
                 assignment=assignment,
                 body_track_ids=body_track_ids,
             )
-        tracks = [self.table.tracks[tid] for tid in out_ids]
-        for track in tracks:
-            if track.fusion is None:
-                track.fusion = init_state(1, self.params)
-        cached = self._stacked
-        if (
-            cached is not None
-            and len(cached[1]) == P
-            and all(t.fusion is row for t, row in zip(tracks, cached[1], strict=True))
-        ):
-            state = cached[0]  # the same tracks in the same order, their states untouched since last frame
-        else:
-            state = stack_states([t.fusion for t in tracks])  # type: ignore[misc]
+        assert table.fusion is not None
+        state = table.fusion if every else take_state(table.fusion, out_idx)
         orientations = None
         if world_orientations is not None and self.params.orientations:
             orientations = gather_orientations(
@@ -215,23 +200,27 @@ class PeopleFuser:
         result, new_state = fuse(
             association.candidates[rows], association.confidence[rows], state, self.params, dt_s, orientations
         )
-        row_states = _row_views(new_state)
-        for track, row_state in zip(tracks, row_states, strict=True):
-            track.fusion = row_state
-        self._stacked = (new_state, row_states)
+        if every:
+            table.fusion = new_state
+        else:
+            put_state(table.fusion, out_idx, new_state)
         return PeopleResult(
             time_s=time_s,
-            track_ids=np.array(out_ids, dtype=np.int64),
+            track_ids=table.ids[out_idx],
             positions=result.positions,
             n_agree=result.n_agree,
             confidence=result.confidence,
             contributors=result.contributors,
-            coasting=np.array([t.coasting(time_s) for t in tracks]),
+            coasting=table.last_seen_s[out_idx] < time_s,
             assignment=assignment,
             body_track_ids=body_track_ids,
             orientations=result.orientations,
             position_std=result.position_std,
         )
+
+    def _init_fusion(self, n_tracks: int) -> FusionState:
+        """The fusion-state rows of new tracks (a track is fused from this state when it is confirmed)."""
+        return init_state(n_tracks, self.params)
 
 
 def gather_orientations(
@@ -255,13 +244,3 @@ def gather_orientations(
     keep = target >= 0
     out[target[keep], sensor_idx[keep]] = orientations[sensor_idx[keep], body_idx[keep]]
     return out
-
-
-def _row_views(state: FusionState) -> list[FusionState]:
-    """The rows of a FusionState as 1-row states that view (not copy) its arrays; :func:`fuse` never mutates
-    a state, so the views stay valid (the counterpart of :func:`~skelfuse.fusion.tracks.split_state`)."""
-    fields = [(f.name, getattr(state, f.name)) for f in dataclasses.fields(FusionState)]
-    return [
-        FusionState(**{name: None if value is None else value[row : row + 1] for name, value in fields})
-        for row in range(state.n_bodies)
-    ]

@@ -1,8 +1,11 @@
 """Persons over time: a table of tracks with stable ids (pure: times are passed in, never read from a clock).
 
-Per-track state lives in one dict keyed by track id (:class:`TrackTable` -> :class:`TrackState` -> the
-track's own row of the pipeline's :class:`~skelfuse.fusion.pipeline.FusionState`), so the previous merged
-position, the realignment anchor and the per-joint filters follow the person, never a row index.
+Per-track state lives in one row per track of :class:`TrackTable`'s arrays (ids, status, descriptor,
+velocity, times, counters, and the track's own row of the pipeline's
+:class:`~skelfuse.fusion.pipeline.FusionState`); rows are compacted when tracks die and appended at births,
+so the previous merged position, the realignment anchor and the per-joint filters follow the person. Every
+step is batched numpy over all tracks: no per-track Python objects on the hot path (:attr:`TrackTable.tracks`
+gives :class:`TrackState` snapshots for inspection).
 
 Cycle, once per frame (driven by :class:`skelfuse.fusion.people.PeopleFuser`):
 
@@ -33,7 +36,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -151,117 +155,146 @@ class Prediction:
     gate_mm: np.ndarray
 
 
-@dataclass
 class TrackTable:
-    """Tracks keyed by id (see the module docstring for the life cycle).
+    """Tracks, one row per live track, oldest (lowest id) first, as arrays (see the module docstring for the
+    life cycle): :meth:`predict` and :meth:`update` are batched numpy over all tracks, no per-track objects.
+
+    Parameters
+    ----------
+    params : TrackParams
+    next_id : the id the next new track gets.
+    births_refused : new persons not tracked because the table held ``params.max_tracks`` tracks.
 
     Attributes
     ----------
-    params : TrackParams
-    tracks : dict[int, TrackState], in creation order (oldest first).
-    next_id : the id the next new track gets.
-    births_refused : new persons not tracked because the table held ``params.max_tracks`` tracks.
+    ids : (K,) int64, track ids, ascending.
+    confirmed : (K,) bool.
+    descriptor : (K, D, 3) float64, torso descriptor at ``last_seen_s`` (world mm; NaN points unknown).
+    velocity : (K, 3) float64, torso velocity, mm/s.
+    born_s, last_seen_s : (K,) float64, s.
+    hits : (K,) int64, consecutive matched frames (reset by a miss).
+    n_frames_seen : (K,) int64, total matched frames.
+    n_sensors_seen : (K,) int64, sensors that saw the person in the last frame (0 while coasting).
+    fusion : FusionState with K rows (each track's own pipeline state), or None; kept row-aligned by
+        :meth:`update` (births get rows from its ``init_fusion``).
+    association_rows : (K,) int64, the association row each track had in the last :meth:`update`.
     """
 
-    params: TrackParams = field(default_factory=TrackParams)
-    tracks: dict[int, TrackState] = field(default_factory=dict)
-    next_id: int = 1
-    births_refused: int = 0
+    def __init__(self, params: TrackParams | None = None, *, next_id: int = 1, births_refused: int = 0) -> None:
+        self.params = TrackParams() if params is None else params
+        self.next_id = int(next_id)
+        self.births_refused = int(births_refused)
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.confirmed = np.zeros(0, dtype=bool)
+        self.descriptor = np.zeros((0, N_DESCRIPTOR, 3))
+        self.velocity = np.zeros((0, 3))
+        self.born_s = np.zeros(0)
+        self.last_seen_s = np.zeros(0)
+        self.hits = np.zeros(0, dtype=np.int64)
+        self.n_frames_seen = np.zeros(0, dtype=np.int64)
+        self.n_sensors_seen = np.zeros(0, dtype=np.int64)
+        self.fusion: FusionState | None = None
+        self.association_rows = np.zeros(0, dtype=np.int64)
+
+    @property
+    def n_tracks(self) -> int:
+        return int(self.ids.size)
+
+    @property
+    def tracks(self) -> dict[int, TrackState]:
+        """A snapshot of the tracks as :class:`TrackState` records keyed by id, oldest first (for inspection;
+        the table itself holds arrays)."""
+        out = {}
+        for row, track_id in enumerate(self.ids.tolist()):
+            fusion = None if self.fusion is None else take_state(self.fusion, slice(row, row + 1))
+            out[track_id] = TrackState(
+                track_id=track_id,
+                status=CONFIRMED if self.confirmed[row] else TENTATIVE,
+                descriptor=self.descriptor[row].copy(),
+                velocity=self.velocity[row].copy(),
+                born_s=float(self.born_s[row]),
+                last_seen_s=float(self.last_seen_s[row]),
+                hits=int(self.hits[row]),
+                n_frames_seen=int(self.n_frames_seen[row]),
+                n_sensors_seen=int(self.n_sensors_seen[row]),
+                fusion=fusion,
+            )
+        return out
 
     def predict(self, time_s: float) -> Prediction:
         """Every track's predicted descriptor and gate at ``time_s``."""
         p = self.params
-        states = list(self.tracks.values())
-        K = len(states)
-        if K == 0:
-            return Prediction(
-                np.zeros(0, dtype=np.int64), np.zeros((0, N_DESCRIPTOR, 3)), np.zeros(0, bool), np.zeros(0)
-            )
-        unseen = np.array([max(time_s - t.last_seen_s, 0.0) for t in states])
+        unseen = np.maximum(time_s - self.last_seen_s, 0.0)
         ahead = np.minimum(unseen, p.max_predict_s)
-        base = np.stack([t.descriptor for t in states])  # (K, D, 3)
-        velocity = np.stack([t.velocity for t in states])  # (K, 3)
-        descriptors = base + (ahead[:, None] * velocity)[:, None, :]  # x~ = x + v dt
+        descriptors = self.descriptor + (ahead[:, None] * self.velocity)[:, None, :]  # x~ = x + v dt
         # The gate widens only for the time beyond one ordinary frame interval without a match.
         gate = np.minimum(p.gate_mm + p.gate_growth_mm_s * np.maximum(unseen - 0.05, 0.0), p.max_gate_mm)
-        return Prediction(
-            track_ids=np.array([t.track_id for t in states], dtype=np.int64),
-            descriptors=descriptors,
-            confirmed=np.array([t.confirmed for t in states]),
-            gate_mm=gate,
-        )
+        return Prediction(track_ids=self.ids, descriptors=descriptors, confirmed=self.confirmed.copy(), gate_mm=gate)
 
-    def update(self, prediction: Prediction, association: Association, time_s: float) -> np.ndarray:
+    def update(
+        self,
+        prediction: Prediction,
+        association: Association,
+        time_s: float,
+        init_fusion: Callable[[int], FusionState] | None = None,
+    ) -> np.ndarray:
         """Apply one frame's association; returns the track id of every association row (-1: deleted).
 
         Rows ``0..K-1`` are the predicted tracks (same order), rows ``K..`` the new clusters, which become
-        tentative tracks (confirmed at once when ``birth_frames == 1``).
+        tentative tracks (confirmed at once when ``birth_frames == 1``). ``init_fusion(n)``, when given, makes
+        the fusion-state rows of the n new tracks (their :attr:`fusion` rows before they are first fused).
         """
         p = self.params
+        time_s = float(time_s)
         K = prediction.track_ids.size
-        if association.n_tracks != K:
-            raise ValueError(f"association was made for {association.n_tracks} tracks, the prediction holds {K}")
+        if association.n_tracks != K or K != self.n_tracks:
+            raise ValueError(
+                f"association was made for {association.n_tracks} tracks, the prediction holds {K}, "
+                f"the table {self.n_tracks}"
+            )
+        n_seen = association.n_sensors_seen
+        hit = n_seen[:K] > 0
+        # A miss: the streak ends; a tentative track, or a confirmed one unseen past the timeout, dies.
+        dead = ~hit & (~self.confirmed | (time_s - self.last_seen_s > p.timeout_s))
         row_ids = np.full(association.n_persons, -1, dtype=np.int64)
-        n_seen_rows = association.n_sensors_seen.tolist()
-        hit_rows: list[int] = []
-        hit_tracks: list[TrackState] = []
-        for row, track_id in enumerate(prediction.track_ids.tolist()):  # bookkeeping over a handful of tracks
-            track = self.tracks[track_id]
-            n_seen = n_seen_rows[row]
-            if n_seen > 0:
-                hit_rows.append(row)
-                hit_tracks.append(track)
-                row_ids[row] = track_id
-            else:
-                track.hits = 0
-                track.n_sensors_seen = 0
-                if not track.confirmed or time_s - track.last_seen_s > p.timeout_s:
-                    del self.tracks[track_id]
-                else:
-                    row_ids[row] = track_id
-        if hit_tracks:
-            self._hit_many(
-                hit_tracks,
-                prediction.descriptors[hit_rows],
-                association.descriptors[hit_rows],
-                [n_seen_rows[row] for row in hit_rows],
-                time_s,
+        row_ids[:K] = np.where(dead, -1, self.ids)
+        if hit.any():
+            self._hit(hit, prediction.descriptors, association.descriptors[:K], n_seen[:K], time_s)
+        self.hits[~hit] = 0
+        self.n_sensors_seen[~hit] = 0
+        kept = np.flatnonzero(~dead)
+        if kept.size < K:
+            self._take(kept)
+        n_new = association.n_persons - K
+        n_born = min(n_new, max(int(p.max_tracks) - kept.size, 0))
+        self.births_refused += n_new - n_born  # row_ids of the refused rows stay -1: their bodies are not tracked
+        self.association_rows = np.concatenate([kept, K + np.arange(n_born)]) if n_born else kept
+        if n_born:
+            born = np.arange(self.next_id, self.next_id + n_born, dtype=np.int64)
+            self.next_id += n_born
+            row_ids[K : K + n_born] = born
+            new = slice(K, K + n_born)
+            self._append(
+                born,
+                np.full(n_born, p.birth_frames <= 1),
+                association.descriptors[new],
+                np.full(n_born, time_s),
+                n_seen[new].astype(np.int64),
+                None if init_fusion is None else init_fusion(n_born),
             )
-        room = max(int(p.max_tracks) - len(self.tracks), 0)
-        for row in range(K, association.n_persons):
-            if room == 0:
-                self.births_refused += 1  # row_ids[row] stays -1: its bodies are not tracked
-                continue
-            room -= 1
-            track_id = self.next_id
-            self.next_id += 1
-            self.tracks[track_id] = TrackState(
-                track_id=track_id,
-                status=CONFIRMED if p.birth_frames <= 1 else TENTATIVE,
-                descriptor=association.descriptors[row].copy(),
-                velocity=np.zeros(3),
-                born_s=float(time_s),
-                last_seen_s=float(time_s),
-                n_sensors_seen=int(association.n_sensors_seen[row]),
-            )
-            row_ids[row] = track_id
         return row_ids
 
-    def _hit_many(
-        self,
-        tracks: list[TrackState],
-        predicted: np.ndarray,
-        measured: np.ndarray,
-        n_seen: list[int],
-        time_s: float,
+    def _hit(
+        self, hit: np.ndarray, predicted: np.ndarray, measured: np.ndarray, n_seen: np.ndarray, time_s: float
     ) -> None:
-        """Update the tracks that were seen this frame: velocity from the mean step of their common
-        descriptor points (smoothed, capped at ``max_speed_mm_s``), the descriptor (a point the sensors
+        """Update the tracks that were seen this frame (rows ``hit``): velocity from the mean step of their
+        common descriptor points (smoothed, capped at ``max_speed_mm_s``), the descriptor (a point the sensors
         miss keeps its prediction), and the counters that confirm a tentative track."""
         p = self.params
-        time_s = float(time_s)
-        dt = np.array([time_s - t.last_seen_s for t in tracks])  # (H,)
-        step = measured - np.stack([t.descriptor for t in tracks])  # (H, D, 3)
+        idx = np.flatnonzero(hit)
+        measured = measured[idx]
+        dt = time_s - self.last_seen_s[idx]  # (H,)
+        step = measured - self.descriptor[idx]  # (H, D, 3)
         ok = np.isfinite(step).all(axis=-1)  # (H, D)
         count = ok.sum(axis=-1)
         moved = (dt > 0) & (count > 0)
@@ -270,24 +303,83 @@ class TrackTable:
             # as step[ok].mean(axis=0) / dt does.
             total = np.where(ok[..., None], step, 0.0).sum(axis=-2)  # (H, 3)
             v_meas = total / np.maximum(count, 1)[:, None] / np.where(moved, dt, 1.0)[:, None]
-            old_v = np.stack([t.velocity for t in tracks])
-            smoothed = p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * old_v
-            first = np.array([t.n_frames_seen < 2 for t in tracks])
-            v = np.where(first[:, None], v_meas, smoothed)
-            for i in np.nonzero(moved)[0].tolist():
-                row = v[i]
-                speed = math.sqrt(float(row.dot(row)))
-                tracks[i].velocity = row * min(1.0, p.max_speed_mm_s / speed) if speed > 0 else row
+            smoothed = p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * self.velocity[idx]
+            v = np.where((self.n_frames_seen[idx] < 2)[:, None], v_meas, smoothed)
+            speed = np.sqrt(np.einsum("hk,hk->h", v, v))
+            with np.errstate(divide="ignore"):
+                scale = np.where(speed > 0, np.minimum(1.0, p.max_speed_mm_s / speed), 1.0)
+            self.velocity[idx[moved]] = (v * scale[:, None])[moved]
         # A point the sensors miss this frame keeps its prediction.
-        descriptors = np.where(np.isfinite(measured), measured, predicted)
-        for i, track in enumerate(tracks):
-            track.descriptor = descriptors[i]
-            track.last_seen_s = time_s
-            track.hits += 1
-            track.n_frames_seen += 1
-            track.n_sensors_seen = n_seen[i]
-            if not track.confirmed and track.hits >= p.birth_frames:
-                track.status = CONFIRMED
+        self.descriptor[idx] = np.where(np.isfinite(measured), measured, predicted[idx])
+        self.last_seen_s[idx] = time_s
+        self.hits[idx] += 1
+        self.n_frames_seen[idx] += 1
+        self.n_sensors_seen[idx] = n_seen[idx]
+        self.confirmed[idx] |= self.hits[idx] >= p.birth_frames
+
+    def _take(self, rows: np.ndarray) -> None:
+        for name in _ROW_FIELDS:
+            setattr(self, name, getattr(self, name)[rows])
+        if self.fusion is not None:
+            self.fusion = take_state(self.fusion, rows)
+
+    def _append(
+        self,
+        ids: np.ndarray,
+        confirmed: np.ndarray,
+        descriptor: np.ndarray,
+        time_s: np.ndarray,
+        n_seen: np.ndarray,
+        fusion: FusionState | None,
+    ) -> None:
+        n = ids.size
+        ones = np.ones(n, dtype=np.int64)
+        new = {
+            "ids": ids,
+            "confirmed": confirmed,
+            "descriptor": descriptor.copy(),
+            "velocity": np.zeros((n, 3)),
+            "born_s": time_s,
+            "last_seen_s": time_s.copy(),
+            "hits": ones,
+            "n_frames_seen": ones.copy(),
+            "n_sensors_seen": n_seen,
+        }
+        for name in _ROW_FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
+        if fusion is not None:
+            self.fusion = fusion if self.fusion is None else stack_states([self.fusion, fusion])
+
+
+_ROW_FIELDS = (
+    "ids",
+    "confirmed",
+    "descriptor",
+    "velocity",
+    "born_s",
+    "last_seen_s",
+    "hits",
+    "n_frames_seen",
+    "n_sensors_seen",
+)
+
+
+def take_state(state: FusionState, rows: np.ndarray | slice) -> FusionState:
+    """The rows ``rows`` of a FusionState (an index array: new arrays, in that order; a slice: views)."""
+    return FusionState(
+        **{
+            f.name: None if getattr(state, f.name) is None else getattr(state, f.name)[rows]
+            for f in dataclasses.fields(FusionState)
+        }
+    )
+
+
+def put_state(state: FusionState, rows: np.ndarray, values: FusionState) -> None:
+    """Write the rows of ``values`` into the rows ``rows`` of ``state`` (in place; both hold the same fields)."""
+    for f in dataclasses.fields(FusionState):
+        target = getattr(state, f.name)
+        if target is not None:
+            target[rows] = getattr(values, f.name)
 
 
 def stack_states(states: list[FusionState]) -> FusionState:
