@@ -489,9 +489,13 @@ def _consensus(
     aims: np.ndarray, view_quats: np.ndarray, usable: np.ndarray, agree_deg: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`view_consensus` from the aims, laid out (B, J, S) so that every step is one batched call."""
-    B, S, J = np.shape(usable)
     quats = np.asarray(view_quats, dtype=np.float64).transpose(0, 2, 1, 3)  # (B, J, S, 4)
-    swung = _swing_onto(quats, aims[:, :, None, :])  # (B, J, S, 4)
+    return _consensus_of_swung(_swing_onto(quats, aims[:, :, None, :]), usable, agree_deg)
+
+
+def _consensus_of_swung(swung: np.ndarray, usable: np.ndarray, agree_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 2-3 on the views already swung onto the aims, (B, J, S, 4); ``usable`` (B, S, J)."""
+    B, S, J = np.shape(usable)
     valid = np.asarray(usable, dtype=bool).transpose(0, 2, 1) & (swung[..., 0] == swung[..., 0])  # NaN rows
     q = np.where(valid[..., None], swung, 0.0)
     dots = q @ q.swapaxes(-1, -2)  # (B, J, S, S) |cos(angle/2)| where both valid
@@ -537,20 +541,24 @@ def fuse_orientations(
     positions = np.asarray(positions, dtype=np.float64)
     B = positions.shape[0]
     aims = aim_directions(positions)
-    if view_quats is None or usable is None or np.asarray(view_quats).shape[1] == 0:
-        measured = np.full((B, N_JOINTS, 4), np.nan)
-        n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
-    else:
-        measured, n_views = _consensus(aims, view_quats, usable, params.agree_deg)
-    has_meas = (measured[..., 0] == measured[..., 0])[..., None]  # a consensus row is all finite or all NaN
-
     prev = _normalize(np.asarray(quats_prev, dtype=np.float64))
     has_prev = (prev[..., 0] == prev[..., 0])[..., None]
     omega = np.where(has_prev, np.asarray(omega_prev, dtype=np.float64), 0.0)
     predicted = _qmul(_rotvec_to_quat(omega * dt_s), prev)
     has_aim = (aims[..., 0] == aims[..., 0])[..., None]
+    if view_quats is None or usable is None or np.asarray(view_quats).shape[1] == 0:
+        measured = np.full((B, N_JOINTS, 4), np.nan)
+        n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
+        swung_prediction = _swing_onto(predicted, aims)
+    else:
+        # The views and the prediction swung onto this frame's bones in one call: (B, J, S + 1, 4).
+        views = np.asarray(view_quats, dtype=np.float64).transpose(0, 2, 1, 3)
+        swung = _swing_onto(np.concatenate([views, predicted[:, :, None]], axis=2), aims[:, :, None, :])
+        measured, n_views = _consensus_of_swung(swung[:, :, :-1], usable, params.agree_deg)
+        swung_prediction = swung[:, :, -1]
+    has_meas = (measured[..., 0] == measured[..., 0])[..., None]  # a consensus row is all finite or all NaN
     # The prediction follows this frame's bone; without a bone it coasts on the rotation alone.
-    predicted = np.where(has_aim, _swing_onto(predicted, aims), predicted)
+    predicted = np.where(has_aim, swung_prediction, predicted)
 
     # Correct: the residual rotation from the prediction to the measurement (a twist about the aim).
     residual = _quat_to_rotvec_fast(_bilinear(measured, predicted, _QMUL_CONJ))  # (B, J, 3)
