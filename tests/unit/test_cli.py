@@ -28,6 +28,11 @@ from skelfuse.schema.errors import DataError
             id="bench-cases",
         ),
         pytest.param(
+            ["bench", "instant", "--cases", "4x1", "16X6", "--baseline", "base/src", "--rounds", "2"],
+            {"cases": [(4, 1), (16, 6)], "baseline": Path("base/src"), "rounds": 2, "frames": 300},
+            id="bench-instant",
+        ),
+        pytest.param(
             ["demo", "--duration", "3", "--rrd", "d.rrd", "--no-realtime"],
             {"duration": 3.0, "rrd": Path("d.rrd"), "realtime": False, "gesture": "walking"},
             id="demo-rrd",

@@ -70,6 +70,8 @@ class LatencyCase:
     fusion_p50_ms: float | None
     fusion_p99_ms: float | None
     sustained: bool
+    load_before: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    load_after: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -169,6 +171,7 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
 
     import zenoh
 
+    load_before = os.getloadavg()  # the machine's load (1, 5, 15 min), recorded with every case
     config = _rig_toml(workdir, n_sensors)
     port = free_port()
     node = subprocess.Popen(
@@ -299,7 +302,13 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
         fusion_p50_ms=fusion.get("p50"),
         fusion_p99_ms=fusion.get("p99"),
         sustained=sustained,
+        load_before=_rounded(load_before),
+        load_after=_rounded(os.getloadavg()),
     )
+
+
+def _rounded(load: tuple[float, float, float]) -> tuple[float, float, float]:
+    return (round(load[0], 2), round(load[1], 2), round(load[2], 2))
 
 
 def run_latency_bench(
@@ -340,20 +349,23 @@ def format_table(result: LatencyResult) -> str:
         f"Latency over zenoh on loopback, {FPS:g} Hz, {result.duration_s:g} s per case (ms):",
         "",
         "| sensors | instants | fused | complete | e2e p50 | e2e p99 | e2e max | node p50 | node p99 | node max "
-        "| fusion p50 | fusion p99 | sustained |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
+        "| fusion p50 | fusion p99 | sustained | load 1 min |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|",
     ]
     for c in [*result.cases, *result.sweep]:
         lines.append(
             f"| {c.n_sensors} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
             f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
             f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
-            f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} |"
+            f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} "
+            f"| {c.load_before[0]:.2f}-{c.load_after[0]:.2f} |"
         )
     lines += [
         "",
         "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",
         "node: the fusion node's own added latency (completing frame in -> fused frame out), from its status.",
+        f"load 1 min: os.getloadavg() before-after each case, on {os.cpu_count()} CPUs (a shared machine inflates "
+        "every figure).",
         f"Largest sensor count sustained at {FPS:g} Hz: {result.max_sustained_sensors or 'none measured'}.",
         f"Targets: node adds <= {TARGET_NODE_ADDED_P99_MS:g} ms p99; e2e p99 <= {TARGET_E2E_P99_MS:g} ms "
         f"for {TARGET_E2E_SENSORS} sensors.",

@@ -9,6 +9,7 @@ bookkeeping and the batched fusion all do their real work. Warm-up frames first,
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Any
 
@@ -37,7 +38,8 @@ def bench_people(
     -------
     dict with n_sensors, n_people, n_frames (timed), preset, p50_ms, p99_ms, max_ms, budget_ms (30 Hz),
     margin_p99 (budget / p99: how many times the step fits in a frame), mean_persons_out (confirmed
-    tracks output per frame) and track_ids (distinct ids seen; n_people means no fragmentation).
+    tracks output per frame), track_ids (distinct ids seen; n_people means no fragmentation), and the
+    machine's load (``os.getloadavg``) before and after the timed frames, with its CPU count.
     """
 
     total = int(n_frames) + int(warmup)
@@ -45,6 +47,7 @@ def bench_people(
     observations = simulate_scenario(scenario, load_profile(), seed=seed)
     world = observations.positions_world(calibrated=True)
     fuser = PeopleFuser(preset(preset_name))
+    load_before = os.getloadavg()
     samples = []
     persons = []
     ids: set[int] = set()
@@ -70,6 +73,9 @@ def bench_people(
         "margin_p99": FRAME_BUDGET_MS / p99 if p99 > 0 else float("inf"),
         "mean_persons_out": float(np.mean(persons)),
         "track_ids": len(ids),
+        "load_before": [round(v, 2) for v in load_before],
+        "load_after": [round(v, 2) for v in os.getloadavg()],
+        "cpus": os.cpu_count(),
     }
 
 
@@ -81,5 +87,7 @@ def format_people_bench(result: dict[str, Any]) -> str:
         f"  p50 {result['p50_ms']:.3f} ms, p99 {result['p99_ms']:.3f} ms, max {result['max_ms']:.3f} ms per frame; "
         f"the {result['budget_ms']:.1f} ms frame budget holds the p99 {result['margin_p99']:.1f} times.\n"
         f"  {result['mean_persons_out']:.2f} persons out per frame on average, {result['track_ids']} distinct "
-        "track ids (equal to the number of people means no fragmentation)."
+        "track ids (equal to the number of people means no fragmentation).\n"
+        f"  Machine load (1 min) {result['load_before'][0]:.2f} before, {result['load_after'][0]:.2f} after, on "
+        f"{result['cpus']} CPUs."
     )

@@ -1,12 +1,14 @@
-"""``skelfuse bench fusion|people|latency|depth``: speed against a reference measured in the same run."""
+"""``skelfuse bench fusion|people|instant|latency|depth``: speed against a reference measured in the same run."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from skelfuse.bench import fusion as bench_fusion
 from skelfuse.bench import latency
 from skelfuse.bench.depth import format_depth_bench, run_depth_bench
+from skelfuse.bench.instant import format_instant_bench, run_instant_bench
 from skelfuse.bench.people import bench_people, format_people_bench
 from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, SEED, preset_name, print_json
 
@@ -33,6 +35,17 @@ def _cmd_bench_people(args: argparse.Namespace) -> int:
         print_json(result)
     else:
         print(format_people_bench(result))
+    return EXIT_OK
+
+
+def _cmd_bench_instant(args: argparse.Namespace) -> int:
+    result = run_instant_bench(
+        args.cases, n_frames=args.frames, rounds=args.rounds, baseline=args.baseline, progress=not args.json
+    )
+    if args.json:
+        print_json(result)
+    else:
+        print(format_instant_bench(result))
     return EXIT_OK
 
 
@@ -70,6 +83,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
     _add_fusion(bench_commands)
     _add_people(bench_commands)
+    _add_instant(bench_commands)
     _add_latency(bench_commands)
     _add_depth(bench_commands)
 
@@ -109,6 +123,42 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     people.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
     people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     people.set_defaults(func=_cmd_bench_people)
+
+
+def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    instant = bench_commands.add_parser(
+        "instant",
+        help="time per instant of the whole per-instant path (group, associate, tracks, fuse, encode), "
+        "optionally against another source tree in the same run",
+        description="Time the node's per-instant path (GroupFuser.step + encode_fused_frame, preset skelfuse with "
+        "orientations and position_std) on a simulated crowd, every run in a fresh subprocess with the machine's "
+        "load recorded. With --baseline SRC (the src/ folder of another checkout, e.g. a worktree at the starting "
+        "revision) the same runs alternate between SRC and this tree and the ratio baseline / current is "
+        "reported per case.",
+    )
+    instant.add_argument(
+        "--cases",
+        type=_sensors_by_people,
+        nargs="+",
+        default=[(4, 1), (16, 6)],
+        metavar="SxP",
+        help="sensors x people, e.g. 4x1 16x6 (default: 4x1 16x6)",
+    )
+    instant.add_argument("--frames", type=COUNT, default=300, help="timed instants per run (default: %(default)s)")
+    instant.add_argument("--rounds", type=COUNT, default=3, help="runs per case and tree (default: %(default)s)")
+    instant.add_argument(
+        "--baseline", type=Path, default=None, metavar="SRC", help="src/ folder of the checkout to compare against"
+    )
+    instant.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    instant.set_defaults(func=_cmd_bench_instant)
+
+
+def _sensors_by_people(text: str) -> tuple[int, int]:
+    """``"16x6"`` -> (16, 6)."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"expected SENSORSxPEOPLE with positive counts, e.g. 16x6; got {text!r}")
+    return int(parts[0]), int(parts[1])
 
 
 def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -1,0 +1,198 @@
+"""``skelfuse bench instant``: time of the whole per-instant path, against another source tree in the same run.
+
+The per-instant path is what the fusion node does with one complete instant: a
+:class:`~skelfuse.rig.grouping.FrameGroup` of the sensors' frames through
+:meth:`GroupFuser.step <skelfuse.rig.instant.GroupFuser.step>` (stack the bodies, to the world, joint
+orientations to the world, associate, update the tracks, fuse with the orientation and uncertainty stages) and
+:func:`~skelfuse.wire.codec.encode_fused_frame`. Input: the crowd simulator
+(:func:`skelfuse.sim.crowd.crowd_scenario`) seen by N sensors, with joint orientations from each view's own
+bones (:func:`skelfuse.fusion.orientation.body_hint_frames`) turned by 0.15 rad of noise, so every stage runs.
+
+Each timing runs in a fresh subprocess: this file executed as a script with ``PYTHONPATH`` set to a source tree
+(it imports only interfaces that have been stable since orientations landed), so ``--baseline SRC`` times an
+older checkout of skelfuse (e.g. a worktree at the starting revision) on the same inputs, alternating
+baseline / current run by run, and the ratio is taken per round (then the median over rounds). Every run
+records the machine's load (``os.getloadavg``) before and after: on a shared machine, prefer the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skelfuse.fusion.orientation import apply_derived, body_hint_frames, quat_from_rotvec, quat_multiply
+from skelfuse.fusion.presets import preset
+from skelfuse.rig.grouping import FrameGroup
+from skelfuse.rig.instant import GroupFuser
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.sim.crowd import crowd_scenario, simulate_scenario
+from skelfuse.sim.observe import load_profile
+from skelfuse.wire.codec import encode_fused_frame
+
+FPS = 30.0
+OWN_SRC = Path(__file__).resolve().parents[2]
+"""The source tree this module was imported from (what ``--baseline`` is compared against)."""
+
+
+def instant_take(n_sensors: int, n_people: int, n_frames: int, seed: int = 0) -> tuple[GroupFuser, list[FrameGroup]]:
+    """A fresh GroupFuser ("skelfuse" preset) and the simulated crowd's instants as frame groups."""
+    scenario = crowd_scenario(n_people=n_people, n_sensors=n_sensors, duration_s=n_frames / FPS, seed=seed)
+    obs = simulate_scenario(scenario, load_profile(), seed=seed)
+    rng = np.random.default_rng(seed)
+    groups = []
+    for t in range(obs.n_frames):
+        time_us = round(1_000_000 + t * 1e6 / FPS)
+        frames = {}
+        for s, sid in enumerate(obs.sensor_ids):
+            slots = obs.valid[t, s]
+            positions = obs.positions[t, s][slots].astype(np.float64)
+            quats = apply_derived(body_hint_frames(positions))
+            quats = quat_multiply(quats, quat_from_rotvec(rng.normal(0.0, 0.15, (*positions.shape[:2], 3))))
+            frames[sid] = SensorFrame(
+                sid,
+                t,
+                time_us,
+                time_us * 1000,
+                obs.body_ids[t, s][slots].astype(np.uint32),
+                positions.astype(np.float32),
+                np.where(np.isfinite(quats), quats, 0.0).astype(np.float32),
+                obs.confidence[t, s][slots],
+            )
+        groups.append(FrameGroup(time_us, frames, (), True))
+    poses = obs.world_from_sensor_calibrated
+    return GroupFuser(obs.sensor_ids, poses, preset("skelfuse")), groups
+
+
+def time_instants(n_sensors: int, n_people: int, n_frames: int, warmup: int = 30, seed: int = 0) -> dict[str, Any]:
+    """One timing run in this process: ms per instant (p50 / p99 / max) of GroupFuser.step + encode."""
+    fuser, groups = instant_take(n_sensors, n_people, n_frames + warmup, seed)
+    load_before = os.getloadavg()
+    samples = []
+    persons = 0
+    for t, group in enumerate(groups):
+        start = time.perf_counter_ns()
+        instant = fuser.step(group)
+        encode_fused_frame(instant.frame)
+        elapsed = time.perf_counter_ns() - start
+        if t >= warmup:
+            samples.append(elapsed / 1e6)
+            persons += instant.frame.n_persons
+    ms = np.asarray(samples)
+    return {
+        "n_sensors": n_sensors,
+        "n_people": n_people,
+        "n_frames": int(ms.size),
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()),
+        "mean_persons_out": persons / max(ms.size, 1),
+        "load_before": [round(v, 2) for v in load_before],
+        "load_after": [round(v, 2) for v in os.getloadavg()],
+    }
+
+
+def _run_worker(src: Path, n_sensors: int, n_people: int, n_frames: int) -> dict[str, Any]:
+    """One timing run in a subprocess on the source tree ``src``."""
+    env = dict(os.environ, PYTHONPATH=str(src))
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(n_sensors), str(n_people), str(n_frames)]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False, timeout=600)
+    if out.returncode != 0:
+        raise RuntimeError(f"bench instant: the run on {src} failed:\n{out.stderr[-2000:]}")
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result["src"] = str(src)
+    return result
+
+
+def run_instant_bench(
+    cases: Sequence[tuple[int, int]],
+    *,
+    n_frames: int = 300,
+    rounds: int = 3,
+    baseline: Path | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Every (sensors, people) case ``rounds`` times, alternating baseline and current runs (baseline first in
+    even rounds, current first in odd ones); ratios = baseline / current per round, median over rounds."""
+    out: dict[str, Any] = {"current_src": str(OWN_SRC), "baseline_src": None if baseline is None else str(baseline)}
+    results = []
+    for n_sensors, n_people in cases:
+        runs: dict[str, list[dict[str, Any]]] = {"current": [], "baseline": []}
+        for r in range(rounds):
+            order = (
+                ["current"]
+                if baseline is None
+                else (["baseline", "current"] if r % 2 == 0 else ["current", "baseline"])
+            )
+            for which in order:
+                if progress:
+                    print(
+                        f"bench instant: {n_sensors} sensors x {n_people} people, round {r + 1}/{rounds}, {which} ...",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                src = OWN_SRC if which == "current" else baseline
+                assert src is not None
+                runs[which].append(_run_worker(src, n_sensors, n_people, n_frames))
+        case: dict[str, Any] = {"n_sensors": n_sensors, "n_people": n_people, "runs": runs}
+        for which, items in runs.items():
+            if items:
+                case[which] = {k: float(np.median([i[k] for i in items])) for k in ("p50_ms", "p99_ms", "max_ms")}
+        if baseline is not None:
+            for key in ("p50_ms", "p99_ms"):
+                ratios = [b[key] / c[key] for b, c in zip(runs["baseline"], runs["current"], strict=True)]
+                case[f"ratio_{key[:3]}"] = float(np.median(ratios))
+        case["load_1min"] = [i["load_before"][0] for w in runs.values() for i in w]
+        results.append(case)
+    out["cases"] = results
+    return out
+
+
+def format_instant_bench(result: dict[str, Any]) -> str:
+    lines = [
+        "Per-instant path (group -> associate -> tracks -> fuse incl. orientations and position_std -> encode), "
+        "ms per instant, median over rounds:",
+        "",
+        "| sensors x people | p50 | p99 | baseline p50 | baseline p99 | ratio p50 | ratio p99 | load (1 min) |",
+        "|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for c in result["cases"]:
+        cur, base = c.get("current", {}), c.get("baseline")
+
+        def f(d: dict[str, float] | None, k: str) -> str:
+            return "-" if not d else f"{d[k]:.3f}"
+
+        ratio_p50 = f"{c['ratio_p50']:.2f}x" if "ratio_p50" in c else "-"
+        ratio_p99 = f"{c['ratio_p99']:.2f}x" if "ratio_p99" in c else "-"
+        load = f"{min(c['load_1min']):.2f}-{max(c['load_1min']):.2f}"
+        lines.append(
+            f"| {c['n_sensors']} x {c['n_people']} | {f(cur, 'p50_ms')} | {f(cur, 'p99_ms')} | {f(base, 'p50_ms')} "
+            f"| {f(base, 'p99_ms')} | {ratio_p50} | {ratio_p99} | {load} |"
+        )
+    lines += [
+        "",
+        f"current: {result['current_src']}; baseline: {result['baseline_src'] or 'none'}. Ratio = baseline / current "
+        "per round (alternating runs), median over rounds. Load: os.getloadavg() before each run.",
+    ]
+    return "\n".join(lines)
+
+
+def _worker_main(argv: Sequence[str]) -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--worker", action="store_true")
+    parser.add_argument("numbers", type=int, nargs=3)
+    args = parser.parse_args(argv)
+    print(json.dumps(time_instants(*args.numbers)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_worker_main(sys.argv[1:]))
