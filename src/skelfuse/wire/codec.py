@@ -19,6 +19,7 @@ against the same rules and raises ValueError: a frame that would be rejected is 
 
 from __future__ import annotations
 
+import functools
 import json
 import operator
 import struct
@@ -562,7 +563,7 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
         raise ValueError(f"fused frame has {n} persons, at most {MAX_PERSONS}")
     if n_sensors > MAX_SENSORS:
         raise ValueError(f"fused frame names {n_sensors} sensors, at most {MAX_SENSORS}")
-    raw_ids = [_check_id(sid, f"sensor_ids[{i}]") for i, sid in enumerate(sensor_ids)]
+    table = _sensor_id_table(sensor_ids) if all(type(s) is str for s in sensor_ids) else _id_table(sensor_ids)
     track_ids = _as_wire(ids, _I8, (n,), "track_ids", "iu")
     positions = _as_wire(frame.positions, _F8, (n, N_JOINTS, 3), "positions", "f")
     n_agree = _as_wire(frame.n_agree, _I2, (n, N_JOINTS), "n_agree", "iu")
@@ -578,7 +579,6 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
     except _Invalid as exc:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
     sections, extra = _fused_sections(frame, n)
-    table = b"".join([_U16.pack(len(raw)) + raw for raw in raw_ids])
     header = _FUSED_HEADER.pack(
         MAGIC,
         VERSION_MAJOR,
@@ -593,15 +593,24 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
         len(table),
         sections,
     )
-    return b"".join(
-        (header, track_ids.tobytes(), positions.tobytes(), n_agree.tobytes(), confidence, contributors, table, *extra)
-    )
+    # The arrays are C-contiguous wire-typed arrays: join reads their buffers directly (one copy, into the payload).
+    return b"".join((header, track_ids.data, positions.data, n_agree.data, confidence, contributors, table, *extra))
 
 
-def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[bytes]]:
+def _id_table(sensor_ids: tuple[str, ...]) -> bytes:
+    """The fused frame's sensor id table (u16-length-prefixed UTF-8), checked (ValueError on a bad id)."""
+    raw_ids = [_check_id(sid, f"sensor_ids[{i}]") for i, sid in enumerate(sensor_ids)]
+    return b"".join([_U16.pack(len(raw)) + raw for raw in raw_ids])
+
+
+_sensor_id_table = functools.lru_cache(maxsize=16)(_id_table)
+""":func:`_id_table`, cached: a rig's ids repeat frame after frame (an error is never cached)."""
+
+
+def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[memoryview]]:
     """The 1.1 sections of a fused frame: the ``sections`` bits and their bytes, in bit order."""
     sections = 0
-    extra: list[bytes] = []
+    extra: list[memoryview] = []
     orientations = getattr(frame, "orientations", None)
     position_std = getattr(frame, "position_std", None)
     try:
@@ -609,12 +618,12 @@ def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[bytes]]:
             quats = _as_wire(orientations, _F8, (n, N_JOINTS, 4), "orientations", "f")
             _check_orientations(quats)
             sections |= FUSED_SECTION_ORIENTATIONS
-            extra.append(quats.tobytes())
+            extra.append(quats.data)
         if position_std is not None:
             std = _as_wire(position_std, _F8, (n, N_JOINTS), "position_std", "f")
             _check_position_std(std)
             sections |= FUSED_SECTION_POSITION_STD
-            extra.append(std.tobytes())
+            extra.append(std.data)
     except _Invalid as exc:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
     return sections, extra
