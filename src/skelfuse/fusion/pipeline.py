@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -270,13 +271,19 @@ def _orientations(
     quats_prev, omega_prev = init_orientation_state(B) if state.orientation is None else (state.orientation, None)
     if state.angular_velocity is not None:
         omega_prev = state.angular_velocity
-    orientation_params = OrientationParams(
-        agree_deg=params.orientation_agree_deg, alpha=params.orientation_alpha, beta=params.orientation_beta
+    orientation_params = _orientation_params(
+        params.orientation_agree_deg, params.orientation_alpha, params.orientation_beta
     )
     result, quats, omega = fuse_orientations(
         fused, orientations, usable, quats_prev, omega_prev, orientation_params, dt_s
     )
     return result.quats, quats, omega
+
+
+@lru_cache(maxsize=16)
+def _orientation_params(agree_deg: float, alpha: float, beta: float) -> OrientationParams:
+    """The orientation stage's options from FusionParams' (made once per set of values, not per frame)."""
+    return OrientationParams(agree_deg=agree_deg, alpha=alpha, beta=beta)
 
 
 def _previous_candidate(state: FusionState, params: FusionParams, dt_s: float) -> np.ndarray:

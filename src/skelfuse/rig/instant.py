@@ -110,6 +110,8 @@ def bodies_to_world(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.
 def fused_frame(people: PeopleResult, time_us: int, sensor_ids: tuple[str, ...]) -> FusedFrame:
     """The wire record of a :class:`PeopleResult`: persons with at least one finite joint, ascending id."""
     keep = np.isfinite(people.positions).all(axis=-1).any(axis=-1)  # (P,)
+    if keep.all():  # the usual case: every track has an estimate, no copies
+        keep = slice(None)
     return FusedFrame(
         time_us=int(time_us),
         track_ids=people.track_ids[keep].astype(np.int64, copy=False),
