@@ -33,6 +33,11 @@ from skelfuse.schema.errors import DataError
             id="bench-instant",
         ),
         pytest.param(
+            ["bench", "latency", "--sensors", "8", "--people", "6", "--node-src", "base/src"],
+            {"sensors": [8], "people": 6, "node_src": Path("base/src")},
+            id="bench-latency-people",
+        ),
+        pytest.param(
             ["demo", "--duration", "3", "--rrd", "d.rrd", "--no-realtime"],
             {"duration": 3.0, "rrd": Path("d.rrd"), "realtime": False, "gesture": "walking"},
             id="demo-rrd",

@@ -72,6 +72,8 @@ class LatencyCase:
     sustained: bool
     load_before: tuple[float, float, float] = (0.0, 0.0, 0.0)
     load_after: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    n_people: int = 1
+    node_src: str | None = None
 
 
 @dataclass
@@ -121,30 +123,29 @@ def _rig_toml(directory: Path, n_sensors: int) -> Path:
     return path
 
 
-def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0) -> list[list[Any]]:
-    """Per instant, the N sensors' SensorFrames (device time filled in at publish); one body each."""
+def synthetic_frames(n_sensors: int, n_instants: int, seed: int = 0, n_people: int = 1) -> list[list[Any]]:
+    """Per instant, the N sensors' SensorFrames (device time filled in at publish); ``n_people`` bodies each
+    (walkers on a grid 900 mm apart, every sensor sees everyone)."""
 
-    truth = make_gesture("walking", duration_s=n_instants / FPS, seed=seed).at_times(np.arange(n_instants) / FPS)
+    times = np.arange(n_instants) / FPS
+    walkers = [
+        make_gesture("walking", duration_s=n_instants / FPS, seed=seed + p).at_times(times) for p in range(n_people)
+    ]
+    for p in range(1, n_people):  # the first walker stays where one walker always was
+        walkers[p] = walkers[p] + np.array([900.0 * (p % 4 - 1.5) + 450.0, 900.0 * (p // 4) - 450.0, 0.0])
+    truth = np.stack(walkers, axis=1)  # (T, P, 32, 3)
     rng = np.random.default_rng(seed)
     out: list[list[Any]] = []
     sensors = paper_rig(n_sensors)
-    views = [s.to_sensor(truth) + rng.normal(0.0, 10.0, truth.shape) for s in sensors]  # (T, 32, 3) each
-    orientations = np.zeros((1, N_JOINTS, 4), np.float32)
+    views = [s.to_sensor(truth) + rng.normal(0.0, 10.0, truth.shape) for s in sensors]  # (T, P, 32, 3) each
+    orientations = np.zeros((n_people, N_JOINTS, 4), np.float32)
     orientations[..., 0] = 1.0
-    confidence = np.full((1, N_JOINTS), 2, np.uint8)
+    confidence = np.full((n_people, N_JOINTS), 2, np.uint8)
+    body_ids = np.arange(1, n_people + 1, dtype=np.uint32)
     for t in range(n_instants):
         out.append(
             [
-                SensorFrame(
-                    s.sensor_id,
-                    0,
-                    0,
-                    0,
-                    np.array([1], np.uint32),
-                    views[i][t][None].astype(np.float32),
-                    orientations,
-                    confidence,
-                )
+                SensorFrame(s.sensor_id, 0, 0, 0, body_ids, views[i][t].astype(np.float32), orientations, confidence)
                 for i, s in enumerate(sensors)
             ]
         )
@@ -166,8 +167,13 @@ def _merge_windows(windows: list[dict[str, Any]]) -> dict[str, float | None]:
     }
 
 
-def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
-    """One sensor count: start a node, publish for WARMUP_S + duration_s, collect, stop the node."""
+def measure(
+    n_sensors: int, duration_s: float, *, workdir: Path, n_people: int = 1, node_src: Path | None = None
+) -> LatencyCase:
+    """One sensor count: start a node, publish for WARMUP_S + duration_s, collect, stop the node.
+
+    ``node_src``: run the node from that source tree (``PYTHONPATH``), e.g. an older checkout, with this
+    harness; default: this one."""
 
     import zenoh
 
@@ -191,10 +197,11 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
         stdout=subprocess.DEVNULL,
         stderr=open(workdir / f"node-{n_sensors}.log", "wb"),
         start_new_session=True,
+        env=None if node_src is None else dict(os.environ, PYTHONPATH=str(node_src)),
     )
     period_ns = int(1e9 / FPS)
     n_instants = int((WARMUP_S + duration_s) * FPS)
-    frames = synthetic_frames(n_sensors, min(n_instants, 300))
+    frames = synthetic_frames(n_sensors, min(n_instants, 300), n_people=n_people)
     received: dict[int, int] = {}
     statuses: list[Any] = []
     lock = threading.Lock()
@@ -304,6 +311,8 @@ def measure(n_sensors: int, duration_s: float, *, workdir: Path) -> LatencyCase:
         sustained=sustained,
         load_before=_rounded(load_before),
         load_after=_rounded(os.getloadavg()),
+        n_people=n_people,
+        node_src=None if node_src is None else str(node_src),
     )
 
 
@@ -312,7 +321,13 @@ def _rounded(load: tuple[float, float, float]) -> tuple[float, float, float]:
 
 
 def run_latency_bench(
-    *, sensor_counts: Sequence[int] = (4, 5, 8), duration_s: float = 5.0, sweep: bool = True, progress: bool = True
+    *,
+    sensor_counts: Sequence[int] = (4, 5, 8),
+    duration_s: float = 5.0,
+    sweep: bool = True,
+    progress: bool = True,
+    n_people: int = 1,
+    node_src: Path | None = None,
 ) -> LatencyResult:
     """Measure every sensor count, then (``sweep``) the largest count sustained at 30 Hz."""
     for n in sensor_counts:
@@ -323,8 +338,12 @@ def run_latency_bench(
         workdir = Path(tmp)
         for n in sensor_counts:
             if progress:
-                print(f"bench latency: {n} sensors x {FPS:g} Hz for {duration_s:g} s ...", file=sys.stderr, flush=True)
-            result.cases.append(measure(n, duration_s, workdir=workdir))
+                print(
+                    f"bench latency: {n} sensors x {n_people} people x {FPS:g} Hz for {duration_s:g} s ...",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            result.cases.append(measure(n, duration_s, workdir=workdir, n_people=n_people, node_src=node_src))
         sustained = [c.n_sensors for c in result.cases if c.sustained]
         if sweep:
             for n in SWEEP:
@@ -332,7 +351,7 @@ def run_latency_bench(
                     continue
                 if progress:
                     print(f"bench latency: sweep, {n} sensors ...", file=sys.stderr, flush=True)
-                case = measure(n, min(duration_s, 3.0), workdir=workdir)
+                case = measure(n, min(duration_s, 3.0), workdir=workdir, n_people=n_people, node_src=node_src)
                 result.sweep.append(case)
                 if not case.sustained:
                     break
@@ -348,13 +367,13 @@ def format_table(result: LatencyResult) -> str:
     lines = [
         f"Latency over zenoh on loopback, {FPS:g} Hz, {result.duration_s:g} s per case (ms):",
         "",
-        "| sensors | instants | fused | complete | e2e p50 | e2e p99 | e2e max | node p50 | node p99 | node max "
-        "| fusion p50 | fusion p99 | sustained | load 1 min |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|",
+        "| sensors x people | instants | fused | complete | e2e p50 | e2e p99 | e2e max | node p50 | node p99 "
+        "| node max | fusion p50 | fusion p99 | sustained | load 1 min |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|",
     ]
     for c in [*result.cases, *result.sweep]:
         lines.append(
-            f"| {c.n_sensors} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
+            f"| {c.n_sensors} x {c.n_people} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
             f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
             f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
             f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} "

@@ -51,7 +51,12 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
 
 def _cmd_bench_latency(args: argparse.Namespace) -> int:
     result = latency.run_latency_bench(
-        sensor_counts=args.sensors, duration_s=args.duration, sweep=not args.no_sweep, progress=not args.json
+        sensor_counts=args.sensors,
+        duration_s=args.duration,
+        sweep=not args.no_sweep,
+        progress=not args.json,
+        n_people=args.people,
+        node_src=args.node_src,
     )
     if args.json:
         print_json(result.to_dict())
@@ -185,6 +190,15 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         default=5.0,
         metavar="SECONDS",
         help="measured seconds per sensor count (default: %(default)s)",
+    )
+    latency.add_argument("--people", type=COUNT, default=1, help="people every sensor sees (default: %(default)s)")
+    latency.add_argument(
+        "--node-src",
+        type=Path,
+        default=None,
+        metavar="SRC",
+        help="run the fusion node from this src/ folder (e.g. a worktree at an older revision) with this harness, "
+        "to compare the two in the same session",
     )
     latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
     latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
