@@ -305,9 +305,9 @@ class TrackTable:
             v_meas = total / np.maximum(count, 1)[:, None] / np.where(moved, dt, 1.0)[:, None]
             smoothed = p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * self.velocity[idx]
             v = np.where((self.n_frames_seen[idx] < 2)[:, None], v_meas, smoothed)
-            speed = np.sqrt(np.einsum("hk,hk->h", v, v))
-            with np.errstate(divide="ignore"):
-                scale = np.where(speed > 0, np.minimum(1.0, p.max_speed_mm_s / speed), 1.0)
+            speed = np.sqrt((v * v).sum(axis=-1))
+            # A zero velocity stays zero (its scale is 0 then, not 1: the same product).
+            scale = np.minimum(1.0, p.max_speed_mm_s / np.where(speed > 0, speed, np.inf))
             self.velocity[idx[moved]] = (v * scale[:, None])[moved]
         # A point the sensors miss this frame keeps its prediction.
         self.descriptor[idx] = np.where(np.isfinite(measured), measured, predicted[idx])
