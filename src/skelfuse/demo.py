@@ -110,7 +110,18 @@ class DemoSummary:
     """The fused ``all16`` error of each scored pass (they agree: every pass is the same material)."""
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """As JSON takes it: a figure that could not be computed (nothing scored) is None, not NaN."""
+
+        def finite(value: Any) -> Any:
+            if isinstance(value, float) and not math.isfinite(value):
+                return None
+            if isinstance(value, dict):
+                return {k: finite(v) for k, v in value.items()}
+            if isinstance(value, list):
+                return [finite(v) for v in value]
+            return value
+
+        return finite(asdict(self))
 
 
 def _progress(text: str, *, final: bool = False) -> None:
@@ -275,17 +286,25 @@ def format_summary(summary: DemoSummary) -> str:
         f"Fused {summary.frames_fused} frames ({summary.duration_s:.1f} s of '{summary.gesture}') from "
         f"{summary.n_sensors} simulated sensors with preset {summary.preset}.",
         "",
-        f"Mean error against the simulator's ground truth (mm), {summary.frames_scored} frames scored: "
-        + _window_text(summary)
-        + ":",
-        "| | torso | upper limb | lower limb | all 16 |",
-        "|---|---:|---:|---:|---:|",
     ]
-    for label, errors in (("fused", summary.error_fused_mm), (f"best single sensor ({best['sensor']})", best)):
+    if not summary.frames_scored:
         lines.append(
-            f"| {label} | {errors['torso']:.1f} | {errors['upper_limb']:.1f} | {errors['lower_limb']:.1f} "
-            f"| {errors['all16']:.1f} |"
+            f"Accuracy not scored: the run stopped before {summary.converge_s:.1f} s of a pass of the take had played "
+            f"(the scoring window is {_window_text(summary)})."
         )
+    else:
+        lines += [
+            f"Mean error against the simulator's ground truth (mm), {summary.frames_scored} frames scored: "
+            + _window_text(summary)
+            + ":",
+            "| | torso | upper limb | lower limb | all 16 |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        for label, errors in (("fused", summary.error_fused_mm), (f"best single sensor ({best['sensor']})", best)):
+            lines.append(
+                f"| {label} | {errors['torso']:.1f} | {errors['upper_limb']:.1f} | {errors['lower_limb']:.1f} "
+                f"| {errors['all16']:.1f} |"
+            )
     per_pass = summary.error_fused_per_pass_mm or []
     if len(per_pass) > 1:
         lines.append(f"Fused, all 16, pass by pass: {', '.join(f'{e:.1f}' for e in per_pass)} mm.")
@@ -601,7 +620,7 @@ def run_demo(
     )
     scorer.on_error = lambda time_us, error: node.log_error(time_us, error)
     node_thread = threading.Thread(target=node.run, name="skelfuse-fusion-node", daemon=True)
-    started = None
+    started = ended = None
     try:
         with lifecycle.capture_signals():
             session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), scorer.on_sensor)
@@ -665,7 +684,15 @@ def run_demo(
                 )
             scorer.start_n = origin_n + late_passes * round(take_duration_s * cfg.sync.fps)
             started = origin_monotonic + late_passes * take_duration_s
-            lifecycle.wait(max(0.0, started - time.monotonic()))
+            if not lifecycle.wait(max(0.0, started - time.monotonic())):
+                log.info(
+                    "the run starts: %.0f s of fused output from a pass of the %.0f s take (scored: take seconds "
+                    "%.1f-%.0f of each whole pass)",
+                    duration_s,
+                    take_duration_s,
+                    CONVERGE_S,
+                    take_duration_s,
+                )
             end = started + duration_s
             while not lifecycle.should_exit and time.monotonic() < end:
                 _check_workers(workers, workdir)
@@ -673,6 +700,7 @@ def run_demo(
                 elapsed_s = time.monotonic() - started
                 if progress and (sys.stderr.isatty() or int(elapsed_s) % 5 == 0 or elapsed_s >= duration_s):
                     _progress(f"skelfuse demo: {len(scorer.fused)} frames fused, {elapsed_s:.0f}/{duration_s:.0f} s")
+            ended = time.monotonic()
             lifecycle.wait(RESULT_GRACE_S)  # the last instants' fused frames are still on their way
             if progress:
                 _progress("", final=True)
@@ -686,7 +714,7 @@ def run_demo(
         if recording is not None:
             release_recording(recording)
         stop_server(server)
-    elapsed = 0.0 if started is None else min(max(0.0, time.monotonic() - started), duration_s)
+    elapsed = 0.0 if started is None else min(max(0.0, (ended or time.monotonic()) - started), duration_s)
     run_frames = round(elapsed * cfg.sync.fps)
     n_fused, n_scored, fused_errors, best, best_id, latency, per_pass = scorer.scores(run_frames)
     if n_fused == 0:
