@@ -250,6 +250,18 @@ def test_offline_fusion_says_where_the_poses_came_from_and_that_a_file_ended_ear
     assert f"from the calibration metadata of {cut}" in caplog.text
 
 
+def test_a_file_cut_inside_its_first_chunk_says_it_ends_early(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = _recording(tmp_path / "take.mcap").read_bytes()  # one chunk: the writer never flushed
+    cut = _write(tmp_path / "cut.mcap", "")
+    cut.write_bytes(data[: len(data) // 2])
+    code = cli.main(["fuse", "--input", str(cut), "--output", str(tmp_path / "cut.csv")])
+    err = capsys.readouterr().err
+    assert code == EXIT_USAGE and "ends early: cut before its first complete chunk" in err, err
+    assert "Traceback" not in err
+
+
 def test_live_fuse_honours_preset(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     from skelfuse.cli import service
 
