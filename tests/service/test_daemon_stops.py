@@ -1,6 +1,7 @@
 """Every daemon stops, with the right exit status, within a bound after its stop began, whatever a sink or a
 peer does: a viewer that cannot open (no display), a viewer that accepts the connection and never answers, an
-unreachable zenoh router, a Kinect master on a machine without the SDKs.
+unreachable zenoh router (every daemon: fuse, capture, record, status, replay, stream), a Kinect master on a
+machine without the SDKs.
 
 Real ``python -m skelfuse`` processes, all started at once (they spend most of their time importing), each
 watched for the log line that says its stop began; the bound is measured from that line to the process's
@@ -188,6 +189,12 @@ def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(tmp_p
             "status-no-router", ["status", "--config", str(rig), "--duration", DURATION, *_unreachable()], 0, no_session
         ),
         Daemon("replay-no-router", ["replay", str(recording), "--duration", DURATION, *_unreachable()], 0, no_session),
+        Daemon(
+            "stream-no-router",
+            ["stream", "osc", "--config", str(rig), "--duration", DURATION, *_unreachable()],
+            0,
+            no_session,
+        ),
     ]
     _run_all(daemons, tmp_path)
     problems = []
