@@ -1,7 +1,7 @@
 """Every daemon stops, with the right exit status, within a bound after its stop began, whatever a sink or a
 peer does: a viewer that cannot open (no display), a viewer that accepts the connection and never answers, an
-unreachable zenoh router (every daemon: fuse, capture, record, status, replay, stream), a Kinect master on a
-machine without the SDKs.
+unreachable zenoh router (every daemon: fuse, capture, record, status, replay, stream), a router whose port is
+taken, a Kinect master on a machine without the SDKs.
 
 Real ``python -m skelfuse`` processes, all started at once (they spend most of their time importing), each
 watched for the log line that says its stop began; the bound is measured from that line to the process's
@@ -84,6 +84,16 @@ def black_hole() -> object:
     sock.close()
 
 
+@pytest.fixture
+def busy_port() -> object:
+    """A loopback TCP port another program listens on (a router cannot listen there)."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(1)
+    yield sock.getsockname()[1]
+    sock.close()
+
+
 def _run_all(daemons: list[Daemon], tmp_path: Path) -> None:
     base_env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     try:
@@ -124,7 +134,9 @@ def _run_all(daemons: list[Daemon], tmp_path: Path) -> None:
                 d.process.wait(5.0)
 
 
-def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(tmp_path: Path, black_hole: int) -> None:
+def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(
+    tmp_path: Path, black_hole: int, busy_port: int
+) -> None:
     rig = write_rig(tmp_path)
     spawn_rig = tmp_path / "spawn-rig.toml"
     spawn_rig.write_text(rig.read_text() + '\n[rerun]\nmode = "spawn"\n', encoding="utf-8")
@@ -192,6 +204,12 @@ def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(tmp_p
         Daemon(
             "stream-no-router",
             ["stream", "osc", "--config", str(rig), "--duration", DURATION, *_unreachable()],
+            0,
+            no_session,
+        ),
+        Daemon(
+            "router-port-in-use",
+            ["router", "--config", str(rig), "--duration", DURATION, "--zenoh-listen", f"tcp/127.0.0.1:{busy_port}"],
             0,
             no_session,
         ),
