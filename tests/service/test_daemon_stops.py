@@ -1,7 +1,7 @@
 """Every daemon stops, with the right exit status, within a bound after its stop began, whatever a sink or a
 peer does: a viewer that cannot open (no display), a viewer that accepts the connection and never answers, an
 unreachable zenoh router (every daemon: fuse, capture, record, status, replay, stream), a router whose port is
-taken, a recorder whose disk is full (/dev/full), a Kinect master on a machine without the SDKs.
+taken, a recorder or a saved view whose disk is full (/dev/full), a Kinect master on a machine without the SDKs.
 
 Real ``python -m skelfuse`` processes, all started at once (they spend most of their time importing), each
 watched for the log line that says its stop began; the bound is measured from that line to the process's
@@ -196,6 +196,12 @@ def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(
             ],
             0,
             no_session,
+        ),
+        Daemon(
+            "fuse-view-disk-full",
+            ["fuse", "--config", str(rig), "--rrd", "/dev/full", "--duration", DURATION, *loopback_args()],
+            1,
+            "cannot save the view to /dev/full",
         ),
         Daemon(
             "record-disk-full",
