@@ -557,7 +557,7 @@ def run_demo(
     take_duration_s: float = DEMO_TAKE_S,
     progress: bool = True,
     lifecycle: Any = None,
-) -> DemoSummary:
+) -> DemoSummary | None:
     """The live demo (see the module docstring): runs ``duration_s`` seconds of fused output or until Ctrl-C.
 
     Parameters
@@ -566,6 +566,8 @@ def run_demo(
     spawn : spawn the Rerun viewer; default: when there is a display and neither ``rrd_path`` nor ``serve``.
         Without any of them the view goes to ``skelfuse-demo.rrd``.
     serve : serve the view over gRPC on 127.0.0.1:9876 for viewers to connect.
+
+    Returns None when stopped (Ctrl-C, SIGTERM) before the first fused frame.
 
     Raises
     ------
@@ -718,6 +720,8 @@ def run_demo(
     run_frames = round(elapsed * cfg.sync.fps)
     n_fused, n_scored, fused_errors, best, best_id, latency, per_pass = scorer.scores(run_frames)
     if n_fused == 0:
+        if lifecycle.should_exit:  # stopped (Ctrl-C, SIGTERM) while starting: a clean stop, nothing to say
+            return None
         raise ServiceError("the demo stopped before the first fused frame; nothing to summarize")
     report = node.report
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from skelfuse import demo
 from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, POSITIVE, SEED, Number, preset_name, print_json
@@ -35,6 +36,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             progress=not args.json,
             take_duration_s=args.take,
         )
+    if summary is None:
+        print("skelfuse demo: stopped before the first fused frame; nothing to summarize", file=sys.stderr)
+        return EXIT_OK
     if args.json:
         print_json(summary.to_dict())
     else:
