@@ -99,6 +99,7 @@ def _run(demos: list[Demo], tmp_path: Path) -> None:
     finally:
         for d in demos:
             if d.process is not None and d.process.poll() is None:
+                d.workers = d.workers or _children(d.process.pid)  # in their own sessions: killed below
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(d.process.pid, signal.SIGUSR1)  # stacks into the log
                     time.sleep(0.5)
