@@ -9,7 +9,16 @@
  * FAKE_QUEUE_MAX (the SDK's input queue is small); a full queue makes enqueue time out.
  * Waits never block for long: a pop on an empty queue sleeps min(timeout, 20 ms) and times out; an
  * infinite wait (K4A_WAIT_INFINITE) is counted in the stats and fails, since skelfuse must never use it.
+ *
+ * Faults for whole processes (the worker tests run skelfuse as a subprocess), from the environment variable
+ * FAKE_K4ABT_FAULT, read at each pop: "KIND:AFTER[:TRACKERS]". Each tracker delivers AFTER results, then
+ *   hang   its next k4abt_tracker_pop_result never returns (a hung SDK call; whatever its timeout), until
+ *          fake_k4abt_release_hangs() or the process ends; a line on stderr says so, once per tracker
+ *   stall  its pops time out from then on (a tracker that stopped producing results; captures still go in)
+ * TRACKERS: only the first TRACKERS trackers created in the process get the fault (default: every one), so a
+ * tracker created by a restart can be healthy.
  */
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -38,7 +47,14 @@ typedef struct {
     fake_frame *frame;
 } fake_event;
 
-typedef struct { size_t magic; int shutdown; k4a_calibration_t calibration; } fake_tracker;
+typedef struct {
+    size_t magic;
+    int shutdown;
+    k4a_calibration_t calibration;
+    int index;      /* creation order in the process, from 0 */
+    int delivered;  /* results popped */
+    int hang_said;  /* the hang was reported on stderr */
+} fake_tracker;
 
 typedef struct {
     int32_t created;
@@ -68,6 +84,24 @@ static int g_fail_creates = 0;
 static int g_echo = 0;
 static uint64_t g_auto_time = 0;
 static fake_stats g_stats;
+static int g_trackers_made = 0;
+static volatile int g_release_hangs = 0;
+
+enum { FAULT_NONE = 0, FAULT_HANG = 1, FAULT_STALL = 2 };
+
+/* The fault FAKE_K4ABT_FAULT sets for this tracker now (see the top of the file). */
+static int fault_now(const fake_tracker *tracker) {
+    const char *env = getenv("FAKE_K4ABT_FAULT");
+    if (env == NULL || env[0] == '\0') return FAULT_NONE;
+    char kind[16] = {0};
+    int after = 0, trackers = 0;
+    if (sscanf(env, "%15[a-z]:%d:%d", kind, &after, &trackers) < 2) return FAULT_NONE;
+    if (trackers > 0 && tracker->index >= trackers) return FAULT_NONE;
+    if (tracker->delivered < after) return FAULT_NONE;
+    if (strcmp(kind, "hang") == 0) return FAULT_HANG;
+    if (strcmp(kind, "stall") == 0) return FAULT_STALL;
+    return FAULT_NONE;
+}
 
 static void nap_ms(int ms) {
     if (ms <= 0) return;
@@ -108,6 +142,7 @@ FAKE_EXPORT void fake_k4abt_reset(void) {
     g_fail_creates = 0;
     g_echo = 0;
     g_auto_time = 0;
+    g_trackers_made = 0;
     int alive = g_stats.frames_alive; /* frames the binding still holds stay counted */
     memset(&g_stats, 0, sizeof(g_stats));
     g_stats.frames_alive = alive;
@@ -130,6 +165,9 @@ FAKE_EXPORT int fake_k4abt_script_event(int kind) {
 }
 
 FAKE_EXPORT void fake_k4abt_fail_next_creates(int n) { g_fail_creates = n; }
+
+/* Lets every pop hung by FAKE_K4ABT_FAULT=hang return (TIMEOUT); for tests that hang a call in-process. */
+FAKE_EXPORT void fake_k4abt_release_hangs(void) { g_release_hangs = 1; }
 
 /* Echo mode: with an empty script, every capture yields one body computed from the capture's depth image and
  * the calibration the tracker was created with, so that the test can recompute it independently:
@@ -244,6 +282,7 @@ FAKE_EXPORT k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_ca
     fake_tracker *tracker = calloc(1, sizeof(fake_tracker));
     tracker->magic = 0x4B344254u;
     tracker->calibration = *sensor_calibration;
+    tracker->index = g_trackers_made++;
     *tracker_handle = (k4abt_tracker_t)tracker;
     g_stats.created++;
     return K4A_RESULT_SUCCEEDED;
@@ -324,6 +363,22 @@ FAKE_EXPORT k4a_wait_result_t k4abt_tracker_pop_result(k4abt_tracker_t tracker_h
         return K4A_WAIT_RESULT_FAILED;
     }
     if (tracker == NULL || tracker->magic != 0x4B344254u || body_frame_handle == NULL) return K4A_WAIT_RESULT_FAILED;
+    switch (fault_now(tracker)) {
+    case FAULT_HANG:
+        if (!tracker->hang_said) {
+            tracker->hang_said = 1;
+            fprintf(stderr, "fake_k4abt: tracker %d hangs in k4abt_tracker_pop_result after %d results\n",
+                    tracker->index, tracker->delivered);
+            fflush(stderr);
+        }
+        while (!g_release_hangs) nap_ms(20);
+        return K4A_WAIT_RESULT_TIMEOUT;
+    case FAULT_STALL:
+        nap_ms(timeout_in_ms);
+        return K4A_WAIT_RESULT_TIMEOUT;
+    default:
+        break;
+    }
     if (g_ready_len == 0) {
         if (tracker->shutdown) return K4A_WAIT_RESULT_FAILED;
         nap_ms(timeout_in_ms);
@@ -337,6 +392,7 @@ FAKE_EXPORT k4a_wait_result_t k4abt_tracker_pop_result(k4abt_tracker_t tracker_h
         return K4A_WAIT_RESULT_FAILED;
     }
     frame->refcount = 1;
+    tracker->delivered++;
     g_stats.frames_alive++;
     g_stats.popped++;
     *body_frame_handle = (k4abt_frame_t)frame;

@@ -1,6 +1,7 @@
 """Every daemon stops, with the right exit status, within a bound after its stop began, whatever a sink or a
 peer does: a viewer that cannot open (no display), a viewer that accepts the connection and never answers, an
-unreachable zenoh router, a Kinect master on a machine without the SDKs.
+unreachable zenoh router (every daemon: fuse, capture, record, status, replay, stream), a router whose port is
+taken, a recorder or a saved view whose disk is full (/dev/full), a Kinect master on a machine without the SDKs.
 
 Real ``python -m skelfuse`` processes, all started at once (they spend most of their time importing), each
 watched for the log line that says its stop began; the bound is measured from that line to the process's
@@ -83,6 +84,16 @@ def black_hole() -> object:
     sock.close()
 
 
+@pytest.fixture
+def busy_port() -> object:
+    """A loopback TCP port another program listens on (a router cannot listen there)."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(1)
+    yield sock.getsockname()[1]
+    sock.close()
+
+
 def _run_all(daemons: list[Daemon], tmp_path: Path) -> None:
     base_env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     try:
@@ -123,7 +134,9 @@ def _run_all(daemons: list[Daemon], tmp_path: Path) -> None:
                 d.process.wait(5.0)
 
 
-def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(tmp_path: Path, black_hole: int) -> None:
+def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(
+    tmp_path: Path, black_hole: int, busy_port: int
+) -> None:
     rig = write_rig(tmp_path)
     spawn_rig = tmp_path / "spawn-rig.toml"
     spawn_rig.write_text(rig.read_text() + '\n[rerun]\nmode = "spawn"\n', encoding="utf-8")
@@ -185,9 +198,33 @@ def test_every_daemon_stops_in_bounded_time_whatever_its_sink_or_peer_does(tmp_p
             no_session,
         ),
         Daemon(
+            "fuse-view-disk-full",
+            ["fuse", "--config", str(rig), "--rrd", "/dev/full", "--duration", DURATION, *loopback_args()],
+            1,
+            "cannot save the view to /dev/full",
+        ),
+        Daemon(
+            "record-disk-full",
+            ["record", "--config", str(rig), "--output", "/dev/full", "--duration", DURATION, *loopback_args()],
+            1,
+            "cannot write the recording /dev/full (No space left on device)",
+        ),
+        Daemon(
             "status-no-router", ["status", "--config", str(rig), "--duration", DURATION, *_unreachable()], 0, no_session
         ),
         Daemon("replay-no-router", ["replay", str(recording), "--duration", DURATION, *_unreachable()], 0, no_session),
+        Daemon(
+            "stream-no-router",
+            ["stream", "osc", "--config", str(rig), "--duration", DURATION, *_unreachable()],
+            0,
+            no_session,
+        ),
+        Daemon(
+            "router-port-in-use",
+            ["router", "--config", str(rig), "--duration", DURATION, "--zenoh-listen", f"tcp/127.0.0.1:{busy_port}"],
+            0,
+            no_session,
+        ),
     ]
     _run_all(daemons, tmp_path)
     problems = []

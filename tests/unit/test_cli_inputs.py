@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from skelfuse import cli
-from skelfuse.cli.common import EXIT_USAGE, Number, PathArg, preset_name
+from skelfuse.cli.common import EXIT_ERROR, EXIT_USAGE, Number, PathArg, preset_name
 from skelfuse.config import load_rig_config
 from skelfuse.recording import RecordingWriter
 from skelfuse.schema.errors import ConfigError
@@ -248,6 +248,31 @@ def test_offline_fusion_says_where_the_poses_came_from_and_that_a_file_ended_ear
     assert code == 0
     assert f"recording {cut} ends early" in caplog.text
     assert f"from the calibration metadata of {cut}" in caplog.text
+
+
+def test_a_file_cut_inside_its_first_chunk_says_it_ends_early(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = _recording(tmp_path / "take.mcap").read_bytes()  # one chunk: the writer never flushed
+    cut = _write(tmp_path / "cut.mcap", "")
+    cut.write_bytes(data[: len(data) // 2])
+    code = cli.main(["fuse", "--input", str(cut), "--output", str(tmp_path / "cut.csv")])
+    err = capsys.readouterr().err
+    assert code == EXIT_USAGE and "ends early: cut before its first complete chunk" in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (a device whose writes fail: disk full)")
+def test_an_output_on_a_full_disk_is_a_message_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = _recording(tmp_path / "take.mcap")
+    output = tmp_path / "fused.csv"
+    output.symlink_to("/dev/full")  # writes there fail with ENOSPC, as on a full disk
+    code = cli.main(["fuse", "--input", str(recording), "--config", str(SIM_RIG), "--output", str(output)])
+    err = capsys.readouterr().err
+    assert code == EXIT_ERROR, err
+    assert "No space left on device" in err and "free disk space" in err and "Traceback" not in err, err
 
 
 def test_live_fuse_honours_preset(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

@@ -61,6 +61,7 @@ TABLES: dict[str, tuple[tuple[Any, ...], tuple[str, ...]]] = {
     "[zenoh]": (("zenoh",), ("config", "tls")),
     "[zenoh.tls]": (("zenoh", "tls"), ()),
     "[node]": (("node",), ()),
+    "[capture]": (("capture",), ()),
     "[rerun]": (("rerun",), ()),
     "[record]": (("record",), ()),
     "[intake]": (("intake",), ()),

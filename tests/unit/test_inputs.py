@@ -508,5 +508,5 @@ def test_an_mcap_round_trips_with_host_times_and_sequences(sim_walk, tmp_path: P
 def test_a_damaged_mcap_is_named(tmp_path: Path) -> None:
     path = tmp_path / "cut.mcap"
     path.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
-    with pytest.raises(DataError, match=r"cut\.mcap: the MCAP holds no sensor-frame channels; record one"):
+    with pytest.raises(DataError, match=r"cut\.mcap holds no sensor-frame channels \(it ends early.*; record one"):
         open_inputs([str(path)])

@@ -53,9 +53,7 @@ def load_recording_take(
     """
 
     reader = RecordingReader(path)
-    ids = reader.sensors
-    if not ids:
-        raise DataError(f"recording {reader.path} holds no sensor-frame channels; record with `skelfuse record`")
+    ids = reader.require_sensors("record with `skelfuse record`")
     sync = sync if sync is not None else SyncConfig()
     grouper = FrameGrouper.from_sync(ids, sync, by=by)
     positions: list[np.ndarray] = []

@@ -65,6 +65,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SkelfuseError as exc:
         print(f"skelfuse: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
+    except OSError as exc:  # the system refused an operation, typically a file written (full disk, permissions)
+        logging.getLogger("skelfuse.cli").debug("the command failed", exc_info=True)
+        where = f": {exc.filename}" if exc.filename else ""
+        print(
+            f"skelfuse: error: {exc.strerror or exc}{where} (the operating system refused an operation; for an "
+            "output file: free disk space, check its folder's permissions, or write somewhere else; -v logs details)",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     except KeyboardInterrupt:
         print("skelfuse: interrupted", file=sys.stderr)
         return 130

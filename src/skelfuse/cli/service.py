@@ -55,6 +55,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         node_name=args.node,
         limits=run_limits(args),
         take_origin_ns=round(args.take_origin * 1e9),
+        stall_timeout_s=cfg.capture.stall_timeout_s if args.stall_timeout is None else args.stall_timeout,
     )
     report = worker.run_capture_worker(
         cfg,
@@ -64,7 +65,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         lifecycle=Lifecycle(f"capture-{args.sensor}"),
     )
     if args.json:
-        print_json({"frames_out": report.frames_out, "restarts": report.restarts})
+        print_json({"frames_out": report.frames_out, "restarts": report.restarts, "stalls": report.stalls})
     return EXIT_OK
 
 
@@ -260,6 +261,14 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
     )
     capture.add_argument("--speed", type=POSITIVE, default=1.0, help="replay: playback speed (default: %(default)s)")
     capture.add_argument("--fast", action="store_true", help="replay: as fast as possible")
+    capture.add_argument(
+        "--stall-timeout",
+        type=Number(float, gt=0, le=3600),
+        default=None,
+        metavar="SECONDS",
+        help="watchdog: restart a started source that delivers no frame for this long, a read that never returns "
+        "included (default: [capture] stall_timeout_s, 10)",
+    )
     capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     add_run_limits(capture, "publishing N frames")
     add_zenoh_arguments(capture)

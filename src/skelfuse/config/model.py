@@ -293,6 +293,21 @@ class NodeConfig:
 
 
 @dataclass(frozen=True)
+class CaptureConfig:
+    """``[capture]``: the capture workers (``skelfuse capture``).
+
+    Attributes
+    ----------
+    stall_timeout_s : float
+        The worker's watchdog: a started source that delivers no frame for this long (a tracker answering
+        with nothing, a read that never returns) is restarted; a Kinect source uses it for its own
+        no-capture / no-result diagnosis too.
+    """
+
+    stall_timeout_s: float = 10.0
+
+
+@dataclass(frozen=True)
 class IntakeConfig:
     """``[intake]``: what the fusion node accepts from any peer (every cap is a counted reject, never a crash).
 
@@ -370,7 +385,7 @@ class RigConfig:
     name : str
         ``[rig] name``: the rig's key chunk (``skelfuse/<name>/...``).
     sensors : tuple[SensorConfig, ...]
-    sync, calibration, fusion, zenoh, node, rerun, record, stream : the sections
+    sync, calibration, fusion, zenoh, node, capture, rerun, record, stream : the sections
     source : str
         Where this config came from (a file path, or "<dict>"), for messages.
     """
@@ -382,6 +397,7 @@ class RigConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     node: NodeConfig = field(default_factory=NodeConfig)
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
     intake: IntakeConfig = field(default_factory=IntakeConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
     record: RecordConfig = field(default_factory=RecordConfig)

@@ -25,6 +25,7 @@ from skelfuse.config.model import (
     SYNC_ROLES,
     ZENOH_MODES,
     CalibrationConfig,
+    CaptureConfig,
     FusionConfig,
     IntakeConfig,
     KinectConfig,
@@ -113,6 +114,12 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
             name=t.string("name", None, check=lambda v: validate_name(v, "node")),
         )
         t.done()
+    capture = CaptureConfig()
+    if (t := top.table("capture")) is not None:
+        capture = CaptureConfig(
+            stall_timeout_s=t.number("stall_timeout_s", 10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+        )
+        t.done()
     intake = _parse_intake(top.table("intake"))
     rerun = _parse_rerun(top.table("rerun"))
     record = RecordConfig()
@@ -136,6 +143,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         fusion=fusion,
         zenoh=zenoh,
         node=node,
+        capture=capture,
         intake=intake,
         rerun=rerun,
         record=record,

@@ -221,8 +221,7 @@ class InputTake:
 def read_mcap(path: Path, *, sensor_id: str | None = None) -> tuple[list[Recording], dict[str, np.ndarray]]:
     """A skelfuse MCAP as one :class:`Recording` per sensor (host times and sequences kept) and its poses."""
     reader = RecordingReader(path)
-    if not reader.sensors:
-        raise DataError(f"{path}: the MCAP holds no sensor-frame channels; record one with `skelfuse record`")
+    reader.require_sensors("record one with `skelfuse record`")
     if sensor_id is not None and len(reader.sensors) > 1:
         raise DataError(
             f"{path}: holds sensors {', '.join(reader.sensors)}; an ID=PATH spec renames a one-sensor file only"

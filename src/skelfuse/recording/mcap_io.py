@@ -592,6 +592,14 @@ class RecordingReader:
             self._chunks.append(_ChunkRef(min(times), max(times), -1, tuple(loose)))
         self._message_count = count
 
+    def require_sensors(self, fix: str) -> tuple[str, ...]:
+        """The sensor ids, or a DataError naming the file, saying when it was cut before any complete chunk,
+        and ``fix`` (what the user should do)."""
+        if not self.sensors:
+            ended = " (it ends early: cut before its first complete chunk)" if self.truncated else ""
+            raise DataError(f"recording {self.path} holds no sensor-frame channels{ended}; {fix}")
+        return self.sensors
+
     def _scan_record(self, opcode: int, body: bytes, pos: int, loose: list[Message]) -> int:
         stream = ReadDataStream(io.BytesIO(body))
         if opcode == Opcode.CHUNK:

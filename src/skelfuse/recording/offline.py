@@ -205,10 +205,7 @@ def fuse_recording(
         grouper = take.grouper(sync, tolerance_us=tolerance_us, deadline_us=deadline_us)
         return _fuse_take(take, poses, params, grouper, progress)
     reader = RecordingReader(recording_path)
-    sensor_ids = reader.sensors
-    if not sensor_ids:
-        ended = " (it ends early: cut before its first complete chunk)" if reader.truncated else ""
-        raise DataError(f"recording {reader.path} holds no sensor-frame channels{ended}; nothing to fuse")
+    sensor_ids = reader.require_sensors("nothing to fuse")
     if reader.truncated or reader.bad_chunks:
         log.warning(
             "recording %s %s; fusing what it holds up to there%s",

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 from skelfuse.config import RigConfig
 from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
 from skelfuse.recording.inputs import InputTake
-from skelfuse.schema.errors import ConfigError
+from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import SampleQueue, open_session
 from skelfuse.wire import keys
@@ -73,14 +73,20 @@ def run_recorder(
         if session is None:
             return report
         samples = SampleQueue()
-        writer = RecordingWriter(
-            path,
-            rig=cfg.name,
-            sensor_ids=cfg.sensor_ids,
-            world_from_sensor=cfg.poses(required=False) or None,
-            flush_interval_s=flush_s,
-            metadata={"recorder": "skelfuse record"},
-        )
+        try:
+            writer = RecordingWriter(
+                path,
+                rig=cfg.name,
+                sensor_ids=cfg.sensor_ids,
+                world_from_sensor=cfg.poses(required=False) or None,
+                flush_interval_s=flush_s,
+                metadata={"recorder": "skelfuse record"},
+            )
+        except OSError as exc:  # a full disk, a read-only folder: the recorder cannot do its work
+            lifecycle.request_exit()
+            session.close()
+            raise _write_failed(path, exc, None) from None
+        failure: OSError | None = None
         try:
             # [record] sensors: the raw sensor frames (what `fuse --input` and `replay` read back)
             subscriber = (
@@ -121,12 +127,19 @@ def run_recorder(
             if fused_subscriber is not None:
                 fused_subscriber.undeclare()
             token.undeclare()
+        except OSError as exc:  # the file cannot take more: stop, keep what was flushed
+            failure = exc
         finally:
             lifecycle.request_exit()
-            writer.close()
+            try:
+                writer.close()
+            except OSError as exc:
+                failure = failure or exc
             session.close()
     report.frames_written = writer.frames_written
     report.fused_frames_written = writer.fused_frames_written
+    if failure is not None:
+        raise _write_failed(path, failure, report)
     log.info(
         "recorder: %d sensor frames and %d fused frames written to %s (%d rejected)",
         report.frames_written,
@@ -135,6 +148,20 @@ def run_recorder(
         sum(report.rejects.values()),
     )
     return report
+
+
+def _write_failed(path: Path, exc: OSError, report: RecordReport | None) -> ServiceError:
+    """The recorder's error for a file it cannot write (what failed, what was kept, what to do)."""
+    kept = (
+        ""
+        if report is None
+        else f"; of the {report.frames_written} sensor frames and {report.fused_frames_written} fused frames "
+        "received, the file holds those up to its last flush (`fuse --input` reads it and says where it ends)"
+    )
+    return ServiceError(
+        f"recorder: cannot write the recording {path} ({exc.strerror or exc}){kept}; free disk space or record "
+        "to another --output / [record] directory"
+    )
 
 
 def _wall_time_ns(arrival_monotonic_ns: int) -> int:

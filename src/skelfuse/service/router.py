@@ -40,7 +40,9 @@ def run_router(conf: zenoh.Config, *, lifecycle: Lifecycle, limits: RunLimits | 
     zenoh.init_log_from_env_or(os.environ.get("RUST_LOG", DEFAULT_RUST_LOG))
     limits = limits or RunLimits()
     with lifecycle.capture_signals():
-        session = open_session(conf, lifecycle=lifecycle, what="router")
+        session = open_session(
+            conf, lifecycle=lifecycle, what="router", deadline=limits.deadline(time.monotonic())
+        )  # a listen port in use is retried until --duration at most
         if session is None:
             return 0
         try:
@@ -51,6 +53,7 @@ def run_router(conf: zenoh.Config, *, lifecycle: Lifecycle, limits: RunLimits | 
             while not lifecycle.should_exit and time.monotonic() < deadline:
                 lifecycle.wait(min(0.5, max(deadline - time.monotonic(), 0.0)))
         finally:
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             session.close()
     log.info("zenoh router stopped")
     return 0

@@ -153,6 +153,17 @@ def release_recording(recording: Any, timeout_s: float = FLUSH_TIMEOUT_S) -> boo
     return False
 
 
+def _save(recording: Any, file: Path) -> None:
+    """Send the view to ``file`` (.rrd); a file that cannot be written is a ServiceError saying what to do."""
+    try:
+        recording.save(file, default_blueprint=default_blueprint())
+    except (OSError, RuntimeError) as exc:  # rerun reports a failed write as RuntimeError
+        raise ServiceError(
+            f"rerun: cannot save the view to {file} ({exc}); free disk space, choose another --rrd FILE, "
+            "or run without a view (--no-view)"
+        ) from None
+
+
 def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] | None]:
     """A ``rr.RecordingStream`` sending where ``options`` says, and the server process it started (serve).
 
@@ -169,7 +180,7 @@ def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] |
         except ViewUnavailable as exc:
             if options.file is not None:
                 log.warning("rerun: cannot open a viewer (%s); saving the view to %s instead", exc, options.file)
-                recording.save(options.file, default_blueprint=default_blueprint())
+                _save(recording, options.file)
                 return recording, None
             log.warning(
                 "rerun: cannot open a viewer (%s); running without a live view. Use --rrd FILE to save it, "
@@ -179,7 +190,7 @@ def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] |
             return None, None
     elif options.mode == "save":
         assert options.file is not None
-        recording.save(options.file, default_blueprint=default_blueprint())
+        _save(recording, options.file)
     elif options.mode == "serve":
         exe = shutil.which("rerun")
         if exe is None:

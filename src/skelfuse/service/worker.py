@@ -4,8 +4,8 @@ Cycle::
 
     source = make_source(cfg, sensor_id, options)       # sim | replay | kinect (pluggable)
     session = open_session(...)                          # retried with backoff while it fails
-    for due_ns, frame in source.frames():                # due: monotonic ns when the frame is "captured"
-        lifecycle.wait(until due)                        # paced on the monotonic clock
+    for due_ns, frame in SourceReader(source):           # source.frames() on a thread of its own
+        lifecycle.wait(until due)                        # due: monotonic ns when the frame is "captured"
         frame.host_time_ns = time.time_ns()              # stamped at publish
         publisher.put(encode_sensor_frame(frame))        # skelfuse/<rig>/sensors/<id>/skeletons
     + status every status_period_s on skelfuse/<rig>/status/capture-<id>, liveliness on .../alive/capture-<id>
@@ -13,6 +13,8 @@ Cycle::
 A source that fails at run time (an exception while producing frames) is logged and restarted with
 exponential backoff; a source that cannot exist in this config (a sim sensor without a pose, a missing replay
 file) raises at once, before anything opens, and a kinect source without pyk4a / the SDKs stops the worker.
+A watchdog restarts a started source that delivers no frame for ``stall_timeout_s``, a read that never returns
+included (the reader thread is abandoned; SIGTERM still stops the worker at once).
 
 Sources
 -------
@@ -41,9 +43,11 @@ Sources
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
+import queue
 import threading
 import time
 import zlib
@@ -67,7 +71,7 @@ from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.formats import detect_format
-from skelfuse.sources.kinect import KinectSource
+from skelfuse.sources.kinect import KinectSource, TrackerStalled
 from skelfuse.wire import keys
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
 
@@ -78,6 +82,17 @@ log = logging.getLogger("skelfuse.service.worker")
 
 DEFAULT_GESTURE = "walking"
 DEFAULT_TAKE_S = 20.0
+DEFAULT_STALL_TIMEOUT_S = 10.0
+"""The watchdog's default (``WorkerOptions.stall_timeout_s``; the config parser has its own copy)."""
+READ_POLL_S = 0.1
+"""How often the publish loop looks at its exit flag, the run limits and the watchdog while it waits for the
+source."""
+READER_JOIN_S = 1.0
+"""How long a stopping worker waits for its source's thread to close the source (a hung read: then abandoned)."""
+MAX_FAILURES_WHILE_HUNG = 3
+"""While a read the watchdog abandoned is still blocked (the SDK's state is suspect: the call may hold the
+device or a lock), the worker gives up after this many further failures of its source and exits with status 1,
+so that the service manager (``Restart=on-failure``) starts a fresh process."""
 
 
 class FrameSource(Protocol):
@@ -120,10 +135,12 @@ class WorkerOptions:
     limits: RunLimits = field(default_factory=RunLimits)
     subordinate_wait_s: float = 30.0
     take_origin_ns: int = 0
-    stall_timeout_s: float | None = 10.0
-    """Watchdog: a live source (one that yields ``None`` while it waits) that delivers no frame for this long
-    is treated as stalled (a body tracker that stopped producing results) and restarted like a source that
-    failed; counted in the status as ``stalls``. None: off."""
+    stall_timeout_s: float | None = DEFAULT_STALL_TIMEOUT_S
+    """Watchdog (``[capture] stall_timeout_s``, ``--stall-timeout``): a source that, once started, delivers no
+    frame for this long is treated as stalled and restarted like a source that failed, counted in the status
+    as ``stalls``: a body tracker that keeps answering with nothing, and a read that never returns (a hung SDK
+    call: the source is read on a thread of its own, :class:`SourceReader`). A Kinect source gets the same
+    timeout for its own diagnosis (no capture / no tracker result). None: off."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -428,10 +445,11 @@ class KinectFrameSource:
     """An Azure Kinect / Femto Bolt (``skelfuse.sources.kinect.KinectSource``) as a worker source.
 
     Frames are due when the tracker delivers them (no pacing) and keep the host time the source stamped on
-    receipt. ``frames()`` also yields ``(now, None)`` every read timeout so the worker can check its exit
-    flag while the device is silent. Device failures (unplugged, tracker stalled) raise out of ``frames()``
-    and the worker restarts the source with backoff; pyk4a or the SDKs missing raise ``KinectUnavailable``
-    (a ServiceError), which stops the worker with a message naming the ``kinect`` extra.
+    receipt. ``frames()`` also yields ``(now, None)`` once the device is open and then every read timeout
+    while the device is silent (the worker's watchdog counts silence from the first of them). Device
+    failures (unplugged, tracker stalled) raise out of ``frames()`` and the worker restarts the source with
+    backoff; pyk4a or the SDKs missing raise ``KinectUnavailable`` (a ServiceError), which stops the worker
+    with a message naming the ``kinect`` extra.
 
     Start order across processes (wired sync needs the subordinates' cameras running before the master's):
     with a zenoh session (constructor or :meth:`attach`), a subordinate declares the liveliness token
@@ -454,6 +472,7 @@ class KinectFrameSource:
         session: Any = None,
         subordinate_wait_s: float = 30.0,
         should_exit: Callable[[], bool] = lambda: False,
+        stall_timeout_s: float | None = None,
     ) -> None:
         self.cfg = cfg
         self.sensor_id = sensor_id
@@ -461,6 +480,7 @@ class KinectFrameSource:
         self.session = session
         self.subordinate_wait_s = subordinate_wait_s
         self.should_exit = should_exit
+        self.stall_timeout_s = stall_timeout_s
 
     def attach(self, session: Any, *, should_exit: Callable[[], bool] | None = None) -> None:
         """Give the source the worker's zenoh session (and exit flag) for the start-order handshake."""
@@ -506,7 +526,8 @@ class KinectFrameSource:
 
     def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
 
-        source = KinectSource.from_config(self.cfg, self.sensor_id)
+        options = {} if self.stall_timeout_s is None else {"stall_timeout_s": self.stall_timeout_s}
+        source = KinectSource.from_config(self.cfg, self.sensor_id, **options)
         source.ensure_available()  # missing pyk4a / SDKs: say so now, not after waiting for subordinates
         self._wait_for_subordinates()
         if self.should_exit():
@@ -516,6 +537,7 @@ class KinectFrameSource:
         try:
             if self.session is not None and self.role == "subordinate":
                 token = self.session.liveliness().declare_token(keys.alive(self.cfg.name, camera_node(self.sensor_id)))
+            yield time.monotonic_ns(), None  # the device is open: the worker's watchdog watches every read from here
             while True:
                 yield time.monotonic_ns(), source.read(self.read_timeout_s)
         finally:
@@ -588,7 +610,9 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
             anchor_us=replay_anchor_us(cfg),
         )
     if sensor.source == "kinect":
-        return KinectFrameSource(cfg, sensor_id, subordinate_wait_s=options.subordinate_wait_s)
+        return KinectFrameSource(
+            cfg, sensor_id, subordinate_wait_s=options.subordinate_wait_s, stall_timeout_s=options.stall_timeout_s
+        )
     raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has unknown source {sensor.source!r}")  # pragma: no cover
 
 
@@ -597,7 +621,79 @@ def make_source(cfg: RigConfig, sensor_id: str, options: WorkerOptions) -> Frame
 
 
 class SourceStalled(Exception):
-    """The watchdog's verdict: the source kept answering but delivered no frame for ``stall_timeout_s``."""
+    """The watchdog's verdict: the source delivered no frame for ``stall_timeout_s`` (it kept answering with
+    nothing, or its read never returned)."""
+
+
+_END = object()
+
+
+class SourceReader:
+    """A source's ``frames()`` run on a thread of its own, handed to the publish loop one item at a time.
+
+    A read that never returns (an SDK call that hangs) then blocks this thread only: the publish loop keeps
+    watching its exit flag, its run limits and the watchdog, and abandons a hung reader. Python cannot
+    interrupt a thread inside a C call, so an abandoned reader is a daemon thread: if its call ever returns it
+    sees it was stopped, closes its ``frames()`` (which closes the source) and ends. The source is always
+    closed on the thread that opened it.
+    """
+
+    def __init__(self, source: FrameSource, name: str) -> None:
+        self._items: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=1)
+        self._stop = threading.Event()
+        self._ended: bool | None = None
+        self._thread = threading.Thread(target=self._run, args=(source,), name=f"{name}-source", daemon=True)
+        self._thread.start()
+
+    def _hand_over(self, item: tuple[str, Any]) -> bool:
+        """Put ``item`` for the publish loop; False once the reader is stopped."""
+        while not self._stop.is_set():
+            try:
+                self._items.put(item, timeout=READ_POLL_S)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self, source: FrameSource) -> None:
+        frames = source.frames()
+        try:
+            for item in frames:
+                if not self._hand_over(("item", item)):
+                    return
+            self._hand_over(("end", None))
+        except BaseException as exc:  # handed to the publish loop, which restarts or stops
+            self._hand_over(("error", exc))
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                with contextlib.suppress(Exception):
+                    close()
+
+    def next(self, timeout_s: float) -> Any:
+        """The next ``(due_ns, frame)``; None when none came within ``timeout_s``; ``_END`` when the source
+        finished. An exception the source raised is raised here."""
+        try:
+            kind, value = self._items.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+        if kind == "error":
+            raise value
+        return _END if kind == "end" else value
+
+    def stop(self, join_s: float = READER_JOIN_S) -> bool:
+        """Stop reading; True when the thread ended within ``join_s`` (False: blocked in a read, abandoned).
+        Waits only on the first call."""
+        if self._ended is None:
+            self._stop.set()
+            self._thread.join(join_s)
+            self._ended = not self._thread.is_alive()
+        return self._ended
+
+    @property
+    def blocked(self) -> bool:
+        """Stopped but its thread still inside a read."""
+        return self._ended is not None and self._thread.is_alive()
 
 
 @dataclass
@@ -699,24 +795,36 @@ def _publish_loop(
         window_frames = 0
         last_status = now
 
+    hung: list[SourceReader] = []  # readers the watchdog abandoned inside a read that never returned
+    failures_while_hung = 0
     try:
         while not lifecycle.should_exit:
+            reader = SourceReader(source, name)
             try:
-                last_frame_ns = time.monotonic_ns()
-                for due_ns, frame in source.frames():
+                watching = False  # the watchdog starts with the source's first answer (a device open, a frame)
+                waiting_since = time.monotonic_ns()
+                while True:
                     now = time.monotonic_ns()
                     if now >= next_status:
                         status("running")
                         next_status = now + period_ns
-                    if due_ns > deadline_ns or lifecycle.should_exit:
+                    if lifecycle.should_exit or now >= deadline_ns:
                         return
-                    if frame is None:  # a live device with nothing new within its read timeout
-                        silent_s = (now - last_frame_ns) / 1e9
-                        if options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
-                            report.stalls += 1
+                    item = reader.next(READ_POLL_S)
+                    if item is _END:
+                        log.info("capture worker %s: source finished", name)
+                        return
+                    now = time.monotonic_ns()
+                    if item is not None and not watching:
+                        watching, waiting_since = True, now
+                    if item is None or item[1] is None:  # nothing yet: a read still running, or a silent device
+                        silent_s = (now - waiting_since) / 1e9
+                        if watching and options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
                             raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
                         continue
-                    last_frame_ns = now
+                    due_ns, frame = item
+                    if due_ns > deadline_ns or lifecycle.should_exit:
+                        return
                     wait_ns = due_ns - time.monotonic_ns()
                     if wait_ns > 0 and lifecycle.wait(wait_ns / 1e9):
                         return
@@ -728,17 +836,34 @@ def _publish_loop(
                     report.frames_out += 1
                     window_frames += 1
                     backoff = BACKOFF_FIRST_S
+                    waiting_since = time.monotonic_ns()
                     if limits.max_frames is not None and report.frames_out >= limits.max_frames:
                         return
                     if time.monotonic() - start > (limits.duration_s or math.inf):
                         return
-                log.info("capture worker %s: source finished", name)
-                return
             except (ConfigError, ServiceError):
                 raise
-            except Exception as exc:  # the source failed at run time: log, back off, start it again
+            except Exception as exc:  # the source failed or stalled: log, back off, start it again
+                if isinstance(exc, (SourceStalled, TrackerStalled)):
+                    report.stalls += 1
                 report.restarts += 1
                 last_error = f"{type(exc).__name__}: {exc}"
+                if not reader.stop():
+                    hung.append(reader)
+                    log.error(
+                        "capture worker %s: the source's read has not returned (a hung SDK call?); its thread is "
+                        "abandoned",
+                        name,
+                    )
+                hung = [r for r in hung if r.blocked]
+                failures_while_hung = failures_while_hung + 1 if hung else 0
+                if hung:
+                    if failures_while_hung > MAX_FAILURES_WHILE_HUNG:
+                        raise ServiceError(
+                            f"capture worker {name}: a read of its source is still blocked and the source failed "
+                            f"{failures_while_hung - 1} more times since ({last_error}); exiting so that the service "
+                            "manager starts a fresh process (systemd: Restart=on-failure)"
+                        ) from None
                 log.error(
                     "capture worker %s: source failed (%s); restarting it in %.1f s",
                     name,
@@ -753,6 +878,11 @@ def _publish_loop(
                     log.info("capture worker %s: --duration reached while the source was failing", name)
                     return
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
+            finally:
+                if not reader.stop() and reader not in hung:
+                    log.warning(
+                        "capture worker %s: stopping with a read of its source still blocked (left behind)", name
+                    )
     finally:
         lifecycle.request_exit()
         status("stopped")

@@ -107,7 +107,9 @@ def run_stream(
     report = StreamReport()
     samples = BoundedSampleQueue(cfg.stream.queue_size)
     with lifecycle.capture_signals():
-        session = open_session(zenoh_conf, lifecycle=lifecycle, what=node)
+        session = open_session(
+            zenoh_conf, lifecycle=lifecycle, what=node, deadline=limits.deadline(time.monotonic())
+        )  # an unreachable router is retried until --duration at most
         if session is None:
             sender.close()
             return report
@@ -132,6 +134,7 @@ def run_stream(
                 _forward(item, sender, report, node)
             token.undeclare()
         finally:
+            lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             sender.close()
             session.close()
     report.dropped = samples.dropped
