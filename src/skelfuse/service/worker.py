@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.fusion.camera import Intrinsics
 from skelfuse.recording import RecordedFrame, RecordingReader
 from skelfuse.recording.inputs import open_inputs
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError
@@ -62,6 +63,7 @@ from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
+from skelfuse.sim.depth import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
@@ -69,6 +71,7 @@ from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.formats import detect_format
 from skelfuse.sources.kinect import KinectSource
 from skelfuse.wire import keys
+from skelfuse.wire.clouds import PersonCloudsFrame, encode_person_clouds
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -219,6 +222,41 @@ class SimSource:
         self.clock_offset_ns = round((sim.clock_offset_ms if sim is not None else 0.0) * 1e6)
         self.clock_jitter_ns = (sim.clock_jitter_ms if sim is not None else 0.0) * 1e6
         self._clock_rng = np.random.default_rng(zlib.crc32(sensor_id.encode()))
+        self.seed = seed if observation_seed is None else observation_seed
+        self.voxel_mm = cfg.depth.voxel_mm
+        self._clouds: dict[int, dict[int, np.ndarray]] = {}  # take frame -> person index -> cloud (the take loops)
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame:
+        """Depth mode: the person cloud of ``frame``'s body (``sim/depth.py``: capsule bodies ray-cast in this
+        sensor's NFOV 2x2-binned depth image, its noise seeded by (seed, sensor, take frame)), with the
+        skeleton's body id; no cloud where the simulated tracker lost the body. Rendered once per take frame."""
+        obs = self.observations
+        f = (frame.sequence - self.origin_n) % obs.n_frames
+        if f not in self._clouds:
+            rng = np.random.default_rng([self.seed, self.column, f])
+            self._clouds[f] = sensor_person_clouds(
+                self.depth_sensor,
+                obs.truth[f][None],
+                voxel_mm=self.voxel_mm,
+                intrinsics=Intrinsics.azure_kinect_nfov(binned=True),
+                rng=rng,
+            )
+        clouds = self._clouds[f]
+        ids, points = (frame.body_ids[:1], (clouds[0],)) if len(frame.body_ids) and 0 in clouds else ([], ())
+        return PersonCloudsFrame(
+            sensor_id=self.sensor_id,
+            sequence=frame.sequence,
+            device_timestamp_us=frame.device_time_us,
+            host_timestamp_ns=frame.host_time_ns,
+            voxel_mm=self.voxel_mm,
+            body_ids=np.asarray(ids, dtype=np.uint32),
+            clouds=points,
+        )
+
+    @property
+    def depth_sensor(self) -> VirtualSensor:
+        """This sensor's true pose, as the simulation observes from it."""
+        return VirtualSensor(self.sensor_id, self.observations.world_from_sensor[self.column])
 
     def host_time_ns(self) -> int:
         """This emulated capture PC's wall clock: the host's, plus its configured offset and jitter."""
@@ -658,6 +696,9 @@ def _publish_loop(
     rig = cfg.name
     key = keys.sensor_skeletons(rig, sensor_id)
     publisher = session.declare_publisher(key, express=True)
+    # depth / hybrid mode: a source that can (sim: SimSource.clouds_at) also publishes each body's cloud
+    clouds_at = getattr(source, "clouds_at", None) if cfg.fusion.mode != "skeleton" else None
+    clouds_pub = None if clouds_at is None else session.declare_publisher(keys.sensor_clouds(rig, sensor_id))
     status_pub = session.declare_publisher(keys.status(rig, name))
     token = session.liveliness().declare_token(keys.alive(rig, name))
     period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
@@ -717,6 +758,7 @@ def _publish_loop(
                             raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
                         continue
                     last_frame_ns = now
+                    clouds = None if clouds_at is None else clouds_at(frame)
                     wait_ns = due_ns - time.monotonic_ns()
                     if wait_ns > 0 and lifecycle.wait(wait_ns / 1e9):
                         return
@@ -724,6 +766,11 @@ def _publish_loop(
                         report.late_publishes += 1
                     if not stamps_host_time:
                         frame = dataclasses.replace(frame, host_time_ns=stamp_host_time())
+                    if clouds_pub is not None and clouds is not None:  # before the skeletons: the node has
+                        # them when the instant is fused
+                        clouds_pub.put(
+                            encode_person_clouds(dataclasses.replace(clouds, host_timestamp_ns=frame.host_time_ns))
+                        )
                     publisher.put(encode_sensor_frame(frame))
                     report.frames_out += 1
                     window_frames += 1
@@ -758,4 +805,6 @@ def _publish_loop(
         status("stopped")
         token.undeclare()
         publisher.undeclare()
+        if clouds_pub is not None:
+            clouds_pub.undeclare()
         status_pub.undeclare()
