@@ -62,6 +62,9 @@ log = logging.getLogger("skelfuse.service.depth")
 
 VIRTUAL_SENSOR_ID = "virtual"
 """Sensor id of the hybrid mode's virtual sensor (its copies: ``virtual_2``, ``virtual_3``, ...)."""
+CLOUD_WAIT_S = 0.03
+"""How long one instant's fusion waits, at most, for clouds that have not arrived with their skeletons (the two
+keys' samples reach the node on different zenoh threads, and a cloud is larger and decoded on arrival)."""
 CLOUD_FRAMES_KEPT = 16
 """Cloud frames kept per sensor (about half a second at 30 fps): enough for a group's deadline."""
 ASSOCIATION_GATE_MM = 400.0
@@ -159,6 +162,7 @@ class CloudBuffer:
             sid: collections.OrderedDict() for sid in sensor_ids
         }
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)
         self.received = 0
         self.rejects: Counter[str] = Counter()
 
@@ -187,6 +191,7 @@ class CloudBuffer:
             while len(frames) > CLOUD_FRAMES_KEPT:
                 frames.popitem(last=False)
             self.received += 1
+            self._arrived.notify_all()
 
     def _reject(self, reason: str) -> None:
         with self._lock:
@@ -195,11 +200,18 @@ class CloudBuffer:
         if first:
             log.warning("rejected a person-cloud payload (%s); counted in the status under depth.cloud_rejects", reason)
 
-    def take(self, sensor_id: str, device_time_us: int) -> PersonCloudsFrame | None:
-        """The clouds of ``sensor_id``'s capture at ``device_time_us`` (None when they did not arrive)."""
-        with self._lock:
+    def take(self, sensor_id: str, device_time_us: int, *, until: float | None = None) -> PersonCloudsFrame | None:
+        """The clouds of ``sensor_id``'s capture at ``device_time_us``, waiting for them up to the monotonic
+        time ``until`` (None: no wait); None when they did not arrive."""
+        with self._arrived:
             frames = self._frames.get(sensor_id)
-            return None if frames is None else frames.get(device_time_us)
+            if frames is None:
+                return None
+            while device_time_us not in frames and until is not None and frames:  # never sent any: no wait
+                left = until - time.monotonic()
+                if left <= 0 or not self._arrived.wait(left):
+                    break
+            return frames.get(device_time_us)
 
 
 @dataclasses.dataclass
@@ -209,6 +221,7 @@ class DepthCounters:
     persons: int = 0
     tracked: int = 0
     no_clouds: int = 0
+    clouds_missing: int = 0
     tracker_misses: int = 0
     tracker_errors: int = 0
     depth_ms: collections.deque[float] = dataclasses.field(default_factory=lambda: collections.deque(maxlen=1000))
@@ -339,12 +352,14 @@ class DepthStage:
         confidence = np.zeros((n_persons, N_JOINTS), np.uint8)
         used = np.zeros((n_persons, n_sensors), bool)
         per_person: list[list[list[np.ndarray]]] = [[[] for _ in range(n_sensors)] for _ in range(n_persons)]
+        until = time.monotonic() + CLOUD_WAIT_S
         for s, sensor_id in enumerate(self.sensor_ids):
             frame = group.frames.get(sensor_id)
             if frame is None or frame.n_bodies == 0:
                 continue
-            clouds = self.clouds.take(sensor_id, frame.device_time_us)
-            if clouds is None:
+            clouds = self.clouds.take(sensor_id, frame.device_time_us, until=until)
+            if clouds is None:  # not arrived in time: this sensor's bodies go without their clouds
+                self.counters.clouds_missing += 1
                 continue
             by_id = dict(zip((int(i) for i in clouds.body_ids), clouds.clouds, strict=True))
             for b, body_id in enumerate(frame.body_ids):
@@ -403,6 +418,7 @@ class DepthStage:
             "persons": c.persons,
             "tracked": c.tracked,
             "no_clouds": c.no_clouds,
+            "clouds_missing": c.clouds_missing,
             "tracker_misses": c.tracker_misses,
             "tracker_errors": c.tracker_errors,
             "depth_ms_p50": round(float(np.percentile(data, 50)), 3) if data.size else None,

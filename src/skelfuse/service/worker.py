@@ -225,23 +225,23 @@ class SimSource:
         self.seed = seed if observation_seed is None else observation_seed
         self.voxel_mm = cfg.depth.voxel_mm
         self._clouds: dict[int, dict[int, np.ndarray]] = {}  # take frame -> person index -> cloud (the take loops)
+        if cfg.fusion.mode != "skeleton":  # render the take's clouds now: publishing must keep the frame rate
+            tick = time.monotonic()
+            for f in range(self.observations.n_frames):
+                self._render_clouds(f)
+            log.info(
+                "sim sensor %s: %d depth frames rendered in %.1f s (depth mode: person clouds)",
+                sensor_id,
+                self.observations.n_frames,
+                time.monotonic() - tick,
+            )
 
     def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame:
         """Depth mode: the person cloud of ``frame``'s body (``sim/depth.py``: capsule bodies ray-cast in this
         sensor's NFOV 2x2-binned depth image, its noise seeded by (seed, sensor, take frame)), with the
-        skeleton's body id; no cloud where the simulated tracker lost the body. Rendered once per take frame."""
-        obs = self.observations
-        f = (frame.sequence - self.origin_n) % obs.n_frames
-        if f not in self._clouds:
-            rng = np.random.default_rng([self.seed, self.column, f])
-            self._clouds[f] = sensor_person_clouds(
-                self.depth_sensor,
-                obs.truth[f][None],
-                voxel_mm=self.voxel_mm,
-                intrinsics=Intrinsics.azure_kinect_nfov(binned=True),
-                rng=rng,
-            )
-        clouds = self._clouds[f]
+        skeleton's body id; no cloud where the simulated tracker lost the body. The take is rendered once, when
+        the source is built in depth or hybrid mode."""
+        clouds = self._render_clouds((frame.sequence - self.origin_n) % self.observations.n_frames)
         ids, points = (frame.body_ids[:1], (clouds[0],)) if len(frame.body_ids) and 0 in clouds else ([], ())
         return PersonCloudsFrame(
             sensor_id=self.sensor_id,
@@ -252,6 +252,18 @@ class SimSource:
             body_ids=np.asarray(ids, dtype=np.uint32),
             clouds=points,
         )
+
+    def _render_clouds(self, f: int) -> dict[int, np.ndarray]:
+        if f not in self._clouds:
+            rng = np.random.default_rng([self.seed, self.column, f])
+            self._clouds[f] = sensor_person_clouds(
+                self.depth_sensor,
+                self.observations.truth[f][None],
+                voxel_mm=self.voxel_mm,
+                intrinsics=Intrinsics.azure_kinect_nfov(binned=True),
+                rng=rng,
+            )
+        return self._clouds[f]
 
     @property
     def depth_sensor(self) -> VirtualSensor:
@@ -698,7 +710,10 @@ def _publish_loop(
     publisher = session.declare_publisher(key, express=True)
     # depth / hybrid mode: a source that can (sim: SimSource.clouds_at) also publishes each body's cloud
     clouds_at = getattr(source, "clouds_at", None) if cfg.fusion.mode != "skeleton" else None
-    clouds_pub = None if clouds_at is None else session.declare_publisher(keys.sensor_clouds(rig, sensor_id))
+    # express like the skeletons: a batched cloud would arrive after the skeleton it belongs to
+    clouds_pub = (
+        None if clouds_at is None else session.declare_publisher(keys.sensor_clouds(rig, sensor_id), express=True)
+    )
     status_pub = session.declare_publisher(keys.status(rig, name))
     token = session.liveliness().declare_token(keys.alive(rig, name))
     period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
