@@ -117,10 +117,13 @@ def test_a_virtual_image_goes_through_the_tracker_and_its_skeleton_comes_back_to
     captures_before = fake_k4a.captures_alive()
     with VirtualCameraTracker(k4a, library, K, TrackerSettings(processing_mode="cpu")) as tracker:
         assert tracker.submit(view, timeout_ms=10)
-        # the capture and its images are released once the tracker has it; the buffers are unpinned
+        # the tracker holds its own reference to the capture until its body frame is released (as the SDK's
+        # k4abt_frame_get_capture implies): the binding's is given back, the buffers stay pinned till then
+        assert fake_k4a.captures_alive() == captures_before + 1
+        found = tracker.collect(timeout_ms=50)
+        # popped and released: the capture and its images are gone, the buffers unpinned
         assert fake_k4a.captures_alive() == captures_before
         assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4abt._PINNED
-        found = tracker.collect(timeout_ms=50)
     assert found is not None and found.device_time_us == FRAME_PERIOD_US and found.body_id == 1
     # What the fake computed from the image, recomputed here from the same image.
     depth = to_k4a_depth(view.image.depth_mm)

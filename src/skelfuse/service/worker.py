@@ -554,9 +554,14 @@ class KinectFrameSource:
         elif not missing:
             log.info("kinect master %s: every subordinate camera is running; starting", self.sensor_id)
 
-    def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """Depth / hybrid mode: the person clouds of ``frame`` (from the body tracker's body-index map)."""
+        source = getattr(self, "_source", None)
+        return None if source is None else source.clouds_at(frame)
 
-        source = KinectSource.from_config(self.cfg, self.sensor_id)
+    def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
+        voxel_mm = self.cfg.depth.voxel_mm if self.cfg.fusion.mode != "skeleton" else None
+        source = self._source = KinectSource.from_config(self.cfg, self.sensor_id, clouds_voxel_mm=voxel_mm)
         source.ensure_available()  # missing pyk4a / SDKs: say so now, not after waiting for subordinates
         self._wait_for_subordinates()
         if self.should_exit():

@@ -30,7 +30,11 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
+
 from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.fusion.camera import Intrinsics
+from skelfuse.fusion.depth.cloud import person_clouds
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.sources import recorded
@@ -44,7 +48,11 @@ from skelfuse.sources.k4abt import (
     TrackerSettings,
     calibration_pointer,
     capture_handle,
+    declare_image_api,
+    depth_intrinsics,
+    load_k4a,
 )
+from skelfuse.wire.clouds import PersonCloudsFrame
 
 log = logging.getLogger("skelfuse.sources.kinect")
 
@@ -265,6 +273,10 @@ class KinectSource:
         SensorDisconnected.
     enqueue_timeout_ms : int
         How long one capture may wait for room in the tracker's input queue before it is dropped.
+    clouds_voxel_mm : float, optional
+        Depth / hybrid mode (``[fusion] mode``): also make each body's person cloud (the capture's depth image
+        masked by the tracker's body-index map, lifted with the device's depth intrinsics as a pinhole, the lens
+        distortion not applied, voxelized), for :meth:`clouds_at`. None: skeletons only.
 
     Attributes
     ----------
@@ -281,8 +293,13 @@ class KinectSource:
         k4abt: K4abtLibrary | str | Path | None = None,
         stall_timeout_s: float = 3.0,
         enqueue_timeout_ms: int = 5,
+        clouds_voxel_mm: float | None = None,
     ) -> None:
         self.settings = settings
+        self.clouds_voxel_mm = clouds_voxel_mm
+        self._k4a: Any = None  # libk4a through ctypes: the images of a body frame (clouds only)
+        self._depth_intrinsics: Intrinsics | None = None
+        self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or settings.serial
         self._pyk4a = pyk4a
         self._k4abt = k4abt
@@ -322,6 +339,10 @@ class KinectSource:
             self._device.start()
             calibration = self._device.calibration
             self._tracker = Tracker(library, calibration_pointer(calibration), self.settings.tracker)
+            if self.clouds_voxel_mm is not None:
+                self._k4a = load_k4a()
+                declare_image_api(self._k4a)
+                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(calibration)))
         except pyk4a.K4AException as exc:
             self.close()
             raise SensorDisconnected(
@@ -377,12 +398,12 @@ class KinectSource:
             handle = capture_handle(capture)
             if not tracker.enqueue(handle, timeout_ms=0):
                 # queue full: free a slot by taking a result, then try once more within a bounded wait
-                body = tracker.pop(timeout_ms=self.enqueue_timeout_ms)
+                body = tracker.pop(timeout_ms=self.enqueue_timeout_ms, images=self._k4a)
                 if not tracker.enqueue(handle, timeout_ms=self.enqueue_timeout_ms):
                     self.dropped_captures += 1
                 if body is not None:
                     return self._emit(body, now)
-        body = tracker.pop(timeout_ms=0)
+        body = tracker.pop(timeout_ms=0, images=self._k4a)
         if body is not None:
             return self._emit(body, now)
         if self.captures and now - self._last_result > self.stall_timeout_s:
@@ -396,7 +417,33 @@ class KinectSource:
     def _emit(self, body: BodyFrameData, now: float) -> SensorFrame:
         self._last_result = now
         self.results += 1
-        return self._assemble(body)
+        frame = self._assemble(body)
+        if self.clouds_voxel_mm is not None and body.depth is not None and body.body_index is not None:
+            self._clouds = {frame.device_time_us: self.person_clouds(body, frame)}  # the latest frame's only
+        return frame
+
+    def person_clouds(self, body: BodyFrameData, frame: SensorFrame) -> PersonCloudsFrame:
+        """Each tracked body's cloud of one body frame (the map's index b is the frame's b-th body)."""
+        assert self._depth_intrinsics is not None and self.clouds_voxel_mm is not None
+        assert body.depth is not None and body.body_index is not None
+        clouds = [
+            c
+            for c in person_clouds(body.depth, body.body_index, self._depth_intrinsics, voxel_mm=self.clouds_voxel_mm)
+            if c.body_index < body.n_bodies
+        ]
+        return PersonCloudsFrame(
+            sensor_id=self.sensor_id,
+            sequence=frame.sequence,
+            device_timestamp_us=frame.device_time_us,
+            host_timestamp_ns=frame.host_time_ns,
+            voxel_mm=self.clouds_voxel_mm,
+            body_ids=np.array([body.body_ids[c.body_index] for c in clouds], dtype=np.uint32),
+            clouds=tuple(c.points for c in clouds),
+        )
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """The person clouds of ``frame`` (the latest one read), None where none were made."""
+        return self._clouds.get(frame.device_time_us)
 
     def close(self) -> None:
         tracker, self._tracker = self._tracker, None
