@@ -45,7 +45,7 @@ from skelfuse.fusion.transform import invert_transform
 from skelfuse.schema.errors import CalibrationError, ConfigError
 
 FORMAT_VERSION = 1
-METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual")
+METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual", "refine")
 
 
 def now_iso() -> str:
