@@ -339,7 +339,7 @@ class FakePlayback:
     def __init__(self, path: Any, thread_safe: bool = True) -> None:
         self.path = Path(path)
         self._left = self.world.eof_after
-        self.calibration = FakeCalibration()
+        self.calibration = FakeCalibration(self.world.calibration_bytes)
         self.closed = False
 
     def open(self) -> None:
@@ -349,7 +349,7 @@ class FakePlayback:
         if self._left <= 0:
             raise EOFError
         self._left -= 1
-        return FakeCapture(self.world.k4a)
+        return FakeCapture(self.world.k4a, self.world.depth)
 
     def close(self) -> None:
         self.closed = True

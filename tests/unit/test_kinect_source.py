@@ -375,7 +375,10 @@ def test_describe_environment_says_what_is_missing(monkeypatch):
     assert kinect.PYK4A_INSTALL_HINT
 
 
-def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(stack, fake_libs, monkeypatch):
+@pytest.mark.parametrize("kind", ["device", "mkv"])
+def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
+    stack, fake_libs, monkeypatch, tmp_path, kind
+):
     """clouds_voxel_mm: each popped body frame's body-index map and its capture's depth image (read back with
     their strides through the fake SDKs) become one cloud per body, lifted with the device's depth intrinsics.
     The fake tracker's map gives body b the b-th vertical strip of the valid pixels (tests/fake_k4a)."""
@@ -399,13 +402,21 @@ def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(stac
         fake.script_frame(
             1_000_000 + index * 33_333, time.monotonic_ns(), ids, zeros, quats, np.full((2, 32), 2, np.uint8)
         )
-    settings = DeviceSettings(serial="000111", tracker=TrackerSettings(processing_mode="cpu"))
-    source = KinectSource(settings, pyk4a=pyk4a, k4abt=library, clouds_voxel_mm=20.0)
+    if kind == "device":
+        settings = DeviceSettings(serial="000111", tracker=TrackerSettings(processing_mode="cpu"))
+        source = KinectSource(settings, pyk4a=pyk4a, k4abt=library, clouds_voxel_mm=20.0)
+    else:  # a k4arecorder take replayed through the tracker (skelfuse eval depth reads these)
+        world.eof_after = 3
+        (tmp_path / "take.mkv").write_bytes(b"")
+        source = MkvSource(tmp_path / "take.mkv", pyk4a=pyk4a, k4abt=library, clouds_voxel_mm=20.0)
     source.open()
     clouds = []
     try:
         for _ in range(20):
-            frame = source.read(0.01)
+            try:
+                frame = source.read(0.01)
+            except EndOfStream:
+                break
             if frame is not None:
                 clouds.append(source.clouds_at(frame))
                 assert clouds[-1].device_timestamp_us == frame.device_time_us

@@ -253,6 +253,30 @@ def _host_time_ns(system_ns: int | None) -> int:
     return now_wall - (now_mono - system_ns)
 
 
+def body_clouds(
+    body: BodyFrameData, frame: SensorFrame, intrinsics: Intrinsics, voxel_mm: float
+) -> PersonCloudsFrame | None:
+    """Each tracked body's person cloud of one body frame (its depth image masked by the body-index map, the
+    map's index b being the frame's b-th body, lifted with ``intrinsics`` as a pinhole, voxelized); None when
+    the frame came without its images."""
+    if body.depth is None or body.body_index is None:
+        return None
+    clouds = [
+        c
+        for c in person_clouds(body.depth, body.body_index, intrinsics, voxel_mm=voxel_mm)
+        if c.body_index < body.n_bodies
+    ]
+    return PersonCloudsFrame(
+        sensor_id=frame.sensor_id,
+        sequence=frame.sequence,
+        device_timestamp_us=frame.device_time_us,
+        host_timestamp_ns=frame.host_time_ns,
+        voxel_mm=voxel_mm,
+        body_ids=np.array([body.body_ids[c.body_index] for c in clouds], dtype=np.uint32),
+        clouds=tuple(c.points for c in clouds),
+    )
+
+
 # ----------------------------------------------------------------------------------------- device source
 
 
@@ -418,28 +442,10 @@ class KinectSource:
         self._last_result = now
         self.results += 1
         frame = self._assemble(body)
-        if self.clouds_voxel_mm is not None and body.depth is not None and body.body_index is not None:
-            self._clouds = {frame.device_time_us: self.person_clouds(body, frame)}  # the latest frame's only
+        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
+            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+            self._clouds = {} if clouds is None else {frame.device_time_us: clouds}  # the latest frame's only
         return frame
-
-    def person_clouds(self, body: BodyFrameData, frame: SensorFrame) -> PersonCloudsFrame:
-        """Each tracked body's cloud of one body frame (the map's index b is the frame's b-th body)."""
-        assert self._depth_intrinsics is not None and self.clouds_voxel_mm is not None
-        assert body.depth is not None and body.body_index is not None
-        clouds = [
-            c
-            for c in person_clouds(body.depth, body.body_index, self._depth_intrinsics, voxel_mm=self.clouds_voxel_mm)
-            if c.body_index < body.n_bodies
-        ]
-        return PersonCloudsFrame(
-            sensor_id=self.sensor_id,
-            sequence=frame.sequence,
-            device_timestamp_us=frame.device_time_us,
-            host_timestamp_ns=frame.host_time_ns,
-            voxel_mm=self.clouds_voxel_mm,
-            body_ids=np.array([body.body_ids[c.body_index] for c in clouds], dtype=np.uint32),
-            clouds=tuple(c.points for c in clouds),
-        )
 
     def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
         """The person clouds of ``frame`` (the latest one read), None where none were made."""
@@ -509,8 +515,13 @@ class MkvSource:
         k4abt: K4abtLibrary | str | Path | None = None,
         fps: float = 30.0,
         result_timeout_ms: int = 5000,
+        clouds_voxel_mm: float | None = None,
     ) -> None:
         self.path = Path(path)
+        self.clouds_voxel_mm = clouds_voxel_mm  # as KinectSource's: person clouds for clouds_at()
+        self._k4a: Any = None
+        self._depth_intrinsics: Intrinsics | None = None
+        self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or self.path.stem
         self.tracker_settings = tracker or TrackerSettings()
         self._pyk4a = pyk4a
@@ -532,6 +543,10 @@ class MkvSource:
         try:
             self._playback.open()
             self._tracker = Tracker(library, calibration_pointer(self._playback.calibration), self.tracker_settings)
+            if self.clouds_voxel_mm is not None:
+                self._k4a = load_k4a()
+                declare_image_api(self._k4a)
+                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(self._playback.calibration)))
         except pyk4a.K4AException as exc:
             self.close()
             raise DataError(
@@ -551,9 +566,9 @@ class MkvSource:
         tracker = self._tracker
         timeout_ms = max(0, int(timeout_s * 1000))
         while not self._eof:
-            body = tracker.pop(timeout_ms=0)
+            body = tracker.pop(timeout_ms=0, images=self._k4a)
             if body is not None:
-                return self._assemble(body)
+                return self._emit(body)
             try:
                 capture = self._playback.get_next_capture()
             except EOFError:
@@ -567,21 +582,32 @@ class MkvSource:
                 self.skipped_captures += 1  # a capture without depth (recordings start with a few)
             except pyk4a.K4AException as exc:
                 raise DataError(f"{self.path}: cannot read the next capture ({exc})") from None
-            body = tracker.pop(timeout_ms=timeout_ms)
+            body = tracker.pop(timeout_ms=timeout_ms, images=self._k4a)
             if body is not None:
-                return self._assemble(body)
+                return self._emit(body)
             return None
         if tracker.pending == 0:
             raise EndOfStream(f"{self.path}: end of recording")
         try:
-            body = tracker.pop(timeout_ms=self.result_timeout_ms)
+            body = tracker.pop(timeout_ms=self.result_timeout_ms, images=self._k4a)
         except TrackerFailedError:
             body = None
             tracker.pending = 0
         if body is None:
             tracker.pending = 0
             raise EndOfStream(f"{self.path}: end of recording")
-        return self._assemble(body)
+        return self._emit(body)
+
+    def _emit(self, body: BodyFrameData) -> SensorFrame:
+        frame = self._assemble(body)
+        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
+            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+            self._clouds = {} if clouds is None else {frame.device_time_us: clouds}
+        return frame
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """The person clouds of ``frame`` (the latest one read), None where none were made."""
+        return self._clouds.get(frame.device_time_us)
 
     def close(self) -> None:
         tracker, self._tracker = self._tracker, None
