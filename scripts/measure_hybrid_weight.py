@@ -22,64 +22,18 @@ import time
 import numpy as np
 
 from skelfuse.config import parse_rig_config
-from skelfuse.fusion.camera import Intrinsics
-from skelfuse.rig.grouping import FrameGroup
+from skelfuse.eval.depth import SIM_TAKES, Instant, simulated_instants
 from skelfuse.rig.instant import GroupFuser
-from skelfuse.schema.frames import SensorFrame
-from skelfuse.schema.skeleton import EVAL_JOINTS, N_JOINTS
+from skelfuse.schema.skeleton import EVAL_JOINTS
 from skelfuse.service.depth_stage import CloudBuffer, DepthStage, open_tracker
-from skelfuse.sim import crowd
-from skelfuse.sim.depth import sensor_person_clouds
-from skelfuse.sim.observe import load_profile
-from skelfuse.sim.rig import VirtualSensor
+from skelfuse.sim.crowd import CrowdObservations
 from skelfuse.wire import keys
-from skelfuse.wire.clouds import PersonCloudsFrame, encode_person_clouds
+from skelfuse.wire.clouds import encode_person_clouds
 
 RIG = "hw"
-TAKES = {"crossing": crowd.crossing_scenario, "bystander": crowd.bystander_scenario}
 
 
-def simulate(take: str, duration_s: float, seed: int) -> crowd.CrowdObservations:
-    return crowd.simulate_scenario(TAKES[take](duration_s=duration_s), load_profile(), seed=seed)
-
-
-def instants(obs: crowd.CrowdObservations) -> list[tuple[FrameGroup, list[tuple[str, bytes]]]]:
-    """Per instant: the frame group, and each sensor's person-cloud payload (rendered once per take)."""
-    out = []
-    sensors = [VirtualSensor(sid, obs.world_from_sensor[s]) for s, sid in enumerate(obs.sensor_ids)]
-    binned = Intrinsics.azure_kinect_nfov(binned=True)
-    for t in range(obs.n_frames):
-        time_us = round(float(obs.times_s[t]) * 1e6) + 1_000_000
-        frames, clouds = {}, []
-        people = np.flatnonzero(obs.present[t])
-        for s, sid in enumerate(obs.sensor_ids):
-            slots = np.flatnonzero(obs.valid[t, s])
-            frames[sid] = SensorFrame(
-                sensor_id=sid,
-                sequence=t,
-                device_time_us=time_us,
-                host_time_ns=0,
-                body_ids=obs.body_ids[t, s, slots].astype(np.uint32),
-                positions=obs.positions[t, s, slots].astype(np.float32),
-                orientations=np.tile(np.array([1.0, 0, 0, 0], np.float32), (slots.size, N_JOINTS, 1)),
-                confidence=obs.confidence[t, s, slots],
-            )
-            by_person = sensor_person_clouds(
-                sensors[s], obs.truth[t, people], voxel_mm=15.0, intrinsics=binned, rng=np.random.default_rng([s, t])
-            )
-            ids, points = [], []
-            for slot in slots:
-                index = np.flatnonzero(people == obs.person_of_body[t, s, slot])
-                if index.size and int(index[0]) in by_person:
-                    ids.append(int(obs.body_ids[t, s, slot]))
-                    points.append(by_person[int(index[0])])
-            frame = PersonCloudsFrame(sid, t, time_us, 0, 15.0, np.array(ids, np.uint32), tuple(points))
-            clouds.append((sid, encode_person_clouds(frame)))
-        out.append((FrameGroup(time_us, frames, (), True), clouds))
-    return out
-
-
-def mean_error(obs: crowd.CrowdObservations, prepared: list, mode: str, weight: int) -> float:
+def mean_error(obs: CrowdObservations, prepared: list[Instant], mode: str, weight: int) -> float:
     poses = obs.world_from_sensor_calibrated
     eye = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
     cfg = parse_rig_config(
@@ -95,12 +49,13 @@ def mean_error(obs: crowd.CrowdObservations, prepared: list, mode: str, weight: 
     ids, fused_poses = (cfg.sensor_ids, poses) if stage is None else stage.fuser_sensors(poses)
     fuser = GroupFuser(ids, fused_poses, cfg.fusion.fusion_params())
     errors = []
-    for t, (group, clouds) in enumerate(prepared):
+    for instant in prepared:
         if stage is not None:
-            for sid, payload in clouds:
-                stage.clouds.put(keys.sensor_clouds(RIG, sid), payload)
+            for sid, clouds in instant.clouds.items():
+                stage.clouds.put(keys.sensor_clouds(RIG, sid), encode_person_clouds(clouds))
+        group = instant.group
         frame = (fuser.step(group) if stage is None else stage.step(fuser, group)).frame
-        truth = obs.truth[t][obs.present[t]]
+        truth = instant.truth
         for fused in frame.positions:
             distance = np.nanmean(np.linalg.norm(truth[:, EVAL_JOINTS] - fused[EVAL_JOINTS], axis=-1), axis=1)
             errors.append(float(distance.min()))
@@ -109,8 +64,8 @@ def mean_error(obs: crowd.CrowdObservations, prepared: list, mode: str, weight: 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tune", default="crossing", choices=sorted(TAKES), help="take the weight is chosen on")
-    parser.add_argument("--held-out", default="bystander", choices=sorted(TAKES), help="take it is reported on")
+    parser.add_argument("--tune", default="crossing", choices=sorted(SIM_TAKES), help="take the weight is chosen on")
+    parser.add_argument("--held-out", default="bystander", choices=sorted(SIM_TAKES), help="take it is reported on")
     parser.add_argument("--duration", type=float, default=4.0, help="seconds of each take")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--weights", type=int, nargs="+", default=[1, 2, 3, 4])
@@ -119,8 +74,7 @@ def main() -> None:
     print("|---|---:|" + "---:|" * len(args.weights))
     for role, take in (("tune", args.tune), ("held out", args.held_out)):
         tick = time.monotonic()
-        obs = simulate(take, args.duration, args.seed)
-        prepared = instants(obs)
+        prepared, obs = simulated_instants(take, args.duration, args.seed)
         figures = [mean_error(obs, prepared, "skeleton", 1)]
         figures += [mean_error(obs, prepared, "hybrid", w) for w in args.weights]
         cells = " | ".join(f"{e:.1f}" for e in figures)
