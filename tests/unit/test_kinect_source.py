@@ -436,3 +436,46 @@ def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
             np.testing.assert_allclose(cloud.clouds[b], expected, atol=1e-3)
     stats = fake.stats()
     assert stats.frames_alive == 0 and world.k4a.captures_alive() == captures_before  # nothing held or leaked
+
+
+def test_eval_depth_groups_the_mkv_takes_of_several_sensors_into_instants(stack, fake_libs, monkeypatch, tmp_path):
+    """skelfuse eval depth's reader: two sensors' takes replayed one after the other through the (fake) SDK,
+    frames and clouds grouped by device time within the rig's tolerance (a subordinate 160 µs after its
+    master joins the master's instant; a frame of one sensor alone makes an incomplete instant)."""
+    import ctypes
+
+    from skelfuse.eval.depth import mkv_instants
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, virtual_calibration
+
+    world, pyk4a, library, fake = stack
+    monkeypatch.setenv(K4A_LIBRARY_ENV, str(fake_libs.k4a))
+    world.calibration_bytes = bytes(virtual_calibration(252.0, 251.0, 160.5, 143.0, 320, 288))
+    depth = np.zeros((288, 320), np.uint16)
+    depth[60:240, 40:280] = 2000
+    world.depth = (ctypes.c_uint16 * 320 * 288).from_buffer_copy(depth.tobytes())
+    cfg = load_rig_config(EXAMPLE)
+    first, second = cfg.sensor_ids[:2]
+    one = np.zeros((1, 32, 3), np.float32)
+    quats = np.tile(np.array([1, 0, 0, 0], np.float32), (1, 32, 1))
+    conf = np.full((1, 32), 2, np.uint8)
+    times = {first: [1_000_000, 1_033_333, 1_066_667], second: [1_000_160, 1_033_493, 1_100_160]}
+    for sensor_id in (first, second):  # the takes are read in this order: script each one's frames in turn
+        for us in times[sensor_id]:
+            fake.script_frame(us, time.monotonic_ns(), np.array([3], np.uint32), one, quats, conf)
+    takes = {}
+    for sensor_id in (first, second):
+        takes[sensor_id] = tmp_path / f"{sensor_id}.mkv"
+        takes[sensor_id].write_bytes(b"")
+    world.eof_after = 3
+    instants = mkv_instants(takes, cfg, voxel_mm=20.0, pyk4a=pyk4a, k4abt=library)
+    assert [sorted(i.group.frames) for i in instants] == [
+        sorted([first, second]),
+        sorted([first, second]),
+        [first],
+        [second],
+    ]
+    assert [i.group.time_us for i in instants] == [1_000_000, 1_033_333, 1_066_667, 1_100_160]
+    assert all(set(i.clouds) == set(i.group.frames) for i in instants)
+    assert instants[0].clouds[second].body_ids.tolist() == [3] and len(instants[0].clouds[second].clouds[0]) > 100
+    assert not instants[0].group.complete and set(instants[2].group.missing) >= {second}  # a 4-sensor rig
+    assert fake.stats().frames_alive == 0

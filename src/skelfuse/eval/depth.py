@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -95,18 +96,33 @@ def simulated_instants(
 
 
 def mkv_instants(
-    takes: Mapping[str, Path], cfg: RigConfig, *, voxel_mm: float, max_frames: int | None = None
+    takes: Mapping[str, Path],
+    cfg: RigConfig,
+    *,
+    voxel_mm: float,
+    max_frames: int | None = None,
+    pyk4a: Any = None,
+    k4abt: Any = None,
 ) -> list[Instant]:
     """Each sensor's ``.mkv`` replayed through the Body Tracking SDK (one after the other: the SDK allows one
     tracker per process), its frames and person clouds grouped into instants by device time within the rig's
-    ``[sync]`` tolerance. Raises KinectUnavailable (pyk4a / the SDKs missing) before reading anything."""
+    ``[sync]`` tolerance. Raises KinectUnavailable (pyk4a / the SDKs missing) before reading anything.
+    ``pyk4a`` / ``k4abt``: injected by tests (the fake stack), else the installed ones."""
     per_sensor: dict[str, list[tuple[SensorFrame, PersonCloudsFrame | None]]] = {}
     for sensor_id, path in takes.items():
         sensor = cfg.sensor(sensor_id)
         settings = (
             TrackerSettings.from_config(sensor.kinect.tracker) if sensor.kinect is not None else TrackerSettings()
         )
-        source = MkvSource(path, settings, sensor_id=sensor_id, fps=cfg.sync.fps, clouds_voxel_mm=voxel_mm)
+        source = MkvSource(
+            path,
+            settings,
+            sensor_id=sensor_id,
+            fps=cfg.sync.fps,
+            clouds_voxel_mm=voxel_mm,
+            pyk4a=pyk4a,
+            k4abt=k4abt,
+        )
         source.open()
         frames: list[tuple[SensorFrame, PersonCloudsFrame | None]] = []
         try:
