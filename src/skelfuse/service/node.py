@@ -481,6 +481,8 @@ class FusionNode:
                 deadline=self.options.limits.deadline(self._started),
             )
             if session is None:
+                if self.depth is not None:
+                    self.depth.close()  # the tracker(s) it opened
                 return self.report
         view, server = self._open_view()
         self.view = view
