@@ -101,11 +101,19 @@ FAKE_EXPORT k4a_result_t k4a_device_get_sync_jack(k4a_device_t handle, bool *in,
     return K4A_RESULT_SUCCEEDED;
 }
 
+FAKE_EXPORT void k4a_capture_release(k4a_capture_t handle);
+FAKE_EXPORT k4a_result_t k4a_image_create_from_buffer(k4a_image_format_t format, int width_pixels, int height_pixels,
+                                                      int stride_bytes, uint8_t *buffer, size_t buffer_size,
+                                                      k4a_memory_destroy_cb_t *buffer_release_cb,
+                                                      void *buffer_release_cb_context, k4a_image_t *image_handle);
+
 FAKE_EXPORT k4a_result_t k4a_capture_create(k4a_capture_t *capture_handle) {
     if (capture_handle == NULL) return K4A_RESULT_FAILED;
     fake_capture *capture = calloc(1, sizeof(fake_capture));
     capture->magic = FAKE_CAPTURE_MAGIC;
     capture->refcount = 1;
+    capture->release = k4a_capture_release;
+    capture->create_image = k4a_image_create_from_buffer;
     g_captures_alive++;
     *capture_handle = (k4a_capture_t)capture;
     return K4A_RESULT_SUCCEEDED;
@@ -191,6 +199,44 @@ FAKE_EXPORT void k4a_capture_release(k4a_capture_t handle) {
         free(capture);
         g_captures_alive--;
     }
+}
+
+/* ---- reading images back (k4a_capture_get_depth_image, k4a_image_get_*) ---- */
+
+FAKE_EXPORT k4a_image_t k4a_capture_get_depth_image(k4a_capture_t capture_handle) {
+    fake_capture *capture = (fake_capture *)capture_handle;
+    if (capture == NULL || capture->magic != FAKE_CAPTURE_MAGIC || capture->depth == NULL) return NULL;
+    capture->depth->refcount++; /* the caller releases it */
+    return (k4a_image_t)capture->depth;
+}
+
+FAKE_EXPORT uint8_t *k4a_image_get_buffer(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->buffer : NULL;
+}
+FAKE_EXPORT size_t k4a_image_get_size(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->size : 0;
+}
+FAKE_EXPORT k4a_image_format_t k4a_image_get_format(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->format : K4A_IMAGE_FORMAT_CUSTOM;
+}
+FAKE_EXPORT int k4a_image_get_width_pixels(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->width : 0;
+}
+FAKE_EXPORT int k4a_image_get_height_pixels(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->height : 0;
+}
+FAKE_EXPORT int k4a_image_get_stride_bytes(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->stride : 0;
+}
+FAKE_EXPORT uint64_t k4a_image_get_device_timestamp_usec(k4a_image_t handle) {
+    fake_image *image = as_image(handle);
+    return image != NULL ? image->device_usec : 0;
 }
 
 /* ---- test control ---- */

@@ -40,6 +40,7 @@ typedef struct {
     uint32_t n_bodies;
     uint32_t *ids;
     k4abt_skeleton_t *skeletons;
+    fake_capture *capture; /* the capture the frame was computed from (one reference held), or NULL */
 } fake_frame;
 
 typedef struct {
@@ -128,6 +129,7 @@ static fake_frame *new_frame(uint64_t device_usec, uint64_t system_nsec, uint32_
 
 static void free_frame(fake_frame *frame) {
     frame->magic = 0;
+    if (frame->capture != NULL) frame->capture->release((k4a_capture_t)frame->capture);
     free(frame->ids);
     free(frame->skeletons);
     free(frame);
@@ -349,6 +351,8 @@ FAKE_EXPORT k4a_wait_result_t k4abt_tracker_enqueue_capture(k4abt_tracker_t trac
             g_auto_time += 33333;
             event.frame = new_frame(g_auto_time, g_auto_time * 1000, 0, NULL, NULL);
         }
+        event.frame->capture = (fake_capture *)sensor_capture_handle; /* k4abt_frame_get_capture gives it back */
+        event.frame->capture->refcount++;
         g_ready[g_ready_len++] = event.frame;
         g_stats.enqueued++;
         return K4A_WAIT_RESULT_SUCCEEDED;
@@ -458,3 +462,40 @@ FAKE_EXPORT uint64_t k4abt_frame_get_timestamp_usec(k4abt_frame_t handle) {
     return frame ? frame->device_usec : 0;
 }
 #endif
+
+/* The body-index map of a frame: a CUSTOM8 image of the capture's depth size, 255 (background) where the depth
+ * is 0 or the frame has no body; elsewhere the body index of the pixel's column strip, u * n_bodies / width
+ * (body 0 on the left), so that a test can recompute it. Made through the fake libk4a (the caller releases it
+ * with k4a_image_release); NULL for a frame without a capture or depth image. */
+static void free_map_buffer(void *buffer, void *context) {
+    (void)context;
+    free(buffer);
+}
+
+FAKE_EXPORT k4a_image_t k4abt_frame_get_body_index_map(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    if (frame == NULL || frame->capture == NULL || frame->capture->depth == NULL) return NULL;
+    const fake_image *depth = frame->capture->depth;
+    const int width = depth->width, height = depth->height;
+    uint8_t *map = malloc((size_t)width * (size_t)height);
+    for (int v = 0; v < height; v++) {
+        const uint16_t *row = (const uint16_t *)(depth->buffer + (size_t)v * (size_t)depth->stride);
+        for (int u = 0; u < width; u++)
+            map[(size_t)v * (size_t)width + (size_t)u] =
+                (row[u] > 0 && frame->n_bodies > 0) ? (uint8_t)(((long)u * (long)frame->n_bodies) / width) : 255;
+    }
+    k4a_image_t image = NULL;
+    if (frame->capture->create_image(K4A_IMAGE_FORMAT_CUSTOM8, width, height, width, map,
+                                     (size_t)width * (size_t)height, free_map_buffer, NULL, &image) != K4A_RESULT_SUCCEEDED) {
+        free(map);
+        return NULL;
+    }
+    return image;
+}
+
+FAKE_EXPORT k4a_capture_t k4abt_frame_get_capture(k4abt_frame_t handle) {
+    fake_frame *frame = as_frame(handle);
+    if (frame == NULL || frame->capture == NULL) return NULL;
+    frame->capture->refcount++; /* the caller releases it with k4a_capture_release */
+    return (k4a_capture_t)frame->capture;
+}

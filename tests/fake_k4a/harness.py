@@ -216,10 +216,34 @@ class Config:
 
 
 class FakeCapture:
-    def __init__(self, k4a: FakeK4a) -> None:
+    def __init__(self, k4a: FakeK4a, depth: Any = None) -> None:
+        """``depth``: a (H, W) ctypes uint16 array kept alive by the caller (the world), set as the capture's
+        DEPTH16 image (rows 2 W bytes apart) through the fake libk4a, like a device capture's."""
         self._k4a = k4a
         self._holder = k4a.new_capture_holder()
         self._capture_handle = make_capsule(ctypes.addressof(self._holder), CAPTURE_NAME)
+        if depth is not None:
+            from skelfuse.sources.k4abt import K4aMemoryDestroyCallback, declare_image_api
+
+            declare_image_api(k4a.lib)
+            height, width = len(depth), len(depth[0])
+            image = ctypes.c_void_p()
+            assert (
+                k4a.lib.k4a_image_create_from_buffer(
+                    4,
+                    width,
+                    height,
+                    2 * width,
+                    ctypes.addressof(depth),
+                    ctypes.sizeof(depth),
+                    K4aMemoryDestroyCallback(),  # NULL: the world owns the buffer
+                    None,
+                    ctypes.byref(image),
+                )
+                == 0
+            )
+            k4a.lib.k4a_capture_set_depth_image(self._holder, image)
+            k4a.lib.k4a_image_release(image)  # the capture holds its own reference
 
     def __del__(self) -> None:
         if self._holder.value:
@@ -227,8 +251,10 @@ class FakeCapture:
 
 
 class FakeCalibration:
-    def __init__(self) -> None:
+    def __init__(self, contents: bytes | None = None) -> None:
         self._buffer = ctypes.create_string_buffer(1024)  # stands in for a k4a_calibration_t
+        if contents is not None:  # a real k4a_calibration_t's bytes (skelfuse.sources.k4abt.virtual_calibration)
+            ctypes.memmove(self._buffer, contents, len(contents))
         self.address = ctypes.addressof(self._buffer)
         self._calibration_handle = make_capsule(self.address, CALIBRATION_NAME)
 
@@ -244,6 +270,8 @@ class FakeWorld:
     capture_period_s: float = 0.0
     opened: list[PyK4AConfigured] = field(default_factory=list)
     eof_after: int = 0
+    depth: Any = None  # a ctypes (H, W) uint16 array: every capture's depth image (None: captures without)
+    calibration_bytes: bytes | None = None  # the devices' k4a_calibration_t (None: zeros)
 
 
 class PyK4AConfigured:
@@ -293,7 +321,7 @@ class PyK4AConfigured:
     @property
     def calibration(self) -> FakeCalibration:
         if self._calibration is None:
-            self._calibration = FakeCalibration()
+            self._calibration = FakeCalibration(self.world.calibration_bytes)
         return self._calibration
 
     def get_capture(self, timeout: int = -1) -> FakeCapture:
@@ -302,7 +330,7 @@ class PyK4AConfigured:
             raise K4AException("device lost")
         if self.world.capture_period_s:
             threading.Event().wait(self.world.capture_period_s)
-        return FakeCapture(self.world.k4a)
+        return FakeCapture(self.world.k4a, self.world.depth)
 
 
 class FakePlayback:
@@ -311,7 +339,7 @@ class FakePlayback:
     def __init__(self, path: Any, thread_safe: bool = True) -> None:
         self.path = Path(path)
         self._left = self.world.eof_after
-        self.calibration = FakeCalibration()
+        self.calibration = FakeCalibration(self.world.calibration_bytes)
         self.closed = False
 
     def open(self) -> None:
@@ -321,7 +349,7 @@ class FakePlayback:
         if self._left <= 0:
             raise EOFError
         self._left -= 1
-        return FakeCapture(self.world.k4a)
+        return FakeCapture(self.world.k4a, self.world.depth)
 
     def close(self) -> None:
         self.closed = True

@@ -204,6 +204,13 @@ typedef struct {
     int refcount;
     fake_image *depth;
     fake_image *ir;
+    /* Set by the fake libk4a's k4a_capture_create: the fake libk4abt keeps the capture a body frame came from
+     * and makes the frame's body-index map through these, so that libk4a's counts of live captures and
+     * images stay true across the two libraries (the real SDKs share one allocator the same way). */
+    void (*release)(k4a_capture_t capture);
+    k4a_result_t (*create_image)(k4a_image_format_t format, int width_pixels, int height_pixels, int stride_bytes,
+                                 uint8_t *buffer, size_t buffer_size, k4a_memory_destroy_cb_t *buffer_release_cb,
+                                 void *buffer_release_cb_context, k4a_image_t *image_handle);
 } fake_capture;
 
 #endif

@@ -547,7 +547,7 @@ def test_every_option_is_documented() -> None:
     add_calibrate_parser(sub)
     calibrate = sub.choices["calibrate"]
     methods = next(a for a in calibrate._actions if isinstance(a, argparse._SubParsersAction))
-    assert set(methods.choices) == {"capture", "sphere", "marker", "skeleton", "check"}
+    assert set(methods.choices) == {"capture", "sphere", "marker", "skeleton", "check", "refine"}
     for name, command in methods.choices.items():
         for action in command._actions:
             if not isinstance(action, argparse._HelpAction):

@@ -58,6 +58,7 @@ TABLES: dict[str, tuple[tuple[Any, ...], tuple[str, ...]]] = {
     "[calibration]": (("calibration",), ()),
     "[sync]": (("sync",), ()),
     "[fusion]": (("fusion",), ("params",)),
+    "[depth]": (("depth",), ()),
     "[zenoh]": (("zenoh",), ("config", "tls")),
     "[zenoh.tls]": (("zenoh", "tls"), ()),
     "[node]": (("node",), ()),

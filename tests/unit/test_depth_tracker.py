@@ -117,10 +117,13 @@ def test_a_virtual_image_goes_through_the_tracker_and_its_skeleton_comes_back_to
     captures_before = fake_k4a.captures_alive()
     with VirtualCameraTracker(k4a, library, K, TrackerSettings(processing_mode="cpu")) as tracker:
         assert tracker.submit(view, timeout_ms=10)
-        # the capture and its images are released once the tracker has it; the buffers are unpinned
+        # the tracker holds its own reference to the capture until its body frame is released (as the SDK's
+        # k4abt_frame_get_capture implies): the binding's is given back, the buffers stay pinned till then
+        assert fake_k4a.captures_alive() == captures_before + 1
+        found = tracker.collect(timeout_ms=50)
+        # popped and released: the capture and its images are gone, the buffers unpinned
         assert fake_k4a.captures_alive() == captures_before
         assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4abt._PINNED
-        found = tracker.collect(timeout_ms=50)
     assert found is not None and found.device_time_us == FRAME_PERIOD_US and found.body_id == 1
     # What the fake computed from the image, recomputed here from the same image.
     depth = to_k4a_depth(view.image.depth_mm)
@@ -167,3 +170,50 @@ def test_a_capture_the_tracker_cannot_read_is_refused(echo) -> None:
         with pytest.raises(k4abt.TrackerFailedError):
             tracker.submit(view)
     assert fake_k4abt.stats().bad_captures == 1
+
+
+def test_the_nodes_depth_stage_runs_the_sdk_adapter_one_tracker_per_person(echo, tmp_path, monkeypatch) -> None:
+    """``[depth] tracker = "k4abt"``: the node's depth stage loads the SDK (here the fakes, found the way the
+    node finds the SDK: SKELFUSE_K4A_LIBRARY / SKELFUSE_K4ABT_LIBRARY), says so, creates one tracker per track
+    id, and outputs what the tracker found mapped back to the world (the echo body's joint 0: the centroid of
+    the virtual depth image, on the person); everything is released when the stage closes."""
+    from skelfuse.config import load_rig_config
+    from skelfuse.demo import sim_sensor_tables
+    from skelfuse.service.depth_stage import depth_stage_for
+    from skelfuse.service.node import FusionCore
+    from skelfuse.service.worker import SimSource
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, K4ABT_LIBRARY_ENV
+    from skelfuse.wire import keys
+    from skelfuse.wire.clouds import encode_person_clouds
+    from skelfuse.wire.codec import encode_sensor_frame
+
+    k4a, library, fake_k4abt, fake_k4a = echo
+    monkeypatch.setenv(K4A_LIBRARY_ENV, k4a._name)
+    monkeypatch.setenv(K4ABT_LIBRARY_ENV, str(library.path))
+    config = tmp_path / "rig.toml"
+    lines = ["[rig]", 'name = "k"', "[fusion]", 'mode = "depth"', "[depth]", 'tracker = "k4abt"', ""]
+    config.write_text("\n".join(lines + sim_sensor_tables(4)), encoding="utf-8")
+    cfg = load_rig_config(config)
+    sources = [SimSource(cfg, sid, gesture="walking", take_duration_s=0.5, seed=0) for sid in cfg.sensor_ids]
+    stage = depth_stage_for(cfg)
+    assert stage.tracker.name == "k4abt" and str(library.path) in stage.describe()
+    core = FusionCore(cfg, depth=stage)
+    captures_before = fake_k4a.captures_alive()
+    outputs = []
+    for n in range(900, 908):  # 900 = 60 x 15: take frames 0..7
+        for source in sources:
+            frame = source.frame_at(n)
+            stage.clouds.put(keys.sensor_clouds("k", source.sensor_id), encode_person_clouds(source.clouds_at(frame)))
+            outputs += core.receive(keys.sensor_skeletons("k", source.sensor_id), encode_sensor_frame(frame), n * 10**6)
+    outputs += core.flush()
+    fused = [out.frame for out in outputs if out.frame.n_persons]
+    assert len(fused) >= 5 and stage.counters.tracker_misses == 0
+    truth = sources[0].observations.truth
+    for frame in fused:
+        pelvis = truth[round(frame.time_us / (1e6 / 30)) % truth.shape[0], J["PELVIS"]]
+        assert np.linalg.norm(frame.positions[0, 0, :2] - pelvis[:2]) < 250.0  # the image's centroid, on the person
+    stats = fake_k4abt.stats()
+    assert stats.created == 1 and stats.infinite_waits == 0  # one person, one tracker, every wait bounded
+    stage.close()
+    stats = fake_k4abt.stats()
+    assert stats.destroyed == 1 and stats.frames_alive == 0 and fake_k4a.captures_alive() == captures_before

@@ -373,3 +373,109 @@ def test_describe_environment_says_what_is_missing(monkeypatch):
     if sys.platform.startswith("linux"):
         assert "libk4abt1.1-dev" in text and "k4a-tools" in text
     assert kinect.PYK4A_INSTALL_HINT
+
+
+@pytest.mark.parametrize("kind", ["device", "mkv"])
+def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
+    stack, fake_libs, monkeypatch, tmp_path, kind
+):
+    """clouds_voxel_mm: each popped body frame's body-index map and its capture's depth image (read back with
+    their strides through the fake SDKs) become one cloud per body, lifted with the device's depth intrinsics.
+    The fake tracker's map gives body b the b-th vertical strip of the valid pixels (tests/fake_k4a)."""
+    import ctypes
+
+    from skelfuse.fusion.depth.cloud import voxelize
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, virtual_calibration
+
+    world, pyk4a, library, fake = stack
+    monkeypatch.setenv(K4A_LIBRARY_ENV, str(fake_libs.k4a))  # the libk4a pyk4a runs on (the same library)
+    width, height, fx, fy, cx, cy = 320, 288, 252.0, 251.0, 160.5, 143.0
+    world.calibration_bytes = bytes(virtual_calibration(fx, fy, cx, cy, width, height))
+    depth = np.zeros((height, width), np.uint16)
+    depth[60:240, 40:280] = 1800 + (np.arange(280 - 40) % 97)[None, :]  # a slanted block, invalid around it
+    world.depth = (ctypes.c_uint16 * width * height).from_buffer_copy(depth.tobytes())
+    captures_before = world.k4a.captures_alive()
+    ids = np.array([7, 9], np.uint32)
+    for index in range(3):
+        zeros = np.zeros((2, 32, 3), np.float32)
+        quats = np.tile(np.array([1, 0, 0, 0], np.float32), (2, 32, 1))
+        fake.script_frame(
+            1_000_000 + index * 33_333, time.monotonic_ns(), ids, zeros, quats, np.full((2, 32), 2, np.uint8)
+        )
+    if kind == "device":
+        settings = DeviceSettings(serial="000111", tracker=TrackerSettings(processing_mode="cpu"))
+        source = KinectSource(settings, pyk4a=pyk4a, k4abt=library, clouds_voxel_mm=20.0)
+    else:  # a k4arecorder take replayed through the tracker (skelfuse eval depth reads these)
+        world.eof_after = 3
+        (tmp_path / "take.mkv").write_bytes(b"")
+        source = MkvSource(tmp_path / "take.mkv", pyk4a=pyk4a, k4abt=library, clouds_voxel_mm=20.0)
+    source.open()
+    clouds = []
+    try:
+        for _ in range(20):
+            try:
+                frame = source.read(0.01)
+            except EndOfStream:
+                break
+            if frame is not None:
+                clouds.append(source.clouds_at(frame))
+                assert clouds[-1].device_timestamp_us == frame.device_time_us
+            if len(clouds) == 3:
+                break
+    finally:
+        source.close()
+    assert len(clouds) == 3
+    v, u = np.nonzero(depth)
+    z = depth[v, u].astype(np.float64)
+    lifted = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
+    strip = u * 2 // width
+    for cloud in clouds:
+        assert cloud.body_ids.tolist() == [7, 9] and cloud.voxel_mm == 20.0
+        for b in range(2):
+            expected, _, _ = voxelize(lifted[strip == b], 20.0)
+            np.testing.assert_allclose(cloud.clouds[b], expected, atol=1e-3)
+    stats = fake.stats()
+    assert stats.frames_alive == 0 and world.k4a.captures_alive() == captures_before  # nothing held or leaked
+
+
+def test_eval_depth_groups_the_mkv_takes_of_several_sensors_into_instants(stack, fake_libs, monkeypatch, tmp_path):
+    """skelfuse eval depth's reader: two sensors' takes replayed one after the other through the (fake) SDK,
+    frames and clouds grouped by device time within the rig's tolerance (a subordinate 160 µs after its
+    master joins the master's instant; a frame of one sensor alone makes an incomplete instant)."""
+    import ctypes
+
+    from skelfuse.eval.depth import mkv_instants
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, virtual_calibration
+
+    world, pyk4a, library, fake = stack
+    monkeypatch.setenv(K4A_LIBRARY_ENV, str(fake_libs.k4a))
+    world.calibration_bytes = bytes(virtual_calibration(252.0, 251.0, 160.5, 143.0, 320, 288))
+    depth = np.zeros((288, 320), np.uint16)
+    depth[60:240, 40:280] = 2000
+    world.depth = (ctypes.c_uint16 * 320 * 288).from_buffer_copy(depth.tobytes())
+    cfg = load_rig_config(EXAMPLE)
+    first, second = cfg.sensor_ids[:2]
+    one = np.zeros((1, 32, 3), np.float32)
+    quats = np.tile(np.array([1, 0, 0, 0], np.float32), (1, 32, 1))
+    conf = np.full((1, 32), 2, np.uint8)
+    times = {first: [1_000_000, 1_033_333, 1_066_667], second: [1_000_160, 1_033_493, 1_100_160]}
+    for sensor_id in (first, second):  # the takes are read in this order: script each one's frames in turn
+        for us in times[sensor_id]:
+            fake.script_frame(us, time.monotonic_ns(), np.array([3], np.uint32), one, quats, conf)
+    takes = {}
+    for sensor_id in (first, second):
+        takes[sensor_id] = tmp_path / f"{sensor_id}.mkv"
+        takes[sensor_id].write_bytes(b"")
+    world.eof_after = 3
+    instants = mkv_instants(takes, cfg, voxel_mm=20.0, pyk4a=pyk4a, k4abt=library)
+    assert [sorted(i.group.frames) for i in instants] == [
+        sorted([first, second]),
+        sorted([first, second]),
+        [first],
+        [second],
+    ]
+    assert [i.group.time_us for i in instants] == [1_000_000, 1_033_333, 1_066_667, 1_100_160]
+    assert all(set(i.clouds) == set(i.group.frames) for i in instants)
+    assert instants[0].clouds[second].body_ids.tolist() == [3] and len(instants[0].clouds[second].clouds[0]) > 100
+    assert not instants[0].group.complete and set(instants[2].group.missing) >= {second}  # a 4-sensor rig
+    assert fake.stats().frames_alive == 0

@@ -122,3 +122,21 @@ def test_the_key_and_the_sizes_of_simulated_people() -> None:
     data = encode_person_clouds(PersonCloudsFrame("capture_0", 0, 0, 0, 15.0, np.array([1]), (cloud.points,)))
     assert 1000 < len(cloud.points) < 6000
     assert len(data) == payload_size([len(cloud.points)], ir=False, sensor_id_bytes=9) < 40_000
+
+
+def test_the_codec_knows_the_person_clouds_kind() -> None:
+    """MessageKind.PERSON_CLOUDS: peek_kind names it, the skeleton decoders refuse it by kind, decode() says
+    which decoder reads it."""
+    from skelfuse.wire.clouds import CLOUDS_HEADER_SIZE, PERSON_CLOUDS_KIND
+    from skelfuse.wire.codec import PERSON_CLOUDS_HEADER_SIZE, MessageKind, decode, decode_sensor_frame, peek_kind
+
+    payload = encode_person_clouds(
+        PersonCloudsFrame("s", 1, 2, 3, 15.0, np.array([7], np.uint32), (np.full((3, 3), 500.0),))
+    )
+    assert peek_kind(payload) == MessageKind.PERSON_CLOUDS == PERSON_CLOUDS_KIND
+    assert CLOUDS_HEADER_SIZE == PERSON_CLOUDS_HEADER_SIZE
+    with pytest.raises(DecodeError, match="message kind 4 \\(person-clouds\\), expected 1") as refused:
+        decode_sensor_frame(payload)
+    assert refused.value.reason == "bad_kind"
+    with pytest.raises(DecodeError, match="decode_person_clouds"):
+        decode(payload)

@@ -7,6 +7,7 @@ Sub-commands (``docs/calibration.md`` is the user's procedure)::
     calibrate marker   DIR [--config RIG.toml] [--output FILE]   master to world (paper 2.1.2), re-anchors the file
     calibrate skeleton (--recording REC.mcap | --take ID=FILE ...)   sensor to sensor from a walk -> file
     calibrate check    (--recording REC.mcap | --take ID=FILE ...)   has a sensor moved since? exit 3 if so
+    calibrate refine   --recording REC.mcap --config RIG.toml | --sim  ICP on person clouds of a walk -> file
 
 The RGB-D folder they read and write: :mod:`skelfuse.calibration.rgbd_folder`.
 
@@ -34,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.calibration.marker import calibrate_world_from_marker
+from skelfuse.calibration.refine import refine, refine_report, simulated_walk, walk_frames
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
 from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
@@ -48,16 +50,20 @@ from skelfuse.cli.common import (
     INDEX,
     OUTPUT_FILE,
     POSITIVE,
+    SEED,
+    Number,
 )
 from skelfuse.cli.inputs import add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import load_rig_config
 from skelfuse.config.calibration_file import (
     CalibrationResult,
+    SensorCalibration,
     read_calibration,
     write_calibration,
 )
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.progress import note
+from skelfuse.recording import RecordingReader
 from skelfuse.schema.errors import CalibrationError, ConfigError, DataError
 from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
 
@@ -504,6 +510,78 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------------------------
+# refine
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _cmd_refine(args: argparse.Namespace) -> int:
+    if args.sim:
+        note(
+            f"refine: simulated walk, {args.frames} instants, every sensor but the reference off by "
+            f"{args.perturb_deg:g}° / {args.perturb_mm:g} mm (seed {args.seed})"
+        )
+        walk = simulated_walk(
+            n_frames=args.frames, perturb_deg=args.perturb_deg, perturb_mm=args.perturb_mm, seed=args.seed
+        )
+        note("refine: ICP on the walk (whole, then each half)")
+        result = refine(
+            walk.frames, walk.perturbed_poses, walk.sensor_ids, reference=walk.reference, passes=args.passes
+        )
+        table, _ = refine_report(result, walk.true_poses)
+        print(table)
+        print("\n(simulator: the error is against the true poses; nothing is written in --sim mode)")
+        return EXIT_OK
+    if args.recording is None:
+        raise ConfigError(
+            'give the walk as --recording REC.mcap (`skelfuse record` of the rig in [fusion] mode = "depth" or '
+            '"hybrid", so that the person clouds are recorded), or --sim for the simulated quality table'
+        )
+    cfg = _rig(args)
+    if cfg is None:
+        raise ConfigError("--config RIG.toml is required with --recording: the rig's calibration is what is refined")
+    ids = cfg.sensor_ids
+    reference = args.reference or _default_master(ids, cfg)
+    _check_master(reference, ids, "the rig")
+    by_id = cfg.poses()
+    poses = np.stack([by_id[sid] for sid in ids])
+    note(f"refine: reading the person clouds of {args.recording}")
+    frames = walk_frames(
+        RecordingReader(args.recording).person_clouds(),
+        ids,
+        tolerance_us=cfg.sync.tolerance_us,
+        max_frames=args.frames,
+    )
+    if len(frames) < 2:
+        raise DataError(
+            f"{args.recording} holds {len(frames)} instant(s) whose person clouds two sensors or more saw; record a "
+            'walk-through with the rig in [fusion] mode = "depth" or "hybrid" (the workers then publish the '
+            "clouds and `skelfuse record` writes them)"
+        )
+    note(f"refine: ICP on {len(frames)} instants (whole walk, then each half), reference {reference}")
+    result = refine(frames, poses, ids, reference=ids.index(reference), passes=args.passes)
+    table, verdicts = refine_report(result)
+    print(table)
+    bad = [sid for sid, v in verdicts.items() if v == "bad"]
+    output = _output_path(args, cfg)
+    if bad and not args.force:
+        print(f"\nnot written: sensor(s) {', '.join(bad)} are 'bad' ({output} is left as it was; --force writes it)")
+        return EXIT_ATTENTION
+    sensors = {
+        sid: SensorCalibration(
+            result.after[s],
+            "refine",
+            residual_mm=None if result.results[s] is None else float(result.results[s].rmse_after_mm),
+            n_points=None if result.results[s] is None else int(result.results[s].n_pairs),
+            notes=f"ICP on {result.n_frames} instants of person clouds from {Path(args.recording).name}",
+        )
+        for s, sid in enumerate(ids)
+    }
+    write_calibration(output, CalibrationResult(sensors, "refine", master=reference))
+    print(f"\nwritten to {output}")
+    return EXIT_ATTENTION if bad else EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------------------------
 # parser
 # ----------------------------------------------------------------------------------------------------------
 
@@ -580,6 +658,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_marker(sub)
     _add_skeleton(sub)
     _add_check(sub)
+    _add_refine(sub)
 
 
 def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -854,3 +933,46 @@ def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         help="warn when a residual grew by more than this since a skeleton calibration (default: %(default)s)",
     )
     check.set_defaults(func=_cmd_check)
+
+
+def _add_refine(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    refine_parser = sub.add_parser(
+        "refine",
+        help="refine every sensor's pose by ICP on the person clouds of one person walking through (depth mode)",
+        description="The second paper's calibration refinement: the person clouds of a walk-through (recorded by "
+        '`skelfuse record` from a rig in [fusion] mode = "depth" or "hybrid") are registered sensor to '
+        "sensor by point-to-plane ICP, starting from the rig's calibration; the reference sensor stays put. "
+        "Prints the quality table (correction, ICP residual, pairs, agreement of the two halves of the walk, "
+        "verdict) and writes the refined calibration (not when a verdict is bad, unless --force; exit 3). "
+        "--sim prints the table of a simulated walk with perturbed poses, scored against the truth "
+        "(docs/depth-fusion.md). Progress on stderr.",
+    )
+    refine_parser.add_argument(
+        "--recording", type=EXISTING_FILE, default=None, metavar="REC.mcap", help="the recorded walk-through"
+    )
+    _add_output(refine_parser)
+    refine_parser.add_argument(
+        "--reference", default=None, metavar="ID", help="the sensor that stays put (default: the rig's sync master)"
+    )
+    refine_parser.add_argument(
+        "--frames", type=COUNT, default=12, metavar="N", help="instants used, evenly spread over the walk (default 12)"
+    )
+    refine_parser.add_argument("--passes", type=COUNT, default=3, metavar="N", help="ICP rounds over the sensors (3)")
+    refine_parser.add_argument("--force", action="store_true", help="write the file even when a verdict is bad")
+    refine_parser.add_argument("--sim", action="store_true", help="a simulated walk instead of a recording")
+    refine_parser.add_argument(
+        "--perturb-deg",
+        type=Number(float, ge=0, le=30),
+        default=2.0,
+        metavar="DEG",
+        help="--sim: rotation error given to each sensor (2)",
+    )
+    refine_parser.add_argument(
+        "--perturb-mm",
+        type=Number(float, ge=0, le=1000),
+        default=40.0,
+        metavar="MM",
+        help="--sim: position error given to each sensor (40)",
+    )
+    refine_parser.add_argument("--seed", type=SEED, default=0, help="--sim: seed of the walk and of the errors (0)")
+    refine_parser.set_defaults(func=_cmd_refine)

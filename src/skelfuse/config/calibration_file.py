@@ -17,7 +17,7 @@ File format, version 1 (``docs/configuration.md``, "[calibration]")::
     notes = "..."
     [sensors."000123412512"]
     world_from_sensor = [[...4...], [...], [...], [0.0, 0.0, 0.0, 1.0]]   # sensor -> world, mm
-    method = "sphere"                        # "sphere" | "marker" | "skeleton" | "manual"
+    method = "sphere"                        # "sphere" | "marker" | "skeleton" | "manual" | "refine"
     date = "2025-01-31T10:22:03+00:00"
     residual_mm = 1.8                        # RMS of the fit, mm (absent: not measured)
     n_points = 412                           # correspondences the fit used (absent: none)
@@ -45,7 +45,7 @@ from skelfuse.fusion.transform import invert_transform
 from skelfuse.schema.errors import CalibrationError, ConfigError
 
 FORMAT_VERSION = 1
-METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual")
+METHODS: tuple[str, ...] = ("sphere", "marker", "skeleton", "manual", "refine")
 
 
 def now_iso() -> str:
@@ -103,7 +103,7 @@ class SensorCalibration:
     ----------
     world_from_sensor : (4, 4) float64
         Sensor frame (x right, y down, z forward, mm) → world (z up, mm).
-    method : {"sphere", "marker", "skeleton", "manual"}
+    method : {"sphere", "marker", "skeleton", "manual", "refine"}
     residual_mm : float or None
         RMS distance between the corresponding points after the fit, mm (None: not measured, e.g. the
         master of a sensor-to-sensor fit, or a manual pose).

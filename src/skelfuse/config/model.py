@@ -209,6 +209,10 @@ class FusionConfig:
     preset: str = DEFAULT_PRESET
     eps_mm: float | None = None
     params: tuple[tuple[str, Any], ...] = ()
+    mode: str = "skeleton"
+    """What the node outputs: "skeleton" (skeleton fusion), "depth" (the skeleton a body tracker finds on each
+    person's fused virtual depth image, ``docs/depth-fusion.md``) or "hybrid" (that skeleton enters skeleton
+    fusion as one more, virtual, sensor). Settings of the depth path: ``[depth]`` (:class:`DepthConfig`)."""
 
     def fusion_params(self) -> FusionParams:
         """The :class:`skelfuse.fusion.presets.FusionParams` this section describes.
@@ -224,6 +228,34 @@ class FusionConfig:
             return dataclasses.replace(base, **dict(self.params))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"[fusion]: {exc}") from None
+
+
+FUSION_MODES = ("skeleton", "depth", "hybrid")
+"""Accepted ``[fusion] mode`` values."""
+DEPTH_TRACKERS = ("k4abt", "simulated")
+"""Accepted ``[depth] tracker`` values."""
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """``[depth]``: the depth-level fusion of ``[fusion] mode = "depth"`` / ``"hybrid"`` (docs/depth-fusion.md).
+
+    Attributes
+    ----------
+    tracker : "k4abt" (the Body Tracking SDK on the virtual image) or "simulated" (sim rigs only: a stand-in
+        that is not the SDK, :class:`skelfuse.sim.depth_tracker.SimulatedDepthTracker`).
+    voxel_mm : voxel edge of the capture workers' person clouds and of the merged cloud.
+    icp : refine each cloud against the others by point-to-plane ICP (costly; off by default).
+    tracker_wait_ms : how long the node waits for the tracker's result of one person's image.
+    virtual_weight : hybrid mode: the virtual sensor counts as this many sensors in the merge's vote (its
+        skeleton enters as that many identical rows, ``virtual``, ``virtual_2``, ...).
+    """
+
+    tracker: str = "k4abt"
+    voxel_mm: float = 15.0
+    icp: bool = False
+    tracker_wait_ms: int = 100
+    virtual_weight: int = 1
 
 
 @dataclass(frozen=True)
@@ -395,6 +427,7 @@ class RigConfig:
     sync: SyncConfig = field(default_factory=SyncConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    depth: DepthConfig = field(default_factory=DepthConfig)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     node: NodeConfig = field(default_factory=NodeConfig)
     capture: CaptureConfig = field(default_factory=CaptureConfig)

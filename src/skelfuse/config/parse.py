@@ -13,6 +13,8 @@ from skelfuse.config.model import (
     COLOR_RESOLUTIONS,
     DEFAULT_PRESET,
     DEPTH_MODES,
+    DEPTH_TRACKERS,
+    FUSION_MODES,
     FUSION_PRESETS,
     KINECT_FPS,
     MIN_DELAY_SPACING_US,
@@ -26,6 +28,7 @@ from skelfuse.config.model import (
     ZENOH_MODES,
     CalibrationConfig,
     CaptureConfig,
+    DepthConfig,
     FusionConfig,
     IntakeConfig,
     KinectConfig,
@@ -106,6 +109,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         calibration = CalibrationConfig(file=t.path_value("file", None))
         t.done()
     fusion = _parse_fusion(top.table("fusion"))
+    depth = _parse_depth(top.table("depth"))
     zenoh = _parse_zenoh(top.table("zenoh"))
     node = NodeConfig()
     if (t := top.table("node")) is not None:
@@ -135,12 +139,14 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
     top.done()
 
     _check_rig(sensors, sync, source)
+    _check_depth(fusion, depth, sensors, source)
     return RigConfig(
         name=name,
         sensors=sensors,
         sync=sync,
         calibration=calibration,
         fusion=fusion,
+        depth=depth,
         zenoh=zenoh,
         node=node,
         capture=capture,
@@ -364,6 +370,7 @@ def _parse_fusion(t: Table | None) -> FusionConfig:
         )
     preset = canonical[preset.strip().upper()]
     eps_mm = t.number("eps_mm", None, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
+    mode = t.string("mode", "skeleton", choices=FUSION_MODES)
     params: dict[str, Any] = {}
     p = t.table("params")
     if p is not None:
@@ -382,13 +389,39 @@ def _parse_fusion(t: Table | None) -> FusionConfig:
                 )
             params[name] = _fusion_value(value, fields.get(name), key, p.source)
         p.done()
-    fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())))
+    fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())), mode=mode)
     try:  # FusionParams' own range checks, reported at load time
         dataclasses.replace(presets.preset(fusion.preset, eps_mm), **params)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{t.source}: key {t.key('params')}: {exc}") from None
     t.done()
     return fusion
+
+
+def _parse_depth(t: Table | None) -> DepthConfig:
+    if t is None:
+        return DepthConfig()
+    depth = DepthConfig(
+        tracker=t.string("tracker", "k4abt", choices=DEPTH_TRACKERS),
+        voxel_mm=t.number("voxel_mm", 15.0, lo=1.0, hi=100.0, unit="mm"),
+        icp=t.boolean("icp", False),
+        tracker_wait_ms=t.integer("tracker_wait_ms", 100, lo=0, hi=10_000, unit="ms"),
+        virtual_weight=t.integer("virtual_weight", 1, lo=1, hi=8),
+    )
+    t.done()
+    return depth
+
+
+def _check_depth(fusion: FusionConfig, depth: DepthConfig, sensors: tuple[SensorConfig, ...], source: str) -> None:
+    """The simulated tracker is a stand-in for sim rigs: refused where a real sensor's data would meet it."""
+    if fusion.mode == "skeleton" or depth.tracker != "simulated":
+        return
+    real = [s.id for s in sensors if s.source != "sim"]
+    if real:
+        raise ConfigError(
+            f'{source}: key depth.tracker: "simulated" is a stand-in for simulated rigs only (it is not the Body '
+            f'Tracking SDK), but sensor(s) {", ".join(real)} are not simulated; use tracker = "k4abt"'
+        )
 
 
 def _fusion_value(value: Any, f: dataclasses.Field[Any] | None, key: str, source: str) -> Any:

@@ -62,6 +62,7 @@ import skelfuse
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.wire import keys
+from skelfuse.wire.clouds import PersonCloudsFrame, decode_person_clouds
 from skelfuse.wire.codec import (
     VERSION_MAJOR,
     VERSION_MINOR,
@@ -97,6 +98,15 @@ FUSED_SCHEMA_TEXT = (
     "Little-endian; prefix 'SKLF', major, minor, kind, flags, header_size; then time (us), track ids, "
     "positions f64[P][32][3] mm world, n_agree i16[P][32], confidence u8[P][32], contributors u8[P][S], "
     "sensor id table.\n"
+)
+CLOUDS_MESSAGE_ENCODING = "skelfuse-person-clouds/1"
+"""MCAP message encoding of person-cloud channels (depth / hybrid mode): the wire payload of kind 4."""
+CLOUDS_SCHEMA_NAME = "skelfuse.PersonClouds"
+"""Name of the schema record of person-cloud channels."""
+CLOUDS_SCHEMA_TEXT = (
+    f"skelfuse person clouds, wire schema {VERSION_MAJOR}.x (message kind 4).\n"
+    "Specified byte by byte in docs/wire-format.md, section 10 'Person clouds', of the skelfuse project; "
+    "reference implementation: skelfuse.wire.clouds.decode_person_clouds.\n"
 )
 PROFILE = "skelfuse"
 """MCAP header profile of skelfuse recordings."""
@@ -215,8 +225,10 @@ class RecordingWriter:
         )
         self._channels: dict[str, int] = {}
         self._fused_channel: int | None = None
+        self._cloud_channels: dict[str, int] = {}
         self._closed = False
         self.frames_written = 0
+        self.clouds_written = 0
         self.fused_frames_written = 0
         self.flushes = 0
 
@@ -337,6 +349,39 @@ class RecordingWriter:
         self.fused_frames_written += 1
         if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
             self.flush()
+
+    def write_clouds_payload(self, payload: bytes | bytearray | memoryview) -> PersonCloudsFrame:
+        """Record a received person-cloud payload as it is, on its sensor's ``.../clouds`` channel.
+
+        Raises
+        ------
+        DecodeError
+            The payload is not a valid person-cloud payload: nothing is written.
+        """
+        if self._closed:
+            raise ValueError(f"recording {self.path} is closed")
+        data = bytes(payload)
+        frame = decode_person_clouds(data)
+        channel_id = self._cloud_channels.get(frame.sensor_id)
+        if channel_id is None:
+            schema_id = self._writer.register_schema(CLOUDS_SCHEMA_NAME, SCHEMA_ENCODING, CLOUDS_SCHEMA_TEXT.encode())
+            channel_id = self._cloud_channels[frame.sensor_id] = self._writer.register_channel(
+                topic=keys.sensor_clouds(self.rig, frame.sensor_id),
+                message_encoding=CLOUDS_MESSAGE_ENCODING,
+                schema_id=schema_id,
+                metadata={"sensor_id": frame.sensor_id},
+            )
+        self._writer.add_message(
+            channel_id=channel_id,
+            log_time=_clamp_u64(frame.host_timestamp_ns),
+            publish_time=_clamp_u64(frame.device_timestamp_us * 1000),
+            data=data,
+            sequence=int(frame.sequence) & 0xFFFFFFFF,
+        )
+        self.clouds_written += 1
+        if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
+            self.flush()
+        return frame
 
     def flush(self) -> None:
         """Finish the open chunk and push everything written so far to the OS (and disk, with ``fsync``).
@@ -719,6 +764,17 @@ class RecordingReader:
                 self._note(f"fused message at log time {message.log_time} on {channel.topic}: {exc.reason}: {exc}")
                 continue
             yield RecordedFused(channel.topic, message.log_time, message.publish_time, bytes(message.data), frame)
+
+    def person_clouds(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[PersonCloudsFrame]:
+        """The recorded person clouds (depth / hybrid mode rigs), every sensor's, in log-time order; payloads
+        that fail to decode are skipped and counted in :attr:`rejects`."""
+        channels = {cid: c for cid, c in self._channels.items() if c.message_encoding == CLOUDS_MESSAGE_ENCODING}
+        for message in self._merged(channels, start_ns, end_ns):
+            try:
+                yield decode_person_clouds(message.data)
+            except DecodeError as exc:
+                self.rejects[exc.reason] += 1
+                self._note(f"clouds at log time {message.log_time} on {channels[message.channel_id].topic}: {exc}")
 
     def _merged(self, channels: Mapping[int, Channel], start_ns: int | None, end_ns: int | None) -> Iterator[Message]:
         """Messages of ``channels`` in the half-open log-time window, in log-time order (ties: file order)."""

@@ -44,6 +44,7 @@ from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
 from skelfuse.schema.frames import FusedFrame
+from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
@@ -128,6 +129,8 @@ class FusedOutput:
     fusion_ns: int
     trigger_arrival_ns: int | None
     complete: bool
+    clouds: tuple[Any, ...] = ()
+    """Depth / hybrid mode: (track id, MergedCloud) of each person's fused cloud, for the view."""
 
 
 @dataclass
@@ -151,6 +154,8 @@ class FusionCore:
         Overrides ``cfg.poses()`` (rows in ``cfg.sensor_ids`` order).
     first_track_id : int
         The first track id (the live node passes :func:`time_based_first_track_id`).
+    depth : DepthStage, optional
+        ``[fusion] mode`` depth / hybrid: fuses each instant instead of the plain GroupFuser step.
 
     Attributes
     ----------
@@ -170,6 +175,7 @@ class FusionCore:
         params: FusionParams | None = None,
         poses: np.ndarray | None = None,
         first_track_id: int = 1,
+        depth: DepthStage | None = None,
     ) -> None:
         self.cfg = cfg
         self.sensor_ids = cfg.sensor_ids
@@ -181,9 +187,11 @@ class FusionCore:
         self.params = params if params is not None else cfg.fusion.fusion_params()
         self.grouper = FrameGrouper.for_rig(cfg)
         self.intake = cfg.intake
+        self.depth = depth
+        fused_ids, fused_poses = (self.sensor_ids, self.poses) if depth is None else depth.fuser_sensors(self.poses)
         self.fuser = GroupFuser(
-            self.sensor_ids,
-            self.poses,
+            fused_ids,
+            fused_poses,
             self.params,
             max_persons=self.intake.max_persons,
             first_track_id=first_track_id,
@@ -290,7 +298,8 @@ class FusionCore:
 
     def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
         tick = time.perf_counter_ns()
-        instant = self.fuser.step(group)
+        depth = self.depth
+        instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
         fused = instant.frame
         payload = encode_fused_frame(fused)
         self.frames_out += 1
@@ -299,7 +308,13 @@ class FusionCore:
         else:
             self.groups_partial += 1
         return FusedOutput(
-            fused, payload, instant.sensors_world, time.perf_counter_ns() - tick, trigger_arrival_ns, group.complete
+            fused,
+            payload,
+            instant.sensors_world,
+            time.perf_counter_ns() - tick,
+            trigger_arrival_ns,
+            group.complete,
+            () if depth is None else depth.last_clouds,
         )
 
     # -- status -------------------------------------------------------------------------------------------
@@ -427,7 +442,8 @@ class FusionNode:
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
-        self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()))
+        self.depth = depth_stage_for(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
+        self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf
@@ -465,6 +481,8 @@ class FusionNode:
                 deadline=self.options.limits.deadline(self._started),
             )
             if session is None:
+                if self.depth is not None:
+                    self.depth.close()  # the tracker(s) it opened
                 return self.report
         view, server = self._open_view()
         self.view = view
@@ -481,6 +499,11 @@ class FusionNode:
             )
             token = session.liveliness().declare_token(keys.alive(rig, self.name))
             subscriber = session.declare_subscriber(keys.all_sensor_skeletons(rig), samples)
+            clouds = (
+                None
+                if self.depth is None
+                else session.declare_subscriber(keys.all_sensor_clouds(rig), self.depth.clouds)
+            )
             log.info(
                 "fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
                 "%.1f ms, preset %s; publishing on %s",
@@ -495,11 +518,15 @@ class FusionNode:
                 keys.fused_skeletons(rig),
             )
             log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
+            if self.depth is not None:
+                log.info("fusion node %s: depth-level fusion, %s", self.name, self.depth.describe())
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
             self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)
             # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
             subscriber.undeclare()
+            if clouds is not None:
+                clouds.undeclare()
             deadline = time.monotonic() + self.options.drain_timeout_s
             while not self.lifecycle.force_exit and time.monotonic() < deadline:
                 item = samples.get_nowait()
@@ -518,6 +545,8 @@ class FusionNode:
             if view is not None:
                 view.close(timeout_s=0.5 if self.lifecycle.force_exit else 5.0)
             stop_server(server)
+            if self.depth is not None:
+                self.depth.close()
             if own_session:
                 session.close()
         self.report.frames_in = self.core.frames_in
@@ -598,6 +627,8 @@ class FusionNode:
                     added_ms,
                     self._rates,
                 )
+                if out.clouds:
+                    view.log_clouds((out.frame.time_us - self._first_time_us) / 1e6, out.clouds)
             if self.on_fused is not None:
                 self.on_fused(out)
 
@@ -673,6 +704,8 @@ class FusionNode:
             "fusion_ms_total": _percentiles(self._fusion),
             "node_added_ms_total": _percentiles(self._added),
         }
+        if self.depth is not None:
+            info["depth"] = self.depth.report()
         self._window_fusion.clear()
         self._window_added.clear()
         status = NodeStatus(

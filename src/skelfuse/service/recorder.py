@@ -49,6 +49,7 @@ class RecordReport:
     path: Path
     frames_written: int = 0
     fused_frames_written: int = 0
+    clouds_written: int = 0
     rejects: Counter[str] = field(default_factory=Counter)
 
 
@@ -95,10 +96,18 @@ def run_recorder(
             # [record] fused: the fused stream's payloads as received, on the fused key's channel
             fused_key = keys.fused_skeletons(cfg.name)
             fused_subscriber = session.declare_subscriber(fused_key, samples) if cfg.record.fused else None
+            # depth / hybrid mode: the workers' person clouds too (what `skelfuse calibrate refine` reads)
+            clouds_subscriber = (
+                session.declare_subscriber(keys.all_sensor_clouds(cfg.name), samples)
+                if cfg.fusion.mode != "skeleton"
+                else None
+            )
             token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
             streams = ["sensor frames" if cfg.record.sensors else "no sensor frames ([record] sensors = false)"]
             if cfg.record.fused:
                 streams.append("fused frames")
+            if clouds_subscriber is not None:
+                streams.append(f"person clouds ([fusion] mode = {cfg.fusion.mode!r})")
             log.info(
                 "recorder: writing rig %s's %s to %s (flush every %.1f s)", cfg.name, ", ".join(streams), path, flush_s
             )
@@ -109,6 +118,8 @@ def run_recorder(
                     try:
                         if item.key == fused_key:
                             writer.write_fused_payload(item.payload, log_time_ns=_wall_time_ns(item.arrival_ns))
+                        elif item.key.endswith("/clouds"):
+                            writer.write_clouds_payload(item.payload)
                         else:
                             writer.write_payload(item.payload)
                     except DecodeError as exc:
@@ -126,6 +137,8 @@ def run_recorder(
                 subscriber.undeclare()
             if fused_subscriber is not None:
                 fused_subscriber.undeclare()
+            if clouds_subscriber is not None:
+                clouds_subscriber.undeclare()
             token.undeclare()
         except OSError as exc:  # the file cannot take more: stop, keep what was flushed
             failure = exc
@@ -138,6 +151,7 @@ def run_recorder(
             session.close()
     report.frames_written = writer.frames_written
     report.fused_frames_written = writer.fused_frames_written
+    report.clouds_written = writer.clouds_written
     if failure is not None:
         raise _write_failed(path, failure, report)
     log.info(

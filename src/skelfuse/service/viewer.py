@@ -292,6 +292,13 @@ class RerunView:
         except queue.Full:
             self.dropped += 1
 
+    def log_clouds(self, time_s: float, clouds: tuple[Any, ...]) -> None:
+        """Depth / hybrid mode: each person's fused cloud, ((track id, MergedCloud), ...), coloured by sensor."""
+        try:
+            self._queue.put_nowait(("clouds", time_s, clouds))
+        except queue.Full:
+            self.dropped += 1
+
     def _run(self) -> None:
         import rerun as rr
 
@@ -304,6 +311,11 @@ class RerunView:
                     _, time_s, error_mm = item
                     self.sink.set_time(time_s)
                     self.sink.log_metrics(error_mm=error_mm)
+                    continue
+                if item[0] == "clouds":
+                    _, time_s, clouds = item
+                    self.sink.set_time(time_s)
+                    self.sink.log_person_clouds([c for _, c in clouds], [t for t, _ in clouds])
                     continue
                 time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz = item
                 self.sink.set_time(time_s)

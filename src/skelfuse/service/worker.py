@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.fusion.camera import Intrinsics
 from skelfuse.recording import RecordedFrame, RecordingReader
 from skelfuse.recording.inputs import open_inputs
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError
@@ -66,6 +67,7 @@ from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
+from skelfuse.sim.depth import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
@@ -73,6 +75,7 @@ from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.formats import detect_format
 from skelfuse.sources.kinect import KinectSource, TrackerStalled
 from skelfuse.wire import keys
+from skelfuse.wire.clouds import PersonCloudsFrame, encode_person_clouds
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame, encode_status
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -236,6 +239,53 @@ class SimSource:
         self.clock_offset_ns = round((sim.clock_offset_ms if sim is not None else 0.0) * 1e6)
         self.clock_jitter_ns = (sim.clock_jitter_ms if sim is not None else 0.0) * 1e6
         self._clock_rng = np.random.default_rng(zlib.crc32(sensor_id.encode()))
+        self.seed = seed if observation_seed is None else observation_seed
+        self.voxel_mm = cfg.depth.voxel_mm
+        self._clouds: dict[int, dict[int, np.ndarray]] = {}  # take frame -> person index -> cloud (the take loops)
+        if cfg.fusion.mode != "skeleton":  # render the take's clouds now: publishing must keep the frame rate
+            tick = time.monotonic()
+            for f in range(self.observations.n_frames):
+                self._render_clouds(f)
+            log.info(
+                "sim sensor %s: %d depth frames rendered in %.1f s (depth mode: person clouds)",
+                sensor_id,
+                self.observations.n_frames,
+                time.monotonic() - tick,
+            )
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame:
+        """Depth mode: the person cloud of ``frame``'s body (``sim/depth.py``: capsule bodies ray-cast in this
+        sensor's NFOV 2x2-binned depth image, its noise seeded by (seed, sensor, take frame)), with the
+        skeleton's body id; no cloud where the simulated tracker lost the body. The take is rendered once, when
+        the source is built in depth or hybrid mode."""
+        clouds = self._render_clouds((frame.sequence - self.origin_n) % self.observations.n_frames)
+        ids, points = (frame.body_ids[:1], (clouds[0],)) if len(frame.body_ids) and 0 in clouds else ([], ())
+        return PersonCloudsFrame(
+            sensor_id=self.sensor_id,
+            sequence=frame.sequence,
+            device_timestamp_us=frame.device_time_us,
+            host_timestamp_ns=frame.host_time_ns,
+            voxel_mm=self.voxel_mm,
+            body_ids=np.asarray(ids, dtype=np.uint32),
+            clouds=points,
+        )
+
+    def _render_clouds(self, f: int) -> dict[int, np.ndarray]:
+        if f not in self._clouds:
+            rng = np.random.default_rng([self.seed, self.column, f])
+            self._clouds[f] = sensor_person_clouds(
+                self.depth_sensor,
+                self.observations.truth[f][None],
+                voxel_mm=self.voxel_mm,
+                intrinsics=Intrinsics.azure_kinect_nfov(binned=True),
+                rng=rng,
+            )
+        return self._clouds[f]
+
+    @property
+    def depth_sensor(self) -> VirtualSensor:
+        """This sensor's true pose, as the simulation observes from it."""
+        return VirtualSensor(self.sensor_id, self.observations.world_from_sensor[self.column])
 
     def host_time_ns(self) -> int:
         """This emulated capture PC's wall clock: the host's, plus its configured offset and jitter."""
@@ -524,10 +574,16 @@ class KinectFrameSource:
         elif not missing:
             log.info("kinect master %s: every subordinate camera is running; starting", self.sensor_id)
 
-    def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """Depth / hybrid mode: the person clouds of ``frame`` (from the body tracker's body-index map)."""
+        source = getattr(self, "_source", None)
+        return None if source is None else source.clouds_at(frame)
 
-        options = {} if self.stall_timeout_s is None else {"stall_timeout_s": self.stall_timeout_s}
-        source = KinectSource.from_config(self.cfg, self.sensor_id, **options)
+    def frames(self) -> Iterator[tuple[int, SensorFrame | None]]:  # type: ignore[override]
+        options: dict[str, Any] = {} if self.stall_timeout_s is None else {"stall_timeout_s": self.stall_timeout_s}
+        if self.cfg.fusion.mode != "skeleton":
+            options["clouds_voxel_mm"] = self.cfg.depth.voxel_mm
+        source = self._source = KinectSource.from_config(self.cfg, self.sensor_id, **options)
         source.ensure_available()  # missing pyk4a / SDKs: say so now, not after waiting for subordinates
         self._wait_for_subordinates()
         if self.should_exit():
@@ -638,10 +694,17 @@ class SourceReader:
     closed on the thread that opened it.
     """
 
-    def __init__(self, source: FrameSource, name: str) -> None:
+    def __init__(
+        self,
+        source: FrameSource,
+        name: str,
+        clouds_at: Callable[[SensorFrame], PersonCloudsFrame | None] | None = None,
+    ) -> None:
         self._items: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=1)
         self._stop = threading.Event()
         self._ended: bool | None = None
+        # a source keeps only its latest frame's clouds: ask on the reading thread, before it reads the next
+        self._clouds_at = clouds_at
         self._thread = threading.Thread(target=self._run, args=(source,), name=f"{name}-source", daemon=True)
         self._thread.start()
 
@@ -658,8 +721,9 @@ class SourceReader:
     def _run(self, source: FrameSource) -> None:
         frames = source.frames()
         try:
-            for item in frames:
-                if not self._hand_over(("item", item)):
+            for due_ns, frame in frames:
+                clouds = None if frame is None or self._clouds_at is None else self._clouds_at(frame)
+                if not self._hand_over(("item", (due_ns, frame, clouds))):
                     return
             self._hand_over(("end", None))
         except BaseException as exc:  # handed to the publish loop, which restarts or stops
@@ -671,7 +735,7 @@ class SourceReader:
                     close()
 
     def next(self, timeout_s: float) -> Any:
-        """The next ``(due_ns, frame)``; None when none came within ``timeout_s``; ``_END`` when the source
+        """The next ``(due_ns, frame, clouds)``; None when none came within ``timeout_s``; ``_END`` when the source
         finished. An exception the source raised is raised here."""
         try:
             kind, value = self._items.get(timeout=timeout_s)
@@ -754,6 +818,12 @@ def _publish_loop(
     rig = cfg.name
     key = keys.sensor_skeletons(rig, sensor_id)
     publisher = session.declare_publisher(key, express=True)
+    # depth / hybrid mode: a source that can (sim: SimSource.clouds_at) also publishes each body's cloud
+    clouds_at = getattr(source, "clouds_at", None) if cfg.fusion.mode != "skeleton" else None
+    # express like the skeletons: a batched cloud would arrive after the skeleton it belongs to
+    clouds_pub = (
+        None if clouds_at is None else session.declare_publisher(keys.sensor_clouds(rig, sensor_id), express=True)
+    )
     status_pub = session.declare_publisher(keys.status(rig, name))
     token = session.liveliness().declare_token(keys.alive(rig, name))
     period_ns = int((options.status_period_s or cfg.node.status_period_s) * 1e9)
@@ -799,7 +869,7 @@ def _publish_loop(
     failures_while_hung = 0
     try:
         while not lifecycle.should_exit:
-            reader = SourceReader(source, name)
+            reader = SourceReader(source, name, clouds_at)
             try:
                 watching = False  # the watchdog starts with the source's first answer (a device open, a frame)
                 waiting_since = time.monotonic_ns()
@@ -822,7 +892,7 @@ def _publish_loop(
                         if watching and options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
                             raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
                         continue
-                    due_ns, frame = item
+                    due_ns, frame, clouds = item
                     if due_ns > deadline_ns or lifecycle.should_exit:
                         return
                     wait_ns = due_ns - time.monotonic_ns()
@@ -832,6 +902,11 @@ def _publish_loop(
                         report.late_publishes += 1
                     if not stamps_host_time:
                         frame = dataclasses.replace(frame, host_time_ns=stamp_host_time())
+                    if clouds_pub is not None and clouds is not None:  # before the skeletons: the node has
+                        # them when the instant is fused
+                        clouds_pub.put(
+                            encode_person_clouds(dataclasses.replace(clouds, host_timestamp_ns=frame.host_time_ns))
+                        )
                     publisher.put(encode_sensor_frame(frame))
                     report.frames_out += 1
                     window_frames += 1
@@ -888,4 +963,6 @@ def _publish_loop(
         status("stopped")
         token.undeclare()
         publisher.undeclare()
+        if clouds_pub is not None:
+            clouds_pub.undeclare()
         status_pub.undeclare()

@@ -39,7 +39,7 @@ import ctypes.util
 import logging
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -326,8 +326,46 @@ def declare_image_api(lib: ctypes.CDLL) -> None:
         lib.k4a_capture_set_depth_image.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
         lib.k4a_capture_set_ir_image.restype = None
         lib.k4a_capture_set_ir_image.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        lib.k4a_capture_get_depth_image.restype = ctypes.c_void_p
+        lib.k4a_capture_get_depth_image.argtypes = [ctypes.c_void_p]
+        lib.k4a_image_get_buffer.restype = ctypes.c_void_p
+        lib.k4a_image_get_buffer.argtypes = [ctypes.c_void_p]
+        for getter in ("k4a_image_get_width_pixels", "k4a_image_get_height_pixels", "k4a_image_get_stride_bytes"):
+            getattr(lib, getter).restype = ctypes.c_int
+            getattr(lib, getter).argtypes = [ctypes.c_void_p]
+        lib.k4a_image_get_format.restype = ctypes.c_int
+        lib.k4a_image_get_format.argtypes = [ctypes.c_void_p]
     except AttributeError as exc:
         raise K4ABTLibraryError(f"the loaded libk4a lacks an image function ({exc}); {K4A_INSTALL_HINT}") from None
+
+
+def image_pixels(lib: ctypes.CDLL, image: int, dtype: type[np.generic]) -> np.ndarray:
+    """A copy of a ``k4a_image_t``'s pixels, (height, width) of ``dtype``, read row by row with the image's
+    stride (rows may be padded). The image is not released here."""
+    width = int(lib.k4a_image_get_width_pixels(image))
+    height = int(lib.k4a_image_get_height_pixels(image))
+    stride = int(lib.k4a_image_get_stride_bytes(image))
+    item = np.dtype(dtype).itemsize
+    buffer = lib.k4a_image_get_buffer(image)
+    if not buffer or width <= 0 or height <= 0 or stride < width * item:
+        raise K4ABTError(f"a k4a image of {width} x {height} pixels, stride {stride} bytes, cannot be read")
+    raw = np.frombuffer(ctypes.string_at(buffer, stride * height), dtype=np.uint8).reshape(height, stride)
+    return np.ascontiguousarray(raw[:, : width * item]).view(dtype).reshape(height, width)
+
+
+def depth_intrinsics(calibration: int) -> tuple[float, float, float, float, int, int]:
+    """(fx, fy, cx, cy, width, height) of the depth camera in a ``k4a_calibration_t`` at address
+    ``calibration`` (the Brown-Conrady distortion parameters are not returned: callers lift with a pinhole)."""
+    camera = K4aCalibration.from_address(calibration).depth_camera_calibration
+    p = camera.intrinsics.parameters
+    return (
+        float(p.fx),
+        float(p.fy),
+        float(p.cx),
+        float(p.cy),
+        int(camera.resolution_width),
+        int(camera.resolution_height),
+    )
 
 
 def _image_from_array(lib: ctypes.CDLL, pixels: np.ndarray, image_format: int, device_time_us: int) -> int:
@@ -631,6 +669,10 @@ class K4abtLibrary:
             ]
             lib.k4abt_frame_get_body_id.restype = ctypes.c_uint32
             lib.k4abt_frame_get_body_id.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
+            lib.k4abt_frame_get_body_index_map.restype = ctypes.c_void_p
+            lib.k4abt_frame_get_body_index_map.argtypes = [ctypes.c_void_p]
+            lib.k4abt_frame_get_capture.restype = ctypes.c_void_p
+            lib.k4abt_frame_get_capture.argtypes = [ctypes.c_void_p]
             device_ts = (
                 "k4abt_frame_get_device_timestamp_usec" if self.abi == "1.1" else "k4abt_frame_get_timestamp_usec"
             )
@@ -682,6 +724,10 @@ class BodyFrameData:
     positions : (B, 32, 3) float32, mm, depth camera frame
     orientations : (B, 32, 4) float32, w x y z
     confidence : (B, 32) uint8 (k4abt_joint_confidence_level_t; values outside 0-3 become 0 = NONE)
+    depth : (H, W) uint16 mm or None
+        The depth image of the capture the frame was computed from (``pop(images=...)`` only).
+    body_index : (H, W) uint8 or None
+        The tracker's body-index map: the index of the body (in this frame's order) per pixel, 255 background.
     """
 
     device_time_us: int
@@ -690,6 +736,8 @@ class BodyFrameData:
     positions: np.ndarray
     orientations: np.ndarray
     confidence: np.ndarray
+    depth: np.ndarray | None = None
+    body_index: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -759,8 +807,12 @@ class Tracker:
             "image, or the tracker stopped working"
         )
 
-    def pop(self, timeout_ms: int = 0) -> BodyFrameData | None:
-        """The next result, copied out and released; None if none came within ``timeout_ms``."""
+    def pop(self, timeout_ms: int = 0, *, images: ctypes.CDLL | None = None) -> BodyFrameData | None:
+        """The next result, copied out and released; None if none came within ``timeout_ms``.
+
+        With ``images`` (the loaded libk4a, :func:`declare_image_api` done), the frame's body-index map and its
+        capture's depth image are copied out too (``depth``, ``body_index``): what a person cloud is made of.
+        """
         frame = ctypes.c_void_p()
         result = self.library.lib.k4abt_tracker_pop_result(self._require(), ctypes.byref(frame), _bounded(timeout_ms))
         if result == K4A_WAIT_RESULT_TIMEOUT:
@@ -772,9 +824,36 @@ class Tracker:
             )
         self.pending = max(0, self.pending - 1)
         try:
-            return self._read_frame(int(frame.value or 0))
+            data = self._read_frame(int(frame.value or 0))
+            if images is not None:
+                depth, body_index = self._read_images(images, int(frame.value or 0))
+                data = replace(data, depth=depth, body_index=body_index)
+            return data
         finally:
             self.library.lib.k4abt_frame_release(frame)
+
+    def _read_images(self, k4a: ctypes.CDLL, frame: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The frame's capture's depth image and its body-index map (None where the SDK gives none)."""
+        lib = self.library.lib
+        depth = body_index = None
+        index_map = lib.k4abt_frame_get_body_index_map(frame)
+        if index_map:
+            try:
+                body_index = image_pixels(k4a, index_map, np.uint8)
+            finally:
+                k4a.k4a_image_release(index_map)
+        capture = lib.k4abt_frame_get_capture(frame)
+        if capture:
+            try:
+                image = k4a.k4a_capture_get_depth_image(capture)
+                if image:
+                    try:
+                        depth = image_pixels(k4a, image, np.uint16)
+                    finally:
+                        k4a.k4a_image_release(image)
+            finally:
+                k4a.k4a_capture_release(capture)
+        return depth, body_index
 
     def _read_frame(self, frame: int) -> BodyFrameData:
         lib = self.library.lib

@@ -30,7 +30,11 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
+
 from skelfuse.config import RigConfig, SensorConfig
+from skelfuse.fusion.camera import Intrinsics
+from skelfuse.fusion.depth.cloud import person_clouds
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.sources import recorded
@@ -44,7 +48,11 @@ from skelfuse.sources.k4abt import (
     TrackerSettings,
     calibration_pointer,
     capture_handle,
+    declare_image_api,
+    depth_intrinsics,
+    load_k4a,
 )
+from skelfuse.wire.clouds import PersonCloudsFrame
 
 log = logging.getLogger("skelfuse.sources.kinect")
 
@@ -245,6 +253,30 @@ def _host_time_ns(system_ns: int | None) -> int:
     return now_wall - (now_mono - system_ns)
 
 
+def body_clouds(
+    body: BodyFrameData, frame: SensorFrame, intrinsics: Intrinsics, voxel_mm: float
+) -> PersonCloudsFrame | None:
+    """Each tracked body's person cloud of one body frame (its depth image masked by the body-index map, the
+    map's index b being the frame's b-th body, lifted with ``intrinsics`` as a pinhole, voxelized); None when
+    the frame came without its images."""
+    if body.depth is None or body.body_index is None:
+        return None
+    clouds = [
+        c
+        for c in person_clouds(body.depth, body.body_index, intrinsics, voxel_mm=voxel_mm)
+        if c.body_index < body.n_bodies
+    ]
+    return PersonCloudsFrame(
+        sensor_id=frame.sensor_id,
+        sequence=frame.sequence,
+        device_timestamp_us=frame.device_time_us,
+        host_timestamp_ns=frame.host_time_ns,
+        voxel_mm=voxel_mm,
+        body_ids=np.array([body.body_ids[c.body_index] for c in clouds], dtype=np.uint32),
+        clouds=tuple(c.points for c in clouds),
+    )
+
+
 # ----------------------------------------------------------------------------------------- device source
 
 
@@ -265,6 +297,10 @@ class KinectSource:
         SensorDisconnected.
     enqueue_timeout_ms : int
         How long one capture may wait for room in the tracker's input queue before it is dropped.
+    clouds_voxel_mm : float, optional
+        Depth / hybrid mode (``[fusion] mode``): also make each body's person cloud (the capture's depth image
+        masked by the tracker's body-index map, lifted with the device's depth intrinsics as a pinhole, the lens
+        distortion not applied, voxelized), for :meth:`clouds_at`. None: skeletons only.
 
     Attributes
     ----------
@@ -281,8 +317,13 @@ class KinectSource:
         k4abt: K4abtLibrary | str | Path | None = None,
         stall_timeout_s: float = 3.0,
         enqueue_timeout_ms: int = 5,
+        clouds_voxel_mm: float | None = None,
     ) -> None:
         self.settings = settings
+        self.clouds_voxel_mm = clouds_voxel_mm
+        self._k4a: Any = None  # libk4a through ctypes: the images of a body frame (clouds only)
+        self._depth_intrinsics: Intrinsics | None = None
+        self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or settings.serial
         self._pyk4a = pyk4a
         self._k4abt = k4abt
@@ -322,6 +363,10 @@ class KinectSource:
             self._device.start()
             calibration = self._device.calibration
             self._tracker = Tracker(library, calibration_pointer(calibration), self.settings.tracker)
+            if self.clouds_voxel_mm is not None:
+                self._k4a = load_k4a()
+                declare_image_api(self._k4a)
+                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(calibration)))
         except pyk4a.K4AException as exc:
             self.close()
             raise SensorDisconnected(
@@ -377,12 +422,12 @@ class KinectSource:
             handle = capture_handle(capture)
             if not tracker.enqueue(handle, timeout_ms=0):
                 # queue full: free a slot by taking a result, then try once more within a bounded wait
-                body = tracker.pop(timeout_ms=self.enqueue_timeout_ms)
+                body = tracker.pop(timeout_ms=self.enqueue_timeout_ms, images=self._k4a)
                 if not tracker.enqueue(handle, timeout_ms=self.enqueue_timeout_ms):
                     self.dropped_captures += 1
                 if body is not None:
                     return self._emit(body, now)
-        body = tracker.pop(timeout_ms=0)
+        body = tracker.pop(timeout_ms=0, images=self._k4a)
         if body is not None:
             return self._emit(body, now)
         if self.captures and now - self._last_result > self.stall_timeout_s:
@@ -396,7 +441,15 @@ class KinectSource:
     def _emit(self, body: BodyFrameData, now: float) -> SensorFrame:
         self._last_result = now
         self.results += 1
-        return self._assemble(body)
+        frame = self._assemble(body)
+        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
+            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+            self._clouds = {} if clouds is None else {frame.device_time_us: clouds}  # the latest frame's only
+        return frame
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """The person clouds of ``frame`` (the latest one read), None where none were made."""
+        return self._clouds.get(frame.device_time_us)
 
     def close(self) -> None:
         tracker, self._tracker = self._tracker, None
@@ -462,8 +515,13 @@ class MkvSource:
         k4abt: K4abtLibrary | str | Path | None = None,
         fps: float = 30.0,
         result_timeout_ms: int = 5000,
+        clouds_voxel_mm: float | None = None,
     ) -> None:
         self.path = Path(path)
+        self.clouds_voxel_mm = clouds_voxel_mm  # as KinectSource's: person clouds for clouds_at()
+        self._k4a: Any = None
+        self._depth_intrinsics: Intrinsics | None = None
+        self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or self.path.stem
         self.tracker_settings = tracker or TrackerSettings()
         self._pyk4a = pyk4a
@@ -485,6 +543,10 @@ class MkvSource:
         try:
             self._playback.open()
             self._tracker = Tracker(library, calibration_pointer(self._playback.calibration), self.tracker_settings)
+            if self.clouds_voxel_mm is not None:
+                self._k4a = load_k4a()
+                declare_image_api(self._k4a)
+                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(self._playback.calibration)))
         except pyk4a.K4AException as exc:
             self.close()
             raise DataError(
@@ -504,9 +566,9 @@ class MkvSource:
         tracker = self._tracker
         timeout_ms = max(0, int(timeout_s * 1000))
         while not self._eof:
-            body = tracker.pop(timeout_ms=0)
+            body = tracker.pop(timeout_ms=0, images=self._k4a)
             if body is not None:
-                return self._assemble(body)
+                return self._emit(body)
             try:
                 capture = self._playback.get_next_capture()
             except EOFError:
@@ -520,21 +582,32 @@ class MkvSource:
                 self.skipped_captures += 1  # a capture without depth (recordings start with a few)
             except pyk4a.K4AException as exc:
                 raise DataError(f"{self.path}: cannot read the next capture ({exc})") from None
-            body = tracker.pop(timeout_ms=timeout_ms)
+            body = tracker.pop(timeout_ms=timeout_ms, images=self._k4a)
             if body is not None:
-                return self._assemble(body)
+                return self._emit(body)
             return None
         if tracker.pending == 0:
             raise EndOfStream(f"{self.path}: end of recording")
         try:
-            body = tracker.pop(timeout_ms=self.result_timeout_ms)
+            body = tracker.pop(timeout_ms=self.result_timeout_ms, images=self._k4a)
         except TrackerFailedError:
             body = None
             tracker.pending = 0
         if body is None:
             tracker.pending = 0
             raise EndOfStream(f"{self.path}: end of recording")
-        return self._assemble(body)
+        return self._emit(body)
+
+    def _emit(self, body: BodyFrameData) -> SensorFrame:
+        frame = self._assemble(body)
+        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
+            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+            self._clouds = {} if clouds is None else {frame.device_time_us: clouds}
+        return frame
+
+    def clouds_at(self, frame: SensorFrame) -> PersonCloudsFrame | None:
+        """The person clouds of ``frame`` (the latest one read), None where none were made."""
+        return self._clouds.get(frame.device_time_us)
 
     def close(self) -> None:
         tracker, self._tracker = self._tracker, None

@@ -4,7 +4,7 @@ A capture worker in depth mode publishes one of these per depth frame on
 ``skelfuse/<rig>/sensors/<serial>/clouds`` (:func:`skelfuse.wire.keys.sensor_clouds`), beside its skeletons.
 The byte layout is specified in ``docs/wire-format.md`` ("Person clouds"); this module is its reference
 implementation. It shares the 10-byte prefix of every skelfuse payload (magic ``SKLF``, major/minor version,
-kind, flags, header size) with message kind :data:`PERSON_CLOUDS_KIND` = 4, and lives in its own module so
+kind, flags, header size) with message kind ``MessageKind.PERSON_CLOUDS`` = 4, and lives in its own module so
 that the skeleton payloads of :mod:`skelfuse.wire.codec` are untouched by it.
 
 Compact encoding: every point is three uint16 offsets from its body's origin (the minimum corner of its
@@ -22,9 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.wire.codec import MAGIC, MAX_BODIES, MAX_ID_BYTES, VERSION_MAJOR, DecodeError
+from skelfuse.wire.codec import (
+    MAGIC,
+    MAX_BODIES,
+    MAX_ID_BYTES,
+    VERSION_MAJOR,
+    DecodeError,
+    MessageKind,
+)
 
-PERSON_CLOUDS_KIND = 4
+PERSON_CLOUDS_KIND = int(MessageKind.PERSON_CLOUDS)
 """Message kind byte of a person-cloud payload (after SENSOR_FRAME 1, FUSED_FRAME 2, STATUS 3)."""
 CLOUDS_VERSION_MINOR = 0
 """Minor version written. A reader accepts any minor of major :data:`VERSION_MAJOR`."""
@@ -34,7 +41,7 @@ MAX_POINTS_PER_BODY = 640 * 576
 """Most points in one body's cloud (every pixel of an NFOV unbinned depth image)."""
 
 _HEADER = struct.Struct("<4sBBBBHHHQqqff")  # prefix + n_bodies, reserved, sequence, dev us, host ns, voxel, quantum
-CLOUDS_HEADER_SIZE = _HEADER.size  # 46
+CLOUDS_HEADER_SIZE = _HEADER.size  # 46 (codec.PERSON_CLOUDS_HEADER_SIZE, checked by the tests)
 _BODY = struct.Struct("<IIfff")  # body id, n_points, origin x y z (mm, sensor frame)
 BODY_HEADER_SIZE = _BODY.size  # 20
 _U16 = struct.Struct("<H")

@@ -47,7 +47,9 @@ FUSED_SECTION_ORIENTATIONS = 1
 """Bit of the fused header's ``sections`` field (the 1.0 ``reserved`` u32): f64[P][32][4] orientations follow."""
 FUSED_SECTION_POSITION_STD = 2
 """Bit of ``sections``: f64[P][32] position_std (mm) follow (after the orientations, when both are present)."""
-_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_SECTIONS, 3: VERSION_MINOR}  # by message kind byte
+_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_SECTIONS, 3: VERSION_MINOR, 4: 0}  # by message kind byte
+PERSON_CLOUDS_HEADER_SIZE = 46
+"""Header size of a person-cloud payload (kind 4; its codec is :mod:`skelfuse.wire.clouds`)."""
 _UNIT_TOLERANCE = 1e-3
 
 MAX_BODIES = 64
@@ -88,6 +90,7 @@ class MessageKind(IntEnum):
     SENSOR_FRAME = 1
     FUSED_FRAME = 2
     STATUS = 3
+    PERSON_CLOUDS = 4  # encoded / decoded by skelfuse.wire.clouds
 
 
 class DecodeError(DataError):
@@ -156,11 +159,13 @@ _KIND_NAMES = {
     MessageKind.SENSOR_FRAME: "sensor frame",
     MessageKind.FUSED_FRAME: "fused frame",
     MessageKind.STATUS: "status",
+    MessageKind.PERSON_CLOUDS: "person-clouds",
 }
 _HEADER_SIZES = {
     MessageKind.SENSOR_FRAME: SENSOR_HEADER_SIZE,
     MessageKind.FUSED_FRAME: FUSED_HEADER_SIZE,
     MessageKind.STATUS: STATUS_HEADER_SIZE,
+    MessageKind.PERSON_CLOUDS: PERSON_CLOUDS_HEADER_SIZE,
 }
 _I64 = (-(2**63), 2**63 - 1)
 _U64 = (0, 2**64 - 1)
@@ -839,8 +844,14 @@ def peek_kind(data: bytes | bytearray | memoryview) -> MessageKind:
 
 
 def decode(data: bytes | bytearray | memoryview) -> SensorFrame | FusedFrame | NodeStatus:
-    """Decode any skelfuse payload, dispatching on its message kind (for recorders and inspectors)."""
+    """Decode any skelfuse payload, dispatching on its message kind (for recorders and inspectors); person
+    clouds (kind 4) have their own decoder, ``skelfuse.wire.clouds.decode_person_clouds``."""
     kind = peek_kind(data)
+    if kind == MessageKind.PERSON_CLOUDS:
+        raise DecodeError(
+            "bad_kind",
+            "person-clouds payload: decode it with skelfuse.wire.clouds.decode_person_clouds",
+        )
     if kind == MessageKind.SENSOR_FRAME:
         return decode_sensor_frame(data)
     if kind == MessageKind.FUSED_FRAME:

@@ -1,0 +1,452 @@
+"""The fusion node's depth and hybrid modes (``[fusion] mode``): person clouds in, one skeleton per person out.
+
+The node calls this module and nothing else of the depth path (``docs/depth-fusion.md``):
+
+- :class:`CloudBuffer` is the zenoh callback of ``skelfuse/<rig>/sensors/*/clouds``: it decodes each sensor's
+  person clouds (:mod:`skelfuse.wire.clouds`) and keeps the latest few per sensor, by device timestamp. A
+  capture worker publishes a capture's clouds before its skeletons, so they are there when the instant is fused.
+- :class:`DepthStage` fuses one instant (a :class:`~skelfuse.rig.grouping.FrameGroup`). Per person: the clouds
+  of the bodies associated with that person (the cloud's body id is the skeleton's) go through
+  :func:`~skelfuse.fusion.depth.pipeline.fuse_person_depth` (to world, optional ICP, merge, frontalize, virtual
+  depth image), then through a tracker, one per person (track id), and back to the world.
+
+  ``depth``: skeleton fusion runs as usual (its tracks associate the bodies, its skeleton gives the facing and
+  the simulated tracker's prior); the output is the tracker's skeleton, one per person, with the same track id.
+  A person the tracker found nothing for is not output at that instant: never the skeleton fusion's result in
+  its place.
+
+  ``hybrid``: the tracker's skeleton enters skeleton fusion as one more, virtual, sensor (identity pose: it is
+  already in the world), repeated ``[depth] virtual_weight`` times so that it counts as that many sensors in
+  the merge's vote. The bodies are associated with the previous instant's fused people (nearest, within
+  :data:`ASSOCIATION_GATE_MM`), since this instant's association is what the fusion is about to do; a person's
+  prior is the per-joint median of this instant's real bodies associated with it.
+
+Trackers (``[depth] tracker``): :class:`K4abtDepthTracker` (the Body Tracking SDK through
+:class:`skelfuse.sources.depth_tracker.VirtualCameraTracker`; or the fake library the suite compiles) or
+:class:`skelfuse.sim.depth_tracker.SimulatedDepthTracker` (sim rigs only; not the SDK). The node's start-up
+log says which runs. Nothing falls back silently: a tracker that cannot be created stops the node at start-up.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import threading
+import time
+import warnings
+from collections import Counter
+from typing import Any, Protocol
+
+import numpy as np
+
+from skelfuse.config import RigConfig
+from skelfuse.fusion.camera import Intrinsics
+from skelfuse.fusion.depth.cloud import MergedCloud
+from skelfuse.fusion.depth.frontal import body_facing
+from skelfuse.fusion.depth.hybrid import VIRTUAL_SENSOR_POSE
+from skelfuse.fusion.depth.pipeline import DepthFusionParams, PersonDepthView, fuse_person_depth
+from skelfuse.rig.grouping import FrameGroup
+from skelfuse.rig.instant import FusedInstant, GroupFuser, bodies_to_world, fused_frame, group_bodies
+from skelfuse.schema.errors import ConfigError, SkelfuseError
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.sim.depth_tracker import SimulatedDepthTracker
+from skelfuse.sources.depth_tracker import VirtualCameraTracker
+from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerSettings, load_k4a
+from skelfuse.wire import keys
+from skelfuse.wire.clouds import PersonCloudsFrame, decode_person_clouds
+from skelfuse.wire.codec import DecodeError
+
+log = logging.getLogger("skelfuse.service.depth")
+
+VIRTUAL_SENSOR_ID = "virtual"
+"""Sensor id of the hybrid mode's virtual sensor (its copies: ``virtual_2``, ``virtual_3``, ...)."""
+CLOUD_WAIT_S = 0.03
+"""How long one instant's fusion waits, at most, for clouds that have not arrived with their skeletons (the two
+keys' samples reach the node on different zenoh threads, and a cloud is larger and decoded on arrival)."""
+CLOUD_FRAMES_KEPT = 16
+"""Cloud frames kept per sensor (about half a second at 30 fps): enough for a group's deadline."""
+ASSOCIATION_GATE_MM = 400.0
+"""Hybrid mode: a body joins the previous instant's nearest fused person only within this median joint
+distance (people move well under 100 mm between two frames)."""
+VIRTUAL_INTRINSICS = Intrinsics.azure_kinect_nfov()
+"""The virtual camera: NFOV unbinned nominal pinhole intrinsics (640 x 576; the paper's mode)."""
+
+
+class DepthTracker(Protocol):
+    """A body tracker on one person's virtual image (one temporal stream per ``person`` key)."""
+
+    name: str
+    description: str
+
+    def track(
+        self, person: int, view: PersonDepthView, prior_world: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(32, 3) world joints (NaN where not found) and (32,) uint8 confidence; None when nothing was found."""
+        ...
+
+    def retire(self, active: set[int]) -> None:
+        """Forget the streams of people not in ``active``."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class K4abtDepthTracker:
+    """The Body Tracking SDK on each person's virtual image: one :class:`VirtualCameraTracker` per track id.
+
+    Each image is submitted and its result awaited (``wait_ms`` each way): the depth and hybrid modes wait for
+    the tracker, so their latency includes its time (reported apart from the skeleton path's). SDK versions that
+    allow one tracker per process can track one person here; a second person's tracker fails to be created,
+    which is counted and logged (``tracker_errors``), never fatal.
+    """
+
+    name = "k4abt"
+
+    def __init__(self, settings: TrackerSettings, *, wait_ms: int, intrinsics: Intrinsics = VIRTUAL_INTRINSICS) -> None:
+        self.k4a = load_k4a()
+        self.library = K4abtLibrary.load()
+        self.settings = settings
+        self.wait_ms = int(wait_ms)
+        self.intrinsics = intrinsics
+        self.description = f"Body Tracking SDK ({self.library.path}, ABI {self.library.abi}), one tracker per person"
+        self._trackers: dict[int, VirtualCameraTracker] = {}
+
+    def track(
+        self, person: int, view: PersonDepthView, prior_world: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        tracker = self._trackers.get(person)
+        if tracker is None:
+            tracker = self._trackers[person] = VirtualCameraTracker(
+                self.k4a, self.library, self.intrinsics, self.settings
+            )
+        if not tracker.submit(view, timeout_ms=self.wait_ms):
+            return None
+        skeleton = tracker.collect(timeout_ms=self.wait_ms)
+        if skeleton is None:
+            return None
+        return skeleton.positions_world, skeleton.confidence
+
+    def retire(self, active: set[int]) -> None:
+        for person in [p for p in self._trackers if p not in active]:
+            self._trackers.pop(person).close()
+
+    def close(self) -> None:
+        self.retire(set())
+
+
+def open_tracker(cfg: RigConfig) -> DepthTracker:
+    """The tracker ``[depth] tracker`` names; raises (ConfigError / the SDK loader's error) when it cannot run."""
+    depth = cfg.depth
+    if depth.tracker == "simulated":
+        if any(s.source != "sim" for s in cfg.sensors):  # the parser refuses it too; never run it on real data
+            raise ConfigError(f'{cfg.source}: [depth] tracker = "simulated" runs on simulated rigs only')
+        return SimulatedDepthTracker()
+    kinect = next((s.kinect for s in cfg.sensors if s.kinect is not None), None)
+    settings = TrackerSettings.from_config(kinect.tracker) if kinect is not None else TrackerSettings()
+    return K4abtDepthTracker(settings, wait_ms=depth.tracker_wait_ms)
+
+
+class CloudBuffer:
+    """The latest person clouds of every sensor, by device timestamp; the zenoh callback of the clouds key.
+
+    Thread-safe (the callback runs on a zenoh thread, :meth:`take` on the node's loop). Bad payloads are
+    counted per reason (``rejects``), never raised.
+    """
+
+    def __init__(self, rig: str, sensor_ids: tuple[str, ...], *, max_payload_bytes: int | None = None) -> None:
+        self.rig = rig
+        self.max_payload_bytes = max_payload_bytes
+        self._frames: dict[str, collections.OrderedDict[int, PersonCloudsFrame]] = {
+            sid: collections.OrderedDict() for sid in sensor_ids
+        }
+        self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)
+        self.received = 0
+        self.rejects: Counter[str] = Counter()
+
+    def __call__(self, sample: Any) -> None:
+        self.put(str(sample.key_expr), sample.payload.to_bytes())
+
+    def put(self, key: str, payload: bytes) -> None:
+        if self.max_payload_bytes is not None and len(payload) > self.max_payload_bytes:
+            self._reject("oversized")
+            return
+        try:
+            sensor_id = keys.parse_sensor_key(key.removesuffix("/clouds") + "/skeletons", self.rig)
+            frame = decode_person_clouds(payload)
+        except ValueError:
+            self._reject("bad_key")
+            return
+        except DecodeError as exc:
+            self._reject(exc.reason)
+            return
+        if frame.sensor_id != sensor_id or sensor_id not in self._frames:
+            self._reject("key_mismatch" if sensor_id in self._frames else "unknown_sensor")
+            return
+        with self._lock:
+            frames = self._frames[sensor_id]
+            frames[frame.device_timestamp_us] = frame
+            while len(frames) > CLOUD_FRAMES_KEPT:
+                frames.popitem(last=False)
+            self.received += 1
+            self._arrived.notify_all()
+
+    def _reject(self, reason: str) -> None:
+        with self._lock:
+            self.rejects[reason] += 1
+            first = self.rejects[reason] == 1
+        if first:
+            log.warning("rejected a person-cloud payload (%s); counted in the status under depth.cloud_rejects", reason)
+
+    def take(self, sensor_id: str, device_time_us: int, *, until: float | None = None) -> PersonCloudsFrame | None:
+        """The clouds of ``sensor_id``'s capture at ``device_time_us``, waiting for them up to the monotonic
+        time ``until`` (None: no wait); None when they did not arrive."""
+        with self._arrived:
+            frames = self._frames.get(sensor_id)
+            if frames is None:
+                return None
+            while device_time_us not in frames and until is not None and frames:  # never sent any: no wait
+                left = until - time.monotonic()
+                if left <= 0 or not self._arrived.wait(left):
+                    break
+            return frames.get(device_time_us)
+
+
+@dataclasses.dataclass
+class DepthCounters:
+    """What the depth stage did, for the node's status (``info.depth``)."""
+
+    persons: int = 0
+    tracked: int = 0
+    no_clouds: int = 0
+    clouds_missing: int = 0
+    tracker_misses: int = 0
+    tracker_errors: int = 0
+    depth_ms: collections.deque[float] = dataclasses.field(default_factory=lambda: collections.deque(maxlen=1000))
+
+
+class DepthStage:
+    """One instant of the depth or hybrid mode (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : RigConfig
+        ``[fusion] mode`` (depth / hybrid) and ``[depth]``.
+    tracker : DepthTracker
+    clouds : CloudBuffer, optional
+        Default: a new one for the rig's sensors.
+    """
+
+    def __init__(self, cfg: RigConfig, tracker: DepthTracker, *, clouds: CloudBuffer | None = None) -> None:
+        if cfg.fusion.mode not in ("depth", "hybrid"):
+            raise ValueError(f"the depth stage runs in depth or hybrid mode, not {cfg.fusion.mode!r}")
+        self.mode = cfg.fusion.mode
+        self.tracker = tracker
+        self.params = DepthFusionParams(voxel_mm=cfg.depth.voxel_mm, icp=cfg.depth.icp)
+        self.copies = int(cfg.depth.virtual_weight) if self.mode == "hybrid" else 0
+        self.sensor_ids: tuple[str, ...] = cfg.sensor_ids
+        self.clouds = clouds or CloudBuffer(cfg.name, cfg.sensor_ids, max_payload_bytes=cfg.intake.max_payload_bytes)
+        self.counters = DepthCounters()
+        self.last_clouds: tuple[tuple[int, MergedCloud], ...] = ()
+        self._poses = np.zeros((len(self.sensor_ids), 4, 4))
+        self._previous: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, N_JOINTS, 3)))
+
+    def fuser_sensors(self, world_from_sensor: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
+        """The sensors (ids, poses) the node's GroupFuser fuses: the rig's, plus the virtual copies in hybrid."""
+        self._poses = np.asarray(world_from_sensor, dtype=np.float64)
+        virtual = tuple(VIRTUAL_SENSOR_ID if k == 0 else f"{VIRTUAL_SENSOR_ID}_{k + 1}" for k in range(self.copies))
+        poses = np.concatenate([self._poses, np.repeat(VIRTUAL_SENSOR_POSE[None], self.copies, axis=0)])
+        return self.sensor_ids + virtual, poses
+
+    def describe(self) -> str:
+        extra = f", virtual sensor weight {self.copies}" if self.mode == "hybrid" else ""
+        return (
+            f"mode {self.mode}: tracker {self.tracker.name} = {self.tracker.description}; voxel "
+            f"{self.params.voxel_mm:g} mm, ICP {'on' if self.params.icp else 'off'}{extra}"
+        )
+
+    def step(self, fuser: GroupFuser, group: FrameGroup) -> FusedInstant:
+        """Fuse one instant in this stage's mode (``fuser`` was built with :meth:`fuser_sensors`)."""
+        tick = time.perf_counter_ns()
+        instant = self._hybrid(fuser, group) if self.mode == "hybrid" else self._depth(fuser, group)
+        self.counters.depth_ms.append((time.perf_counter_ns() - tick) / 1e6)
+        return instant
+
+    # -- the two modes --------------------------------------------------------------------------------------
+
+    def _depth(self, fuser: GroupFuser, group: FrameGroup) -> FusedInstant:
+        instant = fuser.step(group)
+        people = instant.people
+        rows = np.arange(people.n_persons)
+        assignment = np.where(people.assignment >= 0, people.assignment, -1)
+        virtual, confidence, used = self._virtual_skeletons(group, assignment, people.positions, people.track_ids, rows)
+        finite = np.isfinite(virtual).all(axis=-1)
+        out = dataclasses.replace(
+            people,
+            positions=virtual,
+            confidence=confidence,
+            n_agree=np.where(finite, used.sum(axis=1)[:, None], 0).astype(np.int16),
+            contributors=used,
+            orientations=None,
+            position_std=None,
+        )
+        self.tracker.retire({int(i) for i in people.track_ids})
+        return dataclasses.replace(instant, frame=fused_frame(out, group.time_us, fuser.sensor_ids))
+
+    def _hybrid(self, fuser: GroupFuser, group: FrameGroup) -> FusedInstant:
+        n_real = len(self.sensor_ids)
+        positions, _, valid = group_bodies(group.frames, self.sensor_ids)
+        world = bodies_to_world(self._poses, positions)
+        previous_ids, previous = self._previous
+        assignment = associate_bodies(world, valid, previous)
+        priors = np.full((previous_ids.shape[0], N_JOINTS, 3), np.nan)
+        for person in range(previous_ids.shape[0]):
+            mine = world[assignment == person]
+            if mine.shape[0]:
+                with warnings.catch_warnings():  # joints no body of the person holds stay NaN
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    priors[person] = np.nanmedian(mine, axis=0)
+        virtual, confidence, _ = self._virtual_skeletons(
+            group, assignment, priors, previous_ids, np.arange(len(priors))
+        )
+        found = np.isfinite(virtual).all(axis=-1).any(axis=-1)
+        frames = dict(group.frames)
+        if found.any():
+            body = virtual[found]
+            frame = SensorFrame(
+                sensor_id=VIRTUAL_SENSOR_ID,
+                sequence=0,
+                device_time_us=group.time_us,
+                host_time_ns=0,
+                body_ids=(previous_ids[found] % 2**32).astype(np.uint32),
+                positions=body.astype(np.float32),  # NaN joints carry confidence NONE, as with_virtual_sensor's
+                orientations=np.tile(np.array([1.0, 0, 0, 0], np.float32), (int(found.sum()), N_JOINTS, 1)),
+                confidence=np.where(np.isfinite(body).all(axis=-1), confidence[found], 0).astype(np.uint8),
+            )
+            for sensor_id in fuser.sensor_ids[n_real:]:
+                frames[sensor_id] = dataclasses.replace(frame, sensor_id=sensor_id)
+        instant = fuser.step(FrameGroup(group.time_us, frames, group.missing, group.complete))
+        self._previous = (instant.frame.track_ids, instant.frame.positions)
+        self.tracker.retire({int(i) for i in previous_ids})
+        return dataclasses.replace(  # the node's per-sensor views (pose fit, Rerun) see the real sensors only
+            instant, sensors_world=instant.sensors_world[:n_real], valid=instant.valid[:n_real]
+        )
+
+    # -- per person ---------------------------------------------------------------------------------------
+
+    def _virtual_skeletons(
+        self,
+        group: FrameGroup,
+        assignment: np.ndarray,
+        priors: np.ndarray,
+        person_keys: np.ndarray,
+        rows: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For persons ``rows`` (indices into ``priors`` / ``person_keys``), the tracker's skeleton from the
+        clouds of the bodies ``assignment`` (S, B) gives them: (P, 32, 3) world, (P, 32) confidence, (P, S)
+        sensors whose clouds went in."""
+        n_persons, n_sensors = len(rows), len(self.sensor_ids)
+        virtual = np.full((n_persons, N_JOINTS, 3), np.nan)
+        confidence = np.zeros((n_persons, N_JOINTS), np.uint8)
+        used = np.zeros((n_persons, n_sensors), bool)
+        per_person: list[list[list[np.ndarray]]] = [[[] for _ in range(n_sensors)] for _ in range(n_persons)]
+        until = time.monotonic() + CLOUD_WAIT_S
+        for s, sensor_id in enumerate(self.sensor_ids):
+            frame = group.frames.get(sensor_id)
+            if frame is None or frame.n_bodies == 0:
+                continue
+            clouds = self.clouds.take(sensor_id, frame.device_time_us, until=until)
+            if clouds is None:  # not arrived in time: this sensor's bodies go without their clouds
+                self.counters.clouds_missing += 1
+                continue
+            by_id = dict(zip((int(i) for i in clouds.body_ids), clouds.clouds, strict=True))
+            for b, body_id in enumerate(frame.body_ids):
+                person = int(assignment[s, b]) if b < assignment.shape[1] else -1
+                cloud = by_id.get(int(body_id))
+                if person >= 0 and cloud is not None and cloud.shape[0]:
+                    per_person[person][s].append(cloud)
+        merged = []
+        for person in range(n_persons):
+            self.counters.persons += 1
+            sensor_clouds = [np.concatenate(c) if c else np.zeros((0, 3)) for c in per_person[person]]
+            sizes = np.array([c.shape[0] for c in sensor_clouds])
+            if sizes.sum() < 50:  # nothing worth a virtual image
+                self.counters.no_clouds += 1
+                continue
+            prior = priors[rows[person]]
+            facing = body_facing(prior)
+            facing_deg = float(np.degrees(np.arctan2(facing[1], facing[0]))) if np.isfinite(facing).all() else None
+            view = fuse_person_depth(
+                sensor_clouds,
+                self._poses,
+                VIRTUAL_INTRINSICS,
+                reference=int(np.argmax(sizes)),
+                skeleton_facing_deg=facing_deg,
+                params=self.params,
+            )
+            key = int(person_keys[rows[person]])
+            merged.append((key, view.merged))
+            used[person] = sizes > 0
+            try:
+                result = self.tracker.track(key, view, prior if np.isfinite(prior).any() else None)
+            except (K4ABTError, SkelfuseError) as exc:
+                self.counters.tracker_errors += 1
+                if self.counters.tracker_errors == 1 or self.counters.tracker_errors % 1000 == 0:
+                    log.error(
+                        "depth tracker failed for person %d (%d so far): %s", key, self.counters.tracker_errors, exc
+                    )
+                continue
+            if result is None:
+                self.counters.tracker_misses += 1
+                continue
+            virtual[person], confidence[person] = result
+            self.counters.tracked += 1
+        self.last_clouds = tuple(merged)
+        return virtual, confidence, used
+
+    def report(self) -> dict[str, Any]:
+        """The status document's ``depth`` entry."""
+        c = self.counters
+        data = np.fromiter(c.depth_ms, dtype=np.float64)
+        return {
+            "mode": self.mode,
+            "tracker": self.tracker.name,
+            "clouds_received": self.clouds.received,
+            "cloud_rejects": dict(self.clouds.rejects),
+            "persons": c.persons,
+            "tracked": c.tracked,
+            "no_clouds": c.no_clouds,
+            "clouds_missing": c.clouds_missing,
+            "tracker_misses": c.tracker_misses,
+            "tracker_errors": c.tracker_errors,
+            "depth_ms_p50": round(float(np.percentile(data, 50)), 3) if data.size else None,
+            "depth_ms_p99": round(float(np.percentile(data, 99)), 3) if data.size else None,
+        }
+
+    def close(self) -> None:
+        self.tracker.close()
+
+
+def associate_bodies(world: np.ndarray, valid: np.ndarray, persons: np.ndarray) -> np.ndarray:
+    """(S, B) index of the person in ``persons`` (P, 32, 3) each valid body of ``world`` (S, B, 32, 3) is
+    nearest to (median joint distance), -1 beyond :data:`ASSOCIATION_GATE_MM` or with no person."""
+    out = np.full(valid.shape, -1, dtype=np.int64)
+    if persons.shape[0] == 0 or world.shape[1] == 0:
+        return out
+    with warnings.catch_warnings(), np.errstate(all="ignore"):  # padding slots: all-NaN, infinitely far
+        warnings.simplefilter("ignore", RuntimeWarning)
+        distance = np.nanmedian(np.linalg.norm(world[:, :, None] - persons[None, None], axis=-1), axis=-1)  # S,B,P
+    distance = np.where(np.isfinite(distance), distance, np.inf)
+    nearest = np.argmin(distance, axis=-1)
+    close = np.take_along_axis(distance, nearest[..., None], axis=-1)[..., 0] <= ASSOCIATION_GATE_MM
+    out[valid & close] = nearest[valid & close]
+    return out
+
+
+def depth_stage_for(cfg: RigConfig) -> DepthStage | None:
+    """The node's depth stage for ``[fusion] mode`` (None in skeleton mode); opens the tracker."""
+    if cfg.fusion.mode == "skeleton":
+        return None
+    return DepthStage(cfg, open_tracker(cfg))
