@@ -65,6 +65,9 @@ VIRTUAL_SENSOR_ID = "virtual"
 CLOUD_WAIT_S = 0.03
 """How long one instant's fusion waits, at most, for clouds that have not arrived with their skeletons (the two
 keys' samples reach the node on different zenoh threads, and a cloud is larger and decoded on arrival)."""
+CLOUD_FIRST_WAIT_S = 10.0
+"""For this long after the node starts, a sensor that has sent no cloud yet is waited for too (its first cloud
+may lose the race with its first skeletons); after it, a sensor that never sent one is not waited for."""
 CLOUD_FRAMES_KEPT = 16
 """Cloud frames kept per sensor (about half a second at 30 fps): enough for a group's deadline."""
 ASSOCIATION_GATE_MM = 400.0
@@ -165,6 +168,7 @@ class CloudBuffer:
         self._arrived = threading.Condition(self._lock)
         self.received = 0
         self.rejects: Counter[str] = Counter()
+        self._first_wait_until = time.monotonic() + CLOUD_FIRST_WAIT_S
 
     def __call__(self, sample: Any) -> None:
         self.put(str(sample.key_expr), sample.payload.to_bytes())
@@ -207,7 +211,12 @@ class CloudBuffer:
             frames = self._frames.get(sensor_id)
             if frames is None:
                 return None
-            while device_time_us not in frames and until is not None and frames:  # never sent any: no wait
+            # a sensor that never sent a cloud is not waited for, once the start-up's first race is over
+            while (
+                device_time_us not in frames
+                and until is not None
+                and (frames or time.monotonic() < self._first_wait_until)
+            ):
                 left = until - time.monotonic()
                 if left <= 0 or not self._arrived.wait(left):
                     break
