@@ -57,6 +57,11 @@ def format_status(status: NodeStatus) -> str:
         ]
         if moved:
             parts.append("POSE NO LONGER FITS: " + ", ".join(moved))
+    elif status.role == "router":
+        parts.append(f"refused: {c.get('refused_tls', 0)} TLS connections, {c.get('refused_messages', 0)} messages")
+        top = [f"{r['who']} {r['action']} on {r['key']} x{r['messages']}" for r in (info.get("refused") or [])[:3]]
+        if top:
+            parts.append("most refused: " + "; ".join(top))
     else:
         parts.append(f"out {c.get('frames_out', 0)} ({info.get('rate_hz', 0) or 0:.1f} Hz)")
         if info.get("last_error"):
