@@ -37,7 +37,9 @@ def test_a_flood_on_one_key_costs_no_instant_of_the_other_sensors() -> None:
             "\n".join(
                 [
                     f'[rig]\nname = "{RIG}"\n[sync]\nby = "device"\nfps = 30.0\ntolerance_ms = 10.0',
-                    "deadline_ms = 17.0\n[node]\nstatus_period_s = 0.25",
+                    # A generous deadline: this test's own publisher may be held off the CPU between two sensors'
+                    # puts on a loaded machine; what is tested is the queue, not the deadline.
+                    "deadline_ms = 250.0\n[node]\nstatus_period_s = 0.25",
                     "[intake]\nmax_queue = 256\nmax_queue_per_key = 64",
                     *sim_sensor_tables(4),
                 ]
@@ -101,15 +103,15 @@ def test_a_flood_on_one_key_costs_no_instant_of_the_other_sensors() -> None:
         runner.join(30)
         peer.close()
         node_session.close()
+    sensors = node.report.status["info"]["sensors"]
+    assert flooded[0] > 1000 * STALL_S  # the flood went on through the stall
+    assert sensors["capture_3"]["queue"]["dropped"] > 0  # the stall overflowed the flood's bucket...
+    for sid in ("capture_0", "capture_1", "capture_2"):  # ...and only it
+        assert sensors[sid]["queue"]["dropped"] == 0, sensors
+        assert sensors[sid]["late"] == 0, sensors
+    assert node.report.status["counters"]["samples_dropped"] == sensors["capture_3"]["queue"]["dropped"]
     instants = [o for o in fused if o.frame.time_us >= base_us]
     assert len(instants) == INSTANTS, f"{INSTANTS - len(instants)} instants lost"
     kept = [cfg.sensor_ids.index(sid) for sid in ("capture_0", "capture_1", "capture_2")]
     with_all_kept = sum(bool(np.isfinite(o.sensors_world[kept]).any(axis=(1, 2, 3)).all()) for o in instants)
     assert with_all_kept == INSTANTS
-    sensors = node.report.status["info"]["sensors"]
-    assert flooded[0] > 1000 * STALL_S  # the flood went on through the stall
-    assert sensors["capture_3"]["queue"]["dropped"] > 0  # the stall overflowed the flood's bucket...
-    for sid in ("capture_0", "capture_1", "capture_2"):  # ...and only it
-        assert sensors[sid]["queue"]["dropped"] == 0
-        assert sensors[sid]["late"] == 0
-    assert node.report.status["counters"]["samples_dropped"] == sensors["capture_3"]["queue"]["dropped"]
