@@ -22,7 +22,7 @@ from skelfuse.config.access import rig_identities
 from skelfuse.demo import sim_sensor_tables
 from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.service.certs import make_rig_certificates
-from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
+from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
 
 pytestmark = pytest.mark.service
 
@@ -91,12 +91,23 @@ def test_router_refuses_strangers_and_other_sensors_keys_across_namespaces(lab: 
     forger = lab.probe(pc_a, "forger", "forge", str(config), "capture-pc-a", endpoints[pc_a], own, other, fused)
     forger.wait(60.0)
     stranger.wait(60.0)
-    time.sleep(0.5)
+    router_status = None
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:  # the router counts what it refused in its status (from zenoh's log)
+        statuses = [r for r in read_probe(out) if r["key"] == f"skelfuse/{RIG}/status/router"]
+        router_status = decode_status(bytes.fromhex(statuses[-1]["hex"])) if statuses else None
+        if router_status is not None and router_status.counters["refused_messages"] >= 40:
+            break
+        time.sleep(0.2)
     lab.stop(probe)
     assert "forged" in lab.log(forger), lab.log(forger)
     assert "refused" in lab.log(stranger), lab.log(stranger)
     keys_seen = {r["key"] for r in read_probe(out) if bytes.fromhex(r["hex"]) == FORGED}
     assert keys_seen == {own}, f"the router let through {keys_seen - {own}} / dropped the capture PC's own key"
+    assert router_status is not None, lab.log(router)
+    refused = {(r["who"], r["key"]): r["messages"] for r in router_status.info["refused"]}
+    who = f"capture-pc-a.{RIG}.skelfuse"
+    assert refused == {(who, other): 20, (who, fused): 20}, lab.log(router)  # 20 forged puts on each
     assert lab.stop(router) == 0, lab.log(router)
 
 

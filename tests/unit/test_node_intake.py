@@ -9,12 +9,15 @@ again at 1 after a restart.
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from skelfuse.config import IntakeConfig, RigConfig, load_rig_config
+from skelfuse.bench.latency import synthetic_frames
+from skelfuse.config import IntakeConfig, RigConfig, load_rig_config, parse_rig_config
+from skelfuse.demo import sim_sensor_tables
 from skelfuse.fusion.tracks import MAX_TRACKS, TrackParams
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.service.node import (
@@ -140,22 +143,115 @@ def test_oversized_payloads_are_dropped_unread(rig: RigConfig) -> None:
     assert samples.oversized == 1 and samples.qsize() == 0
 
 
-def test_sample_queue_is_bounded(rig: RigConfig) -> None:
+class FakeSample:
+    """What a zenoh callback receives, as far as SampleQueue reads it."""
+
     class Payload:
+        def __init__(self, data: bytes) -> None:
+            self.data = data
+
         def __len__(self) -> int:
-            return 1
+            return len(self.data)
 
         def to_bytes(self) -> bytes:
-            return b"x"
+            return self.data
 
-    class Sample:
-        key_expr = key("capture_0")
-        payload = Payload()
+    def __init__(self, key_expr: str, data: bytes) -> None:
+        self.key_expr = key_expr
+        self.payload = self.Payload(data)
 
+
+def test_sample_queue_is_bounded_and_drops_the_oldest(rig: RigConfig) -> None:
     samples = SampleQueue(max_items=16, max_payload_bytes=1024)
-    for _ in range(100):
-        samples(Sample())
+    for i in range(100):
+        samples(FakeSample(key("capture_0"), b"%d" % i))
     assert samples.qsize() == 16 and samples.dropped == 84
+    kept = [samples.get_nowait().payload for _ in range(16)]
+    assert kept == [b"%d" % i for i in range(84, 100)] and samples.get_nowait() is None
+
+
+def test_sample_queue_bounds_bytes_and_each_key() -> None:
+    labels = {key(sid): sid for sid in ("capture_0", "capture_1")}
+    samples = SampleQueue(max_items=1000, max_items_per_key=5, max_bytes=4096, labels=labels)
+    for _ in range(20):
+        samples(FakeSample(key("capture_0"), b"a" * 10))
+        samples(FakeSample("skelfuse/sim4/sensors/stranger/skeletons", b"b" * 1000))
+    samples(FakeSample(key("capture_1"), b"c" * 10))
+    counts = samples.counts()
+    # capture_0 holds its newest 5 (per-key bound); the stranger's 1000-byte samples are cut to fit 4096 bytes
+    # together with capture_0's 50 and capture_1's 10 (the bucket with the most bytes gives way).
+    assert counts["capture_0"] == {"queued": 5, "dropped": 15, "oversized": 0}
+    assert counts["capture_1"] == {"queued": 1, "dropped": 0, "oversized": 0}
+    assert counts["?"]["queued"] == 4 and counts["?"]["dropped"] == 16
+    order = [samples.get_nowait().payload[:1] for _ in range(samples.qsize())]
+    # a15 a16 b16 a17 b17 a18 b18 a19 b19 c: arrival order kept across the buckets
+    assert order == [b"a", b"a", b"b", b"a", b"b", b"a", b"b", b"a", b"b", b"c"]
+    with pytest.raises(ValueError, match="max_bytes"):
+        SampleQueue(max_payload_bytes=2048, max_bytes=1024)
+
+
+def flood_rig() -> RigConfig:
+    """4 synthetic sensors (the soak's), a small intake queue so that a one-second stall overflows it."""
+    return parse_rig_config(
+        tomllib.loads(
+            "\n".join(
+                [
+                    '[rig]\nname = "flood"\n[sync]\nby = "device"\nfps = 30.0\ntolerance_ms = 10.0',
+                    "deadline_ms = 17.0\n[intake]\nmax_queue = 256\nmax_queue_per_key = 64",
+                    *sim_sensor_tables(4),
+                ]
+            )
+        )
+    )
+
+
+@pytest.mark.parametrize(
+    ("flood_sensor", "kept_sensors"),
+    [
+        pytest.param("capture_3", ["capture_0", "capture_1", "capture_2"], id="on-a-sensors-key"),
+        pytest.param("intruder", ["capture_0", "capture_1", "capture_2", "capture_3"], id="on-an-unknown-key"),
+    ],
+)
+def test_a_flooding_key_cannot_push_out_other_sensors_frames(flood_sensor: str, kept_sensors: list[str]) -> None:
+    # Before: a full queue dropped whatever came next, so a 1 kHz flood that filled it during a one-second stall
+    # of the node's loop cost every sensor's frames (the soak lost 317 instants). Now the flood loses its own
+    # oldest samples; every instant is fused with every other sensor's frame.
+    cfg = flood_rig()
+    frames = synthetic_frames(4, 90, seed=5)
+    now = [10**9]
+    labels = {f"skelfuse/flood/sensors/{sid}/skeletons": sid for sid in cfg.sensor_ids}
+    intake = cfg.intake
+    samples = SampleQueue(
+        max_items=intake.max_queue,
+        max_payload_bytes=intake.max_payload_bytes,
+        max_items_per_key=intake.max_queue_per_key,
+        max_bytes=intake.max_queue_bytes,
+        labels=labels,
+        clock=lambda: now[0],
+    )
+    core = FusionCore(cfg)
+    flood_key = f"skelfuse/flood/sensors/{flood_sensor}/skeletons"
+    outs = []
+    for k in range(90):
+        now[0] = 10**9 + k * PERIOD_NS
+        for i, frame in enumerate(frames[k]):
+            stamped = dataclasses.replace(frame, sequence=k, device_time_us=10**6 + k * 33_333 + 160 * i)
+            samples(FakeSample(f"skelfuse/flood/sensors/{frame.sensor_id}/skeletons", encode_sensor_frame(stamped)))
+        for _ in range(33):  # 1 kHz of garbage on the flood key
+            samples(FakeSample(flood_key, b"\x00garbage" * 8))
+        if 30 <= k < 60:  # the node's loop stalls for a second: nothing is taken out
+            continue
+        while (item := samples.get_nowait()) is not None:
+            outs += core.receive(item.key, item.payload, item.arrival_ns)
+        outs += core.poll(now[0] + 20_000_000)
+    columns = [cfg.sensor_ids.index(sid) for sid in kept_sensors]
+    seen = [np.isfinite(out.sensors_world[columns]).any(axis=(1, 2, 3)) for out in outs]
+    assert len(outs) == 90, f"{90 - len(outs)} instants lost"
+    assert all(s.all() for s in seen), "an instant lost a kept sensor's frame"
+    counts = samples.counts()
+    label = flood_sensor if flood_sensor in cfg.sensor_ids else "?"
+    assert counts[label]["dropped"] > 900  # ~1000 flood samples came during the stall, at most 64 stay
+    assert all(counts.get(sid, {"dropped": 0})["dropped"] == 0 for sid in kept_sensors)
 
 
 def test_the_node_report_keeps_a_bounded_record() -> None:

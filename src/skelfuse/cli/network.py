@@ -18,7 +18,7 @@ from skelfuse.cli.common import (
     zenoh_conf,
 )
 from skelfuse.config import RigConfig
-from skelfuse.config.access import ROUTER, access_control, rig_identities
+from skelfuse.config.access import ROUTER, access_control, common_name, rig_identities
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.service.lifecycle import Lifecycle
 from skelfuse.service.router import run_router
@@ -37,7 +37,14 @@ def _cmd_router(args: argparse.Namespace) -> int:
         print(json.dumps(access_control(cfg), indent=2))
         return EXIT_OK
     conf = router_config(args, cfg)
-    return run_router(conf, lifecycle=Lifecycle("router"), limits=run_limits(args))
+    return run_router(
+        conf,
+        lifecycle=Lifecycle("router"),
+        limits=run_limits(args),
+        rig=cfg.name,
+        rig_common_names=[common_name(cfg.name, identity) for identity in rig_identities(cfg)],
+        status_period_s=cfg.node.status_period_s,
+    )
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
@@ -73,6 +80,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description="Run zenoh's router from the Python package, with the rig's [zenoh] settings: listen "
         "endpoints ([zenoh] listen or --zenoh-listen; default tcp/[::]:7447), mutual TLS ([zenoh.tls], "
         "certificate 'router') and the access control generated from the rig ([zenoh] access_control = true). "
+        "It counts what zenoh refuses (certificates of another CA, messages the access control denies: only "
+        "zenoh's log reports them, which the router reads) and publishes the counts in its status on "
+        "skelfuse/<rig>/status/router every [node] status_period_s (skelfuse status prints them). "
         "See docs/multi-pc.md.",
     )
     router.add_argument("--config", required=True, type=Path, metavar="RIG.toml", help="the rig config")

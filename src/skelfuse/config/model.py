@@ -356,7 +356,13 @@ class IntakeConfig:
     max_payload_bytes : int
         Larger sensor payloads are dropped on arrival, before they are copied (``oversized``).
     max_queue : int
-        Samples waiting for the node's loop at most; beyond, new ones are dropped (``queue_full``).
+        Samples waiting for the node's loop at most, all keys together; beyond, the key with the most waiting
+        drops its oldest (``samples_dropped``).
+    max_queue_per_key : int
+        Samples of one key (one sensor; every unknown key together counts as one) waiting at most; beyond,
+        that key's oldest is dropped: a flooding or bursting key never pushes out another sensor's frames.
+    max_queue_bytes : int
+        Payload bytes waiting at most, all keys together; beyond, the key with the most bytes drops its oldest.
     """
 
     max_bodies_per_sensor: int = 16
@@ -364,6 +370,8 @@ class IntakeConfig:
     max_range_mm: float = 10_000.0
     max_payload_bytes: int = 262_144
     max_queue: int = 4096
+    max_queue_per_key: int = 1024
+    max_queue_bytes: int = 64 * 1024 * 1024
 
 
 @dataclass(frozen=True)

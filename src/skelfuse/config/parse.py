@@ -555,7 +555,14 @@ def _parse_intake(t: Table | None) -> IntakeConfig:
         max_range_mm=t.number("max_range_mm", 10_000.0, lo=0.0, lo_open=True, hi=1e6, unit="mm"),
         max_payload_bytes=t.integer("max_payload_bytes", 262_144, lo=1024, hi=64 * 1024 * 1024),
         max_queue=t.integer("max_queue", 4096, lo=16, hi=1_000_000),
+        max_queue_per_key=t.integer("max_queue_per_key", 1024, lo=16, hi=1_000_000),
+        max_queue_bytes=t.integer("max_queue_bytes", 64 * 1024 * 1024, lo=1024, hi=4 * 1024**3),
     )
+    if intake.max_queue_bytes < intake.max_payload_bytes:
+        raise ConfigError(
+            f"{t.source}: key {t.key('max_queue_bytes')}: expected at least max_payload_bytes "
+            f"({intake.max_payload_bytes}) so one payload fits, found {intake.max_queue_bytes}"
+        )
     t.done()
     return intake
 

@@ -3,6 +3,7 @@
 Data flow of one sensor frame::
 
     zenoh callback (zenoh thread)        SampleQueue: stamp arrival (monotonic ns), copy bytes, enqueue
+                                         (bounded and fair per sensor key: a flood drops its own oldest)
       -> node loop (one thread)          FusionCore.receive: decode (rejects counted per sensor and reason,
                                          never raised, never reach fusion state)
       -> FrameGrouper.push(frame, now)   groups of one instant (complete, or at their deadline)
@@ -48,7 +49,7 @@ from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
-from skelfuse.service.zenoh_io import SampleQueue, open_session
+from skelfuse.service.zenoh_io import OTHER_KEYS, SampleQueue, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
 
@@ -488,7 +489,13 @@ class FusionNode:
         self.view = view
         rig = self.cfg.name
         intake = self.cfg.intake
-        samples = self._samples = SampleQueue(max_items=intake.max_queue, max_payload_bytes=intake.max_payload_bytes)
+        samples = self._samples = SampleQueue(
+            max_items=intake.max_queue,
+            max_payload_bytes=intake.max_payload_bytes,
+            max_items_per_key=intake.max_queue_per_key,
+            max_bytes=intake.max_queue_bytes,
+            labels={keys.sensor_skeletons(rig, sid): sid for sid in self.cfg.sensor_ids},  # fair per sensor
+        )
         try:
             publisher = session.declare_publisher(keys.fused_skeletons(rig), express=True)
             status_pub = session.declare_publisher(keys.status(rig, self.name))
@@ -666,6 +673,10 @@ class FusionNode:
         window_s = window_s or 1.0
         sensors = core.sensor_report(now_ns, window_s)
         self._rates = {sid: s["rate_hz"] for sid, s in sensors.items() if s["rate_hz"] is not None}
+        queue = {} if self._samples is None else self._samples.counts()  # the intake queue, per sensor key
+        no_drops = {"queued": 0, "dropped": 0, "oversized": 0}
+        for sid, report in sensors.items():
+            report["queue"] = queue.get(sid, no_drops)
         stats = core.grouper.stats
         totals = stats.totals
         reject_totals: Counter[str] = Counter()
@@ -699,6 +710,7 @@ class FusionNode:
             "pose_fit": self.pose_fit.report(),
             "unknown_ids": stats.unknown_ids,
             "rejects_unknown_sensor": dict(core.rejects.get(UNKNOWN_SENSOR, {})),
+            "queue_unknown_keys": queue.get(OTHER_KEYS, no_drops),
             "fusion_ms": _percentiles(self._window_fusion),
             "node_added_ms": _percentiles(self._window_added),
             "fusion_ms_total": _percentiles(self._fusion),

@@ -42,6 +42,14 @@ def format_status(status: NodeStatus) -> str:
             )
         if rates:
             parts.append("sensors: " + ", ".join(rates))
+        clocks = [format_clock(sid, s) for sid, s in sensors.items() if s.get("clock")]
+        if clocks:
+            parts.append("clocks (offset from the rig's median / jitter): " + ", ".join(clocks))
+        flooded = [
+            f"{sid} {s['queue']['dropped']}" for sid, s in sensors.items() if (s.get("queue") or {}).get("dropped")
+        ]
+        if flooded:
+            parts.append("intake queue dropped: " + ", ".join(flooded))
         moved = [
             f"{sid} ({fit.get('median_mm')} mm off)"
             for sid, fit in (info.get("pose_fit") or {}).items()
@@ -49,11 +57,40 @@ def format_status(status: NodeStatus) -> str:
         ]
         if moved:
             parts.append("POSE NO LONGER FITS: " + ", ".join(moved))
+    elif status.role == "router":
+        parts.append(f"refused: {c.get('refused_tls', 0)} TLS connections, {c.get('refused_messages', 0)} messages")
+        top = [f"{r['who']} {r['action']} on {r['key']} x{r['messages']}" for r in (info.get("refused") or [])[:3]]
+        if top:
+            parts.append("most refused: " + "; ".join(top))
     else:
         parts.append(f"out {c.get('frames_out', 0)} ({info.get('rate_hz', 0) or 0:.1f} Hz)")
         if info.get("last_error"):
             parts.append(f"last error: {info['last_error']}")
     return " | ".join(parts)
+
+
+def format_clock(sensor_id: str, sensor: dict[str, Any]) -> str:
+    """A sensor's clock as the node estimates it (status ``sensors.<id>.clock``, see docs/service.md), in words.
+
+    ``capture_1 +100.2 ms / 20.1 ms`` (offset from the rig's median clock / jitter), then the drift, the clock
+    steps the node re-learned and the frames held off clock, where there are any; ``learning`` before the
+    node has enough frames of that sensor.
+    """
+    clock = sensor.get("clock") or {}
+    offset, jitter = clock.get("relative_offset_ms"), clock.get("jitter_ms")
+    if offset is None:
+        return f"{sensor_id} learning"
+    text = f"{sensor_id} {offset:+.1f} ms"
+    if jitter is not None:
+        text += f" / {jitter:.1f} ms"
+    extra = []
+    if clock.get("drift_ppm") is not None:
+        extra.append(f"drift {clock['drift_ppm']:+.0f} ppm")
+    if clock.get("relearns"):
+        extra.append(f"re-learned {clock['relearns']}x")
+    if sensor.get("off_clock"):
+        extra.append(f"{sensor['off_clock']} off clock")
+    return text + (f" ({', '.join(extra)})" if extra else "")
 
 
 def watch_status(

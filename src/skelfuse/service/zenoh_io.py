@@ -1,21 +1,23 @@
 """zenoh plumbing shared by the nodes: opening a session with retries, loopback settings, samples into a queue.
 
 Threads: zenoh runs subscriber callbacks on its own threads. :class:`SampleQueue` is the only thing a
-callback touches: it stamps the arrival (monotonic ns), copies the payload to ``bytes`` and puts one tuple
-into a ``queue.Queue``. The node's single loop thread takes them out, so decoding, grouping and
+callback touches: it stamps the arrival (monotonic ns), copies the payload to ``bytes`` and queues one tuple
+(bounded and fair per key). The node's single loop thread takes them out, so decoding, grouping and
 fusion state are single-threaded.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import logging
 import math
-import queue
 import socket
+import threading
 import time
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from skelfuse.schema.errors import ConfigError, ServiceError
@@ -38,52 +40,164 @@ class Received(NamedTuple):
     payload: bytes
 
 
+OTHER_KEYS = "?"
+"""The bucket label of samples on keys a :class:`SampleQueue` was not told about (they share one bucket)."""
+
+
+class _Entry:
+    """One queued sample; ``item`` None once it was dropped (left in the arrival order until passed over)."""
+
+    __slots__ = ("item", "label", "size")
+
+    def __init__(self, item: Received, label: str, size: int) -> None:
+        self.item: Received | None = item
+        self.label = label
+        self.size = size
+
+
 class SampleQueue:
-    """A zenoh subscriber callback that hands samples to one consumer thread.
+    """A zenoh subscriber callback that hands samples to one consumer thread, fair per key.
 
-    Use ``session.declare_subscriber(key, sample_queue)``; the consumer calls :meth:`get`.
+    Use ``session.declare_subscriber(key, sample_queue)``; the consumer calls :meth:`get` and receives the
+    samples in arrival order.
 
-    Bounded, so no peer can raise the node's memory for good: a payload over ``max_payload_bytes`` is
-    dropped before it is copied (counted in :attr:`oversized`), and while ``max_items`` samples wait, new
-    ones are dropped (counted in :attr:`dropped`). None: no bound.
+    Bounded, so no peer can raise the node's memory for good, and fair, so no peer can push out another's
+    frames: samples are queued per bucket (one per key in ``labels``, whose value names it; samples on any
+    other key share the bucket :data:`OTHER_KEYS`). A payload over ``max_payload_bytes`` is dropped before it is
+    copied (counted in :attr:`oversized_by`). A bucket holding ``max_items_per_key`` samples drops its own oldest
+    to take a new one; while more than ``max_items`` samples or ``max_bytes`` payload bytes wait in all, the
+    bucket holding the most drops its oldest. So a key that floods or bursts loses its own oldest samples and
+    the other keys keep theirs (drops counted per bucket in :attr:`dropped_by`). None: no bound. Without
+    ``labels``, every key is its own bucket (then the counters grow with the keys seen: give ``labels`` where
+    peers choose the keys).
     """
 
-    def __init__(self, *, max_items: int | None = None, max_payload_bytes: int | None = None) -> None:
-        # queue.Queue, not SimpleQueue: CPython 3.11's SimpleQueue.get(timeout=...) can block forever when a
-        # signal (SIGTERM) interrupts it in the main thread and the deadline passes meanwhile.
-        self._queue: queue.Queue[Received] = queue.Queue()
+    def __init__(
+        self,
+        *,
+        max_items: int | None = None,
+        max_payload_bytes: int | None = None,
+        max_items_per_key: int | None = None,
+        max_bytes: int | None = None,
+        labels: Mapping[str, str] | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        if max_bytes is not None and max_payload_bytes is not None and max_bytes < max_payload_bytes:
+            raise ValueError(f"max_bytes ({max_bytes}) must hold one payload of max_payload_bytes {max_payload_bytes}")
+        # A Condition waits as queue.Queue does (not SimpleQueue: CPython 3.11's SimpleQueue.get(timeout=...) can
+        # block forever when a signal interrupts it in the main thread and the deadline passes meanwhile).
+        self._ready = threading.Condition(threading.Lock())
+        self._order: collections.deque[_Entry] = collections.deque()  # arrival order, dropped entries included
+        self._buckets: dict[str, collections.deque[_Entry]] = {}
+        self._bucket_bytes: Counter[str] = Counter()
+        self._items = 0
+        self._bytes = 0
         self.max_items = max_items
         self.max_payload_bytes = max_payload_bytes
-        self.dropped = 0
-        self.oversized = 0
+        self.max_items_per_key = max_items_per_key
+        self.max_bytes = max_bytes
+        self.labels = dict(labels) if labels is not None else None
+        self.clock = clock  # the arrival stamp (monotonic ns); tests pass their own
+        self.dropped_by: Counter[str] = Counter()
+        self.oversized_by: Counter[str] = Counter()
+
+    @property
+    def dropped(self) -> int:
+        """Samples dropped because their bucket or the queue was full, in all."""
+        return sum(self.dropped_by.values())
+
+    @property
+    def oversized(self) -> int:
+        """Payloads dropped unread because they were over ``max_payload_bytes``, in all."""
+        return sum(self.oversized_by.values())
 
     def __call__(self, sample: Any) -> None:
         # Runs on a zenoh thread: stamp first, copy, hand over; nothing that can raise on bad data.
-        arrival_ns = time.monotonic_ns()
+        arrival_ns = self.clock()
+        key = str(sample.key_expr)
+        label = key if self.labels is None else self.labels.get(key, OTHER_KEYS)
         payload = sample.payload
-        if self.max_payload_bytes is not None and len(payload) > self.max_payload_bytes:
-            self.oversized += 1
+        size = len(payload)
+        if self.max_payload_bytes is not None and size > self.max_payload_bytes:
+            with self._ready:
+                self.oversized_by[label] += 1
             return
-        if self.max_items is not None and self._queue.qsize() >= self.max_items:
-            self.dropped += 1
-            return
-        self._queue.put(Received(arrival_ns, str(sample.key_expr), payload.to_bytes()))
+        entry = _Entry(Received(arrival_ns, key, payload.to_bytes()), label, size)
+        with self._ready:
+            bucket = self._buckets.setdefault(label, collections.deque())
+            if self.max_items_per_key is not None and len(bucket) >= self.max_items_per_key:
+                self._drop_oldest(label)
+            bucket.append(entry)
+            self._order.append(entry)
+            self._items += 1
+            self._bytes += size
+            self._bucket_bytes[label] += size
+            while self.max_items is not None and self._items > self.max_items:
+                self._drop_oldest(max(self._buckets, key=lambda b: len(self._buckets[b])))
+            while self.max_bytes is not None and self._bytes > self.max_bytes:
+                self._drop_oldest(max(self._buckets, key=lambda b: self._bucket_bytes[b]))
+            if len(self._order) > 2 * self._items + 1024:  # forget dropped entries (amortised O(1))
+                self._order = collections.deque(e for e in self._order if e.item is not None)
+            self._ready.notify()
+
+    def _drop_oldest(self, label: str) -> None:
+        bucket = self._buckets[label]
+        entry = bucket.popleft()
+        entry.item = None  # frees the payload now; the entry leaves the arrival order when passed over
+        self._items -= 1
+        self._bytes -= entry.size
+        self._bucket_bytes[label] -= entry.size
+        self.dropped_by[label] += 1
+        if not bucket:
+            del self._buckets[label]
+
+    def _take(self) -> Received | None:
+        while self._order:
+            entry = self._order.popleft()
+            if entry.item is None:
+                continue
+            bucket = self._buckets[entry.label]
+            bucket.popleft()  # the oldest live entry overall is the oldest of its bucket
+            if not bucket:
+                del self._buckets[entry.label]
+            self._items -= 1
+            self._bytes -= entry.size
+            self._bucket_bytes[entry.label] -= entry.size
+            return entry.item
+        return None
 
     def get(self, timeout: float | None) -> Received | None:
         """The next sample, waiting up to ``timeout`` seconds (None: forever); None when none came."""
-        try:
-            return self._queue.get(timeout=timeout) if timeout is None or timeout > 0 else self._queue.get_nowait()
-        except queue.Empty:
-            return None
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._ready:
+            while True:
+                item = self._take()
+                if item is not None:
+                    return item
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                self._ready.wait(remaining)
 
     def get_nowait(self) -> Received | None:
-        try:
-            return self._queue.get_nowait()
-        except queue.Empty:
-            return None
+        with self._ready:
+            return self._take()
 
     def qsize(self) -> int:
-        return self._queue.qsize()
+        return self._items
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """Per bucket: samples waiting now, dropped (bucket or queue full) and oversized since the start."""
+        with self._ready:
+            labels = set(self._buckets) | set(self.dropped_by) | set(self.oversized_by)
+            return {
+                label: {
+                    "queued": len(self._buckets.get(label, ())),
+                    "dropped": self.dropped_by[label],
+                    "oversized": self.oversized_by[label],
+                }
+                for label in sorted(labels)
+            }
 
 
 def open_session(
