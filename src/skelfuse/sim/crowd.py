@@ -235,7 +235,8 @@ def simulate_people(
                 bones = np.linalg.norm(own[rows][:, BONES[:, 1]] - own[rows][:, BONES[:, 0]], axis=-1)
                 template = bone_lengths[p][BONES[:, 1]]
                 scale = np.median(bones / np.maximum(template, 1e-9), axis=1)
-                fitted[rows] = fit_body_model(noisy[rows], bone_lengths[p], scale)
+                guessed = extra | obs.occluded[:T, s_idx]
+                fitted[rows] = fit_body_model(noisy[rows], bone_lengths[p], scale, guessed[rows])
                 own = fitted
                 low = extra & (rng.random((T, N_JOINTS)) < profile.occluded_low_prob) & (conf > Confidence.LOW)
                 conf[low] = Confidence.LOW

@@ -640,17 +640,34 @@ def symmetric_bone_lengths(truth: np.ndarray) -> np.ndarray:
     return 0.5 * (lengths + lengths[MIRROR])
 
 
-def fit_body_model(noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarray) -> np.ndarray:
+_IK_CHILD = {
+    J[f"{joint}_{side}"]: J[f"{child}_{side}"]
+    for side in ("LEFT", "RIGHT")
+    for joint, child in (("ELBOW", "WRIST"), ("WRIST", "HAND"), ("KNEE", "ANKLE"), ("ANKLE", "FOOT"))
+}
+"""A limb joint and the child that continues its chain: a guessed joint is placed so that this child, when the
+tracker sees it, stays where it was seen (two-bone IK in :func:`fit_body_model`)."""
+
+
+def fit_body_model(
+    noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarray, guessed: np.ndarray | None = None
+) -> np.ndarray:
     """Refit joints to a body model with fixed bone lengths times one size factor per frame.
 
     Walks the kinematic chain from the pelvis: each joint goes ``scale * length`` away from its already
-    fitted parent, in the direction of its noisy position.
+    fitted parent, in the direction of its noisy position. A guessed limb joint (``guessed``: hidden or lost)
+    whose chain child (:data:`_IK_CHILD`: elbow -> wrist, wrist -> hand, knee -> ankle, ankle -> foot) is
+    not guessed is placed by two-bone IK instead: on the circle of positions that keep both bone lengths and
+    put the child where it was seen (as near as the two bones reach), on the side of its own guess. A model
+    fitter anchors a hidden elbow to the wrist it sees; walking the chain would instead carry the elbow's
+    guess error, redrawn at every jump, down to the visible wrist and hand.
 
     Parameters
     ----------
     noisy : (T, 32, 3) joints, mm
     bone_lengths : (32,) template length of the bone ending at each joint, mm
     scale : (T,) size factor
+    guessed : (T, 32) bool or None, joints the tracker guessed (None: none)
 
     Returns
     -------
@@ -660,11 +677,40 @@ def fit_body_model(noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarra
     out[:, 0] = noisy[:, 0]
     for joint in range(1, N_JOINTS):
         parent = PARENTS[joint]
+        length = scale * bone_lengths[joint]
         direction = noisy[:, joint] - out[:, parent]
         norm = np.linalg.norm(direction, axis=1, keepdims=True)
         direction = np.where(norm > 1e-9, direction / np.maximum(norm, 1e-9), np.array([0.0, 1.0, 0.0]))
-        out[:, joint] = out[:, parent] + direction * (scale * bone_lengths[joint])[:, None]
+        out[:, joint] = out[:, parent] + direction * length[:, None]
+        child = _IK_CHILD.get(joint)
+        if guessed is not None and child is not None:
+            rows = guessed[:, joint] & ~guessed[:, child]
+            if rows.any():
+                out[rows, joint] = _two_bone(
+                    out[rows, parent],
+                    noisy[rows, child],
+                    out[rows, joint],
+                    length[rows],
+                    (scale * bone_lengths[child])[rows],
+                )
     return out
+
+
+def _two_bone(root: np.ndarray, target: np.ndarray, hint: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 3) the middle joint of a two-bone chain ``root -(a)- middle -(b)- end`` with the end as near ``target``
+    as the bones reach, on the side of ``hint`` (the plane through root, target and hint)."""
+    axis = target - root
+    d = np.linalg.norm(axis, axis=1)
+    u = np.where(d[:, None] > 1e-9, axis / np.maximum(d, 1e-9)[:, None], np.array([0.0, 0.0, 1.0]))
+    d = np.clip(d, np.abs(a - b) + 1e-6, a + b - 1e-6)
+    along = (a * a - b * b + d * d) / (2.0 * d)
+    radius = np.sqrt(np.maximum(a * a - along * along, 0.0))
+    side = hint - root
+    side = side - np.sum(side * u, axis=1, keepdims=True) * u
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    other = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])))
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-9), other / np.linalg.norm(other, axis=1, keepdims=True))
+    return root + along[:, None] * u + radius[:, None] * side
 
 
 def _sensor_rngs(seed: int, sensor_id: str) -> dict[str, np.random.Generator]:
@@ -790,7 +836,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
         noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile, lost, gain)
         noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
-        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile)
+        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile, hidden | lost)
         labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
 
         positions[tracked, index] = fitted[tracked].astype(np.float32)
@@ -888,12 +934,13 @@ def _body_model(
     bone_lengths: np.ndarray,
     pose_scale: np.ndarray,
     profile: SimProfile,
+    guessed: np.ndarray | None = None,
 ) -> np.ndarray:
     """Stage 5 of :func:`simulate`: refit the noisy joints to the body model with one size factor per frame
-    (a per-view level, the pose's shrink, a slow drift)."""
+    (a per-view level, the pose's shrink, a slow drift); ``guessed`` joints are fitted around what is seen."""
     level = 1.0 + np.clip(scale_rng.normal(0.0, profile.scale_view_sd), -profile.scale_view_max, profile.scale_view_max)
     drift = ar1(scale_rng, noisy.shape[0], (), profile.scale_slow_rho, profile.scale_slow_sd)
-    return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift))
+    return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift), guessed)
 
 
 def leg_low_episodes(rng: np.random.Generator, n: int, profile: SimProfile) -> np.ndarray:
