@@ -238,3 +238,16 @@ def test_skelfuse_beats_the_paper_on_upper_limbs_with_two_rear_views_mirrored():
     rmse = {name: np.sqrt(value / n) for name, value in sq.items()}
     assert np.mean(mirrored, axis=0)[[1, 2]].min() > 0.5  # the rear views (135, 225 deg) are mostly mirrored
     assert rmse["skelfuse"] < 0.5 * rmse["A1"] and rmse["skelfuse"] < 0.5 * rmse["A5"], rmse
+
+
+def test_skelfuse_equals_reference_across_a_teleport():
+    # A looped take's seam: every body jumps 400 mm between frames 3 and 4 (the teleport rule starts the
+    # realignment cold; the reference must do the same) while half the views are mirrored.
+    rng = np.random.default_rng(SEED + 4)
+    params = preset("skelfuse")
+    assert params.max_body_speed_mm_s is not None
+    fuser, oracle = Fuser(params, 2), ReferenceFuser(params, 2)
+    for t, (cand, conf) in enumerate(_sequence(rng, 2, 4, 7)):
+        if t >= 4:
+            cand = cand + np.float32(400.0)
+        _assert_same(fuser.step(cand, conf), oracle.step(cand, conf), f"frame {t}")

@@ -7,8 +7,15 @@ import numpy as np
 
 from skelfuse.eval.metrics import swap_counts
 from skelfuse.fusion import Fuser, fuse, init_state, preset
-from skelfuse.fusion.realign import _swap_pairs, realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+from skelfuse.fusion.realign import (
+    _swap_pairs,
+    realign_body,
+    realign_paper,
+    realign_temporal,
+    reference_positions,
+    teleported,
+)
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
 RNG_SEED = 20220418
 
@@ -299,3 +306,36 @@ def test_temporal_without_mirrored_views_changes_nothing():
     out, out_conf, mirrored, streak = realign_temporal(pos, conf, np.full((1, N_JOINTS, 3), np.nan), np.zeros((1, 3)))
     assert not mirrored.any() and streak.tolist() == [[0, 0, 5]]  # five views
     assert out is pos and out_conf is conf
+
+
+def test_temporal_starts_cold_when_the_body_teleports_and_not_when_it_walks():
+    # A looped take's seam: the body is 300 mm further on and turned round in one frame, so the anchor (last
+    # frame's skeleton) holds its left where the body's right now is. Views at 45/315 deg see the front
+    # (correct), 135/225 the back (mirrored). Against the stale anchor every view decides wrong; the
+    # teleport rule forgets the anchor and the cold start picks the front pair (more MEDIUM evidence).
+    truth = _facing_skeleton(np.random.default_rng(RNG_SEED + 15), 0.0)
+    before = _facing_skeleton(np.random.default_rng(RNG_SEED + 15), 180.0) + np.array([300.0, 0.0, 0.0])
+    pos, conf, away = _rig_views(truth, 0.0, np.random.default_rng(RNG_SEED + 16))
+    assert away.tolist() == [False, True, True, False]
+    _, _, mirrored, _ = realign_temporal(pos, conf, before[None], FOUR_VIEW_ANCHOR)
+    assert mirrored[0].tolist() == (~away).tolist()  # without the rule: all four decided wrong
+    _, _, mirrored, streak = realign_temporal(pos, conf, before[None], FOUR_VIEW_ANCHOR, max_jump_mm=200.0)
+    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4]]
+    # A walking step (60 mm, no turn) is no teleport: the anchor decides as before.
+    walked = truth + np.array([60.0, 0.0, 0.0])
+    assert not teleported(pos, walked[None], 200.0).any()
+    assert teleported(pos, before[None], 200.0).all()
+    _, _, mirrored, _ = realign_temporal(pos, conf, walked[None], FOUR_VIEW_ANCHOR, max_jump_mm=200.0)
+    assert mirrored[0].tolist() == away.tolist()
+
+
+def test_teleport_centre_is_the_median_view_and_unknown_centres_never_jump():
+    rng = np.random.default_rng(RNG_SEED + 16)
+    truth = _facing_skeleton(rng, 0.0)
+    pos, _, _ = _rig_views(truth, 0.0, rng)
+    pos[0, 0] += 1000.0  # one view of someone else far away: the median of four views ignores it
+    assert not teleported(pos, truth[None], 200.0).any()
+    no_hips = truth.copy()
+    no_hips[J["HIP_LEFT"]] = np.nan
+    assert not teleported(pos + 500.0, no_hips[None], 200.0).any()  # anchor centre unknown
+    assert not teleported(np.full_like(pos, np.nan), truth[None], 200.0).any()  # no view has a centre

@@ -99,3 +99,99 @@ def test_partial_view_drags_the_visible_joints() -> None:
     err_plain = np.linalg.norm(_world(plain)[:, head] - plain.truth[:, head], axis=-1).mean()
     err_dragged = np.linalg.norm(_world(dragged)[:, head] - dragged.truth[:, head], axis=-1).mean()
     assert err_dragged > err_plain + 15.0  # the visible head is pulled along with the guessed legs
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def test_tilted_mounts_tilt_the_true_pose_and_hang_guessed_arms_along_the_cameras_down() -> None:
+    from skelfuse.sim.rig import paper_rig
+
+    motion = make_gesture("walking", duration_s=4.0, seed=2, facing_deg=0.0)
+    rig = paper_rig(4)
+    # No noise on guesses and a full pull to the default pose: a hidden arm hangs exactly along "down".
+    quiet = {
+        "occluded_sigma_mm": dict.fromkeys(BASE.occluded_sigma_mm, 0.01),
+        "occluded_pull": 1.0,
+        "flip_on_prob": 0.0,
+    }
+    level = simulate(motion, rig, BASE.replace(**quiet), seed=3)
+    tilted = simulate(motion, rig, family_profile(BASE.replace(**quiet), "tilted_mounts"), seed=3)
+    for k, sensor in enumerate(rig):
+        relative = sensor.world_from_sensor[:3, :3].T @ tilted.world_from_sensor[k, :3, :3]
+        turn = np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
+        assert 0.0 < turn <= 15.0 * np.sqrt(2) + 1e-6  # rolled and pitched by up to 15 deg each
+    np.testing.assert_allclose(level.world_from_sensor, np.stack([s.world_from_sensor for s in rig]))
+    # the reported joints are the truth seen through the tilted (true) pose: the torso agrees with the truth
+    torso = [0, 1, 2, 3]
+    err = np.linalg.norm(tilted.positions_world(calibrated=False)[:, :, torso] - tilted.truth[:, None, torso], axis=-1)
+    assert np.nanmedian(err) < 30.0
+    # a hidden right elbow whose wrist is hidden too hangs from the shoulder along the camera's own "down": vertical in
+    # the level rig, tilted with the mount in the tilted one
+    angles = {}
+    for name, obs in (("level", level), ("tilted", tilted)):
+        world = obs.positions_world(calibrated=False)
+        elbow, wrist = 13, 14  # ELBOW_RIGHT, WRIST_RIGHT (shoulder 12)
+        hung = obs.occluded[:, :, elbow] & obs.occluded[:, :, wrist] & obs.tracked
+        assert hung.sum() > 20, name
+        bone = world[:, :, elbow] - world[:, :, elbow - 1]  # shoulder -> elbow
+        angles[name] = np.median(_angle_deg(bone[hung], np.array([0.0, 0.0, -1.0])))
+    assert angles["level"] < 3.0 and angles["tilted"] > 3.0 + angles["level"]
+
+
+def test_sitting_and_lying_pose_the_truth_and_keep_every_bone() -> None:
+    from skelfuse.schema.skeleton import BONES, J
+    from skelfuse.sim.rig import paper_rig
+
+    motion = make_gesture("random", duration_s=3.0, seed=4)
+    standing = simulate(motion, paper_rig(3), BASE, seed=1).truth
+    bones = np.linalg.norm(standing[:, BONES[:, 1]] - standing[:, BONES[:, 0]], axis=-1)
+    for name in ("sitting", "lying"):
+        obs = simulate(motion, paper_rig(3), family_profile(BASE, name), seed=1)
+        truth = obs.truth
+        np.testing.assert_allclose(
+            np.linalg.norm(truth[:, BONES[:, 1]] - truth[:, BONES[:, 0]], axis=-1), bones, rtol=1e-6, atol=1e-6
+        )
+        assert obs.tracked.any(axis=1).mean() > 0.9, name  # still tracked by some sensor
+        if name == "sitting":
+            for side in ("LEFT", "RIGHT"):
+                hip, knee, ankle = (J[f"{n}_{side}"] for n in ("HIP", "KNEE", "ANKLE"))
+                np.testing.assert_allclose(truth[:, knee, 2], truth[:, hip, 2], atol=1e-6)  # thighs level
+                np.testing.assert_allclose(truth[:, ankle, :2], truth[:, knee, :2], atol=1e-6)  # shins upright
+            feet = truth[:, [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]], 2].min(axis=1)
+            np.testing.assert_allclose(feet, standing[:, [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]], 2].min(), atol=1e-6)
+            assert 350.0 < truth[:, J["PELVIS"], 2].mean() < 650.0  # a chair's height, not standing
+        else:
+            np.testing.assert_allclose(truth[:, J["PELVIS"], 2], 120.0, atol=1e-6)
+            trunk = truth[:, J["NECK"]] - truth[:, J["PELVIS"]]
+            assert np.abs(trunk[:, 2]).max() < 0.25 * np.linalg.norm(trunk, axis=-1).min()  # the trunk lies flat
+            assert truth[:, J["HEAD"], 2].max() < 450.0
+
+
+def test_close_people_swap_or_merge_the_first_view_with_the_neighbour_only() -> None:
+    from skelfuse.sim.motion import body_facing
+    from skelfuse.sim.rig import paper_rig
+
+    motion = make_gesture("hands_up_down", duration_s=10.0, seed=5)
+    rig = paper_rig(3)
+    plain = simulate(motion, rig, BASE, seed=6)
+    close = simulate(motion, rig, family_profile(BASE, "close_people"), seed=6)
+    # the neighbour, computed here from its definition: the motion 1 s behind, 450 mm to the subject's right
+    forward = body_facing(close.truth)
+    right = np.stack([forward[:, 1], -forward[:, 0], np.zeros(len(forward))], axis=1)
+    neighbour = motion.at_times(np.maximum(close.times_s - 1.0, 0.0)) + 450.0 * right[:, None]
+    world = close.positions_world(calibrated=False)
+    torso = [0, 1, 2, 3]
+    to_subject = np.linalg.norm(world[:, 0, torso] - close.truth[:, torso], axis=-1).mean(axis=1)
+    to_neighbour = np.linalg.norm(world[:, 0, torso] - neighbour[:, torso], axis=-1).mean(axis=1)
+    midpoint = 0.5 * (close.truth + neighbour)
+    to_midpoint = np.linalg.norm(world[:, 0, torso] - midpoint[:, torso], axis=-1).mean(axis=1)
+    swapped = to_neighbour < 100.0
+    merged = to_midpoint < 100.0
+    own = to_subject < 100.0
+    assert swapped.mean() > 0.05 and merged.mean() > 0.05 and own.mean() > 0.5
+    assert not (swapped & own).any() and not (merged & own).any()
+    # the other views see the subject as without the family: same streams, same reports
+    np.testing.assert_array_equal(close.positions[:, 1:], plain.positions[:, 1:])

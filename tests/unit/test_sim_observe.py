@@ -16,6 +16,7 @@ from skelfuse.sim.observe import (
     ar1,
     default_profile_path,
     facing_away_deg,
+    fit_body_model,
     load_profile,
     segment_distance,
     simulate,
@@ -322,3 +323,29 @@ def test_convergence_over_the_first_frames() -> None:
     obs = simulate(standing_still(120), [best_view_sensor(0.0)], profile, seed=1)
     error = np.linalg.norm(obs.positions_world(calibrated=False)[:, 0] - obs.truth, axis=-1).mean(axis=1)
     assert error[:3].mean() > 3 * error[60:].mean()
+
+
+def test_a_guessed_elbow_is_fitted_around_the_wrist_the_tracker_sees() -> None:
+    # The elbow is hidden and guessed 120 mm off; the wrist is seen where it is. Walking the chain would carry
+    # the elbow's guess down to the wrist; the body model keeps both bones and puts the wrist where it was seen.
+    truth = make_gesture("hands_up_down", duration_s=1.0, seed=3).positions[:5]
+    lengths = np.linalg.norm(truth[0, BONES[:, 1]] - truth[0, BONES[:, 0]], axis=-1)
+    bone_lengths = np.concatenate([[0.0], lengths])  # BONES[:, 1] is 1..31: the bone ending at each joint
+    noisy = truth.copy()
+    noisy[:, J["ELBOW_LEFT"]] += np.array([0.0, 120.0, 0.0])
+    guessed = np.zeros(truth.shape[:2], dtype=bool)
+    guessed[:, J["ELBOW_LEFT"]] = True
+    scale = np.ones(truth.shape[0])
+    walked = fit_body_model(noisy, bone_lengths, scale)
+    fitted = fit_body_model(noisy, bone_lengths, scale, guessed)
+    wrist, elbow, shoulder = J["WRIST_LEFT"], J["ELBOW_LEFT"], J["SHOULDER_LEFT"]
+    assert np.linalg.norm(walked[:, wrist] - truth[:, wrist], axis=-1).min() > 20.0  # the carry-down
+    np.testing.assert_allclose(fitted[:, wrist], truth[:, wrist], atol=1e-6)
+    for joint in (elbow, wrist, J["HAND_LEFT"]):  # every bone keeps its length
+        parent = {elbow: shoulder, wrist: elbow}.get(joint, wrist)
+        np.testing.assert_allclose(
+            np.linalg.norm(fitted[:, joint] - fitted[:, parent], axis=-1), bone_lengths[joint], rtol=1e-9
+        )
+    # the guessed elbow lies on the side of its guess: closer to the guess than the mirrored solution
+    assert (np.linalg.norm(fitted[:, elbow] - noisy[:, elbow], axis=-1) < 120.0 + 1e-6).all()
+    assert not np.allclose(fitted[:, elbow], truth[:, elbow], atol=1.0)  # still a guess, not the truth

@@ -21,7 +21,7 @@ from sklearn.cluster import DBSCAN
 
 from skelfuse.fusion.pipeline import FusionResult
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.schema.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.schema.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS, J
 
 MEDIUM = 2
 
@@ -114,7 +114,7 @@ class ReferenceFuser:
                 pos, conf = _realign_body(pos, conf, self.params.realign_passes)
             elif self.params.realign == "temporal":
                 pos, conf, self.flip_counters[b] = _realign_temporal(
-                    pos, conf, previous, self.flip_counters[b], self.params
+                    pos, conf, previous, self.flip_counters[b], self.params, dt_s
                 )
             for j in range(J):
                 merged, members, best_conf = self._merge_joint(pos, conf, j, previous[j])
@@ -285,17 +285,34 @@ def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[
     return pos, conf
 
 
+def _teleported(pos: list[list], previous: list[np.ndarray | None], max_jump_mm: float) -> bool:
+    """The body centre (mean of both shoulders and hips; per axis the median over the views that have all
+    four) is further than ``max_jump_mm`` from the previous skeleton's."""
+    centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
+    if any(previous[j] is None for j in centre):
+        return False
+    then = np.mean([previous[j] for j in centre], axis=0)
+    views = [np.mean([row[j] for j in centre], axis=0) for row in pos if all(row[j] is not None for j in centre)]
+    if not views:
+        return False
+    now = np.median(np.array(views), axis=0)
+    return bool(math.dist(now, then) > max_jump_mm)
+
+
 def _realign_temporal(
     pos: list[list],
     conf: list[list[int]],
     previous: list[np.ndarray | None],
     counters: tuple[int, int, int],
     params: FusionParams,
+    dt_s: float,
 ) -> tuple[list[list], list[list[int]], tuple[int, int, int]]:
     """Whole-body flip per sensor against the previous skeleton (seed view on a cold start), with recovery."""
     S = len(pos)
     pairs = PAPER_REALIGN_PAIRS.tolist()
     clear, simple, views_seen = counters
+    if params.max_body_speed_mm_s is not None and _teleported(pos, previous, params.max_body_speed_mm_s * dt_s):
+        previous = [None] * len(previous)  # the anchor is of another pose: start cold
     n_views = sum(
         1 for s in range(S) if any(pos[s][left] is not None and pos[s][right] is not None for left, right in pairs)
     )

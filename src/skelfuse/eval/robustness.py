@@ -23,7 +23,20 @@ Held out: skelfuse's parameters were tuned (``scripts/tune_fusion.py``) on the d
 marked held out.
 
 Presets: the paper's A1, A3, A4, A5 (literal: the Kalman filter outputs its prediction, eq. 9), ``A5post`` (the
-same filter outputting its posterior, the fairer reading) and ``skelfuse``.
+same filter outputting its posterior, the fairer reading) and ``skelfuse``: each fuses the take's frames as one
+known body (:func:`skelfuse.eval.paper.fuse_sequence`, the offline single-person path).
+
+``skelfuse_live``: the skelfuse preset through the path the live fusion node runs (:func:`fuse_live`): every
+sensor's frame as a :class:`~skelfuse.schema.frames.SensorFrame`, one :class:`~skelfuse.rig.grouping.FrameGroup`
+per instant, :class:`skelfuse.rig.instant.GroupFuser` (association, tracks, per-track fusion), over the take
+played the way a capture worker loops it: first :data:`LIVE_PREROLL_S` seconds up to the frame of the take's
+second half that is furthest turned from its first frame and :data:`SEAM_JUMP_MM` away (:func:`worst_seam_frame`),
+then the whole take, so that the seam moves the body and turns it round in one frame (in a walking take) as the
+demo's 20 s loop does;
+scored on the whole take with the demo's rule (the person most views contributed to). Per cell the matrix also
+gives ``skelfuse_live`` minus ``skelfuse`` with its paired interval: the live path must not lose to the offline
+one (it did, 104.7 against 16.9 mm in the demo, before the teleport rule of
+:func:`skelfuse.fusion.realign.realign_temporal`).
 """
 
 from __future__ import annotations
@@ -44,9 +57,13 @@ from skelfuse.eval.paper import fuse_sequence
 from skelfuse.fusion import presets
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.progress import Progress
-from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, PAPER_REALIGN_PAIRS
+from skelfuse.rig.grouping import FrameGroup
+from skelfuse.rig.instant import GroupFuser
+from skelfuse.schema.frames import SensorFrame
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
 from skelfuse.sim.failures import FAMILIES, MIXTURE, family_profile
 from skelfuse.sim.gestures import make_gesture
+from skelfuse.sim.motion import facing_deg
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import paper_rig
 
@@ -58,11 +75,13 @@ __all__ = [
     "TRAINING_FAMILIES",
     "RobustnessResult",
     "format_markdown",
+    "fuse_live",
     "preset_params",
     "run_robustness",
 ]
 
-PRESETS: tuple[str, ...] = ("A1", "A3", "A4", "A5", "A5post", "skelfuse")
+LIVE = "skelfuse_live"
+PRESETS: tuple[str, ...] = ("A1", "A3", "A4", "A5", "A5post", "skelfuse", LIVE)
 FAMILY_NAMES: tuple[str, ...] = (*FAMILIES, MIXTURE.name)
 TRAINING_FAMILIES: tuple[str, ...] = ("baseline", "no_mirroring")
 """The worlds skelfuse's parameters were tuned on (the default simulator, with and without rear mirroring)."""
@@ -73,6 +92,75 @@ GROUPS: tuple[str, ...] = tuple(JOINT_GROUPS)
 LAG_SHIFTS = np.arange(-3, 11)
 FPS = 30.0
 REFERENCE, CANDIDATE = "A1", "skelfuse"
+LIVE_PREROLL_S = 2.0
+"""The live path first fuses this much of the take before its start, as a capture worker that comes up before the
+take's origin plays the end of its loop (the demo's workers run 3-8 s of it), so a loop's seam is in every run."""
+
+
+SEAM_JUMP_MM = 250.0
+"""The live path's seam moves the body at least this far in one frame where the take allows (the demo's 20 s
+walking loop: 267 mm and a 177 deg turn at its seam)."""
+
+
+def worst_seam_frame(truth: np.ndarray) -> int:
+    """The frame of the take's second half where a loop would be worst to close: among the frames whose pelvis
+    lies at least :data:`SEAM_JUMP_MM` from the first frame's (all of the half if none does), the one facing
+    furthest from the first frame, so that the seam moves the body and turns it round in one frame."""
+    facing = facing_deg(truth)
+    turn = np.abs((facing - facing[0] + 180.0) % 360.0 - 180.0)
+    half = truth.shape[0] // 2
+    jump = np.linalg.norm(truth[half:, 0] - truth[0, 0], axis=-1)
+    far = jump >= SEAM_JUMP_MM
+    return half + int(np.argmax(np.where(far, turn[half:], -1.0) if far.any() else turn[half:]))
+
+
+def fuse_live(params: FusionParams, obs: Any, preroll_frames: int, seam_frame: int | None = None) -> np.ndarray:
+    """(T, 32, 3) world mm: the take fused the way the live node fuses it (see the module docstring).
+
+    ``obs``: :class:`skelfuse.sim.observe.Observations`. First the ``preroll_frames`` frames up to and including
+    ``seam_frame`` (default the last: a plain loop), then the whole take from frame 0; a sensor's dropped
+    frame is left out of its instant, a body it did not track gives a frame without bodies (as
+    :class:`skelfuse.service.worker.SimSource` sends). Per take frame, the output is the person with the most
+    contributing views (the demo's scorer: no truth in the choice); NaN where no person is output.
+    """
+    T = obs.n_frames
+    seam = T - 1 if seam_frame is None else int(seam_frame)
+    preroll = min(int(preroll_frames), seam + 1)
+    order = [*range(seam + 1 - preroll, seam + 1), *range(T)]
+    fuser = GroupFuser(obs.sensor_ids, obs.world_from_sensor_calibrated, params)
+    period_us = 1e6 / FPS
+    identity = np.zeros((1, N_JOINTS, 4), dtype=np.float32)
+    identity[..., 0] = 1.0
+    no_body = (np.zeros(0, np.uint32), np.zeros((0, N_JOINTS, 3), np.float32), np.zeros((0, N_JOINTS), np.uint8))
+    out = np.full((T, N_JOINTS, 3), np.nan)
+    for k, f in enumerate(order):
+        time_us = round(k * period_us) + 1_000_000
+        frames = {}
+        for s, sensor_id in enumerate(obs.sensor_ids):
+            if obs.dropped[f, s]:
+                continue
+            seen = obs.tracked[f, s] and np.isfinite(obs.positions[f, s]).all()
+            ids, positions, confidence = (
+                (
+                    np.array([max(int(obs.body_ids[f, s]), 0)], np.uint32),
+                    obs.positions[f, s][None],
+                    obs.confidence[f, s][None],
+                )
+                if seen
+                else no_body
+            )
+            frames[sensor_id] = SensorFrame(
+                sensor_id, k, time_us, 0, ids, positions.astype(np.float32), identity[: ids.size], confidence
+            )
+        if not frames:
+            continue
+        missing = tuple(sid for sid in obs.sensor_ids if sid not in frames)
+        fused = fuser.step(FrameGroup(time_us, frames, missing, not missing)).frame
+        if k >= preroll and fused.track_ids.size:
+            seen_by = fused.contributors.sum(axis=1)
+            if seen_by.any():
+                out[f] = fused.positions[int(np.argmax(seen_by))]
+    return out
 
 
 def preset_params(name: str) -> FusionParams:
@@ -104,7 +192,11 @@ def _run_take(task: _Task) -> dict[str, Any]:
     truth = np.asarray(obs.truth, dtype=np.float64)
     scores: dict[str, Any] = {}
     for name in task.presets:
-        fused = fuse_sequence(preset_params(name), world, obs.confidence, FPS)
+        if name == LIVE:
+            seam = worst_seam_frame(truth)
+            fused = fuse_live(presets.preset(CANDIDATE), obs, round(LIVE_PREROLL_S * FPS), seam)
+        else:
+            fused = fuse_sequence(preset_params(name), world, obs.confidence, FPS)
         dist = np.linalg.norm(fused - truth, axis=-1)  # (T, 32)
         row: dict[str, float] = {}
         for group, joints in JOINT_GROUPS.items():
@@ -166,6 +258,11 @@ class RobustnessResult:
     def n_worse(self) -> int:
         return sum(cell["verdict"][g] == "worse" for cell in self.cells for g in GROUPS)
 
+    @property
+    def n_live_worse(self) -> int:
+        """(cell, group) where the live path is significantly worse than the offline skelfuse path."""
+        return sum(cell["live"]["verdict"][g] == "worse" for cell in self.cells if "live" in cell for g in GROUPS)
+
 
 def _jsonable(value: Any) -> Any:
     if isinstance(value, dict):
@@ -177,6 +274,16 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, np.integer):
         return int(value)
     return value
+
+
+def _compare(rows: list[dict[str, Any]], candidate: str, reference: str) -> tuple[dict, dict]:
+    """Per group: the paired mean of candidate - reference over a cell's seeds, its 95% interval, a verdict."""
+    diff, verdicts = {}, {}
+    for g in GROUPS:
+        m, low, high = paired_interval([r["scores"][candidate][g] - r["scores"][reference][g] for r in rows])
+        diff[g] = {"mean": m, "low": low, "high": high}
+        verdicts[g] = verdict(low, high)
+    return diff, verdicts
 
 
 def _summarize(
@@ -205,11 +312,10 @@ def _summarize(
                 "verdict": {},
             }
             if REFERENCE in names and CANDIDATE in names:
-                for g in GROUPS:
-                    d = [r["scores"][CANDIDATE][g] - r["scores"][REFERENCE][g] for r in rows]
-                    m, low, high = paired_interval(d)
-                    cell["diff"][g] = {"mean": m, "low": low, "high": high}
-                    cell["verdict"][g] = verdict(low, high)
+                cell["diff"], cell["verdict"] = _compare(rows, CANDIDATE, REFERENCE)
+            if LIVE in names and CANDIDATE in names:
+                diff, verdicts = _compare(rows, LIVE, CANDIDATE)
+                cell["live"] = {"diff": diff, "verdict": verdicts}
             cells.append(cell)
     return cells
 
@@ -302,6 +408,24 @@ def format_markdown(result: RobustnessResult) -> str:
                 + " | ".join(parts)
                 + " |"
             )
+        lines.append("")
+    if result.cells and "live" in result.cells[0]:
+        n_cells = len(result.cells) * len(GROUPS)
+        lines += [
+            f"**{LIVE} - skelfuse (the live node's path against the offline single-person path, the take played "
+            f"as a capture worker loops it), paired 95% CI: {result.n_live_worse} of {n_cells} (cell, group) "
+            "significantly worse.**",
+            "",
+            "| family | sensors | " + " | ".join(f"{g}: diff [95% CI]" for g in GROUPS) + " |",
+            "|---|---|" + "---|" * len(GROUPS),
+        ]
+        for cell in result.cells:
+            parts = []
+            for g in GROUPS:
+                d = cell["live"]["diff"][g]
+                mark = {"worse": " **worse**", "better": " better", "tie": ""}[cell["live"]["verdict"][g]]
+                parts.append(f"{_fmt(d['mean'])} [{_fmt(d['low'])}, {_fmt(d['high'])}]{mark}")
+            lines.append(f"| {cell['family']} | {cell['n_sensors']} | " + " | ".join(parts) + " |")
         lines.append("")
     names = s["presets"]
     lines += [

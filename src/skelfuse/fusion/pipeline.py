@@ -199,7 +199,7 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    positions, conf, reference, streak, flipped = _realign(positions, conf, params, previous, state.flip_counters)
+    positions, conf, reference, streak, flipped = _realign(positions, conf, params, previous, state.flip_counters, dt_s)
     merged = _merge(positions, conf, reference, previous, params)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
@@ -301,6 +301,7 @@ def _realign(
     params: FusionParams,
     previous: np.ndarray,
     streak: np.ndarray | None,
+    dt_s: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
     """Realign; also return the reference positions of the result when they come for free (else None),
     the new flip counters and which views were flipped ((B, S) bool; None without realignment)."""
@@ -319,6 +320,7 @@ def _realign(
             params.recovery_frames,
             params.recovery_share,
             majority_recovery_frames=params.majority_recovery_frames,
+            max_jump_mm=None if params.max_body_speed_mm_s is None else params.max_body_speed_mm_s * dt_s,
         )
         return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)

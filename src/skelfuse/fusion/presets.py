@@ -22,7 +22,8 @@ jitter; the reference candidate adds nothing once the labels are right (within 2
 costs a reference per frame), so it is off; cv_kalman with accel sigma 5000 mm/s^2, measurement sigma
 15 mm and R divided by the number of agreeing views halves the jitter at a lag under 0.1 frame (the
 paper's Kalman lags 8 frames). The filter's prediction as the previous candidate measured no better than
-the merged position, so trick 2 stays the paper's. "skelfuse" also outputs fused joint orientations and a
+the merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
+seam) starts its realignment cold (``max_body_speed_mm_s``). "skelfuse" also outputs fused joint orientations and a
 per-joint position uncertainty (``orientations``, ``position_std``); they do not change the positions.
 """
 
@@ -77,6 +78,12 @@ class FusionParams:
         ARE the majority, and the rule overturned correct anchors (eval paper, 3 sensors with rear
         mirroring: upper limb 36 -> 379 mm). Wrong starts from too few views are undone by the restart rule
         instead (see :func:`skelfuse.fusion.realign.realign_temporal`).
+    max_body_speed_mm_s : float or None
+        "temporal" only: a body whose centre (shoulders and hips) moved faster than this since the last frame
+        starts its realignment cold instead of deciding against an anchor of another pose (the teleport rule
+        of :func:`skelfuse.fusion.realign.realign_temporal`; a looped take's seam, a track handed to someone
+        else). None: off. "skelfuse": 6000 mm/s (200 mm per frame at 30 fps; sprinters peak near 10 m/s,
+        people walking in a capture space do not exceed about 2-3 m/s).
     merge : {"dbscan", "average"}
         "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
         mean of the valid sensor candidates (the paper's A1/A2).
@@ -136,6 +143,7 @@ class FusionParams:
     recovery_frames: int = 10
     recovery_share: float = 0.75
     majority_recovery_frames: int | None = None
+    max_body_speed_mm_s: float | None = None
     merge: MergeMode = "dbscan"
     eps_mm: float = 100.0
     reference_weight: float | None = 2.0
@@ -188,7 +196,7 @@ class FusionParams:
             "cv_meas_sigma_mm",
             "cv_velocity0_sigma_mm_s",
         ]
-        optional_positive = ["reference_weight", "previous_weight"]
+        optional_positive = ["reference_weight", "previous_weight", "max_body_speed_mm_s"]
         for name in positive + optional_positive:
             value = getattr(self, name)
             if value is None and name in optional_positive:
@@ -223,6 +231,7 @@ _PRESETS: dict[str, FusionParams] = {
     ),
     "SKELFUSE": FusionParams(
         realign="temporal",
+        max_body_speed_mm_s=6000.0,
         merge="dbscan",
         eps_mm=75.0,
         reference_weight=None,

@@ -73,6 +73,13 @@ Two modes:
         fix of wrong cold starts.
     Turning
         Nothing special: the anchor turns with the person frame by frame.
+    Teleport (``max_jump_mm``, off unless given)
+        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place; per axis the
+        median over the views that have all four) lies more than ``max_jump_mm`` from the anchor's starts
+        cold: nobody moves that far in one frame, so the anchor belongs to another pose (a looped take's
+        seam, which also turns the body round in one frame; a track handed to someone else), and deciding
+        against it would mirror every view that is right. Without the rule such an anchor stays mirrored
+        wherever the views split 2 against 2, since recovery needs a clear majority.
 
     Returns the flip decisions and the new per-body disagreement counters; the caller keeps the counters.
 
@@ -85,8 +92,9 @@ import math
 
 import numpy as np
 
+from skelfuse.fusion.association import nanmedian_axis
 from skelfuse.fusion.mirror import mirror_views, pair_costs
-from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence
+from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
 # Confidence value -> tier rank 1 (NONE), 2 (LOW), 3 (MEDIUM+); HIGH and anything above count as MEDIUM.
 _TIER_RANK = (np.minimum(np.arange(256), int(Confidence.MEDIUM)) + 1).astype(np.int8)
@@ -104,6 +112,8 @@ _SWAP_MINUS_KEEP = np.array([-1.0, -1.0, 1.0, 1.0])
 _ONES_P = np.ones(_N_PAIRS)
 _ONES_J = np.ones(N_JOINTS)
 _ONES_2P = np.ones(2 * _N_PAIRS)
+# The body centre of the teleport rule: shoulders and hips, both sides, so that a left/right flip leaves it.
+_CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]])
 
 
 def reference_positions(positions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -226,6 +236,7 @@ def realign_temporal(
     recovery_share: float = 0.75,
     reference: np.ndarray | None = None,
     majority_recovery_frames: int | None = None,
+    max_jump_mm: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -250,6 +261,9 @@ def realign_temporal(
         evidence). This slower rule undoes a wrong start in a 2-against-2 split, which the clear-majority
         rule never sees: an anchor set from the first frames of a body seen only from behind, or a cold
         start that picked the wrong group. None: off.
+    max_jump_mm : float or None
+        A body whose centre moved further than this since the anchor starts cold (the teleport rule of the
+        module docstring). None: off.
 
     Returns
     -------
@@ -260,6 +274,10 @@ def realign_temporal(
     streak : (B, 3) int32, the new counters.
     """
     B = positions.shape[0]
+    if max_jump_mm is not None:
+        jumped = teleported(positions, previous, max_jump_mm)
+        if jumped.any():
+            previous = np.where(jumped[:, None, None], np.nan, previous)
     # Evidence of a view: its MEDIUM-or-better joints, all 32 (a rear view sees face, hands and arms in
     # front of the chest occluded, LOW or NONE).
     evidence = (confidence >= int(Confidence.MEDIUM)) @ _ONES_J  # (B, S), float: whole counts
@@ -326,6 +344,16 @@ def realign_temporal(
         return positions, confidence, mirrored, new_streak
     out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
+
+
+def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:
+    """(B,) bool: the body's centre now (mean of shoulders and hips in each view that has all four; per axis
+    the median over those views) lies more than ``max_jump_mm`` from the centre of ``previous`` (B, J, 3).
+    False where either centre is unknown."""
+    then = previous[:, _CENTRE_JOINTS].mean(axis=1)  # (B, 3), NaN unless all four are known
+    now = nanmedian_axis(positions[:, :, _CENTRE_JOINTS].mean(axis=2), axis=1)  # (B, S, 3) -> (B, 3)
+    step = now - then
+    return (step * step) @ _ONES3 > max_jump_mm * max_jump_mm  # NaN compares False
 
 
 def _swap_pairs(

@@ -235,7 +235,8 @@ def simulate_people(
                 bones = np.linalg.norm(own[rows][:, BONES[:, 1]] - own[rows][:, BONES[:, 0]], axis=-1)
                 template = bone_lengths[p][BONES[:, 1]]
                 scale = np.median(bones / np.maximum(template, 1e-9), axis=1)
-                fitted[rows] = fit_body_model(noisy[rows], bone_lengths[p], scale)
+                guessed = extra | obs.occluded[:T, s_idx]
+                fitted[rows] = fit_body_model(noisy[rows], bone_lengths[p], scale, guessed[rows])
                 own = fitted
                 low = extra & (rng.random((T, N_JOINTS)) < profile.occluded_low_prob) & (conf > Confidence.LOW)
                 conf[low] = Confidence.LOW
@@ -316,21 +317,36 @@ def place_on_path(motion: Motion, path_xy: np.ndarray, heading_deg: np.ndarray) 
 
 
 def _heading_of(path_xy: np.ndarray, fps: float, window_s: float = 0.8, default_deg: float = 0.0) -> np.ndarray:
-    """Facing along the direction of travel, smoothed so turnarounds take ~window_s (turning left)."""
+    """Facing along the direction of travel; a turnaround (or any stretch without a clear direction: a stop,
+    a reversal) is a turn of at least ``window_s`` from the last clear heading to the next one, to the left
+    when it reverses (within 30° of 180°), else the short way. People cannot turn round in one frame: a body
+    that did would mirror every view's left/right at once, a jump no tracker or fusion ever meets."""
     velocity = np.gradient(path_xy, axis=0) * fps
     speed = np.linalg.norm(velocity, axis=1, keepdims=True)
     unit = np.where(speed > 50.0, velocity / np.maximum(speed, 1e-9), 0.0)
     k = max(1, round(window_s * fps))
     kernel = np.ones(k) / k
     smooth = np.stack([np.convolve(unit[:, i], kernel, mode="same") for i in range(2)], axis=1)
-    left = np.stack([-smooth[:, 1], smooth[:, 0]], axis=1)
-    smooth = smooth + 1e-3 * np.where(
-        np.linalg.norm(smooth, axis=1, keepdims=True) < 0.3, left + np.array([0.0, 1e-3]), 0.0
-    )
     heading = np.degrees(np.arctan2(smooth[:, 1], smooth[:, 0]))
-    still = np.linalg.norm(smooth, axis=1) < 1e-6
-    heading[still] = default_deg
-    return heading
+    clear = np.linalg.norm(smooth, axis=1) >= 0.3
+    n = heading.size
+    if not clear.any():
+        return np.full(n, float(default_deg))
+    out = heading.copy()
+    edges = np.diff(np.concatenate([[1], clear.astype(np.int8), [1]]))
+    for start, stop in zip(np.nonzero(edges == -1)[0], np.nonzero(edges == 1)[0], strict=True):  # unclear runs
+        if start == 0 or stop == n:  # before the first / after the last clear heading: hold it
+            out[start:stop] = heading[stop] if start == 0 else heading[start - 1]
+            continue
+        grow = max(0, k - (stop - start)) // 2  # a turn takes at least window_s, centred on the unclear run
+        first, last = max(start - grow, 1), min(stop + grow, n - 1)
+        before, after = heading[first - 1], heading[last]
+        turn = (after - before) % 360.0  # counter-clockwise (left) angle, [0, 360)
+        if abs(turn - 180.0) >= 30.0 and turn > 180.0:
+            turn -= 360.0  # not a reversal: the short way
+        ramp = (np.arange(first, last) - (first - 1)) / (last - first + 1)
+        out[first:last] = before + turn * ramp * ramp * (3.0 - 2.0 * ramp)
+    return (out + 180.0) % 360.0 - 180.0
 
 
 def walker(

@@ -101,13 +101,43 @@ _FAMILIES = (
             },
         },
     ),
+    Family(
+        "tilted_mounts",
+        "every sensor rolled and pitched by up to 15 deg; the rig's calibration knows it, the tracker does not "
+        "(it hangs guessed limbs along a level camera's down)",
+        {"mount_tilt_deg": 15.0},
+    ),
+    Family(
+        "sitting",
+        "the subject sits: thighs level, shins down, feet on the floor (the thighs hide the pelvis and knees from "
+        "low sensors), the upper body moving as the gesture does",
+        {"sitting": 1.0},
+    ),
+    Family(
+        "lying",
+        "the subject lies on the back on the floor (the motion turned 90 deg about the pelvis): the sensors look "
+        "down at a body the tracker's upright model was not made for",
+        {"lying": 1.0},
+    ),
+    Family(
+        "close_people",
+        "a second person 450 mm to the subject's right; the first sensor reports the neighbour instead (ids "
+        "swapped) or one skeleton merged from both, in bursts of ~10 frames (3% per frame each)",
+        {
+            "neighbour_distance_mm": 450.0,
+            "neighbour_swap_prob": 0.03,
+            "neighbour_merge_prob": 0.03,
+            "neighbour_off_prob": 0.1,
+        },
+    ),
 )
 FAMILIES: dict[str, Family] = {family.name: family for family in _FAMILIES}
 """Every family by name, ``baseline`` first."""
 
 MIXTURE = Family(
     "mixture",
-    "a realistic mixture: every failure above at a third of its rate or size, at once",
+    "a realistic mixture: every failure above at a third of its rate or size, at once (standing: the postures "
+    "are worlds of their own)",
     {
         "limb_swap_prob": 0.007,
         "side_flip_prob": 0.017,
@@ -119,6 +149,10 @@ MIXTURE = Family(
         "noise_gain_per_mps": 0.13,
         "lag_frames": 0.5,
         "partial_view_drag": 0.2,
+        "mount_tilt_deg": 5.0,
+        "neighbour_distance_mm": 450.0,
+        "neighbour_swap_prob": 0.01,
+        "neighbour_merge_prob": 0.01,
     },
 )
 """Every family at once, milder: the world a real rig is most likely to be."""

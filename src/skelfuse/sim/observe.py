@@ -162,6 +162,13 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "noise_gain_per_mps",
         "lag_frames",
         "partial_view_drag",
+        "mount_tilt_deg",
+        "sitting",
+        "lying",
+        "neighbour_distance_mm",
+        "neighbour_swap_prob",
+        "neighbour_merge_prob",
+        "neighbour_off_prob",
     ),
 }
 """TOML section of every SimProfile field (sections only organise the file)."""
@@ -256,6 +263,13 @@ class SimProfile:
     noise_gain_per_mps: float = 0.0  # ... and by this fraction per m/s of the joint's speed
     lag_frames: float = 0.0  # the tracker reports each joint this many frames late (all views)
     partial_view_drag: float = 0.0  # body partly out of view: the rest moves this fraction of the out-of-view guesses
+    mount_tilt_deg: float = 0.0  # each sensor rolled and pitched by up to this; its tracker's "down" stays level
+    sitting: float = 0.0  # 1: the subject sits (thighs level, shins down, feet on the floor), upper body as moved
+    lying: float = 0.0  # 1: the subject lies on the back on the floor, the motion turned 90 deg about the pelvis
+    neighbour_distance_mm: float = 0.0  # > 0: a second person this far to the subject's right, 1 s behind in motion
+    neighbour_swap_prob: float = 0.0  # per frame, the first sensor: a burst in which it reports the neighbour
+    neighbour_merge_prob: float = 0.0  # per frame, the first sensor: a burst in which it merges both into one body
+    neighbour_off_prob: float = 0.1  # per frame: such a burst ends
 
     def __post_init__(self) -> None:
         _validate(self, "<SimProfile>")
@@ -285,9 +299,12 @@ _PROBABILITIES = (
     "limb_swap_off_prob",
     "side_flip_prob",
     "partial_view_drag",
+    "neighbour_swap_prob",
+    "neighbour_merge_prob",
+    "neighbour_off_prob",
 )
 _RHOS = ("occluded_rho", "hand_none_rho", "scale_slow_rho")
-_FLAGS = ("flip_restarts_fit",)
+_FLAGS = ("flip_restarts_fit", "sitting", "lying")
 
 
 def _validate(profile: SimProfile, source: str) -> None:
@@ -323,6 +340,10 @@ def _validate(profile: SimProfile, source: str) -> None:
         raise bad("fps", f"must be positive, got {profile.fps!r}")
     if profile.hand_none_fraction_min > profile.hand_none_fraction_max:
         raise bad("hand_none_fraction_min", "must not exceed hand_none_fraction_max")
+    if profile.mount_tilt_deg > 90.0:
+        raise bad("mount_tilt_deg", f"must be at most 90 degrees, got {profile.mount_tilt_deg!r}")
+    if profile.sitting and profile.lying:
+        raise bad("lying", "and 'sitting' cannot both be 1 (one posture at a time)")
 
 
 def default_profile_path() -> Path:
@@ -640,17 +661,34 @@ def symmetric_bone_lengths(truth: np.ndarray) -> np.ndarray:
     return 0.5 * (lengths + lengths[MIRROR])
 
 
-def fit_body_model(noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarray) -> np.ndarray:
+_IK_CHILD = {
+    J[f"{joint}_{side}"]: J[f"{child}_{side}"]
+    for side in ("LEFT", "RIGHT")
+    for joint, child in (("ELBOW", "WRIST"), ("WRIST", "HAND"), ("KNEE", "ANKLE"), ("ANKLE", "FOOT"))
+}
+"""A limb joint and the child that continues its chain: a guessed joint is placed so that this child, when the
+tracker sees it, stays where it was seen (two-bone IK in :func:`fit_body_model`)."""
+
+
+def fit_body_model(
+    noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarray, guessed: np.ndarray | None = None
+) -> np.ndarray:
     """Refit joints to a body model with fixed bone lengths times one size factor per frame.
 
     Walks the kinematic chain from the pelvis: each joint goes ``scale * length`` away from its already
-    fitted parent, in the direction of its noisy position.
+    fitted parent, in the direction of its noisy position. A guessed limb joint (``guessed``: hidden or lost)
+    whose chain child (:data:`_IK_CHILD`: elbow -> wrist, wrist -> hand, knee -> ankle, ankle -> foot) is
+    not guessed is placed by two-bone IK instead: on the circle of positions that keep both bone lengths and
+    put the child where it was seen (as near as the two bones reach), on the side of its own guess. A model
+    fitter anchors a hidden elbow to the wrist it sees; walking the chain would instead carry the elbow's
+    guess error, redrawn at every jump, down to the visible wrist and hand.
 
     Parameters
     ----------
     noisy : (T, 32, 3) joints, mm
     bone_lengths : (32,) template length of the bone ending at each joint, mm
     scale : (T,) size factor
+    guessed : (T, 32) bool or None, joints the tracker guessed (None: none)
 
     Returns
     -------
@@ -660,11 +698,40 @@ def fit_body_model(noisy: np.ndarray, bone_lengths: np.ndarray, scale: np.ndarra
     out[:, 0] = noisy[:, 0]
     for joint in range(1, N_JOINTS):
         parent = PARENTS[joint]
+        length = scale * bone_lengths[joint]
         direction = noisy[:, joint] - out[:, parent]
         norm = np.linalg.norm(direction, axis=1, keepdims=True)
         direction = np.where(norm > 1e-9, direction / np.maximum(norm, 1e-9), np.array([0.0, 1.0, 0.0]))
-        out[:, joint] = out[:, parent] + direction * (scale * bone_lengths[joint])[:, None]
+        out[:, joint] = out[:, parent] + direction * length[:, None]
+        child = _IK_CHILD.get(joint)
+        if guessed is not None and child is not None:
+            rows = guessed[:, joint] & ~guessed[:, child]
+            if rows.any():
+                out[rows, joint] = _two_bone(
+                    out[rows, parent],
+                    noisy[rows, child],
+                    out[rows, joint],
+                    length[rows],
+                    (scale * bone_lengths[child])[rows],
+                )
     return out
+
+
+def _two_bone(root: np.ndarray, target: np.ndarray, hint: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 3) the middle joint of a two-bone chain ``root -(a)- middle -(b)- end`` with the end as near ``target``
+    as the bones reach, on the side of ``hint`` (the plane through root, target and hint)."""
+    axis = target - root
+    d = np.linalg.norm(axis, axis=1)
+    u = np.where(d[:, None] > 1e-9, axis / np.maximum(d, 1e-9)[:, None], np.array([0.0, 0.0, 1.0]))
+    d = np.clip(d, np.abs(a - b) + 1e-6, a + b - 1e-6)
+    along = (a * a - b * b + d * d) / (2.0 * d)
+    radius = np.sqrt(np.maximum(a * a - along * along, 0.0))
+    side = hint - root
+    side = side - np.sum(side * u, axis=1, keepdims=True) * u
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    other = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])))
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-9), other / np.linalg.norm(other, axis=1, keepdims=True))
+    return root + along[:, None] * u + radius[:, None] * side
 
 
 def _sensor_rngs(seed: int, sensor_id: str) -> dict[str, np.random.Generator]:
@@ -735,11 +802,15 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     ids = [s.sensor_id for s in sensors]
     if len(set(ids)) != len(ids):
         raise ValueError(f"sensor ids must be unique, got {ids}")
+    motion = _posture(motion, profile)
+    level_down = [-s.world_from_sensor[2, :3] for s in sensors]  # world down in each level camera's frame
+    sensors = _tilted_mounts(sensors, profile, np.random.default_rng([seed, 0x7117]))
     last_s = (motion.n_frames - 1) / motion.fps
     n = int(np.floor(last_s * profile.fps + 1e-6)) + 1
     times = np.arange(n) / profile.fps
     truth = motion.at_times(times)
     n_sensors = len(sensors)
+    neighbour = _neighbour(motion, times, truth, profile)
     seen = _common_mode(motion, times, truth, profile, np.random.default_rng([seed, 0xC033]))
     speed_mps = np.linalg.norm(np.gradient(truth, axis=0), axis=-1) * profile.fps / 1000.0  # (T, 32)
 
@@ -765,6 +836,8 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         rngs = _sensor_rngs(seed, sensor.sensor_id)
         rotation = sensor.world_from_sensor[:3, :3]
         physical = sensor.to_sensor(seen)  # (T, 32, 3) sensor frame (seen = truth unless a common-mode family)
+        if index == 0 and neighbour is not None:  # the first sensor confuses the subject with a close neighbour
+            physical = _confuse_with_neighbour(rngs["failures"], physical, sensor.to_sensor(neighbour), profile)
 
         # 1. visibility and tracking
         in_view = sensor.in_view(physical)
@@ -788,9 +861,12 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         restarts = new_body if profile.flip_restarts_fit else new_body & ~(mirrored & prev_tracked)
         lost = leg_low_episodes(rngs["confidence"], n, profile) & ~hidden
         gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
-        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, -rotation[2], profile, lost, gain)
+        # The tracker's prior for hidden limbs hangs them along its idea of down: the level camera's (a tilted
+        # mount does not tell the tracker it is tilted; without the tilt family the two are the same).
+        down = level_down[index] if profile.mount_tilt_deg > 0 else -rotation[2]
+        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, down, profile, lost, gain)
         noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
-        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile)
+        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile, hidden | lost)
         labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
 
         positions[tracked, index] = fitted[tracked].astype(np.float32)
@@ -888,12 +964,13 @@ def _body_model(
     bone_lengths: np.ndarray,
     pose_scale: np.ndarray,
     profile: SimProfile,
+    guessed: np.ndarray | None = None,
 ) -> np.ndarray:
     """Stage 5 of :func:`simulate`: refit the noisy joints to the body model with one size factor per frame
-    (a per-view level, the pose's shrink, a slow drift)."""
+    (a per-view level, the pose's shrink, a slow drift); ``guessed`` joints are fitted around what is seen."""
     level = 1.0 + np.clip(scale_rng.normal(0.0, profile.scale_view_sd), -profile.scale_view_max, profile.scale_view_max)
     drift = ar1(scale_rng, noisy.shape[0], (), profile.scale_slow_rho, profile.scale_slow_sd)
-    return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift))
+    return fit_body_model(noisy, bone_lengths, level * pose_scale * (1.0 + drift), guessed)
 
 
 def leg_low_episodes(rng: np.random.Generator, n: int, profile: SimProfile) -> np.ndarray:
@@ -967,6 +1044,102 @@ def _timestamps(
     return np.where(dropped, -1, np.rint(device).astype(np.int64)), np.where(
         dropped, -1, np.rint(host).astype(np.int64)
     )
+
+
+def _posture(motion: Motion, profile: SimProfile) -> Motion:
+    """The motion as the subject performs it sitting or lying (families "sitting", "lying"); unchanged otherwise.
+
+    Sitting: per frame each thigh points level along the body's facing from its hip, the shin straight down, the
+    foot forward (every bone keeps its length), and the whole body is lowered until the lower ankle is at the
+    height the standing ankles had (on a chair, feet on the floor). Lying: the whole body turned 90 degrees
+    about the lateral axis through the pelvis (head away from the facing, face up) and lowered until the pelvis
+    is 120 mm above the floor (on the back).
+    """
+    if not (profile.sitting or profile.lying):
+        return motion
+    pos = motion.positions.astype(np.float64).copy()
+    forward = body_facing(pos)  # (T, 3) horizontal
+    if profile.sitting:
+        ankle_floor = np.min(pos[:, [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]], 2])
+        down = np.array([0.0, 0.0, -1.0])
+        for side in ("LEFT", "RIGHT"):
+            hip, knee, ankle, foot = (J[f"{name}_{side}"] for name in ("HIP", "KNEE", "ANKLE", "FOOT"))
+            thigh = np.linalg.norm(pos[:, knee] - pos[:, hip], axis=1, keepdims=True)
+            shin = np.linalg.norm(pos[:, ankle] - pos[:, knee], axis=1, keepdims=True)
+            sole = np.linalg.norm(pos[:, foot] - pos[:, ankle], axis=1, keepdims=True)
+            pos[:, knee] = pos[:, hip] + thigh * forward
+            pos[:, ankle] = pos[:, knee] + shin * down
+            pos[:, foot] = pos[:, ankle] + sole * forward
+        lowest = np.min(pos[:, [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]], 2], axis=1)
+        pos[:, :, 2] -= (lowest - ankle_floor)[:, None]
+    else:
+        axis = np.cross(forward, np.array([0.0, 0.0, 1.0]))  # lateral: turns up into -forward, forward into up
+        pelvis = pos[:, J["PELVIS"]][:, None]
+        offset = pos - pelvis
+        cross = np.cross(axis[:, None], offset)
+        along = np.sum(axis[:, None] * offset, axis=-1, keepdims=True) * axis[:, None]
+        pos = pelvis + cross + along  # Rodrigues at 90 degrees: v' = a x v + a (a . v)
+        pos[:, :, 2] += 120.0 - pos[:, J["PELVIS"], 2][:, None]
+    return Motion(motion.name, motion.fps, pos)
+
+
+def _tilted_mounts(sensors: list[VirtualSensor], profile: SimProfile, rng: np.random.Generator) -> list[VirtualSensor]:
+    """Every sensor rolled about its optical axis and pitched about its x axis by angles drawn uniformly in
+    +-``mount_tilt_deg`` (family "tilted_mounts"): the true poses; the rig's calibration measures them (as a rig
+    calibrated where it stands), but the body tracker keeps assuming a level camera (see :func:`simulate`)."""
+    if profile.mount_tilt_deg <= 0:
+        return sensors
+    out = []
+    for sensor in sensors:
+        roll, pitch = np.radians(rng.uniform(-profile.mount_tilt_deg, profile.mount_tilt_deg, 2))
+        tilt = np.eye(4)
+        tilt[:3, :3] = _rotation_z(roll) @ _rotation_x(pitch)
+        out.append(dataclasses.replace(sensor, world_from_sensor=sensor.world_from_sensor @ tilt))
+    return out
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rotation_x(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _neighbour(motion: Motion, times: np.ndarray, truth: np.ndarray, profile: SimProfile) -> np.ndarray | None:
+    """(T, 32, 3) world joints of a second person beside the subject (family "close_people"): the same motion
+    one second behind, ``neighbour_distance_mm`` to the subject's right. None when the family is off."""
+    if profile.neighbour_distance_mm <= 0 or (profile.neighbour_swap_prob <= 0 and profile.neighbour_merge_prob <= 0):
+        return None
+    forward = body_facing(truth)
+    right = np.stack([forward[:, 1], -forward[:, 0], np.zeros(len(times))], axis=1)
+    behind = motion.at_times(np.maximum(times - 1.0, 0.0))
+    return behind + profile.neighbour_distance_mm * right[:, None]
+
+
+def _confuse_with_neighbour(
+    rng: np.random.Generator, physical: np.ndarray, neighbour: np.ndarray, profile: SimProfile
+) -> np.ndarray:
+    """The subject's joints as a view that confuses the subject with the neighbour reports them: in swap bursts
+    the neighbour's joints (ids swapped), in merge bursts the midpoint of both (one skeleton for two people).
+    Bursts start with ``neighbour_swap_prob`` / ``neighbour_merge_prob`` per frame, end with
+    ``neighbour_off_prob``."""
+    n = physical.shape[0]
+    uniform = rng.random((n, 2))
+    state = np.zeros(n, dtype=np.int8)  # 0 none, 1 swapped, 2 merged
+    current = 0
+    for k in range(n):  # a three-state chain over frames
+        if current:
+            current = 0 if uniform[k, 0] < profile.neighbour_off_prob else current
+        elif uniform[k, 0] < profile.neighbour_swap_prob:
+            current = 1
+        elif uniform[k, 1] < profile.neighbour_merge_prob:
+            current = 2
+        state[k] = current
+    out = np.where((state == 1)[:, None, None], neighbour, physical)
+    return np.where((state == 2)[:, None, None], 0.5 * (physical + neighbour), out)
 
 
 def _partial_view_drag(noisy: np.ndarray, lab: np.ndarray, in_view: np.ndarray, drag: float) -> np.ndarray:
