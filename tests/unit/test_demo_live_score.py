@@ -27,18 +27,22 @@ from skelfuse.service.worker import SimSource
 LIVE_FACTOR = 1.25
 """The live path may score at most this factor (+ LIVE_SLACK_MM) of the offline path on the same frames."""
 LIVE_SLACK_MM = 3.0
+SEAM_TAKE_S = 20.0
+"""The take length whose loop seam regressed: the walk's end and start lie 267 mm apart and turned round, close
+enough for the track to carry on across the seam with its (now stale) realignment anchor. The demo's own take
+is shorter now (``demo.DEMO_TAKE_S``); its seam is a jump back that starts a new track, a cold start by design."""
 
 
 def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: float) -> tuple[dict, dict, dict]:
     rig = demo.write_demo_rig(tmp_path, preset_name="skelfuse")
     cfg = load_rig_config(rig)
-    first = SimSource(cfg, cfg.sensor_ids[0], gesture="walking", take_duration_s=demo.DEMO_TAKE_S, seed=seed)
+    first = SimSource(cfg, cfg.sensor_ids[0], gesture="walking", take_duration_s=SEAM_TAKE_S, seed=seed)
     obs = first.observations
     demo.write_calibration(tmp_path / "calibration.toml", obs.sensor_ids, obs.world_from_sensor_calibrated)
     cfg = load_rig_config(rig)  # now with the simulated calibration, as the demo's node loads it
     poses = cfg.poses()
     sources = [first] + [
-        SimSource(cfg, sid, gesture="walking", take_duration_s=demo.DEMO_TAKE_S, seed=seed)
+        SimSource(cfg, sid, gesture="walking", take_duration_s=SEAM_TAKE_S, seed=seed)
         for sid in cfg.sensor_ids[1:]
     ]
     fuser = GroupFuser(
@@ -61,7 +65,9 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
             estimate.append(fused.positions[person])
             truth.append(obs.truth[n % obs.n_frames])
             instants.append(n % obs.n_frames)
-    assert len(estimate) > 0.8 * n_scored, "the live path output too few frames to score"
+    # a pass of the take starts at instant 0: the person jumps back and gets a new track, scored CONVERGE_S on
+    settled = n_scored - round(demo.CONVERGE_S * cfg.sync.fps)
+    assert len(estimate) > 0.9 * settled, "the live path output too few frames to score"
     live = demo._group_errors(np.stack(estimate), np.stack(truth))
 
     world = apply_transform(obs.world_from_sensor_calibrated, obs.positions.astype(np.float64))
