@@ -42,8 +42,7 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
     cfg = load_rig_config(rig)  # now with the simulated calibration, as the demo's node loads it
     poses = cfg.poses()
     sources = [first] + [
-        SimSource(cfg, sid, gesture="walking", take_duration_s=SEAM_TAKE_S, seed=seed)
-        for sid in cfg.sensor_ids[1:]
+        SimSource(cfg, sid, gesture="walking", take_duration_s=SEAM_TAKE_S, seed=seed) for sid in cfg.sensor_ids[1:]
     ]
     fuser = GroupFuser(
         cfg.sensor_ids, np.stack([poses[s] for s in cfg.sensor_ids]), cfg.fusion.fusion_params(), max_persons=8
