@@ -79,3 +79,57 @@ def test_a_stalled_or_crashed_tracker_is_restarted_and_status_says_so() -> None:
     assert any("k4abt_tracker_pop_result() failed" in e for e in errors), errors
     assert any(s.state == "degraded" for s in statuses)
     assert max(s.counters.get("stalls", 0) for s in statuses) >= 1
+
+
+class HangsWhileOpening:
+    """A source whose start never answers on its first run (an SDK open that hangs), then delivers frames."""
+
+    stamps_host_time = True
+
+    def __init__(self) -> None:
+        self.sensor_id = "capture_0"
+        self.starts = 0
+        self.release = threading.Event()
+
+    def frames(self) -> Iterator[tuple[int, Any]]:
+        self.starts += 1
+        if self.starts == 1:
+            self.release.wait()  # a device open that never returns (released at the end of the test)
+            return
+        yield time.monotonic_ns(), None  # opened: the stall watchdog takes over from here
+        while True:
+            time.sleep(0.02)
+            yield time.monotonic_ns(), None
+
+
+def test_a_source_that_hangs_while_opening_is_restarted_after_the_open_timeout() -> None:
+    cfg = load_rig_config(SIM_RIG)
+    source = HangsWhileOpening()
+    options = WorkerOptions(
+        open_timeout_s=0.5, stall_timeout_s=30.0, status_period_s=0.2, limits=RunLimits(duration_s=2.5)
+    )
+    port = free_port()
+    try:
+        with zenoh.open(loopback_config(listen_port=port)):
+            started = time.monotonic()
+            report = run_capture_worker(
+                cfg,
+                "capture_0",
+                loopback_config(connect_ports=[port]),
+                options=options,
+                lifecycle=Lifecycle("w"),
+                source=source,
+            )
+            took = time.monotonic() - started
+    finally:
+        source.release.set()
+    assert source.starts >= 2, "the hung open was not given up"
+    assert report.stalls >= 1 and report.restarts >= 1
+    assert took < 10.0  # --duration still ends the run, the abandoned open notwithstanding
+
+
+def test_the_open_timeout_is_a_config_key_with_a_generous_default(tmp_path: Path) -> None:
+    assert load_rig_config(SIM_RIG).capture.open_timeout_s == 120.0
+    rig = tmp_path / "rig.toml"
+    rig.write_text(SIM_RIG.read_text() + "\n[capture]\nopen_timeout_s = 45\n")
+    assert load_rig_config(rig).capture.open_timeout_s == 45.0

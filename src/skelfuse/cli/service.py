@@ -56,6 +56,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
         limits=run_limits(args),
         take_origin_ns=round(args.take_origin * 1e9),
         stall_timeout_s=cfg.capture.stall_timeout_s if args.stall_timeout is None else args.stall_timeout,
+        open_timeout_s=cfg.capture.open_timeout_s if args.open_timeout is None else args.open_timeout,
     )
     report = worker.run_capture_worker(
         cfg,
@@ -268,6 +269,14 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         metavar="SECONDS",
         help="watchdog: restart a started source that delivers no frame for this long, a read that never returns "
         "included (default: [capture] stall_timeout_s, 10)",
+    )
+    capture.add_argument(
+        "--open-timeout",
+        type=Number(float, gt=0, le=3600),
+        default=None,
+        metavar="SECONDS",
+        help="watchdog before the first answer: restart a source that has not opened (device open, tracker create, "
+        "a master's wait for its subordinates) within this long (default: [capture] open_timeout_s, 120)",
     )
     capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
     add_run_limits(capture, "publishing N frames")

@@ -334,9 +334,13 @@ class CaptureConfig:
         The worker's watchdog: a started source that delivers no frame for this long (a tracker answering
         with nothing, a read that never returns) is restarted; a Kinect source uses it for its own
         no-capture / no-result diagnosis too.
+    open_timeout_s : float
+        The watchdog before the source's first answer: a source that has not opened (device open, tracker
+        created; a master's wait for its subordinates included) within this long is restarted like a stalled one.
     """
 
     stall_timeout_s: float = 10.0
+    open_timeout_s: float = 120.0
 
 
 @dataclass(frozen=True)

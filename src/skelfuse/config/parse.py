@@ -121,7 +121,8 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
     capture = CaptureConfig()
     if (t := top.table("capture")) is not None:
         capture = CaptureConfig(
-            stall_timeout_s=t.number("stall_timeout_s", 10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+            stall_timeout_s=t.number("stall_timeout_s", 10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
+            open_timeout_s=t.number("open_timeout_s", 120.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
         )
         t.done()
     intake = _parse_intake(top.table("intake"))

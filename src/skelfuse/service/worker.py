@@ -87,6 +87,9 @@ DEFAULT_GESTURE = "walking"
 DEFAULT_TAKE_S = 20.0
 DEFAULT_STALL_TIMEOUT_S = 10.0
 """The watchdog's default (``WorkerOptions.stall_timeout_s``; the config parser has its own copy)."""
+DEFAULT_OPEN_TIMEOUT_S = 120.0
+"""The watchdog's default before a source's first answer (``WorkerOptions.open_timeout_s``): generous, since a
+master waits up to ``subordinate_wait_s`` (30 s) for its subordinates and a body tracker loads its model."""
 READ_POLL_S = 0.1
 """How often the publish loop looks at its exit flag, the run limits and the watchdog while it waits for the
 source."""
@@ -144,6 +147,10 @@ class WorkerOptions:
     as ``stalls``: a body tracker that keeps answering with nothing, and a read that never returns (a hung SDK
     call: the source is read on a thread of its own, :class:`SourceReader`). A Kinect source gets the same
     timeout for its own diagnosis (no capture / no tracker result). None: off."""
+    open_timeout_s: float | None = DEFAULT_OPEN_TIMEOUT_S
+    """Watchdog before the source's first answer (``[capture] open_timeout_s``, ``--open-timeout``): a source
+    whose start (device open, tracker create, a master's wait for its subordinates) has not answered within this
+    long is restarted like a stalled one (an SDK call that hangs while opening). None: off."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -891,6 +898,11 @@ def _publish_loop(
                         silent_s = (now - waiting_since) / 1e9
                         if watching and options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
                             raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
+                        if not watching and options.open_timeout_s is not None and silent_s > options.open_timeout_s:
+                            raise SourceStalled(
+                                f"the source has not opened after {silent_s:.1f} s (a device open or tracker create "
+                                "that hangs?; watchdog: restarting the source)"
+                            )
                         continue
                     due_ns, frame, clouds = item
                     if due_ns > deadline_ns or lifecycle.should_exit:
