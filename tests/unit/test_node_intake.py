@@ -295,3 +295,29 @@ def test_a_forged_frame_from_the_future_is_rejected_and_output_stays_whole(
     report = core.sensor_report(10**9 + 190 * PERIOD_NS, 1.0)
     assert report["capture_1"]["off_clock"] == 3 and report["capture_1"]["late"] == 0
     assert report["capture_1"]["clock"]["relearns"] == 0
+
+
+def test_an_exception_inside_the_fusion_step_is_counted_and_the_node_goes_on(
+    rig: RigConfig, sources: dict[str, SimSource], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A bug in the core (here an IndexError, the kind session 19 found in the orientation gather) costs its
+    instant, counted as a fusion error; the tracks start afresh and the next instants are fused."""
+    core = FusionCore(rig)
+    real_step = core.fuser.step
+    calls = {"n": 0}
+
+    def flaky_step(group):  # the third instant raises
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise IndexError("index 2 is out of bounds for axis 0 with size 2")
+        return real_step(group)
+
+    monkeypatch.setattr(core.fuser, "step", flaky_step)
+    fused = []
+    for n in range(10):
+        frames = {sid: s.frame_at(n) for sid, s in sources.items()}
+        fused += feed(core, frames, 10**9 + n * PERIOD_NS)
+    fused += core.flush()
+    assert not FUSION_ERROR_FREE(core)
+    assert sum(counter.get("fusion_error", 0) for counter in core.rejects.values()) == 1
+    assert len(fused) >= 8  # every other instant fused

@@ -292,9 +292,16 @@ class FusionCore:
             trigger = trigger_arrival_ns if index == len(groups) - 1 and group.complete else None
             try:
                 out.append(self._fuse(group, trigger))
-            except ValueError as exc:  # never expected (caps keep frames encodable); a daemon must not die of it
-                self.fuser.reset()
-                self._reject(UNKNOWN_SENSOR, FUSION_ERROR, f"instant at {group.time_us} µs not fused: {exc}")
+            except Exception as exc:  # never expected (caps keep frames encodable): a daemon must not die of it
+                self.fuser.reset()  # the tracks start afresh; the next instant is fused as usual
+                if not isinstance(exc, ValueError):  # a bug in the core: its trace once per kind, for the report
+                    first = not any(FUSION_ERROR in counter for counter in self.rejects.values())
+                    log.error("the fusion step raised %s: a bug, please report it", type(exc).__name__, exc_info=first)
+                self._reject(
+                    UNKNOWN_SENSOR,
+                    FUSION_ERROR,
+                    f"instant at {group.time_us} µs not fused: {type(exc).__name__}: {exc}",
+                )
         return out
 
     def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
