@@ -296,14 +296,18 @@ class RecordingWriter:
         if self._closed:
             raise ValueError(f"recording {self.path} is closed")
         channel_id = self._channel(frame.sensor_id)
+        self._add(channel_id, frame.host_time_ns, frame.device_time_us * 1000, data, int(frame.sequence))
+        self.frames_written += 1
+
+    def _add(self, channel_id: int, log_time_ns: int, publish_time_ns: int, data: bytes, sequence: int) -> None:
+        """One message on ``channel_id`` (times clamped to MCAP's u64, sequence to u32), flushed when one is due."""
         self._writer.add_message(
             channel_id=channel_id,
-            log_time=_clamp_u64(frame.host_time_ns),
-            publish_time=_clamp_u64(frame.device_time_us * 1000),
+            log_time=_clamp_u64(log_time_ns),
+            publish_time=_clamp_u64(publish_time_ns),
             data=data,
-            sequence=int(frame.sequence) & 0xFFFFFFFF,
+            sequence=sequence & 0xFFFFFFFF,
         )
-        self.frames_written += 1
         if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
             self.flush()
 
@@ -339,16 +343,8 @@ class RecordingWriter:
                 schema_id=schema_id,
                 metadata={"stream": "fused"},
             )
-        self._writer.add_message(
-            channel_id=self._fused_channel,
-            log_time=_clamp_u64(log_time_ns),
-            publish_time=_clamp_u64(time_us * 1000),
-            data=data,
-            sequence=self.fused_frames_written & 0xFFFFFFFF,
-        )
+        self._add(self._fused_channel, log_time_ns, time_us * 1000, data, self.fused_frames_written)
         self.fused_frames_written += 1
-        if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
-            self.flush()
 
     def write_clouds_payload(self, payload: bytes | bytearray | memoryview) -> PersonCloudsFrame:
         """Record a received person-cloud payload as it is, on its sensor's ``.../clouds`` channel.
@@ -371,16 +367,8 @@ class RecordingWriter:
                 schema_id=schema_id,
                 metadata={"sensor_id": frame.sensor_id},
             )
-        self._writer.add_message(
-            channel_id=channel_id,
-            log_time=_clamp_u64(frame.host_timestamp_ns),
-            publish_time=_clamp_u64(frame.device_timestamp_us * 1000),
-            data=data,
-            sequence=int(frame.sequence) & 0xFFFFFFFF,
-        )
+        self._add(channel_id, frame.host_timestamp_ns, frame.device_timestamp_us * 1000, data, int(frame.sequence))
         self.clouds_written += 1
-        if self._flush_interval_s is not None and self._clock() - self._last_flush >= self._flush_interval_s:
-            self.flush()
         return frame
 
     def flush(self) -> None:
