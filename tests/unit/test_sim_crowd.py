@@ -103,3 +103,10 @@ def test_walkers_turn_round_over_most_of_a_second_not_in_one_frame() -> None:
         assert step.max() < 180.0 / (0.5 * motion.fps) * 1.6, f"{motion.name}: {step.max():.0f} deg in one frame"
         reversals = np.abs((facing[45:] - facing[:-45] + 180.0) % 360.0 - 180.0) > 150.0  # over 1.5 s
         assert reversals.any() or turned > 150.0, f"{motion.name}: the walker never turned round"
+
+
+def test_a_take_shorter_than_the_turning_window_still_walks() -> None:
+    # 0.5 s is 15 frames, shorter than the 0.8 s turning window: the heading's smoothing kernel is cut to the
+    # take (np.convolve's "same" mode returns the longer of its two inputs, which broke place_on_path).
+    motions = crossing_scenario(duration_s=0.5).motions
+    assert all(m.positions.shape[0] == 15 and np.isfinite(m.positions).all() for m in motions)

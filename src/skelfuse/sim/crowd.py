@@ -324,7 +324,7 @@ def _heading_of(path_xy: np.ndarray, fps: float, window_s: float = 0.8, default_
     velocity = np.gradient(path_xy, axis=0) * fps
     speed = np.linalg.norm(velocity, axis=1, keepdims=True)
     unit = np.where(speed > 50.0, velocity / np.maximum(speed, 1e-9), 0.0)
-    k = max(1, round(window_s * fps))
+    k = max(1, min(round(window_s * fps), len(path_xy)))  # np.convolve's "same" output is the longer of the two
     kernel = np.ones(k) / k
     smooth = np.stack([np.convolve(unit[:, i], kernel, mode="same") for i in range(2)], axis=1)
     heading = np.degrees(np.arctan2(smooth[:, 1], smooth[:, 0]))
