@@ -34,13 +34,13 @@ import dataclasses
 import logging
 import threading
 import time
-import warnings
 from collections import Counter
 from typing import Any, Protocol
 
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.fusion.association import descriptor_distance, nanmedian_axis, torso_descriptor
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import MergedCloud
 from skelfuse.fusion.depth.frontal import body_facing
@@ -71,7 +71,7 @@ may lose the race with its first skeletons); after it, a sensor that never sent 
 CLOUD_FRAMES_KEPT = 16
 """Cloud frames kept per sensor (about half a second at 30 fps): enough for a group's deadline."""
 ASSOCIATION_GATE_MM = 400.0
-"""Hybrid mode: a body joins the previous instant's nearest fused person only within this median joint
+"""Hybrid mode: a body joins the previous instant's nearest fused person only within this torso-descriptor
 distance (people move well under 100 mm between two frames)."""
 VIRTUAL_INTRINSICS = Intrinsics.azure_kinect_nfov()
 """The virtual camera: NFOV unbinned nominal pinhole intrinsics (640 x 576; the paper's mode)."""
@@ -314,9 +314,7 @@ class DepthStage:
         for person in range(previous_ids.shape[0]):
             mine = world[assignment == person]
             if mine.shape[0]:
-                with warnings.catch_warnings():  # joints no body of the person holds stay NaN
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    priors[person] = np.nanmedian(mine, axis=0)
+                priors[person] = nanmedian_axis(mine, axis=0)  # joints no body of the person holds stay NaN
         virtual, confidence, _ = self._virtual_skeletons(
             group, assignment, priors, previous_ids, np.arange(len(priors))
         )
@@ -440,14 +438,13 @@ class DepthStage:
 
 def associate_bodies(world: np.ndarray, valid: np.ndarray, persons: np.ndarray) -> np.ndarray:
     """(S, B) index of the person in ``persons`` (P, 32, 3) each valid body of ``world`` (S, B, 32, 3) is
-    nearest to (median joint distance), -1 beyond :data:`ASSOCIATION_GATE_MM` or with no person."""
+    nearest to, -1 beyond :data:`ASSOCIATION_GATE_MM` or with no person. The distance is the people path's own
+    (:func:`descriptor_distance` of the mirror-invariant torso descriptors), so a mirrored rear view joins its
+    person like any other view; padding slots are infinitely far."""
     out = np.full(valid.shape, -1, dtype=np.int64)
     if persons.shape[0] == 0 or world.shape[1] == 0:
         return out
-    with warnings.catch_warnings(), np.errstate(all="ignore"):  # padding slots: all-NaN, infinitely far
-        warnings.simplefilter("ignore", RuntimeWarning)
-        distance = np.nanmedian(np.linalg.norm(world[:, :, None] - persons[None, None], axis=-1), axis=-1)  # S,B,P
-    distance = np.where(np.isfinite(distance), distance, np.inf)
+    distance = descriptor_distance(torso_descriptor(world)[:, :, None], torso_descriptor(persons)[None, None])
     nearest = np.argmin(distance, axis=-1)
     close = np.take_along_axis(distance, nearest[..., None], axis=-1)[..., 0] <= ASSOCIATION_GATE_MM
     out[valid & close] = nearest[valid & close]
