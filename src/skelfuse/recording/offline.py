@@ -36,7 +36,7 @@ from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
 from skelfuse.rig.grouping import FrameGrouper
 from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.frames import FusedFrame
+from skelfuse.schema.frames import FusedFrame, SensorFrame
 
 log = logging.getLogger("skelfuse.recording")
 
@@ -223,20 +223,11 @@ def fuse_recording(
 def _fuse_take(
     take: InputTake, poses: np.ndarray, params: FusionParams, grouper: FrameGrouper, progress: bool
 ) -> Iterator[FusedFrame]:
-    fuser = GroupFuser(take.sensor_ids, poses, params)
-    total = sum(r.n_frames for r in take.recordings)
-    bar = Progress(total, "fuse", enabled=None if progress else False)
+    """A take of any format, clocked by its matched time (host time where the take has it)."""
     host = take.clock == "host"
-    try:
-        for frame in take.frames():
-            now_ns = int(frame.host_time_ns) if host else int(frame.device_time_us) * 1000
-            for group in grouper.push(frame, now_ns):
-                yield fuser.step(group).frame
-            bar.update()
-        for group in grouper.flush():
-            yield fuser.step(group).frame
-    finally:
-        bar.close()
+    frames = ((f, int(f.host_time_ns) if host else int(f.device_time_us) * 1000) for f in take.frames())
+    total = sum(r.n_frames for r in take.recordings)
+    return _fuse_clocked(frames, take.sensor_ids, poses, params, grouper, total, progress)
 
 
 def _fuse(
@@ -249,13 +240,28 @@ def _fuse(
     end_ns: int | None,
     progress: bool,
 ) -> Iterator[FusedFrame]:
-    fuser = GroupFuser(sensor_ids, poses, params)
+    """A skelfuse recording: the recorded host time stands in for the arrival clock, so deadlines behave as
+    they did live."""
+    frames = ((f, int(f.host_time_ns)) for f in reader.frames(start_ns, end_ns))
     sensor_messages = (reader.message_count or 0) - (reader.fused_message_count or 0)  # a recorded fused stream
-    bar = Progress(max(sensor_messages, 0), "fuse", enabled=None if progress else False)
+    return _fuse_clocked(frames, sensor_ids, poses, params, grouper, max(sensor_messages, 0), progress)
+
+
+def _fuse_clocked(
+    frames: Iterator[tuple[SensorFrame, int]],
+    sensor_ids: tuple[str, ...],
+    poses: np.ndarray,
+    params: FusionParams,
+    grouper: FrameGrouper,
+    total: int,
+    progress: bool,
+) -> Iterator[FusedFrame]:
+    """Group (frame, arrival clock in ns) pairs as the node would and fuse every group."""
+    fuser = GroupFuser(sensor_ids, poses, params)
+    bar = Progress(total, "fuse", enabled=None if progress else False)
     try:
-        for frame in reader.frames(start_ns, end_ns):
-            # The recorded host time stands in for the arrival clock, so deadlines behave as they did live.
-            for group in grouper.push(frame, int(frame.host_time_ns)):
+        for frame, now_ns in frames:
+            for group in grouper.push(frame, now_ns):
                 yield fuser.step(group).frame
             bar.update()
         for group in grouper.flush():
