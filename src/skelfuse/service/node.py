@@ -594,8 +594,12 @@ class FusionNode:
         while not self.lifecycle.should_exit:
             item = samples.get(timeout=poll_s)
             outputs: list[FusedOutput] = []
+            # Take queued samples until one completes an instant: what is fused is published at once, and a
+            # backlog (a starved machine) never keeps the loop from seeing a stop or publishing its status.
             while item is not None:
                 outputs += self.core.receive(item.key, item.payload, item.arrival_ns)
+                if outputs or self.lifecycle.should_exit:
+                    break
                 item = samples.get_nowait()
             now_ns = time.monotonic_ns()
             outputs += self.core.poll(now_ns)
