@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from skelfuse.rig.grouping import FrameGroup, FrameGrouper
+from skelfuse.rig import grouping
+from skelfuse.rig.grouping import FrameGroup, FrameGrouper, SensorClock
 from skelfuse.schema.frames import SensorFrame
 
 SEED = 20240611
@@ -480,3 +481,21 @@ def test_on_time_frames_after_a_backlog_are_not_taken_for_the_future() -> None:
     stats = g.stats
     assert stats.sensors["s1"].off_clock == 0 and g.clock_estimates()["s1"].relearns == 0
     assert len(groups) == 200 and all(grp.complete for grp in groups)
+
+
+def test_a_sensor_clocks_offset_is_the_median_of_its_recent_residuals() -> None:
+    """The running median (computed without numpy, on every frame) against numpy's, over odd and even windows,
+    ties, and residuals of today's epoch-scale device times (~1.7e15 µs)."""
+    rng = np.random.default_rng(SEED)
+    clock = SensorClock(period_us=1e6 / 30, window=7)
+    residuals: list[int] = []
+    for k in range(60):
+        time_us = 1_764_000_000_000_000 + k * 33_333 + int(rng.integers(-3, 4)) * 500
+        arrival_us = 5_000_000 + k * 33_333 + int(rng.integers(0, 3000))
+        clock.learn(time_us, arrival_us)
+        residuals = [*residuals, time_us - arrival_us][-7:]
+        expected = int(np.median(residuals)) if len(residuals) > 2 else residuals[0]
+        assert clock.offset_us == expected
+    for n in range(1, 12):  # the host-mode phases are floats
+        phases = list(rng.normal(0.0, 1e4, n))
+        assert grouping._median(phases) == float(np.median(phases))

@@ -321,3 +321,19 @@ def test_an_exception_inside_the_fusion_step_is_counted_and_the_node_goes_on(
     assert not FUSION_ERROR_FREE(core)
     assert sum(counter.get("fusion_error", 0) for counter in core.rejects.values()) == 1
     assert len(fused) >= 8  # every other instant fused
+
+
+def test_only_the_rigs_own_sensor_keys_are_taken(rig: RigConfig, sources: dict[str, SimSource]) -> None:
+    """The rig's keys are looked up, not parsed, per frame; another rig's key, a malformed key and a key whose
+    sensor differs from the payload's are still refused, each under its own reason."""
+    core = FusionCore(rig)
+    frame = dataclasses.replace(sources["capture_0"].frame_at(100), host_time_ns=1)
+    payload = encode_sensor_frame(frame)
+    core.receive("skelfuse/other_rig/sensors/capture_0/skeletons", payload, 10**9)
+    core.receive("skelfuse/sim4/sensors/*/skeletons", payload, 10**9 + 1)
+    core.receive(key("capture_1"), payload, 10**9 + 2)
+    assert core.rejects["?"]["bad_key"] == 2
+    assert core.rejects["capture_1"]["key_mismatch"] == 1
+    core.receive(key("capture_0"), payload, 10**9 + 3)
+    assert core.grouper.stats.sensors["capture_0"].received == 1
+    assert sum(sum(counter.values()) for counter in core.rejects.values()) == 3

@@ -197,6 +197,17 @@ class ClockEstimate:
         return dataclasses.asdict(self)
 
 
+def _median(values: Iterable[float]) -> float:
+    """``float(np.median(values))`` of a short window, bit for bit (float64 halves of the two middle values),
+    without numpy's per-call cost: it runs on every frame."""
+    ordered = sorted(values)
+    n = len(ordered)
+    middle = n // 2
+    if n % 2:
+        return float(ordered[middle])
+    return (float(ordered[middle - 1]) + float(ordered[middle])) / 2.0
+
+
 class SensorClock:
     """One sensor's clock against the node's arrival clock: offset, drift, off-clock frames, phase.
 
@@ -264,7 +275,7 @@ class SensorClock:
             elapsed_s = max(int(arrival_us) - self._last_arrival_us, 0) / 1e6
             self._ceiling_us = max(float(residual), self._ceiling_us - CEILING_DECAY_US_PER_S * elapsed_s)
         self._last_arrival_us = int(arrival_us)
-        self._offset_us = int(np.median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
+        self._offset_us = int(_median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
 
     def hold(self, frame: SensorFrame, time_us: int, arrival_ns: int) -> tuple[list[tuple[SensorFrame, int, int]], int]:
         """Keep an off-clock frame.
@@ -311,7 +322,7 @@ class SensorClock:
         """
         grid_us = sequence * self.period_us
         phase = corrected_us - grid_us
-        if self._phases and abs(phase - float(np.median(self._phases))) > 3 * self.period_us:
+        if self._phases and abs(phase - _median(self._phases)) > 3 * self.period_us:
             self._far += 1
             if self._far < 2:
                 return int(corrected_us)  # one outlier: not learned
@@ -320,7 +331,7 @@ class SensorClock:
         self._phases.append(phase)
         if len(self._phases) < 3:
             return int(corrected_us)
-        return round(grid_us + float(np.median(self._phases)))
+        return round(grid_us + _median(self._phases))
 
     def estimate(self, rig_offset_us: float | None) -> ClockEstimate:
         if self._offset_us is None:
@@ -684,6 +695,8 @@ class FrameGrouper:
         return best
 
     def _ready(self, group: _OpenGroup) -> bool:
+        if len(group.frames) == len(self.expected_sensor_ids):  # complete (frames hold expected sensors only)
+            return True
         window_end = group.anchor_us + self.tolerance_us
         return all(
             sid in group.frames or self._latest_by_sensor.get(sid, window_end) > window_end

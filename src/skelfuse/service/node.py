@@ -13,8 +13,10 @@ Data flow of one sensor frame::
       -> publisher.put                   skelfuse/<rig>/fused/skeletons
       -> RerunView.submit (optional)     drawn on the view's own thread
 
-A poll every ``poll_interval_s`` (2 ms) emits groups whose deadline passed, so a dead or slow sensor never
-stalls the output. Every ``status_period_s`` the node publishes its status on
+While an instant is open, a poll every ``poll_interval_s`` (2 ms) emits groups whose deadline passed, so a dead
+or slow sensor never stalls the output (with none open the loop just waits for the next frame). Every
+``status_period_s`` (at a moment when no instant is half received, at most one period late) the node publishes
+its status on
 ``skelfuse/<rig>/status/<node>``; it answers ``get`` on ``skelfuse/<rig>/calibration`` with the rig's poses
 and holds a liveliness token on ``skelfuse/<rig>/alive/<node>``.
 
@@ -72,6 +74,8 @@ TOO_MANY_BODIES = "too_many_bodies"
 """Node-level reject reason: more bodies than ``[intake] max_bodies_per_sensor``."""
 OUT_OF_VOLUME = "out_of_volume"
 """Node-level reject reason: a joint farther than ``[intake] max_range_mm`` from its sensor."""
+IDLE_WAIT_S = 0.02
+"""The longest the node loop sleeps while no instant is open (no deadline can pass then); it wakes on arrival."""
 FUSION_ERROR = "fusion_error"
 """Node-level reject reason: an instant the core could not fuse or encode (logged; the node goes on)."""
 
@@ -181,6 +185,7 @@ class FusionCore:
         self.cfg = cfg
         self.sensor_ids = cfg.sensor_ids
         self.column = {sid: i for i, sid in enumerate(self.sensor_ids)}
+        self._sensor_of_key = {keys.sensor_skeletons(cfg.name, sid): sid for sid in self.sensor_ids}
         if poses is None:
             by_id = cfg.poses()
             poses = np.stack([by_id[sid] for sid in self.sensor_ids])
@@ -211,11 +216,13 @@ class FusionCore:
     def receive(self, key: str, payload: bytes, arrival_ns: int) -> list[FusedOutput]:
         """One sample from the sensor wildcard; returns the fused instants that became due."""
         self.frames_in += 1
-        try:
-            key_sensor = keys.parse_sensor_key(key, self.cfg.name)
-        except ValueError as exc:
-            self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
-            return self.poll(arrival_ns)
+        key_sensor = self._sensor_of_key.get(key) if isinstance(key, str) else None  # the rig's keys, parsed once
+        if key_sensor is None:
+            try:
+                key_sensor = keys.parse_sensor_key(key, self.cfg.name)
+            except ValueError as exc:
+                self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
+                return self.poll(arrival_ns)
         intake = self.intake
         if len(payload) > intake.max_payload_bytes:
             self._reject(key_sensor, OVERSIZED, f"{len(payload)} bytes, at most {intake.max_payload_bytes} ([intake])")
@@ -375,7 +382,7 @@ class NodeOptions:
     status_period_s : float or None
         Default: the rig's ``[node] status_period_s``.
     poll_interval_s : float
-        How often deadlines are checked when no frame arrives.
+        How often deadlines are checked when no frame arrives while an instant is open.
     drain_timeout_s : float
         At shutdown, how long queued samples may still be fused.
     limits : RunLimits
@@ -592,19 +599,28 @@ class FusionNode:
         deadline = limits.deadline(start)
         poll_s = self.options.poll_interval_s
         while not self.lifecycle.should_exit:
-            item = samples.get(timeout=poll_s)
-            outputs: list[FusedOutput] = []
-            # Take queued samples until one completes an instant: what is fused is published at once, and a
-            # backlog (a starved machine) never keeps the loop from seeing a stop or publishing its status.
+            # Deadlines belong to open instants: with none open only a frame can make one due, so the loop
+            # sleeps until a frame arrives (woken at once), the status is due, or IDLE_WAIT_S for the stop check.
+            if self.core.grouper.n_open:
+                wait_s = poll_s
+            else:
+                wait_s = min(IDLE_WAIT_S, max((next_status - time.monotonic_ns()) / 1e9, poll_s))
+            item = samples.get(timeout=wait_s)
             while item is not None:
-                outputs += self.core.receive(item.key, item.payload, item.arrival_ns)
+                # Each instant goes out as soon as it is fused, not after the rest of a backlog is read; then the
+                # loop looks at the stop, the deadlines and the status before it takes the next sample (a starved
+                # node's backlog never hides a SIGTERM from it).
+                outputs = self.core.receive(item.key, item.payload, item.arrival_ns)
+                self._publish(outputs, publisher, view)
                 if outputs or self.lifecycle.should_exit:
                     break
                 item = samples.get_nowait()
             now_ns = time.monotonic_ns()
-            outputs += self.core.poll(now_ns)
-            self._publish(outputs, publisher, view)
-            if now_ns >= next_status:
+            self._publish(self.core.poll(now_ns), publisher, view)
+            # The status waits for a quiet moment (no instant half received, so no frame of one queues behind
+            # it), at most one period.
+            quiet = not self.core.grouper.n_open or now_ns >= next_status + period_ns
+            if now_ns >= next_status and quiet:
                 window_s = (now_ns - last_status) / 1e9
                 self._rates = None
                 self._publish_status(status_pub, self._state(now_ns), now_ns, window_s)
