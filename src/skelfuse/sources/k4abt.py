@@ -397,8 +397,9 @@ def depth_xy_table(lib: ctypes.CDLL, calibration: int) -> np.ndarray:
     to a whole image as one multiplication (:func:`skelfuse.fusion.depth.cloud.lift_xy_table`).
 
     Built once per sensor and depth mode (the calibration is the depth mode's; kept per calibration, read-only):
-    one SDK call per pixel, about 1.2 s of CPU for 640 x 576 from Python (against the fake library). Pixels the model calls invalid
-    (``valid`` = 0: beyond the lens's metric radius, or no convergence) are NaN, so their points are dropped.
+    one SDK call per pixel, about 1.2 s of CPU for 640 x 576 from Python (against the fake library). Pixels the
+    model calls invalid (``valid`` = 0: beyond the lens's metric radius, or no convergence) are NaN, so their
+    points are dropped.
 
     Parameters
     ----------
