@@ -43,6 +43,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.config.model import DEPTH_TRACKER_PROCESSES
 from skelfuse.fusion.association import descriptor_distance, nanmedian_axis, torso_descriptor
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import MergedCloud
@@ -56,7 +57,8 @@ from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.sim.depth_tracker import SimulatedDepthTracker
 from skelfuse.sources.depth_tracker import VirtualCameraTracker
-from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerSettings, load_k4a
+from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerCreateError, TrackerSettings, load_k4a
+from skelfuse.sources.tracker_pool import TrackerPool, WorkerSpec
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import PersonCloudsFrame, decode_person_clouds
 from skelfuse.wire.codec import DecodeError
@@ -99,29 +101,131 @@ class DepthTracker(Protocol):
     def close(self) -> None: ...
 
 
+TRACKER_PROCESS_MODES = DEPTH_TRACKER_PROCESSES
+"""``[depth] tracker_processes``: where each person's SDK tracker runs (see :class:`K4abtDepthTracker`)."""
+TrackResult = tuple[np.ndarray, np.ndarray] | Exception | None
+
+
+def track_all(
+    tracker: DepthTracker, requests: list[tuple[int, PersonDepthView, np.ndarray | None]]
+) -> list[TrackResult]:
+    """Every request's result (or its error): the tracker's own ``track_many`` where it has one (its people's
+    trackers then work at the same time), else one :meth:`DepthTracker.track` after the other."""
+    many = getattr(tracker, "track_many", None)
+    if many is not None:
+        return many(requests)
+    results: list[TrackResult] = []
+    for person, view, prior in requests:
+        try:
+            results.append(tracker.track(person, view, prior))
+        except (K4ABTError, SkelfuseError) as exc:
+            results.append(exc)
+    return results
+
+
 class K4abtDepthTracker:
     """The Body Tracking SDK on each person's virtual image: one :class:`VirtualCameraTracker` per track id.
 
     Each image is submitted and its result awaited (``wait_ms`` each way): the depth and hybrid modes wait for
-    the tracker, so their latency includes its time (reported apart from the skeleton path's). SDK versions that
-    allow one tracker per process can track one person here; a second person's tracker fails to be created,
-    which is counted and logged (``tracker_errors``), never fatal.
+    the tracker, so their latency includes its time (reported apart from the skeleton path's).
+
+    Where the trackers run (``processes``, ``[depth] tracker_processes``):
+
+    - ``"in_process"``: all in the node's process. An SDK version that allows one tracker per process then
+      tracks one person; the next person's tracker fails to be created, counted as ``tracker_errors``.
+    - ``"per_person"``: each person's tracker in its own worker process (:class:`TrackerPool`), started with
+      the person's first image (its first instants have no result while the SDK loads).
+    - ``"auto"`` (default): in process, until the SDK refuses a tracker while another lives in the process;
+      from then on every new person gets a worker process (said once in the log). Costs nothing where the SDK
+      allows several trackers per process, and never leaves a person untracked where it does not.
     """
 
     name = "k4abt"
 
-    def __init__(self, settings: TrackerSettings, *, wait_ms: int, intrinsics: Intrinsics = VIRTUAL_INTRINSICS) -> None:
+    def __init__(
+        self,
+        settings: TrackerSettings,
+        *,
+        wait_ms: int,
+        processes: str = "auto",
+        intrinsics: Intrinsics = VIRTUAL_INTRINSICS,
+        hung_after_s: float = 2.0,
+    ) -> None:
+        if processes not in TRACKER_PROCESS_MODES:
+            raise ConfigError(
+                f"[depth] tracker_processes: expected one of {', '.join(TRACKER_PROCESS_MODES)}, found {processes!r}"
+            )
         self.k4a = load_k4a()
         self.library = K4abtLibrary.load()
         self.settings = settings
         self.wait_ms = int(wait_ms)
         self.intrinsics = intrinsics
-        self.description = f"Body Tracking SDK ({self.library.path}, ABI {self.library.abi}), one tracker per person"
+        self.processes = processes
+        self.hung_after_s = hung_after_s
+        where = {
+            "auto": "in this process, a worker process per person if the SDK allows one tracker per process",
+            "in_process": "all in this process",
+            "per_person": "a worker process per person",
+        }[processes]
+        self.description = (
+            f"Body Tracking SDK ({self.library.path}, ABI {self.library.abi}), one tracker per person, {where}"
+        )
         self._trackers: dict[int, VirtualCameraTracker] = {}
+        self._pool: TrackerPool | None = None
+        self._pooled = processes == "per_person"  # new people go to worker processes
+
+    def pool(self) -> TrackerPool:
+        if self._pool is None:
+            spec = WorkerSpec(
+                k4a_path=str(self.k4a._name),
+                k4abt_path=str(self.library.path),
+                abi=self.library.abi,
+                intrinsics=self.intrinsics,
+                settings=self.settings,
+                wait_ms=self.wait_ms,
+            )
+            self._pool = TrackerPool(spec, hung_after_s=self.hung_after_s)
+        return self._pool
 
     def track(
         self, person: int, view: PersonDepthView, prior_world: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray] | None:
+        (result,) = self.track_many([(person, view, prior_world)])
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def track_many(self, requests: list[tuple[int, PersonDepthView, np.ndarray | None]]) -> list[TrackResult]:
+        results: list[TrackResult] = [None] * len(requests)
+        pooled: list[int] = []
+        for index, (person, view, _) in enumerate(requests):
+            in_pool = self._pool is not None and person in self._pool.persons()
+            if person not in self._trackers and (self._pooled or in_pool):
+                pooled.append(index)
+                continue
+            try:
+                results[index] = self._track_here(person, view)
+            except TrackerCreateError as exc:
+                if self.processes == "auto" and self._trackers:
+                    self._pooled = True
+                    log.warning(
+                        "the Body Tracking SDK refused a second tracker in this process (%s); person %d and every "
+                        'new person get a tracker process of their own ([depth] tracker_processes = "auto")',
+                        exc,
+                        person,
+                    )
+                    pooled.append(index)
+                else:
+                    results[index] = exc
+            except (K4ABTError, SkelfuseError) as exc:
+                results[index] = exc
+        if pooled:
+            answers = self.pool().track_many([(requests[i][0], requests[i][1]) for i in pooled])
+            for index, answer in zip(pooled, answers, strict=True):
+                results[index] = answer
+        return results
+
+    def _track_here(self, person: int, view: PersonDepthView) -> tuple[np.ndarray, np.ndarray] | None:
         tracker = self._trackers.get(person)
         if tracker is None:
             tracker = self._trackers[person] = VirtualCameraTracker(
@@ -138,13 +242,23 @@ class K4abtDepthTracker:
         """A new person's stream, first keyed provisionally, takes its track's id."""
         if old in self._trackers and new not in self._trackers:
             self._trackers[new] = self._trackers.pop(old)
+        if self._pool is not None:
+            self._pool.rename(old, new)
 
     def retire(self, active: set[int]) -> None:
         for person in [p for p in self._trackers if p not in active]:
             self._trackers.pop(person).close()
+        if self._pool is not None:
+            self._pool.retire(active)
+
+    def report(self) -> dict[str, Any] | None:
+        """The worker processes' counters (None while none was needed)."""
+        return None if self._pool is None else self._pool.report()
 
     def close(self) -> None:
         self.retire(set())
+        if self._pool is not None:
+            self._pool.close()
 
 
 def open_tracker(cfg: RigConfig) -> DepthTracker:
@@ -156,7 +270,7 @@ def open_tracker(cfg: RigConfig) -> DepthTracker:
         return SimulatedDepthTracker()
     kinect = next((s.kinect for s in cfg.sensors if s.kinect is not None), None)
     settings = TrackerSettings.from_config(kinect.tracker) if kinect is not None else TrackerSettings()
-    return K4abtDepthTracker(settings, wait_ms=depth.tracker_wait_ms)
+    return K4abtDepthTracker(settings, wait_ms=depth.tracker_wait_ms, processes=depth.tracker_processes)
 
 
 class CloudBuffer:
@@ -430,6 +544,8 @@ class DepthStage:
                 if person >= 0 and cloud is not None and cloud.shape[0]:
                     per_person[person][s].append(cloud)
         merged = []
+        requests: list[tuple[int, PersonDepthView, np.ndarray | None]] = []
+        asked: list[int] = []
         for person in range(n_persons):
             self.counters.persons += 1
             sensor_clouds = [np.concatenate(c) if c else np.zeros((0, 3)) for c in per_person[person]]
@@ -451,13 +567,14 @@ class DepthStage:
             key = int(person_keys[rows[person]])
             merged.append((key, view.merged))
             used[person] = sizes > 0
-            try:
-                result = self.tracker.track(key, view, prior if np.isfinite(prior).any() else None)
-            except (K4ABTError, SkelfuseError) as exc:
+            requests.append((key, view, prior if np.isfinite(prior).any() else None))
+            asked.append(person)
+        for person, (key, _, _), result in zip(asked, requests, track_all(self.tracker, requests), strict=True):
+            if isinstance(result, Exception):
                 self.counters.tracker_errors += 1
                 if self.counters.tracker_errors == 1 or self.counters.tracker_errors % 1000 == 0:
                     log.error(
-                        "depth tracker failed for person %d (%d so far): %s", key, self.counters.tracker_errors, exc
+                        "depth tracker failed for person %d (%d so far): %s", key, self.counters.tracker_errors, result
                     )
                 continue
             if result is None:
@@ -485,6 +602,7 @@ class DepthStage:
             "tracker_errors": c.tracker_errors,
             "depth_ms_p50": round(float(np.percentile(data, 50)), 3) if data.size else None,
             "depth_ms_p99": round(float(np.percentile(data, 99)), 3) if data.size else None,
+            "tracker_processes": getattr(self.tracker, "report", lambda: None)(),
         }
 
     def close(self) -> None:
