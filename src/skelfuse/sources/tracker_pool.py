@@ -5,10 +5,11 @@ per stream, so several people's virtual cameras need several processes. :class:`
 worker process per person (track id), started when that person first needs it; each holds one
 :class:`~skelfuse.sources.depth_tracker.VirtualCameraTracker`.
 
-- The node sends a person's virtual DEPTH16 / IR16 images through the worker's pipe (a
-  ``multiprocessing`` Pipe: about 0.7 MB per 640 x 576 image, pickled numpy) and keeps the frontal view itself;
-  the worker enqueues, pops (each wait ``wait_ms``) and sends the skeleton back in the virtual camera's frame;
-  the node maps it to the world (:meth:`FrontalView.to_world`). Requests to every person's worker go out first
+- The node writes a person's virtual DEPTH16 / IR16 images into the worker's shared-memory block and sends
+  a few bytes through its pipe (so a send never waits on a full pipe: at most one small request is ever
+  unread); it keeps the frontal view itself. The worker copies the images out, enqueues, pops (each wait
+  ``wait_ms``) and sends the skeleton back in the virtual camera's frame; the node maps it to the world
+  (:meth:`FrontalView.to_world`). Requests to every person's worker go out first
   and the answers are awaited together, so several people's trackers work at the same time.
 - Never a stall: the node waits at most :meth:`TrackerPool.budget_s` (two SDK waits and a margin) per instant
   for all answers together. A person whose worker is still starting, still busy with an earlier image, or
@@ -31,6 +32,7 @@ import signal
 import time
 from collections import Counter
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker, shared_memory
 from typing import Any
 
 import numpy as np
@@ -62,9 +64,19 @@ class WorkerSpec:
     wait_ms: int
 
 
-def _worker_main(connection: Any, spec: WorkerSpec) -> None:
+def _worker_main(connection: Any, spec: WorkerSpec, block_name: str) -> None:
     """A tracker process: open the SDK and one tracker, then answer image requests until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node handles Ctrl-C and stops its workers
+    block = shared_memory.SharedMemory(name=block_name)
+    # The node owns the block and unlinks it; without this, this process's exit would unlink it too.
+    resource_tracker.unregister(block._name, "shared_memory")  # type: ignore[attr-defined]
+    try:
+        _serve(connection, spec, block)
+    finally:
+        block.close()
+
+
+def _serve(connection: Any, spec: WorkerSpec, block: shared_memory.SharedMemory) -> None:
     try:
         tracker = VirtualCameraTracker(
             load_k4a(spec.k4a_path), K4abtLibrary.load(spec.k4abt_path, abi=spec.abi), spec.intrinsics, spec.settings
@@ -81,13 +93,26 @@ def _worker_main(connection: Any, spec: WorkerSpec) -> None:
                 break
             if request is None:
                 break
-            sequence, depth, ir = request
+            sequence, has_ir = request
+            depth, ir = _images(block, spec.intrinsics, has_ir)
             try:
                 connection.send(("result", sequence, _track_one(tracker, depth, ir, spec.wait_ms)))
             except Exception as exc:
                 connection.send(("error", sequence, f"{type(exc).__name__}: {exc}"))
     finally:
         tracker.close()
+
+
+def _image_bytes(intrinsics: Intrinsics) -> int:
+    return intrinsics.width * intrinsics.height * 2
+
+
+def _images(block: shared_memory.SharedMemory, intrinsics: Intrinsics, has_ir: bool) -> tuple[np.ndarray, Any]:
+    """Copies of the DEPTH16 (and IR16) image the node wrote into the block."""
+    shape, n = (intrinsics.height, intrinsics.width), _image_bytes(intrinsics)
+    depth = np.frombuffer(block.buf, dtype=np.uint16, count=n // 2).reshape(shape).copy()
+    ir = np.frombuffer(block.buf, dtype=np.uint16, count=n // 2, offset=n).reshape(shape).copy() if has_ir else None
+    return depth, ir
 
 
 def _track_one(tracker: VirtualCameraTracker, depth: np.ndarray, ir: np.ndarray | None, wait_ms: int) -> tuple | None:
@@ -108,6 +133,7 @@ def _track_one(tracker: VirtualCameraTracker, depth: np.ndarray, ir: np.ndarray 
 class _Worker:
     process: Any
     connection: Any
+    block: shared_memory.SharedMemory
     started: float
     ready: bool = False
     outstanding: dict[int, tuple[FrontalView, float]] = field(default_factory=dict)
@@ -179,9 +205,16 @@ class TrackerPool:
                 continue
             depth = to_k4a_depth(view.image.depth_mm)
             ir = None if view.image.ir is None else to_k4a_ir(view.image.ir)
+            if depth.shape != (self.spec.intrinsics.height, self.spec.intrinsics.width):
+                results[index] = ValueError(f"a virtual image of {depth.shape} for a {self.spec.intrinsics} camera")
+                continue
+            n = _image_bytes(self.spec.intrinsics)
+            worker.block.buf[:n] = depth.astype("<u2").tobytes()  # the worker has copied the previous one out
+            if ir is not None:
+                worker.block.buf[n : 2 * n] = ir.astype("<u2").tobytes()
             self._sequence += 1
             try:
-                worker.connection.send((self._sequence, depth, ir))
+                worker.connection.send((self._sequence, ir is not None))
             except (OSError, ValueError):  # its pipe is broken: it died
                 self._restart(person, "died")
                 continue
@@ -224,12 +257,13 @@ class TrackerPool:
 
     def _start(self, person: int) -> _Worker:
         parent, child = self._context.Pipe(duplex=True)
+        block = shared_memory.SharedMemory(create=True, size=2 * _image_bytes(self.spec.intrinsics))
         process = self._context.Process(
-            target=_worker_main, args=(child, self.spec), name=f"skelfuse-tracker-{person}", daemon=True
+            target=_worker_main, args=(child, self.spec, block.name), name=f"skelfuse-tracker-{person}", daemon=True
         )
         process.start()
         child.close()  # the child's end lives in the child: its death closes the pipe
-        worker = self._workers[person] = _Worker(process, parent, time.monotonic())
+        worker = self._workers[person] = _Worker(process, parent, block, time.monotonic())
         self.counters.started += 1
         log.info("tracker process for person %d started (pid %d)", person, process.pid)
         return worker
@@ -311,6 +345,8 @@ class TrackerPool:
                 break
         for worker in workers:
             worker.connection.close()
+            worker.block.close()
+            worker.block.unlink()
             if not worker.process.is_alive():
                 worker.process.close()
 
