@@ -197,6 +197,8 @@ class TrackerPool:
         for index, (person, view) in enumerate(requests):
             worker = self._workers.get(person) or self._start(person)
             self._drain(person, worker)
+            if person not in self._workers:  # it died or failed meanwhile (counted): a new one starts next time
+                continue
             if not worker.ready:
                 self.counters.starting += 1
                 continue
