@@ -1,6 +1,9 @@
 /* Fake libk4a: just what skelfuse touches (device listing, capture handles). Devices come from the
  * environment variable FAKE_K4A_DEVICES, read at each call: "SERIAL[:IN:OUT];SERIAL2[:IN:OUT]" where IN
- * and OUT are 0/1 (sync jack connected). Firmware versions are derived from the device index. */
+ * and OUT are 0/1 (sync jack connected). Firmware versions are derived from the device index.
+ *
+ * k4a_calibration_2d_to_3d unprojects with the Sensor SDK's lens model (see the comment at the function). */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -239,7 +242,104 @@ FAKE_EXPORT uint64_t k4a_image_get_device_timestamp_usec(k4a_image_t handle) {
     return image != NULL ? image->device_usec : 0;
 }
 
+/* ---- k4a_calibration_2d_to_3d: the SDK's Brown-Conrady lens model ----
+ * Our own transcription of the model the Sensor SDK 1.4 documents and implements in
+ * src/transformation/intrinsic_transformation.c (not its code): a normalized ray (x, y) = (X/Z, Y/Z) maps to
+ * the pixel
+ *     r2 = x^2 + y^2   (the ray is invalid beyond the camera's metric_radius: r2 > metric_radius^2)
+ *     d  = (1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5 r2^2 + k6 r2^3)
+ *     xd = x d + (r2 + 2 x^2) p2 + 2 x y p1        (RATIONAL_6KT: x y p1, without the 2)
+ *     yd = y d + (r2 + 2 y^2) p1 + 2 x y p2        (RATIONAL_6KT: x y p2)
+ *     u  = (xd + codx) fx + cx,   v = (yd + cody) fy + cy    (x, y taken relative to (codx, cody) first)
+ * and the unprojection inverts it by Gauss-Newton from the pinhole guess, at most 20 passes, keeping the best
+ * pass; a pixel whose best reprojection error stays above 1e-3 px (1e-6 px^2, the SDK's bound), or a pass
+ * that leaves the metric radius, makes the pixel invalid. Computed in double here (the SDK uses float).
+ * Pixel (0, 0) is the centre of the top-left pixel. Depth 0: point (0, 0, 0), invalid. Only source camera ==
+ * target camera is supported (no extrinsics in the fake); the SDK applies the extrinsics otherwise. */
+
+static int g_unprojections = 0;
+
+/* The pixel of the normalized ray (x, y), with d(u, v)/d(x, y) in J (row-major); 0 beyond the metric radius. */
+static int lens_project(const k4a_calibration_camera_t *camera, double x, double y, double uv[2], double J[4]) {
+    const struct _param *q = &camera->intrinsics.parameters.param;
+    const int six_kt = camera->intrinsics.type == K4A_CALIBRATION_LENS_DISTORTION_MODEL_RATIONAL_6KT;
+    const double t = six_kt ? 1.0 : 2.0; /* the factor of the x y p terms */
+    const double xp = x - q->codx, yp = y - q->cody;
+    const double r2 = xp * xp + yp * yp;
+    const double radius = camera->metric_radius;
+    if (r2 > radius * radius) return 0;
+    const double num = 1.0 + r2 * (q->k1 + r2 * (q->k2 + r2 * q->k3));
+    const double den = 1.0 + r2 * (q->k4 + r2 * (q->k5 + r2 * q->k6));
+    const double dnum = q->k1 + r2 * (2.0 * q->k2 + 3.0 * q->k3 * r2); /* d num / d r2 */
+    const double dden = q->k4 + r2 * (2.0 * q->k5 + 3.0 * q->k6 * r2);
+    const double d = den != 0.0 ? num / den : num;
+    const double dd = den != 0.0 ? (dnum * den - num * dden) / (den * den) : dnum; /* d d / d r2 */
+    const double xd = xp * d + (r2 + 2.0 * xp * xp) * q->p2 + t * xp * yp * q->p1;
+    const double yd = yp * d + (r2 + 2.0 * yp * yp) * q->p1 + t * xp * yp * q->p2;
+    uv[0] = (xd + q->codx) * q->fx + q->cx;
+    uv[1] = (yd + q->cody) * q->fy + q->cy;
+    /* d r2 / d xp = 2 xp, d r2 / d yp = 2 yp */
+    J[0] = q->fx * (d + xp * dd * 2.0 * xp + 6.0 * xp * q->p2 + t * yp * q->p1);
+    J[1] = q->fx * (xp * dd * 2.0 * yp + 2.0 * yp * q->p2 + t * xp * q->p1);
+    J[2] = q->fy * (yp * dd * 2.0 * xp + 2.0 * xp * q->p1 + t * yp * q->p2);
+    J[3] = q->fy * (d + yp * dd * 2.0 * yp + 6.0 * yp * q->p1 + t * xp * q->p2);
+    return 1;
+}
+
+static int lens_unproject(const k4a_calibration_camera_t *camera, double u, double v, double xy[2]) {
+    const struct _param *q = &camera->intrinsics.parameters.param;
+    double x = (u - q->cx) / q->fx, y = (v - q->cy) / q->fy; /* the pinhole guess */
+    double best[2] = {x, y}, best_error = INFINITY;
+    for (int pass = 0; pass < 20; pass++) {
+        double uv[2], J[4];
+        if (!lens_project(camera, x, y, uv, J)) return 0; /* a pass beyond the metric radius: invalid */
+        const double eu = u - uv[0], ev = v - uv[1], error = eu * eu + ev * ev;
+        if (error >= best_error) break;
+        best_error = error;
+        best[0] = x;
+        best[1] = y;
+        if (error < 1e-22) break;
+        const double det = J[0] * J[3] - J[1] * J[2];
+        if (det == 0.0) break;
+        x += (J[3] * eu - J[1] * ev) / det;
+        y += (-J[2] * eu + J[0] * ev) / det;
+    }
+    xy[0] = best[0];
+    xy[1] = best[1];
+    return best_error <= 1e-6;
+}
+
+FAKE_EXPORT k4a_result_t k4a_calibration_2d_to_3d(const k4a_calibration_t *calibration, const k4a_float2_t *source_point2d,
+                                                  const float source_depth_mm, const k4a_calibration_type_t source_camera,
+                                                  const k4a_calibration_type_t target_camera,
+                                                  k4a_float3_t *target_point3d_mm, int *valid) {
+    if (calibration == NULL || source_point2d == NULL || target_point3d_mm == NULL || valid == NULL) return K4A_RESULT_FAILED;
+    if (source_camera != target_camera ||
+        (source_camera != K4A_CALIBRATION_TYPE_DEPTH && source_camera != K4A_CALIBRATION_TYPE_COLOR))
+        return K4A_RESULT_FAILED;
+    const k4a_calibration_camera_t *camera = source_camera == K4A_CALIBRATION_TYPE_DEPTH
+                                                 ? &calibration->depth_camera_calibration
+                                                 : &calibration->color_camera_calibration;
+    const k4a_calibration_model_type_t type = camera->intrinsics.type;
+    if ((type != K4A_CALIBRATION_LENS_DISTORTION_MODEL_BROWN_CONRADY &&
+         type != K4A_CALIBRATION_LENS_DISTORTION_MODEL_RATIONAL_6KT) ||
+        camera->intrinsics.parameter_count < 14 || !(camera->intrinsics.parameters.param.fx > 0.f) ||
+        !(camera->intrinsics.parameters.param.fy > 0.f))
+        return K4A_RESULT_FAILED;
+    g_unprojections++;
+    target_point3d_mm->xyz.x = target_point3d_mm->xyz.y = target_point3d_mm->xyz.z = 0.f;
+    *valid = 0;
+    if (source_depth_mm == 0.f) return K4A_RESULT_SUCCEEDED;
+    double xy[2] = {0.0, 0.0};
+    *valid = lens_unproject(camera, source_point2d->xy.x, source_point2d->xy.y, xy);
+    target_point3d_mm->xyz.x = (float)(xy[0] * source_depth_mm);
+    target_point3d_mm->xyz.y = (float)(xy[1] * source_depth_mm);
+    target_point3d_mm->xyz.z = source_depth_mm;
+    return K4A_RESULT_SUCCEEDED;
+}
+
 /* ---- test control ---- */
+FAKE_EXPORT int fake_k4a_unprojections(void) { return g_unprojections; }
 FAKE_EXPORT int fake_k4a_captures_alive(void) { return g_captures_alive; }
 FAKE_EXPORT int fake_k4a_images_alive(void) { return g_images_alive; }
 
@@ -265,6 +365,7 @@ FAKE_EXPORT size_t fake_k4a_layout(const char *name) {
     L("intrinsics.parameter_count", offsetof(k4a_calibration_intrinsics_t, parameter_count));
     L("intrinsics.parameters", offsetof(k4a_calibration_intrinsics_t, parameters));
     L("extrinsics", sizeof(k4a_calibration_extrinsics_t));
+    L("float2", sizeof(k4a_float2_t));
 #undef L
     return (size_t)-1;
 }

@@ -17,6 +17,12 @@
  *   stall  its pops time out from then on (a tracker that stopped producing results; captures still go in)
  * TRACKERS: only the first TRACKERS trackers created in the process get the fault (default: every one), so a
  * tracker created by a restart can be healthy.
+ *
+ * Process-wide behaviour from the environment, read at each k4abt_tracker_create (for trackers in processes
+ * the test does not control directly):
+ *   FAKE_K4ABT_ONE_TRACKER=1  a second live tracker in one process cannot be created (K4A_RESULT_FAILED), as
+ *                             with Body Tracking SDK versions that allow one tracker per process
+ *   FAKE_K4ABT_ECHO=1         echo mode on (fake_k4abt_set_echo)
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -86,6 +92,7 @@ static int g_echo = 0;
 static uint64_t g_auto_time = 0;
 static fake_stats g_stats;
 static int g_trackers_made = 0;
+static int g_trackers_alive = 0;
 static volatile int g_release_hangs = 0;
 
 enum { FAULT_NONE = 0, FAULT_HANG = 1, FAULT_STALL = 2 };
@@ -277,6 +284,10 @@ FAKE_EXPORT k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_ca
     g_stats.config_processing_mode = config.cpu_only_mode ? 1 : 0;
 #endif
     if (sensor_calibration == NULL || tracker_handle == NULL) return K4A_RESULT_FAILED;
+    const char *one = getenv("FAKE_K4ABT_ONE_TRACKER");
+    if (one != NULL && strcmp(one, "1") == 0 && g_trackers_alive > 0) return K4A_RESULT_FAILED;
+    const char *echo = getenv("FAKE_K4ABT_ECHO");
+    if (echo != NULL && strcmp(echo, "1") == 0) g_echo = 1;
     if (g_fail_creates > 0) {
         g_fail_creates--;
         return K4A_RESULT_FAILED;
@@ -285,6 +296,7 @@ FAKE_EXPORT k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_ca
     tracker->magic = 0x4B344254u;
     tracker->calibration = *sensor_calibration;
     tracker->index = g_trackers_made++;
+    g_trackers_alive++;
     *tracker_handle = (k4abt_tracker_t)tracker;
     g_stats.created++;
     return K4A_RESULT_SUCCEEDED;
@@ -295,6 +307,7 @@ FAKE_EXPORT void k4abt_tracker_destroy(k4abt_tracker_t tracker_handle) {
     if (tracker == NULL) return;
     tracker->magic = 0;
     free(tracker);
+    g_trackers_alive--;
     g_stats.destroyed++;
 }
 

@@ -374,3 +374,66 @@ def make_fake_pyk4a(world: FakeWorld) -> types.ModuleType:
         connected_device_count=lambda: 0 if world.unplugged.is_set() else len(world.serials),
     )
     return module
+
+
+# --------------------------------------------------------------------------- the lens model, in numpy
+
+NFOV_BINNED_LENS = {
+    # A real NFOV depth camera's Brown-Conrady coefficients are of this size (k1..k6 a few units whose ratio
+    # stays near 1, p1 / p2 ~1e-4); these are test values of that shape, not a device's calibration.
+    "k1": 3.13,
+    "k2": 2.32,
+    "k3": 0.13,
+    "k4": 3.46,
+    "k5": 3.35,
+    "k6": 0.66,
+    "p1": 8.1e-5,
+    "p2": -5.1e-5,
+}
+
+
+def distorted_calibration(width: int, height: int, fx: float, fy: float, cx: float, cy: float, metric_radius: float):
+    """A ``k4a_calibration_t`` (skelfuse's ctypes struct) of a Brown-Conrady depth camera with
+    :data:`NFOV_BINNED_LENS`'s coefficients."""
+    from skelfuse.sources.k4abt import virtual_calibration
+
+    calibration = virtual_calibration(fx, fy, cx, cy, width, height)
+    camera = calibration.depth_camera_calibration
+    for name, value in NFOV_BINNED_LENS.items():
+        setattr(camera.intrinsics.parameters, name, value)
+    camera.intrinsics.parameters.metric_radius = metric_radius
+    camera.metric_radius = metric_radius
+    return calibration
+
+
+def brown_conrady_project(x: np.ndarray, y: np.ndarray, p: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel (u, v) of normalized rays (x, y) under k4a's Brown-Conrady model (codx = cody = 0), written from
+    the SDK documentation's formula, independently of the C fake."""
+    r2 = x * x + y * y
+    radial = (1 + p["k1"] * r2 + p["k2"] * r2**2 + p["k3"] * r2**3) / (
+        1 + p["k4"] * r2 + p["k5"] * r2**2 + p["k6"] * r2**3
+    )
+    xd = x * radial + (r2 + 2 * x * x) * p["p2"] + 2 * x * y * p["p1"]
+    yd = y * radial + (r2 + 2 * y * y) * p["p1"] + 2 * x * y * p["p2"]
+    return xd * p["fx"] + p["cx"], yd * p["fy"] + p["cy"]
+
+
+def brown_conrady_xy_table(width: int, height: int, p: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 2) rays of every pixel by Newton's method on :func:`brown_conrady_project` with a central-difference
+    Jacobian (not the fake's analytic one), in float64, and the (H, W) radius of each ray (for validity)."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    x, y = (u - p["cx"]) / p["fx"], (v - p["cy"]) / p["fy"]
+    h = 1e-7
+    for _ in range(30):
+        pu, pv = brown_conrady_project(x, y, p)
+        eu, ev = u - pu, v - pv
+        ux, vx = brown_conrady_project(x + h, y, p)
+        uy, vy = brown_conrady_project(x, y + h, p)
+        ux_m, vx_m = brown_conrady_project(x - h, y, p)
+        uy_m, vy_m = brown_conrady_project(x, y - h, p)
+        a, b = (ux - ux_m) / (2 * h), (uy - uy_m) / (2 * h)
+        c, d = (vx - vx_m) / (2 * h), (vy - vy_m) / (2 * h)
+        det = a * d - b * c
+        x = x + (d * eu - b * ev) / det
+        y = y + (-c * eu + a * ev) / det
+    return np.stack([x, y], axis=-1), np.hypot(x, y)

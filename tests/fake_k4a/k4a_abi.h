@@ -41,6 +41,11 @@ typedef union {
     float v[3];
 } k4a_float3_t;
 
+typedef union {
+    struct { float x; float y; } xy;
+    float v[2];
+} k4a_float2_t;
+
 typedef struct { uint32_t major; uint32_t minor; uint32_t iteration; } k4a_version_t;
 typedef enum { K4A_FIRMWARE_BUILD_RELEASE, K4A_FIRMWARE_BUILD_DEBUG } k4a_firmware_build_t;
 typedef enum { K4A_FIRMWARE_SIGNATURE_MSFT, K4A_FIRMWARE_SIGNATURE_TEST, K4A_FIRMWARE_SIGNATURE_UNSIGNED } k4a_firmware_signature_t;

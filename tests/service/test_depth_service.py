@@ -97,8 +97,91 @@ def test_depth_modes_live_against_the_simulators_truth(
     assert np.median(errors) < 35.0, np.percentile(errors, [50, 90])
     if mode == "hybrid":
         assert fused[-1].sensor_ids[-1] == "virtual"
-        # merged into the person except in the first instants of each new track (no previous person to
-        # associate the clouds with yet; measured 78%)
+        # merged into the person in most instants (78% measured when a new track's first instants had no
+        # virtual skeleton; since session 20 they have one: the bound was not raised, not re-measured)
         assert np.mean([f.contributors[:, -1].any() for f in fused]) > 0.6
     else:
         assert fused[-1].sensor_ids == cfg.sensor_ids
+
+
+@pytest.mark.soak
+def test_sigterm_stops_the_node_and_its_tracker_processes(
+    tmp_path: Path, processes: Processes, node_port: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``[depth] tracker_processes = "per_person"`` on the fake SDK (one tracker per process, echo mode): the
+    real node starts a tracker process for the person, tracks it, and on SIGTERM exits cleanly, leaving no
+    tracker process behind."""
+    import dataclasses
+    import importlib.util
+    import re
+    import shutil
+    import sys
+
+    import zenoh
+
+    from skelfuse.service.zenoh_io import loopback_config
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, K4ABT_LIBRARY_ENV
+    from skelfuse.wire import keys
+    from skelfuse.wire.clouds import encode_person_clouds
+    from skelfuse.wire.codec import encode_sensor_frame
+
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc is not on PATH: cannot compile the fake libk4a / libk4abt")
+    spec = importlib.util.spec_from_file_location(
+        "skelfuse_fake_k4a_harness", Path(__file__).resolve().parents[1] / "fake_k4a" / "harness.py"
+    )
+    harness = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(spec.name, harness)
+    spec.loader.exec_module(sys.modules[spec.name])
+    libs = sys.modules[spec.name].build.build_fake_libs(tmp_path / "fakes", "1.1")
+    for name, value in (
+        (K4A_LIBRARY_ENV, str(libs.k4a)),
+        (K4ABT_LIBRARY_ENV, str(libs.k4abt)),
+        ("FAKE_K4ABT_ONE_TRACKER", "1"),
+        ("FAKE_K4ABT_ECHO", "1"),
+    ):
+        monkeypatch.setenv(name, value)
+    config = _depth_rig(tmp_path, "depth")
+    text = config.read_text().replace('tracker = "simulated"', 'tracker = "k4abt"\ntracker_processes = "per_person"')
+    config.write_text(text)
+    cfg = load_rig_config(config)
+    # One person standing still (one take frame, its device time advancing): one track, one tracker process.
+    still = []
+    for sid in cfg.sensor_ids:
+        source = SimSource(cfg, sid, gesture="walking", take_duration_s=0.5, seed=0)
+        frame = source.frame_at(600)
+        still.append((frame, source.clouds_at(frame)))
+    node, listener = start_node(processes, config, node_port)
+    depth: dict = {}
+    try:
+        with zenoh.open(loopback_config(connect_ports=[node_port])) as session:
+            deadline = time.monotonic() + 150.0  # a worker imports the node's main module, then loads the SDK
+            k = 0
+            while time.monotonic() < deadline:
+                for frame, clouds in still:
+                    t = frame.device_time_us + k * 66_667
+                    session.put(
+                        keys.sensor_clouds(RIG, frame.sensor_id),
+                        encode_person_clouds(dataclasses.replace(clouds, device_timestamp_us=t, sequence=k)),
+                    )
+                    session.put(
+                        keys.sensor_skeletons(RIG, frame.sensor_id),
+                        encode_sensor_frame(dataclasses.replace(frame, device_time_us=t, sequence=k)),
+                    )
+                k += 1
+                time.sleep(1.0 / 15)
+                status = listener.fusion_status()
+                depth = status.info.get("depth", {}) if status is not None else {}
+                if depth.get("tracked", 0) >= 5:
+                    break
+        assert depth.get("tracked", 0) >= 5, (depth, processes.log(node))
+        assert depth["tracker_processes"]["workers"] == 1 and not depth["tracker_processes"]["restarts"]
+        found = re.findall(r"tracker process for person -?\d+ started \(pid (\d+)\)", processes.log(node))
+        assert len(found) == 1, processes.log(node)
+        tick = time.monotonic()
+        assert processes.stop(node, timeout_s=15.0) == 0, processes.log(node)
+        stopping_s = time.monotonic() - tick
+    finally:
+        listener.close()
+    assert not Path(f"/proc/{found[0]}").exists(), "the tracker process outlived the node"
+    assert stopping_s < 10.0, stopping_s

@@ -380,19 +380,25 @@ def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
     stack, fake_libs, monkeypatch, tmp_path, kind
 ):
     """clouds_voxel_mm: each popped body frame's body-index map and its capture's depth image (read back with
-    their strides through the fake SDKs) become one cloud per body, lifted with the device's depth intrinsics.
-    The fake tracker's map gives body b the b-th vertical strip of the valid pixels (tests/fake_k4a)."""
+    their strides through the fake SDKs) become one cloud per body, lifted through the device's xy table: its
+    calibration's Brown-Conrady lens, unprojected by the fake libk4a's k4a_calibration_2d_to_3d, recomputed
+    here with numpy; pixels beyond the lens's metric radius are dropped. The fake tracker's map gives body b the
+    b-th vertical strip of the valid pixels (tests/fake_k4a)."""
     import ctypes
 
     from skelfuse.fusion.depth.cloud import voxelize
-    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, virtual_calibration
+    from skelfuse.sources.k4abt import K4A_LIBRARY_ENV
 
     world, pyk4a, library, fake = stack
     monkeypatch.setenv(K4A_LIBRARY_ENV, str(fake_libs.k4a))  # the libk4a pyk4a runs on (the same library)
-    width, height, fx, fy, cx, cy = 320, 288, 252.0, 251.0, 160.5, 143.0
-    world.calibration_bytes = bytes(virtual_calibration(fx, fy, cx, cy, width, height))
+    width, height, fx, fy, cx, cy, metric_radius = 320, 288, 252.0, 251.0, 160.5, 143.0, 0.78
+    world.calibration_bytes = bytes(harness.distorted_calibration(width, height, fx, fy, cx, cy, metric_radius))
     depth = np.zeros((height, width), np.uint16)
-    depth[60:240, 40:280] = 1800 + (np.arange(280 - 40) % 97)[None, :]  # a slanted block, invalid around it
+    depth[10:280, 40:310] = 1800 + (np.arange(310 - 40) % 97)[None, :]  # a slanted block reaching the corners
+    rays, radius = harness.brown_conrady_xy_table(
+        width, height, {**harness.NFOV_BINNED_LENS, "fx": fx, "fy": fy, "cx": cx, "cy": cy}
+    )
+    depth[np.abs(radius - metric_radius) < 0.01] = 0  # no pixel on the lens's edge, where rounding decides
     world.depth = (ctypes.c_uint16 * width * height).from_buffer_copy(depth.tobytes())
     captures_before = world.k4a.captures_alive()
     ids = np.array([7, 9], np.uint32)
@@ -425,10 +431,11 @@ def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
     finally:
         source.close()
     assert len(clouds) == 3
-    v, u = np.nonzero(depth)
+    assert ((depth > 0) & (radius > metric_radius + 0.01)).sum() > 100  # some of the block is beyond the lens
+    v, u = np.nonzero((depth > 0) & (radius <= metric_radius))
     z = depth[v, u].astype(np.float64)
-    lifted = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
-    strip = u * 2 // width
+    lifted = np.stack([rays[v, u, 0] * z, rays[v, u, 1] * z, z], axis=1)
+    strip = (np.nonzero(depth > 0)[1] * 2 // width)[((radius <= metric_radius)[depth > 0])]  # the fake's map
     for cloud in clouds:
         assert cloud.body_ids.tolist() == [7, 9] and cloud.voxel_mm == 20.0
         for b in range(2):

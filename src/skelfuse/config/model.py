@@ -233,6 +233,7 @@ class FusionConfig:
 FUSION_MODES = ("skeleton", "depth", "hybrid")
 """Accepted ``[fusion] mode`` values."""
 DEPTH_TRACKERS = ("k4abt", "simulated")
+DEPTH_TRACKER_PROCESSES = ("auto", "in_process", "per_person")
 """Accepted ``[depth] tracker`` values."""
 
 
@@ -249,6 +250,8 @@ class DepthConfig:
     tracker_wait_ms : how long the node waits for the tracker's result of one person's image.
     virtual_weight : hybrid mode: the virtual sensor counts as this many sensors in the merge's vote (its
         skeleton enters as that many identical rows, ``virtual``, ``virtual_2``, ...).
+    tracker_processes : "k4abt": where each person's tracker runs: "auto" (in the node's process until the SDK
+        refuses a second tracker there, then a worker process per new person), "in_process", "per_person".
     """
 
     tracker: str = "k4abt"
@@ -256,6 +259,7 @@ class DepthConfig:
     icp: bool = False
     tracker_wait_ms: int = 100
     virtual_weight: int = 1
+    tracker_processes: str = "auto"
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from skelfuse.config.model import (
     COLOR_RESOLUTIONS,
     DEFAULT_PRESET,
     DEPTH_MODES,
+    DEPTH_TRACKER_PROCESSES,
     DEPTH_TRACKERS,
     FUSION_MODES,
     FUSION_PRESETS,
@@ -408,6 +409,7 @@ def _parse_depth(t: Table | None) -> DepthConfig:
         icp=t.boolean("icp", False),
         tracker_wait_ms=t.integer("tracker_wait_ms", 100, lo=0, hi=10_000, unit="ms"),
         virtual_weight=t.integer("virtual_weight", 1, lo=1, hi=8),
+        tracker_processes=t.string("tracker_processes", "auto", choices=DEPTH_TRACKER_PROCESSES),
     )
     t.done()
     return depth

@@ -17,9 +17,12 @@ The node calls this module and nothing else of the depth path (``docs/depth-fusi
 
   ``hybrid``: the tracker's skeleton enters skeleton fusion as one more, virtual, sensor (identity pose: it is
   already in the world), repeated ``[depth] virtual_weight`` times so that it counts as that many sensors in
-  the merge's vote. The bodies are associated with the previous instant's fused people (nearest, within
-  :data:`ASSOCIATION_GATE_MM`), since this instant's association is what the fusion is about to do; a person's
-  prior is the per-joint median of this instant's real bodies associated with it.
+  the merge's vote. The bodies are associated with the previous instant's people (every track its real bodies
+  joined, tentative ones included; nearest, within :data:`ASSOCIATION_GATE_MM`), since this instant's
+  association is what the fusion is about to do. Bodies of no known person (someone's first instant) are
+  grouped among themselves by the same distance (:func:`group_new_bodies`) and get a virtual skeleton at once,
+  their tracker stream keyed provisionally (negative) until the fusion says which track they joined. A
+  person's prior is the per-joint median of this instant's real bodies associated with it.
 
 Trackers (``[depth] tracker``): :class:`K4abtDepthTracker` (the Body Tracking SDK through
 :class:`skelfuse.sources.depth_tracker.VirtualCameraTracker`; or the fake library the suite compiles) or
@@ -40,6 +43,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.config.model import DEPTH_TRACKER_PROCESSES
 from skelfuse.fusion.association import descriptor_distance, nanmedian_axis, torso_descriptor
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import MergedCloud
@@ -53,7 +57,8 @@ from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.sim.depth_tracker import SimulatedDepthTracker
 from skelfuse.sources.depth_tracker import VirtualCameraTracker
-from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerSettings, load_k4a
+from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerCreateError, TrackerSettings, load_k4a
+from skelfuse.sources.tracker_pool import TrackerPool, WorkerSpec
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import PersonCloudsFrame, decode_person_clouds
 from skelfuse.wire.codec import DecodeError
@@ -71,8 +76,8 @@ may lose the race with its first skeletons); after it, a sensor that never sent 
 CLOUD_FRAMES_KEPT = 16
 """Cloud frames kept per sensor (about half a second at 30 fps): enough for a group's deadline."""
 ASSOCIATION_GATE_MM = 400.0
-"""Hybrid mode: a body joins the previous instant's nearest fused person only within this torso-descriptor
-distance (people move well under 100 mm between two frames)."""
+"""Hybrid mode: a body joins the previous instant's nearest person (or a new person's first body) only within
+this torso-descriptor distance (people move well under 100 mm between two frames)."""
 VIRTUAL_INTRINSICS = Intrinsics.azure_kinect_nfov()
 """The virtual camera: NFOV unbinned nominal pinhole intrinsics (640 x 576; the paper's mode)."""
 
@@ -96,29 +101,131 @@ class DepthTracker(Protocol):
     def close(self) -> None: ...
 
 
+TRACKER_PROCESS_MODES = DEPTH_TRACKER_PROCESSES
+"""``[depth] tracker_processes``: where each person's SDK tracker runs (see :class:`K4abtDepthTracker`)."""
+TrackResult = tuple[np.ndarray, np.ndarray] | Exception | None
+
+
+def track_all(
+    tracker: DepthTracker, requests: list[tuple[int, PersonDepthView, np.ndarray | None]]
+) -> list[TrackResult]:
+    """Every request's result (or its error): the tracker's own ``track_many`` where it has one (its people's
+    trackers then work at the same time), else one :meth:`DepthTracker.track` after the other."""
+    many = getattr(tracker, "track_many", None)
+    if many is not None:
+        return many(requests)
+    results: list[TrackResult] = []
+    for person, view, prior in requests:
+        try:
+            results.append(tracker.track(person, view, prior))
+        except (K4ABTError, SkelfuseError) as exc:
+            results.append(exc)
+    return results
+
+
 class K4abtDepthTracker:
     """The Body Tracking SDK on each person's virtual image: one :class:`VirtualCameraTracker` per track id.
 
     Each image is submitted and its result awaited (``wait_ms`` each way): the depth and hybrid modes wait for
-    the tracker, so their latency includes its time (reported apart from the skeleton path's). SDK versions that
-    allow one tracker per process can track one person here; a second person's tracker fails to be created,
-    which is counted and logged (``tracker_errors``), never fatal.
+    the tracker, so their latency includes its time (reported apart from the skeleton path's).
+
+    Where the trackers run (``processes``, ``[depth] tracker_processes``):
+
+    - ``"in_process"``: all in the node's process. An SDK version that allows one tracker per process then
+      tracks one person; the next person's tracker fails to be created, counted as ``tracker_errors``.
+    - ``"per_person"``: each person's tracker in its own worker process (:class:`TrackerPool`), started with
+      the person's first image (its first instants have no result while the SDK loads).
+    - ``"auto"`` (default): in process, until the SDK refuses a tracker while another lives in the process;
+      from then on every new person gets a worker process (said once in the log). Costs nothing where the SDK
+      allows several trackers per process, and never leaves a person untracked where it does not.
     """
 
     name = "k4abt"
 
-    def __init__(self, settings: TrackerSettings, *, wait_ms: int, intrinsics: Intrinsics = VIRTUAL_INTRINSICS) -> None:
+    def __init__(
+        self,
+        settings: TrackerSettings,
+        *,
+        wait_ms: int,
+        processes: str = "auto",
+        intrinsics: Intrinsics = VIRTUAL_INTRINSICS,
+        hung_after_s: float = 2.0,
+    ) -> None:
+        if processes not in TRACKER_PROCESS_MODES:
+            raise ConfigError(
+                f"[depth] tracker_processes: expected one of {', '.join(TRACKER_PROCESS_MODES)}, found {processes!r}"
+            )
         self.k4a = load_k4a()
         self.library = K4abtLibrary.load()
         self.settings = settings
         self.wait_ms = int(wait_ms)
         self.intrinsics = intrinsics
-        self.description = f"Body Tracking SDK ({self.library.path}, ABI {self.library.abi}), one tracker per person"
+        self.processes = processes
+        self.hung_after_s = hung_after_s
+        where = {
+            "auto": "in this process, a worker process per person if the SDK allows one tracker per process",
+            "in_process": "all in this process",
+            "per_person": "a worker process per person",
+        }[processes]
+        self.description = (
+            f"Body Tracking SDK ({self.library.path}, ABI {self.library.abi}), one tracker per person, {where}"
+        )
         self._trackers: dict[int, VirtualCameraTracker] = {}
+        self._pool: TrackerPool | None = None
+        self._pooled = processes == "per_person"  # new people go to worker processes
+
+    def pool(self) -> TrackerPool:
+        if self._pool is None:
+            spec = WorkerSpec(
+                k4a_path=str(self.k4a._name),
+                k4abt_path=str(self.library.path),
+                abi=self.library.abi,
+                intrinsics=self.intrinsics,
+                settings=self.settings,
+                wait_ms=self.wait_ms,
+            )
+            self._pool = TrackerPool(spec, hung_after_s=self.hung_after_s)
+        return self._pool
 
     def track(
         self, person: int, view: PersonDepthView, prior_world: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray] | None:
+        (result,) = self.track_many([(person, view, prior_world)])
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def track_many(self, requests: list[tuple[int, PersonDepthView, np.ndarray | None]]) -> list[TrackResult]:
+        results: list[TrackResult] = [None] * len(requests)
+        pooled: list[int] = []
+        for index, (person, view, _) in enumerate(requests):
+            in_pool = self._pool is not None and person in self._pool.persons()
+            if person not in self._trackers and (self._pooled or in_pool):
+                pooled.append(index)
+                continue
+            try:
+                results[index] = self._track_here(person, view)
+            except TrackerCreateError as exc:
+                if self.processes == "auto" and self._trackers:
+                    self._pooled = True
+                    log.warning(
+                        "the Body Tracking SDK refused a second tracker in this process (%s); person %d and every "
+                        'new person get a tracker process of their own ([depth] tracker_processes = "auto")',
+                        exc,
+                        person,
+                    )
+                    pooled.append(index)
+                else:
+                    results[index] = exc
+            except (K4ABTError, SkelfuseError) as exc:
+                results[index] = exc
+        if pooled:
+            answers = self.pool().track_many([(requests[i][0], requests[i][1]) for i in pooled])
+            for index, answer in zip(pooled, answers, strict=True):
+                results[index] = answer
+        return results
+
+    def _track_here(self, person: int, view: PersonDepthView) -> tuple[np.ndarray, np.ndarray] | None:
         tracker = self._trackers.get(person)
         if tracker is None:
             tracker = self._trackers[person] = VirtualCameraTracker(
@@ -131,12 +238,27 @@ class K4abtDepthTracker:
             return None
         return skeleton.positions_world, skeleton.confidence
 
+    def rename(self, old: int, new: int) -> None:
+        """A new person's stream, first keyed provisionally, takes its track's id."""
+        if old in self._trackers and new not in self._trackers:
+            self._trackers[new] = self._trackers.pop(old)
+        if self._pool is not None:
+            self._pool.rename(old, new)
+
     def retire(self, active: set[int]) -> None:
         for person in [p for p in self._trackers if p not in active]:
             self._trackers.pop(person).close()
+        if self._pool is not None:
+            self._pool.retire(active)
+
+    def report(self) -> dict[str, Any] | None:
+        """The worker processes' counters (None while none was needed)."""
+        return None if self._pool is None else self._pool.report()
 
     def close(self) -> None:
         self.retire(set())
+        if self._pool is not None:
+            self._pool.close()
 
 
 def open_tracker(cfg: RigConfig) -> DepthTracker:
@@ -148,7 +270,7 @@ def open_tracker(cfg: RigConfig) -> DepthTracker:
         return SimulatedDepthTracker()
     kinect = next((s.kinect for s in cfg.sensors if s.kinect is not None), None)
     settings = TrackerSettings.from_config(kinect.tracker) if kinect is not None else TrackerSettings()
-    return K4abtDepthTracker(settings, wait_ms=depth.tracker_wait_ms)
+    return K4abtDepthTracker(settings, wait_ms=depth.tracker_wait_ms, processes=depth.tracker_processes)
 
 
 class CloudBuffer:
@@ -261,6 +383,8 @@ class DepthStage:
         self.last_clouds: tuple[tuple[int, MergedCloud], ...] = ()
         self._poses = np.zeros((len(self.sensor_ids), 4, 4))
         self._previous: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, N_JOINTS, 3)))
+        self._next_new_key = -1
+        """Hybrid: tracker stream keys of new persons count down from -1 until their track is known."""
 
     def fuser_sensors(self, world_from_sensor: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
         """The sensors (ids, poses) the node's GroupFuser fuses: the rig's, plus the virtual copies in hybrid."""
@@ -308,16 +432,18 @@ class DepthStage:
         n_real = len(self.sensor_ids)
         positions, _, valid = group_bodies(group.frames, self.sensor_ids)
         world = bodies_to_world(self._poses, positions)
-        previous_ids, previous = self._previous
+        previous_keys, previous = self._previous
         assignment = associate_bodies(world, valid, previous)
-        priors = np.full((previous_ids.shape[0], N_JOINTS, 3), np.nan)
-        for person in range(previous_ids.shape[0]):
+        # bodies of no known person (a person's first instants): this instant's own grouping, new stream keys
+        assignment, n_new = group_new_bodies(world, valid, assignment, first=previous_keys.shape[0])
+        keys = np.concatenate([previous_keys, np.arange(self._next_new_key, self._next_new_key - n_new, -1)])
+        self._next_new_key -= n_new
+        priors = np.full((keys.shape[0], N_JOINTS, 3), np.nan)
+        for person in range(keys.shape[0]):
             mine = world[assignment == person]
             if mine.shape[0]:
                 priors[person] = nanmedian_axis(mine, axis=0)  # joints no body of the person holds stay NaN
-        virtual, confidence, _ = self._virtual_skeletons(
-            group, assignment, priors, previous_ids, np.arange(len(priors))
-        )
+        virtual, confidence, _ = self._virtual_skeletons(group, assignment, priors, keys, np.arange(len(keys)))
         found = np.isfinite(virtual).all(axis=-1).any(axis=-1)
         frames = dict(group.frames)
         if found.any():
@@ -327,7 +453,7 @@ class DepthStage:
                 sequence=0,
                 device_time_us=group.time_us,
                 host_time_ns=0,
-                body_ids=(previous_ids[found] % 2**32).astype(np.uint32),
+                body_ids=(keys[found] % 2**32).astype(np.uint32),
                 positions=body.astype(np.float32),  # NaN joints carry confidence NONE, as with_virtual_sensor's
                 orientations=np.tile(np.array([1.0, 0, 0, 0], np.float32), (int(found.sum()), N_JOINTS, 1)),
                 confidence=np.where(np.isfinite(body).all(axis=-1), confidence[found], 0).astype(np.uint8),
@@ -335,11 +461,54 @@ class DepthStage:
             for sensor_id in fuser.sensor_ids[n_real:]:
                 frames[sensor_id] = dataclasses.replace(frame, sensor_id=sensor_id)
         instant = fuser.step(FrameGroup(group.time_us, frames, group.missing, group.complete))
-        self._previous = (instant.frame.track_ids, instant.frame.positions)
-        self.tracker.retire({int(i) for i in previous_ids})
+        self._follow_tracks(instant, keys, assignment, found, world, n_real)
         return dataclasses.replace(  # the node's per-sensor views (pose fit, Rerun) see the real sensors only
             instant, sensors_world=instant.sensors_world[:n_real], valid=instant.valid[:n_real]
         )
+
+    def _follow_tracks(
+        self,
+        instant: FusedInstant,
+        keys: np.ndarray,
+        assignment: np.ndarray,
+        found: np.ndarray,
+        world: np.ndarray,
+        n_real: int,
+    ) -> None:
+        """After a hybrid instant: a new person's tracker stream takes the id of the track its bodies joined
+        (the virtual body's track, else the most common of its real bodies'), tentative tracks included; the
+        next instant's persons are every track this instant's real bodies joined (at the median of those
+        bodies, or the fused skeleton where the track was output). Streams of anyone else are retired."""
+        body_tracks = instant.people.body_track_ids
+        real_tracks = body_tracks[:n_real, : world.shape[1]]
+        virtual_slot = np.cumsum(found) - 1  # the virtual frame's body index of each person found
+        rename = getattr(self.tracker, "rename", None)
+        taken = {int(k) for k in keys if k >= 0}
+        for person, key in enumerate(keys):
+            if key >= 0:
+                continue
+            track = -1
+            if found[person] and self.copies:
+                track = int(body_tracks[n_real, virtual_slot[person]])
+            if track < 0:
+                joined = real_tracks[(assignment == person) & (real_tracks >= 0)]
+                if joined.size:
+                    values, counts = np.unique(joined, return_counts=True)
+                    track = int(values[np.argmax(counts)])
+            if track >= 0 and track not in taken:
+                taken.add(track)
+                if rename is not None:
+                    rename(int(key), track)
+        ids = np.unique(real_tracks[real_tracks >= 0])
+        positions = np.stack([nanmedian_axis(world[real_tracks == i], axis=0) for i in ids]) if ids.size else None
+        if positions is None:
+            positions = np.zeros((0, N_JOINTS, 3))
+        fused_rows = {int(t): r for r, t in enumerate(instant.frame.track_ids)}
+        for row, track in enumerate(ids):
+            if int(track) in fused_rows:
+                positions[row] = instant.frame.positions[fused_rows[int(track)]]
+        self._previous = (ids.astype(np.int64), positions)
+        self.tracker.retire({int(i) for i in ids})
 
     # -- per person ---------------------------------------------------------------------------------------
 
@@ -375,6 +544,8 @@ class DepthStage:
                 if person >= 0 and cloud is not None and cloud.shape[0]:
                     per_person[person][s].append(cloud)
         merged = []
+        requests: list[tuple[int, PersonDepthView, np.ndarray | None]] = []
+        asked: list[int] = []
         for person in range(n_persons):
             self.counters.persons += 1
             sensor_clouds = [np.concatenate(c) if c else np.zeros((0, 3)) for c in per_person[person]]
@@ -396,13 +567,14 @@ class DepthStage:
             key = int(person_keys[rows[person]])
             merged.append((key, view.merged))
             used[person] = sizes > 0
-            try:
-                result = self.tracker.track(key, view, prior if np.isfinite(prior).any() else None)
-            except (K4ABTError, SkelfuseError) as exc:
+            requests.append((key, view, prior if np.isfinite(prior).any() else None))
+            asked.append(person)
+        for person, (key, _, _), result in zip(asked, requests, track_all(self.tracker, requests), strict=True):
+            if isinstance(result, Exception):
                 self.counters.tracker_errors += 1
                 if self.counters.tracker_errors == 1 or self.counters.tracker_errors % 1000 == 0:
                     log.error(
-                        "depth tracker failed for person %d (%d so far): %s", key, self.counters.tracker_errors, exc
+                        "depth tracker failed for person %d (%d so far): %s", key, self.counters.tracker_errors, result
                     )
                 continue
             if result is None:
@@ -430,6 +602,7 @@ class DepthStage:
             "tracker_errors": c.tracker_errors,
             "depth_ms_p50": round(float(np.percentile(data, 50)), 3) if data.size else None,
             "depth_ms_p99": round(float(np.percentile(data, 99)), 3) if data.size else None,
+            "tracker_processes": getattr(self.tracker, "report", lambda: None)(),
         }
 
     def close(self) -> None:
@@ -449,6 +622,29 @@ def associate_bodies(world: np.ndarray, valid: np.ndarray, persons: np.ndarray) 
     close = np.take_along_axis(distance, nearest[..., None], axis=-1)[..., 0] <= ASSOCIATION_GATE_MM
     out[valid & close] = nearest[valid & close]
     return out
+
+
+def group_new_bodies(
+    world: np.ndarray, valid: np.ndarray, assignment: np.ndarray, *, first: int
+) -> tuple[np.ndarray, int]:
+    """The valid bodies ``assignment`` leaves without a person (-1), grouped into new persons numbered from
+    ``first``: a body joins the new person whose first body is nearest by the people path's torso distance,
+    within :data:`ASSOCIATION_GATE_MM` and at most one body per sensor, else starts one. Returns the completed
+    assignment (S, B) and the number of new persons. (A handful of bodies per instant: a plain loop.)"""
+    out = assignment.copy()
+    descriptors = torso_descriptor(world)
+    seeds: list[tuple[np.ndarray, set[int]]] = []
+    for s, b in zip(*np.nonzero(valid & (assignment < 0)), strict=True):
+        distances = [
+            np.inf if s in sensors else float(descriptor_distance(descriptors[s, b], seed)) for seed, sensors in seeds
+        ]
+        nearest = int(np.argmin(distances)) if distances else -1
+        if nearest < 0 or distances[nearest] > ASSOCIATION_GATE_MM:
+            seeds.append((descriptors[s, b], set()))
+            nearest = len(seeds) - 1
+        seeds[nearest][1].add(int(s))
+        out[s, b] = first + nearest
+    return out, len(seeds)
 
 
 def depth_stage_for(cfg: RigConfig) -> DepthStage | None:

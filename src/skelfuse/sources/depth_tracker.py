@@ -14,7 +14,7 @@ skeleton it finds back to the world:
 
 A tracker keeps temporal state per stream, so there is one :class:`VirtualCameraTracker` per person's virtual
 camera (per track id), never frames of several people interleaved in one. The SDK allows one tracker per
-process on some versions: several people then need several processes (not built here).
+process on some versions: several people then need several processes (:mod:`skelfuse.sources.tracker_pool`).
 
 Verified against the fake libk4a / libk4abt the suite compiles from C (``tests/fake_k4a``): strides, the
 calibration's layout and values, the timestamps, the transform back to world. Those fakes are our own
@@ -25,6 +25,7 @@ measurable with the SDK on a GPU (``docs/depth-fusion.md``).
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,39 +98,54 @@ class VirtualCameraTracker:
         """Enqueue one virtual image; False when the tracker's queue stayed full (the image is dropped)."""
         depth = to_k4a_depth(view.image.depth_mm)
         ir = None if view.image.ir is None else to_k4a_ir(view.image.ir)
+        time_us = self.submit_images(depth, ir, timeout_ms=timeout_ms)
+        if time_us is not None:
+            self._views[time_us] = view.frontal
+        return time_us is not None
+
+    def submit_images(self, depth: np.ndarray, ir: np.ndarray | None, *, timeout_ms: int = 0) -> int | None:
+        """Enqueue a DEPTH16 (and IR16) image pair (``to_k4a_depth`` / ``to_k4a_ir``); the device timestamp it
+        was numbered with, or None when the tracker's queue stayed full."""
         time_us = self._next_time_us
         capture = capture_from_images(self.k4a, depth, ir, device_time_us=time_us)
         try:
             accepted = self.tracker.enqueue(capture, timeout_ms)
         finally:
             self.k4a.k4a_capture_release(capture)  # the SDK holds its own reference while it works
-        if accepted:
-            self._views[time_us] = view.frontal
-            self._next_time_us += FRAME_PERIOD_US
-        return accepted
+        if not accepted:
+            return None
+        self._next_time_us += FRAME_PERIOD_US
+        return time_us
 
     def collect(self, *, timeout_ms: int = 0) -> VirtualSkeleton | None:
         """The next result mapped back to the world; None when none is ready, or when the tracker found no
         body. Of several bodies, the one whose pelvis is nearest the image centre (the person the virtual
         camera was placed for) is taken."""
-        frame = self.tracker.pop(timeout_ms)
-        if frame is None:
+        found = self.collect_camera(timeout_ms=timeout_ms)
+        if found is None:
             return None
-        frontal = self._views.pop(frame.device_time_us, None)
-        for stale in [t for t in self._views if t < frame.device_time_us]:  # results the tracker dropped
+        frontal = self._views.pop(found.device_time_us, None)
+        for stale in [t for t in self._views if t < found.device_time_us]:  # results the tracker dropped
             del self._views[stale]
-        if frontal is None or frame.n_bodies == 0:
+        if frontal is None:
+            return None
+        return dataclasses.replace(found, positions_world=frontal.to_world(found.positions_camera.astype(np.float64)))
+
+    def collect_camera(self, *, timeout_ms: int = 0) -> VirtualSkeleton | None:
+        """As :meth:`collect`, in the virtual camera's frame only (``positions_world`` left NaN): for a caller
+        that keeps the frontal views itself (a tracker process)."""
+        frame = self.tracker.pop(timeout_ms)
+        if frame is None or frame.n_bodies == 0:
             return None
         pelvis = frame.positions[:, _PELVIS].astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             offset = self.intrinsics.project(pelvis) - [self.intrinsics.cx, self.intrinsics.cy]
         body = int(np.nanargmin(np.where(pelvis[:, 2] > 0, np.hypot(offset[:, 0], offset[:, 1]), np.inf)))
-        positions = frame.positions[body]
         return VirtualSkeleton(
             device_time_us=frame.device_time_us,
             body_id=int(frame.body_ids[body]),
-            positions_world=frontal.to_world(positions.astype(np.float64)),
-            positions_camera=positions,
+            positions_world=np.full((frame.positions.shape[1], 3), np.nan),
+            positions_camera=frame.positions[body],
             confidence=frame.confidence[body],
         )
 

@@ -33,7 +33,6 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from skelfuse.config import RigConfig, SensorConfig
-from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import person_clouds
 from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
 from skelfuse.schema.frames import SensorFrame
@@ -49,7 +48,7 @@ from skelfuse.sources.k4abt import (
     calibration_pointer,
     capture_handle,
     declare_image_api,
-    depth_intrinsics,
+    depth_xy_table,
     load_k4a,
 )
 from skelfuse.wire.clouds import PersonCloudsFrame
@@ -254,16 +253,16 @@ def _host_time_ns(system_ns: int | None) -> int:
 
 
 def body_clouds(
-    body: BodyFrameData, frame: SensorFrame, intrinsics: Intrinsics, voxel_mm: float
+    body: BodyFrameData, frame: SensorFrame, xy_table: np.ndarray, voxel_mm: float
 ) -> PersonCloudsFrame | None:
     """Each tracked body's person cloud of one body frame (its depth image masked by the body-index map, the
-    map's index b being the frame's b-th body, lifted with ``intrinsics`` as a pinhole, voxelized); None when
-    the frame came without its images."""
+    map's index b being the frame's b-th body, lifted through the device's xy table, lens distortion included:
+    :func:`skelfuse.sources.k4abt.depth_xy_table`; voxelized); None when the frame came without its images."""
     if body.depth is None or body.body_index is None:
         return None
     clouds = [
         c
-        for c in person_clouds(body.depth, body.body_index, intrinsics, voxel_mm=voxel_mm)
+        for c in person_clouds(body.depth, body.body_index, xy_table, voxel_mm=voxel_mm)
         if c.body_index < body.n_bodies
     ]
     return PersonCloudsFrame(
@@ -299,8 +298,9 @@ class KinectSource:
         How long one capture may wait for room in the tracker's input queue before it is dropped.
     clouds_voxel_mm : float, optional
         Depth / hybrid mode (``[fusion] mode``): also make each body's person cloud (the capture's depth image
-        masked by the tracker's body-index map, lifted with the device's depth intrinsics as a pinhole, the lens
-        distortion not applied, voxelized), for :meth:`clouds_at`. None: skeletons only.
+        masked by the tracker's body-index map, lifted through the device's xy table, lens distortion included,
+        built once at :meth:`open` with ``k4a_calibration_2d_to_3d``; voxelized), for :meth:`clouds_at`. None:
+        skeletons only.
 
     Attributes
     ----------
@@ -322,7 +322,7 @@ class KinectSource:
         self.settings = settings
         self.clouds_voxel_mm = clouds_voxel_mm
         self._k4a: Any = None  # libk4a through ctypes: the images of a body frame (clouds only)
-        self._depth_intrinsics: Intrinsics | None = None
+        self._xy_table: np.ndarray | None = None
         self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or settings.serial
         self._pyk4a = pyk4a
@@ -366,7 +366,7 @@ class KinectSource:
             if self.clouds_voxel_mm is not None:
                 self._k4a = load_k4a()
                 declare_image_api(self._k4a)
-                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(calibration)))
+                self._xy_table = depth_xy_table(self._k4a, calibration_pointer(calibration))
         except pyk4a.K4AException as exc:
             self.close()
             raise SensorDisconnected(
@@ -442,8 +442,8 @@ class KinectSource:
         self._last_result = now
         self.results += 1
         frame = self._assemble(body)
-        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
-            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+        if self.clouds_voxel_mm is not None and self._xy_table is not None:
+            clouds = body_clouds(body, frame, self._xy_table, self.clouds_voxel_mm)
             self._clouds = {} if clouds is None else {frame.device_time_us: clouds}  # the latest frame's only
         return frame
 
@@ -520,7 +520,7 @@ class MkvSource:
         self.path = Path(path)
         self.clouds_voxel_mm = clouds_voxel_mm  # as KinectSource's: person clouds for clouds_at()
         self._k4a: Any = None
-        self._depth_intrinsics: Intrinsics | None = None
+        self._xy_table: np.ndarray | None = None
         self._clouds: dict[int, PersonCloudsFrame] = {}
         self.sensor_id = sensor_id or self.path.stem
         self.tracker_settings = tracker or TrackerSettings()
@@ -546,7 +546,7 @@ class MkvSource:
             if self.clouds_voxel_mm is not None:
                 self._k4a = load_k4a()
                 declare_image_api(self._k4a)
-                self._depth_intrinsics = Intrinsics(*depth_intrinsics(calibration_pointer(self._playback.calibration)))
+                self._xy_table = depth_xy_table(self._k4a, calibration_pointer(self._playback.calibration))
         except pyk4a.K4AException as exc:
             self.close()
             raise DataError(
@@ -600,8 +600,8 @@ class MkvSource:
 
     def _emit(self, body: BodyFrameData) -> SensorFrame:
         frame = self._assemble(body)
-        if self.clouds_voxel_mm is not None and self._depth_intrinsics is not None:
-            clouds = body_clouds(body, frame, self._depth_intrinsics, self.clouds_voxel_mm)
+        if self.clouds_voxel_mm is not None and self._xy_table is not None:
+            clouds = body_clouds(body, frame, self._xy_table, self.clouds_voxel_mm)
             self._clouds = {} if clouds is None else {frame.device_time_us: clouds}
         return frame
 

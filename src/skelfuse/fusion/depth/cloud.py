@@ -159,10 +159,27 @@ class PersonCloud:
     ir: np.ndarray | None = None
 
 
+def pinhole_xy_table(intrinsics: Intrinsics) -> np.ndarray:
+    """The xy table of a pinhole camera: (H, W, 2) float32 rays ((u - cx) / fx, (v - cy) / fy) per pixel (the
+    simulator's sensors and the virtual camera have no lens distortion)."""
+    u = (np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx
+    v = (np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy
+    return np.stack(np.broadcast_arrays(u[None, :], v[:, None]), axis=-1).astype(np.float32)
+
+
+def lift_xy_table(xy_table: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth_mm: np.ndarray) -> np.ndarray:
+    """Points (x d, y d, d) of depth pixels (rows, cols) of depth ``depth_mm`` through an (H, W, 2) xy table (the
+    ray of each pixel at unit depth, NaN where the lens model has none): the SDK's fastpointcloud lift, with
+    the lens distortion in the table. (N, 3) float64 mm; a pixel with a NaN ray gives a NaN point."""
+    ray = np.asarray(xy_table)[rows, cols].astype(np.float64)
+    d = np.asarray(depth_mm, dtype=np.float64).reshape(-1)
+    return np.stack([ray[:, 0] * d, ray[:, 1] * d, d], axis=1)
+
+
 def person_clouds(
     depth_mm: np.ndarray,
     body_index_map: np.ndarray,
-    intrinsics: Intrinsics,
+    lens: Intrinsics | np.ndarray,
     *,
     voxel_mm: float,
     ir: np.ndarray | None = None,
@@ -175,18 +192,26 @@ def person_clouds(
     ----------
     depth_mm : (H, W) depth image, mm, 0 = invalid.
     body_index_map : (H, W) uint8, the body index per pixel, ``background`` (255) elsewhere.
-    intrinsics : the depth camera's.
+    lens : the depth camera's pinhole :class:`Intrinsics`, or its (H, W, 2) xy table (the ray per pixel with
+        the lens distortion, NaN where invalid: ``skelfuse.sources.k4abt.depth_xy_table``); pixels without a
+        ray are dropped.
     voxel_mm : voxel edge, mm.
     ir : optional (H, W) IR image.
     """
     index_map = np.asarray(body_index_map)
-    if index_map.shape != np.asarray(depth_mm).shape:
-        raise ValueError(
-            f"body-index map {index_map.shape} and depth image {np.asarray(depth_mm).shape} differ in size"
-        )
     depth = np.asarray(depth_mm)
-    rows, cols = np.nonzero((index_map != background) & (depth > 0))
-    points = intrinsics.lift(cols, rows, depth[rows, cols]) if rows.size else np.zeros((0, 3))
+    if index_map.shape != depth.shape:
+        raise ValueError(f"body-index map {index_map.shape} and depth image {depth.shape} differ in size")
+    mask = (index_map != background) & (depth > 0)
+    if isinstance(lens, Intrinsics):
+        rows, cols = np.nonzero(mask)
+        points = lens.lift(cols, rows, depth[rows, cols]) if rows.size else np.zeros((0, 3))
+    else:
+        table = np.asarray(lens)
+        if table.shape != (*depth.shape, 2):
+            raise ValueError(f"xy table {table.shape} does not fit a depth image of {depth.shape}")
+        rows, cols = np.nonzero(mask & np.isfinite(table).all(axis=-1))
+        points = lift_xy_table(table, rows, cols, depth[rows, cols])
     bodies = index_map[rows, cols].astype(np.int64)
     values = None if ir is None else np.asarray(ir)[rows, cols].astype(np.float64)
     out = []
