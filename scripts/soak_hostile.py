@@ -10,8 +10,11 @@ stamped 0.9 s and 10^4 s in the future with forged sequences, 64-body frames, po
 on another sensor's key, unknown sensors, and a 4 MB payload once a second.
 
 Measured and printed: fused frames received vs instants published, instants lost (published but never
-fused), instants fused with every sensor, the node's RSS and its growth (MB/min, linear fit after a 30 s
-warm-up; and last minus first after the warm-up), the node's counters. Every 10 s, to tell CPU starvation from
+fused), instants fused with every sensor, the node's RSS and its growth (last minus first, MB, and the
+linear fit, MB/min) counted three ways: from the start (the node up, before any traffic), after 30 s, and after
+``--warmup-s``; the node's resident memory by kind of mapping (heap, anonymous, stack, file; /proc/<pid>/smaps)
+at the start and at the end; the fused publisher's put times (status ``info.fused_publish``); the node's
+counters. Every 10 s, to tell CPU starvation from
 a limit of the node: the machine's load average and CPU pressure (/proc/pressure/cpu), the node loop thread's
 own CPU time and its run-queue wait (/proc/<pid>/task/<pid>/schedstat: time it was runnable but not running),
 the whole node's CPU time, and the lag of each stage: this script's publishing behind its schedule, fused
@@ -80,6 +83,55 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+def memory_map_mb(pid: int) -> dict[str, float]:
+    """The node's resident memory by kind of mapping, MB, from ``/proc/<pid>/smaps``.
+
+    ``heap``: glibc's main arena (``[heap]``: Python objects, numpy arrays of the main thread); ``anon``:
+    anonymous mappings (glibc's per-thread arenas, used by zenoh's threads, large numpy buffers, mmapped
+    pymalloc arenas); ``stack``; ``file``: code and data of the binaries and shared libraries.
+    """
+    kinds = {"heap": 0, "anon": 0, "stack": 0, "file": 0}
+    kind = "anon"
+    try:
+        text = Path(f"/proc/{pid}/smaps").read_text()
+    except OSError:
+        return {k: float("nan") for k in kinds}
+    for line in text.splitlines():
+        first = line.split(maxsplit=1)[0]
+        if "-" in first and not first.endswith(":"):  # a mapping's header line: address range, perms, ..., name
+            fields = line.split()
+            name = fields[5] if len(fields) > 5 else ""
+            kind = (
+                "heap"
+                if name == "[heap]"
+                else "stack"
+                if name.startswith("[stack")
+                else "anon"
+                if not name or name.startswith("[anon")
+                else "file"
+                if name.startswith("/")
+                else "anon"
+            )
+        elif first == "Rss:":
+            kinds[kind] += int(line.split()[1])
+    return {k: round(v / 1024, 2) for k, v in kinds.items()}
+
+
+def growth(rss: list[tuple[float, float]], after_s: float) -> tuple[float | None, float | None]:
+    """(last minus the first sample at or after ``after_s`` s, MB; linear-fit slope after it, MB/min)."""
+    tail = [(t, r) for t, r in rss if t >= after_s]
+    if not tail:
+        return None, None
+    slope = float(np.polyfit([t for t, _ in tail], [r for _, r in tail], 1)[0]) * 60 if len(tail) >= 3 else None
+    return round(tail[-1][1] - tail[0][1], 2), None if slope is None else round(slope, 4)
+
+
+def zenoh_version() -> str:
+    from importlib.metadata import version
+
+    return version("eclipse-zenoh")
+
+
 def schedstat(pid: int, tid: int | None = None) -> tuple[float, float]:
     """(CPU time, run-queue wait) in seconds of one thread (``tid``) or, summed, of every thread of ``pid``."""
     tids = [tid] if tid is not None else [int(t) for t in os.listdir(f"/proc/{pid}/task")]
@@ -146,6 +198,19 @@ def main() -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the figures as JSON here too")
     parser.add_argument(
         "--nice", type=int, default=None, help="run the node (and this script) at this nice value, e.g. -10 as root"
+    )
+    parser.add_argument(
+        "--adversary-delay-s",
+        type=float,
+        default=2.0,
+        help="the adversary starts this long after the rig (default 2); 0 races the rig's first frames, where a "
+        "forged clock that speaks first on a sensor's key can take that sensor's clock (a known open fault)",
+    )
+    parser.add_argument(
+        "--warmup-s",
+        type=float,
+        default=300.0,
+        help="also report RSS growth from this many seconds in (default 300); growth from the start is always reported",
     )
     args = parser.parse_args()
     import zenoh
@@ -232,6 +297,8 @@ def main() -> int:
 
         def attack() -> None:
             period = 1.0 / args.adversary_hz
+            if stop.wait(args.adversary_delay_s):  # the rig's clocks are learned first (see --adversary-delay-s)
+                return
             big = b"\x01" * (4 << 20)
             next_t, next_big, i = time.monotonic(), time.monotonic() + 1.0, 0
             key = keys.sensor_skeletons(RIG, sensor_ids[1])
@@ -262,6 +329,8 @@ def main() -> int:
         attacker = threading.Thread(target=attack, daemon=True)
         base_us = time.time_ns() // 1000
         start = time.monotonic()
+        rss.append((0.0, rss_mb(node.pid)))  # from the start: the node is up and subscribed, no traffic yet
+        memory_at_start = memory_map_mb(node.pid)
         attacker.start()
         next_window = start
         last_sched = (start, schedstat(node.pid, node.pid), schedstat(node.pid))
@@ -284,6 +353,8 @@ def main() -> int:
             added = [st.info.get("node_added_ms", {}).get("p99") for st in recent]
             added = [a for a in added if a is not None]
             rss.append((now - start, rss_mb(node.pid)))
+            memory = memory_map_mb(node.pid)
+            publish = recent[-1].info.get("fused_publish") if recent else None
             windows.append(
                 {
                     "t_s": round(now - start, 1),
@@ -296,6 +367,8 @@ def main() -> int:
                     "node_added_p99_ms": max(added) if added else None,
                     "samples_dropped": recent[-1].counters.get("samples_dropped") if recent else None,
                     "rss_mb": round(rss[-1][1], 1),
+                    "rss_by_kind_mb": memory,
+                    "fused_publish": publish,
                 }
             )
             last_sched = (now, (loop_cpu, loop_wait), (cpu, wait))
@@ -355,7 +428,10 @@ def main() -> int:
         starved = [w for w in lossy if w["loop_runqueue_wait_pct"] >= 10.0 or (w["publish_lag_max_ms"] or 0) > 1000]
         busy = [w for w in lossy if w not in starved and w["loop_cpu_pct"] >= 90.0]
         warm = [(t, r) for t, r in rss if t >= 30.0]
-        slope = float(np.polyfit([t for t, _ in warm], [r for _, r in warm], 1)[0]) * 60 if len(warm) >= 3 else None
+        growth_start, slope_start = growth(rss, 0.0)
+        growth_30s, slope = growth(rss, 30.0)
+        growth_warm, slope_warm = growth(rss, args.warmup_s)
+        kinds_last = windows[-1]["rss_by_kind_mb"]
         figures = {
             "sensors": args.sensors,
             "minutes": args.minutes,
@@ -367,10 +443,23 @@ def main() -> int:
             "instants_lost_in_busy_windows": sum(w["instants_lost"] for w in busy),
             "instants_with_every_sensor": complete[0],
             "hostile_payloads_sent": sent_hostile[0],
+            "node_rss_mb_at_start": round(rss[0][1], 2),
             "node_rss_mb_first_after_30s": warm[0][1] if warm else None,
             "node_rss_mb_last": rss[-1][1],
-            "node_rss_growth_mb_after_30s": round(rss[-1][1] - warm[0][1], 2) if warm else None,
-            "node_rss_growth_mb_per_min": None if slope is None else round(slope, 4),
+            "node_rss_growth_mb_from_start": growth_start,
+            "node_rss_growth_mb_per_min_from_start": slope_start,
+            "node_rss_growth_mb_after_30s": growth_30s,
+            "node_rss_growth_mb_per_min": slope,
+            "warmup_s": args.warmup_s,
+            "node_rss_growth_mb_after_warmup": growth_warm,
+            "node_rss_growth_mb_per_min_after_warmup": slope_warm,
+            "node_rss_by_kind_mb_at_start": memory_at_start,
+            "node_rss_by_kind_mb_last": kinds_last,
+            "node_rss_by_kind_growth_mb_from_start": {
+                k: round(kinds_last[k] - memory_at_start[k], 2) for k in memory_at_start
+            },
+            "fused_publish": windows[-1]["fused_publish"],
+            "zenoh_version": zenoh_version(),
             "load_1min_max": max(w["load_1min"] for w in windows),
             "load_1min_median": float(np.median([w["load_1min"] for w in windows])),
             "loop_cpu_pct_max": max(w["loop_cpu_pct"] for w in windows),

@@ -67,6 +67,45 @@ def test_session_config_carries_tls_retry_and_size_limits(certs: Path) -> None:
         zenoh_config(cfg, mode="client", identity="capture-pc-z")  # no such certificate
 
 
+def test_congestion_keys_reach_the_session_config_and_the_fused_publisher() -> None:
+    """[zenoh] wait_before_drop_ms / wait_before_close_ms (ms) become zenoh's microseconds; the fused
+    publisher is declared with the chosen congestion control, express, on DATA_HIGH (read back from zenoh)."""
+    import json
+
+    import zenoh
+
+    from skelfuse.service.zenoh_io import FusedPublisher
+
+    data = {"rig": {"name": "r"}, "sensors": [{"id": "s0", "source": "sim"}]}
+    congestion = json.loads(str(zenoh_config(parse_rig_config(data))))["transport"]["link"]["tx"]["queue"]
+    assert congestion["congestion_control"]["drop"]["wait_before_drop"] == 250_000  # zenoh's own: 1000 (1 ms)
+    assert congestion["congestion_control"]["block"]["wait_before_close"] == 1_000_000  # zenoh's own: 5 s
+    cfg = parse_rig_config(
+        data | {"zenoh": {"fused_congestion_control": "block", "wait_before_drop_ms": 40, "wait_before_close_ms": 300}}
+    )
+    conf = zenoh_config(cfg, mode="peer", listen=[f"tcp/127.0.0.1:{free_port()}"], multicast_scouting=False)
+    congestion = json.loads(str(conf))["transport"]["link"]["tx"]["queue"]["congestion_control"]
+    assert (congestion["drop"]["wait_before_drop"], congestion["block"]["wait_before_close"]) == (40_000, 300_000)
+    session = zenoh.open(conf)
+    try:
+        for control, expected in (("block", zenoh.CongestionControl.BLOCK), ("drop", zenoh.CongestionControl.DROP)):
+            publisher = FusedPublisher(session, "r/fused", congestion_control=control, bound_ms=300)
+            assert publisher._publisher.congestion_control == expected
+            assert publisher._publisher.priority == zenoh.Priority.DATA_HIGH
+            publisher.put(b"frame")
+            assert publisher.report()["puts"] == 1
+            publisher.undeclare()
+    finally:
+        session.close()
+    with pytest.raises(ConfigError, match="fused_congestion_control"):
+        parse_rig_config(data | {"zenoh": {"fused_congestion_control": "block_first"}})
+    with pytest.raises(ConfigError, match="wait_before_drop_ms"):
+        parse_rig_config(data | {"zenoh": {"wait_before_drop_ms": -1}})
+    with pytest.raises(ConfigError, match="wait_before_drop_ms / wait_before_close_ms"):
+        raw = {"transport/link/tx/queue/congestion_control/drop/wait_before_drop": 5}
+        parse_rig_config(data | {"zenoh": {"config": raw}})
+
+
 def test_certs_are_signed_by_the_rig_ca_with_the_identity_common_name(certs: Path) -> None:
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric import ec

@@ -191,11 +191,29 @@ def test_the_router_counts_refused_certificates_and_messages_in_its_status(tmp_p
         forged = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, tls=impostor))
         with pytest.raises(Exception, match="Unable to connect"):
             zenoh.open(zenoh_config(forged, identity="capture-pc-a"))
+        # A client with no certificate at all (it trusts the rig's CA, so the router's certificate passes): the
+        # router's TLS layer refuses it with "peer sent no certificates", once per connection attempt.
+        bare = zenoh.Config()
+        for key, value in {
+            "mode": '"client"',
+            "connect/endpoints": f'["tls/127.0.0.1:{port}"]',
+            "connect/timeout_ms": "1000",
+            "scouting/multicast/enabled": "false",
+            "transport/link/tls/root_ca_certificate": f'"{certs / "ca.pem"}"',
+            "transport/link/tls/verify_name_on_connect": "false",
+        }.items():
+            bare.insert_json5(key, value)
+        with pytest.raises(Exception, match="Unable to connect"):
+            zenoh.open(bare)
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
             with lock:
                 last = statuses[-1] if statuses else None
-            if last is not None and last.counters["refused_messages"] >= 7 and last.counters["refused_tls"] >= 1:
+            if (
+                last is not None
+                and last.counters["refused_messages"] >= 7
+                and "peer sent no certificates" in last.info["tls_refused"]
+            ):
                 break
             time.sleep(0.1)
     finally:
@@ -217,7 +235,8 @@ def test_the_router_counts_refused_certificates_and_messages_in_its_status(tmp_p
         (PC_A, "skelfuse/sim4/sensors/capture_3/skeletons"): 3,
         (PC_A, "skelfuse/sim4/fused/skeletons"): 1,
     }, output
-    assert last.counters["refused_tls"] >= 1 and "BadSignature" in str(last.info["tls_refused"]), output
+    assert last.counters["refused_tls"] >= 2 and "BadSignature" in str(last.info["tls_refused"]), output
+    assert last.info["tls_refused"]["peer sent no certificates"] >= 1, output
     assert delivered.count("skelfuse/sim4/sensors/capture_0/skeletons") == 3  # the access control still works
     assert "refused Put (ingress) from capture-pc-a.sim4.skelfuse on skelfuse/sim4/fused/skeletons" in output
     assert "is authorized" not in output  # the TRACE decision lines are consumed, not written to the log

@@ -27,6 +27,7 @@ validation primitives), ``calibration_file`` (the rig's versioned calibration fi
 
 from skelfuse.config.calibration_file import load_calibration
 from skelfuse.config.model import (
+    CONGESTION_CONTROLS,
     DEFAULT_PRESET,
     FUSION_PRESETS,
     MIN_DELAY_SPACING_US,
@@ -55,6 +56,7 @@ from skelfuse.config.parse import load_rig_config, parse_rig_config
 from skelfuse.config.zenoh_session import zenoh_config
 
 __all__ = [
+    "CONGESTION_CONTROLS",
     "DEFAULT_PRESET",
     "FUSION_PRESETS",
     "MIN_DELAY_SPACING_US",

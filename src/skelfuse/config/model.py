@@ -30,6 +30,8 @@ PROCESSING_MODES: tuple[str, ...] = ("gpu", "cpu", "cuda", "tensorrt", "directml
 SENSOR_ORIENTATIONS: tuple[str, ...] = ("default", "clockwise90", "counterclockwise90", "flip180")
 """k4abt_sensor_orientation_t, in SDK order."""
 ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
+CONGESTION_CONTROLS: tuple[str, ...] = ("drop", "block")
+"""``[zenoh] fused_congestion_control``: zenoh's ``CongestionControl.DROP`` / ``BLOCK`` by name."""
 RERUN_MODES: tuple[str, ...] = ("off", "spawn", "serve", "save")
 DEFAULT_PRESET = "skelfuse"
 """The fusion preset of a rig config without ``[fusion] preset``, and of the demo and offline fusion."""
@@ -275,6 +277,13 @@ class ZenohSection:
     connect_timeout_ms : how long opening a session tries its connect endpoints before it fails (and the
         node retries with backoff, still answering SIGTERM): a TLS refusal otherwise blocks forever.
     max_message_bytes : larger messages are dropped by zenoh itself before they reach Python.
+    fused_congestion_control : ``"drop"`` or ``"block"``: what the fusion node's fused-frame publisher does when
+        the link to a subscriber (or to the router) is full (zenoh ``CongestionControl``).
+    wait_before_drop_ms : a ``"drop"`` message waits at most this long for room before it is dropped (zenoh
+        ``transport/link/tx/queue/congestion_control/drop/wait_before_drop``); after one such drop, later ones on
+        that link and priority drop at once until the link takes a batch again. Every process of the rig.
+    wait_before_close_ms : a ``"block"`` message waits at most this long, then zenoh closes the link
+        (``.../block/wait_before_close``). Every process of the rig.
     tls : ZenohTls or None
         TLS / mutual TLS (``[zenoh.tls]``).
     access_control : bool
@@ -290,6 +299,9 @@ class ZenohSection:
     reconnect_max_ms: int = 1000
     connect_timeout_ms: int = 2000
     max_message_bytes: int = 1_048_576
+    fused_congestion_control: str = "drop"
+    wait_before_drop_ms: int = 250
+    wait_before_close_ms: int = 1000
     tls: ZenohTls | None = None
     access_control: bool = False
     config: tuple[tuple[str, Any], ...] = ()

@@ -11,6 +11,7 @@ from typing import Any
 from skelfuse.config.checks import REQUIRED, Table, describe, did_you_mean, rigid_4x4
 from skelfuse.config.model import (
     COLOR_RESOLUTIONS,
+    CONGESTION_CONTROLS,
     DEFAULT_PRESET,
     DEPTH_MODES,
     DEPTH_TRACKER_PROCESSES,
@@ -60,6 +61,7 @@ _ZENOH_DEDICATED = {
     "connect/timeout_ms": "connect_timeout_ms",
     "listen/retry": "reconnect_init_ms / reconnect_max_ms",
     "transport/link/rx/max_message_size": "max_message_bytes",
+    "transport/link/tx/queue/congestion_control": "wait_before_drop_ms / wait_before_close_ms",
     "transport/link/tls": "[zenoh.tls]",
     "access_control": "access_control",
 }
@@ -484,6 +486,9 @@ def _parse_zenoh(t: Table | None) -> ZenohSection:
         reconnect_max_ms=t.integer("reconnect_max_ms", 1000, lo=10, hi=600_000, unit="ms"),
         connect_timeout_ms=t.integer("connect_timeout_ms", 2000, lo=100, hi=600_000, unit="ms"),
         max_message_bytes=t.integer("max_message_bytes", 1_048_576, lo=65_536, hi=1 << 30, unit="bytes"),
+        fused_congestion_control=t.string("fused_congestion_control", "drop", choices=CONGESTION_CONTROLS),
+        wait_before_drop_ms=t.integer("wait_before_drop_ms", 250, lo=0, hi=10_000, unit="ms"),
+        wait_before_close_ms=t.integer("wait_before_close_ms", 1000, lo=10, hi=60_000, unit="ms"),
         tls=tls,
         access_control=t.boolean("access_control", False),
     )

@@ -74,6 +74,10 @@ def zenoh_config(
         insert("connect/timeout_ms", json.dumps(z.connect_timeout_ms), f"{cfg.source}: zenoh.connect_timeout_ms")
     size = json.dumps(z.max_message_bytes)
     insert("transport/link/rx/max_message_size", size, f"{cfg.source}: zenoh.max_message_bytes")
+    congestion = "transport/link/tx/queue/congestion_control"
+    drop_us, close_us = json.dumps(z.wait_before_drop_ms * 1000), json.dumps(z.wait_before_close_ms * 1000)
+    insert(f"{congestion}/drop/wait_before_drop", drop_us, f"{cfg.source}: zenoh.wait_before_drop_ms")
+    insert(f"{congestion}/block/wait_before_close", close_us, f"{cfg.source}: zenoh.wait_before_close_ms")
     if z.tls is not None:
         for key, value in tls_settings(z.tls, identity).items():
             insert(f"transport/link/tls/{key}", json.dumps(value), f"{cfg.source}: [zenoh.tls]")

@@ -51,7 +51,7 @@ from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
-from skelfuse.service.zenoh_io import OTHER_KEYS, SampleQueue, open_session
+from skelfuse.service.zenoh_io import OTHER_KEYS, FusedPublisher, SampleQueue, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
 
@@ -475,6 +475,7 @@ class FusionNode:
         self._rates: dict[str, float] | None = None
         self.view: RerunView | None = None
         self._samples: SampleQueue | None = None
+        self._fused_publisher: FusedPublisher | None = None
 
     def log_error(self, time_us: int, error_mm: float) -> None:
         """Draw an error against ground truth (simulated rigs) on the live view's time axis, if there is one."""
@@ -511,7 +512,13 @@ class FusionNode:
             labels={keys.sensor_skeletons(rig, sid): sid for sid in self.cfg.sensor_ids},  # fair per sensor
         )
         try:
-            publisher = session.declare_publisher(keys.fused_skeletons(rig), express=True)
+            z = self.cfg.zenoh
+            publisher = self._fused_publisher = FusedPublisher(
+                session,
+                keys.fused_skeletons(rig),
+                congestion_control=z.fused_congestion_control,
+                bound_ms=z.wait_before_drop_ms if z.fused_congestion_control == "drop" else z.wait_before_close_ms,
+            )
             status_pub = session.declare_publisher(keys.status(rig, self.name))
             calibration = json.dumps(calibration_document(self.cfg, self.core.poses)).encode()
             calibration_key = keys.calibration(rig)
@@ -738,6 +745,7 @@ class FusionNode:
             "unknown_ids": stats.unknown_ids,
             "rejects_unknown_sensor": dict(core.rejects.get(UNKNOWN_SENSOR, {})),
             "queue_unknown_keys": queue.get(OTHER_KEYS, no_drops),
+            "fused_publish": None if self._fused_publisher is None else self._fused_publisher.report(),
             "fusion_ms": _percentiles(self._window_fusion),
             "node_added_ms": _percentiles(self._window_added),
             "fusion_ms_total": _percentiles(self._fusion),

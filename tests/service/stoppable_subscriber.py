@@ -1,0 +1,53 @@
+"""A subscriber in its own process, for tests that stop it (SIGSTOP) to play a stalled or starved app.
+
+    python stoppable_subscriber.py KEY PORT OUT.json [SO_RCVBUF]
+
+Connects to ``tcp/127.0.0.1:PORT`` only (peer mode; no listener, no gossip, no scouting, so nothing else links
+to it or reaches data through it), subscribes to KEY and, on SIGTERM, writes the first 8 bytes of each payload
+it received (little-endian int: the tests' sequence numbers) to OUT.json. ``SO_RCVBUF`` (bytes) shrinks its TCP
+receive buffer (zenoh ``transport/link/tcp/so_rcvbuf``).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import zenoh
+
+from skelfuse.service.zenoh_io import loopback_config
+
+
+def main() -> int:
+    key, port, out = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3])
+    conf = loopback_config(connect_ports=[port])
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    if len(sys.argv) > 4:
+        conf.insert_json5("transport/link/tcp/so_rcvbuf", sys.argv[4])
+    received: list[int] = []
+    lock = threading.Lock()
+    done = threading.Event()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        number = int.from_bytes(sample.payload.to_bytes()[:8], "little")
+        with lock:
+            received.append(number)
+
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    session = zenoh.open(conf)
+    session.declare_subscriber(key, on_sample)
+    print("subscribed", flush=True)
+    while not done.wait(0.2):
+        pass
+    with lock:
+        out.write_text(json.dumps(received))
+    session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

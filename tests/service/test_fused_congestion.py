@@ -1,0 +1,158 @@
+"""The fused publisher's congestion control, with real zenoh processes: a subscriber stopped with SIGSTOP.
+
+The publisher is the fusion node's own (:class:`~skelfuse.service.zenoh_io.FusedPublisher`) on a session that
+the rig config builds (:func:`skelfuse.config.zenoh_config`, so ``[zenoh]``'s keys and defaults are what is
+tested); the subscriber, ``stoppable_subscriber.py``, runs in its own process, linked to the publisher only.
+The publisher puts fused-frame-sized payloads (17.4 KB: eight people) at 30 Hz; the subscriber
+is stopped for 4 s (less than zenoh's 10 s lease, which would close the link), or 200 ms of every 600 ms (an app
+starved of CPU). Socket buffers are shrunk (zenoh ``so_sndbuf`` / ``so_rcvbuf``) so that a stop congests the link
+within a few frames, as a slow network or a starved PC does, not after the megabytes Linux lets a loopback socket
+grow to.
+
+zenoh 1.10's drop path (io/zenoh-transport/src/common/pipeline.rs): a droppable message waits up to
+``wait_before_drop`` for a free batch; when none came, the link's queue at that priority is marked congested
+and later messages drop at once until the link takes a batch again. Measured here (loaded 2-core machine):
+stopped for 8 s, one put held 251-272 ms, the other puts of the stop dropped without waiting, and frames flowed
+again once it ran. Starved: with the default 250 ms it received 150 of 150 (puts held up to 101-148 ms); with
+zenoh's own 1 ms it lost 4-5 of 150 (soak-marked test: the contrast that gives the default's test its meaning).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from skelfuse.config import parse_rig_config, zenoh_config
+from skelfuse.demo import sim_sensor_tables
+from skelfuse.service.zenoh_io import FusedPublisher, free_port
+from skelfuse.wire import keys
+
+SUBSCRIBER = Path(__file__).with_name("stoppable_subscriber.py")
+SMALL_BUFFER = 2048  # bytes; Linux doubles it and keeps a floor of a few KB
+FRAME_BYTES = 17_400  # a fused frame of eight people (four: 8.7 KB, measured)
+STOPPED_PUTS = 120  # 4 s at 30 Hz, less than zenoh's 10 s lease
+STARVED_PUTS = 150  # 5 s
+
+
+def run_subscriber(
+    tmp_path: Path, zenoh_lines: list[str], puts: int, stops: list[tuple[float, float]]
+) -> tuple[list[int], dict[str, Any]]:
+    """Put ``puts`` payloads at 30 Hz; the subscriber is stopped for each (from s, for s) of ``stops``, by a
+    thread of its own (a put held by the stopped subscriber must not delay its SIGCONT); then it reads.
+
+    Returns the put numbers it received and the publisher's report.
+    """
+    import zenoh
+
+    cfg = parse_rig_config(
+        tomllib.loads("\n".join(['[rig]\nname = "cc"\n[zenoh]', *zenoh_lines, *sim_sensor_tables(1)]))
+    )
+    port = free_port()
+    conf = zenoh_config(
+        cfg,
+        [f"transport/link/tcp/so_sndbuf:{SMALL_BUFFER}"],
+        mode="peer",
+        listen=[f"tcp/127.0.0.1:{port}"],
+        multicast_scouting=False,
+    )
+    key = keys.fused_skeletons("cc")
+    out = tmp_path / "received.json"
+    session = zenoh.open(conf)
+    subscriber = None
+    try:
+        z = cfg.zenoh
+        publisher = FusedPublisher(
+            session,
+            key,
+            congestion_control=z.fused_congestion_control,
+            bound_ms=z.wait_before_drop_ms if z.fused_congestion_control == "drop" else z.wait_before_close_ms,
+        )
+        subscriber = subprocess.Popen(
+            [sys.executable, str(SUBSCRIBER), key, str(port), str(out), str(SMALL_BUFFER)],
+            stdout=subprocess.PIPE,
+            start_new_session=True,
+        )
+        assert subscriber.stdout is not None and subscriber.stdout.readline().strip() == b"subscribed"
+        subscriber.stdout.close()
+        time.sleep(1.0)  # its subscription reaches the publisher's session
+        start = time.monotonic()
+        pid = subscriber.pid
+
+        def stop_and_continue() -> None:
+            for at_s, for_s in stops:
+                time.sleep(max(0.0, start + at_s - time.monotonic()))
+                os.kill(pid, signal.SIGSTOP)
+                time.sleep(max(0.0, start + at_s + for_s - time.monotonic()))
+                os.kill(pid, signal.SIGCONT)
+
+        stopper = threading.Thread(target=stop_and_continue, daemon=True)
+        stopper.start()
+        for k in range(puts):
+            delay = start + k / 30.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            publisher.put(k.to_bytes(8, "little") + bytes(FRAME_BYTES - 8))
+        stopper.join(30)
+        os.kill(subscriber.pid, signal.SIGCONT)
+        time.sleep(2.0)  # it reads what waits for it
+        os.kill(subscriber.pid, signal.SIGTERM)
+        subscriber.wait(15)
+        subscriber = None
+        return json.loads(out.read_text()), publisher.report()
+    finally:
+        if subscriber is not None:
+            os.killpg(subscriber.pid, signal.SIGKILL)
+            subscriber.wait(5)
+        session.close()
+
+
+STARVED = [(0.6 * i, 0.2) for i in range(8)]
+"""Stopped 200 ms of every 600 ms (a subscriber starved of CPU), less than the default 250 ms bound."""
+
+
+def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp_path: Path) -> None:
+    """Stopped for 4 s: one put waits the bound, later ones drop at once; once it runs again it gets frames."""
+    pytest.importorskip("zenoh")
+    received, report = run_subscriber(tmp_path, [], STOPPED_PUTS + 60, [(0.0, STOPPED_PUTS / 30.0)])
+    assert report["congestion_control"] == "drop" and report["bound_ms"] == 250
+    assert report["reached_bound"] >= 1, f"the stop never congested the link: {report}"
+    # The caller (the node's loop) is held the bound, plus what a loaded machine adds to one wait, and
+    # not again and again: while the link stays full, frames drop without waiting.
+    assert report["held_max_ms"] < 250 + 150, report
+    assert report["reached_bound"] <= 3, report
+    lost_while_stopped = STOPPED_PUTS - len([k for k in received if k < STOPPED_PUTS])
+    assert lost_while_stopped > 0
+    after = [k for k in received if k >= STOPPED_PUTS + 30]  # a second after it runs again
+    assert after == list(range(STOPPED_PUTS + 30, STOPPED_PUTS + 60)), f"the link did not recover: {after}"
+    print(f"stopped 4 s: lost {lost_while_stopped} of {STOPPED_PUTS} while stopped; {report}")
+
+
+def test_with_the_default_wait_a_starved_subscriber_loses_no_fused_frame(tmp_path: Path) -> None:
+    """Stopped 200 ms of every 600 ms (starved of CPU): with the 250 ms bound it loses nothing."""
+    pytest.importorskip("zenoh")
+    received, report = run_subscriber(tmp_path, [], STARVED_PUTS, STARVED)
+    assert report["bound_ms"] == 250 and report["reached_bound"] == 0, report
+    assert report["held_over_10ms"] > 0, f"the starvation never filled the link: {report}"
+    assert sorted(received) == list(range(STARVED_PUTS)), f"lost {STARVED_PUTS - len(set(received))}: {report}"
+    print(f"starved, default wait: received {len(received)} of {STARVED_PUTS}; {report}")
+
+
+@pytest.mark.soak
+def test_with_zenohs_own_1ms_wait_the_same_starvation_loses_frames(tmp_path: Path) -> None:
+    """What the bound is for: zenoh's default wait drops frames of a subscriber that is only starved."""
+    pytest.importorskip("zenoh")
+    received, report = run_subscriber(tmp_path, ["wait_before_drop_ms = 1"], STARVED_PUTS, STARVED)
+    assert report["bound_ms"] == 1
+    lost = STARVED_PUTS - len(set(received))
+    assert lost > 0, f"nothing lost with a 1 ms wait: this setup did not congest the link ({report})"
+    print(f"1 ms wait: the starved subscriber lost {lost} of {STARVED_PUTS}; {report}")
