@@ -70,7 +70,9 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
     live = demo._group_errors(np.stack(estimate), np.stack(truth))
 
     world = apply_transform(obs.world_from_sensor_calibrated, obs.positions.astype(np.float64))
-    offline_fuser = Fuser(cfg.fusion.fusion_params(), n_bodies=1)
+    offline_fuser = Fuser(
+        cfg.fusion.fusion_params(), n_bodies=1, sensor_positions=obs.world_from_sensor_calibrated[:, :3, 3]
+    )
     offline_out = np.stack(
         [offline_fuser.step(world[f][None], obs.confidence[f][None]).positions[0] for f in range(n_scored)]
     )
