@@ -58,6 +58,7 @@ class Take:
     confidence: np.ndarray  # (T, S, 32)
     truth: np.ndarray  # (T, 32, 3)
     mirrored: np.ndarray  # (T, S)
+    sensor_positions: np.ndarray  # (S, 3) mm, world: the realignment's rear-view rule needs them
 
 
 def make_takes(seed: int, duration_s: float, facings: tuple[float, ...], gestures: tuple[str, ...]) -> list[Take]:
@@ -72,21 +73,30 @@ def make_takes(seed: int, duration_s: float, facings: tuple[float, ...], gesture
             obs = simulate(motion, rig, profile, seed=take_seed)
             world = np.asarray(apply_transform(obs.world_from_sensor_calibrated, obs.positions.astype(np.float64)))
             world = np.where(obs.tracked[..., None, None], world, np.nan)
-            takes.append(Take(gesture, facing, world, obs.confidence, obs.truth, obs.mirrored & obs.tracked))
+            positions = obs.world_from_sensor_calibrated[:, :3, 3]
+            takes.append(Take(gesture, facing, world, obs.confidence, obs.truth, obs.mirrored & obs.tracked, positions))
     return takes
 
 
 def late_start(takes: list[Take], start: int) -> list[Take]:
     """The takes cut to begin at frame ``start``: a cold start while rear views are already mirrored."""
     return [
-        Take(t.gesture, t.facing_deg, t.world[start:], t.confidence[start:], t.truth[start:], t.mirrored[start:])
+        Take(
+            t.gesture,
+            t.facing_deg,
+            t.world[start:],
+            t.confidence[start:],
+            t.truth[start:],
+            t.mirrored[start:],
+            t.sensor_positions,
+        )
         for t in takes
     ]
 
 
 def fuse_take(params: FusionParams, take: Take) -> np.ndarray:
     """(T, 32, 3) fused positions of one take."""
-    fuser = Fuser(params, n_bodies=1)
+    fuser = Fuser(params, n_bodies=1, sensor_positions=take.sensor_positions)
     out = np.full(take.truth.shape, np.nan)
     for t in range(take.truth.shape[0]):
         out[t] = fuser.step(take.world[t][None], take.confidence[t][None], 1.0 / FPS).positions[0]

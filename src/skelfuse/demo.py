@@ -224,7 +224,7 @@ def run_demo_offline(
     track_ids = np.array([1])
     for frame in range(n_frames):
         if take_frame[frame] == 0:  # the person jumps back to the take's start: a new track, as the live node makes
-            fuser = Fuser(params, n_bodies=1)
+            fuser = Fuser(params, n_bodies=1, sensor_positions=observations.world_from_sensor_calibrated[:, :3, 3])
         candidates = world[frame][None]  # (B=1, S, 32, 3)
         confidence = confidences[frame][None]
         tick = time.perf_counter_ns()

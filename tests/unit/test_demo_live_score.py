@@ -70,7 +70,9 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
     live = demo._group_errors(np.stack(estimate), np.stack(truth))
 
     world = apply_transform(obs.world_from_sensor_calibrated, obs.positions.astype(np.float64))
-    offline_fuser = Fuser(cfg.fusion.fusion_params(), n_bodies=1)
+    offline_fuser = Fuser(
+        cfg.fusion.fusion_params(), n_bodies=1, sensor_positions=obs.world_from_sensor_calibrated[:, :3, 3]
+    )
     offline_out = np.stack(
         [offline_fuser.step(world[f][None], obs.confidence[f][None]).positions[0] for f in range(n_scored)]
     )
@@ -88,13 +90,6 @@ def test_live_path_scores_like_offline_through_the_takes_loop_seam(tmp_path: Pat
 
 
 @pytest.mark.soak
-@pytest.mark.xfail(
-    strict=False,
-    reason="open (issue 11, session 19): 2 of 3 runs on the loaded 2-core machine scored 96 mm against 117 mm "
-    "for the best sensor (CLI runs: 17.0, 17.3, 31.0 mm): the workers join one by one, the realignment starts "
-    "cold again when the last views join, and a 2-against-2 split decided by MEDIUM counts can come out mirrored "
-    "and never recover. The loop-seam cause is fixed (the fast test above); this start-up one is not.",
-)
 def test_real_demo_beats_every_sensor_and_stays_near_the_offline_score(tmp_path: Path) -> None:
     # The real thing: 4 capture worker processes, zenoh on loopback, the fusion node; about 25 s wall time.
     live = demo.run_demo(duration_s=10.0, seed=0, rrd_path=tmp_path / "live.rrd", progress=False)

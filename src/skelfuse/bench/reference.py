@@ -84,15 +84,16 @@ class _Track:
 class ReferenceFuser:
     """Slow, obvious implementation of :class:`skelfuse.fusion.pipeline.Fuser` (same inputs and outputs)."""
 
-    def __init__(self, params: FusionParams, n_bodies: int = 1) -> None:
+    def __init__(self, params: FusionParams, n_bodies: int = 1, sensor_positions: np.ndarray | None = None) -> None:
         self.params = params
         self.n_bodies = n_bodies
+        self.sensor_positions = sensor_positions
         self.reset()
 
     def reset(self) -> None:
         self.previous: list[list[np.ndarray | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
         self.tracks: list[list[_Track | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
-        self.flip_counters: list[tuple[int, int, int]] = [(0, 0, 0)] * self.n_bodies
+        self.flip_counters: list[tuple[int, int, int, int]] = [(0, 0, 0, 0)] * self.n_bodies
 
     def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
         # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
@@ -114,7 +115,7 @@ class ReferenceFuser:
                 pos, conf = _realign_body(pos, conf, self.params.realign_passes)
             elif self.params.realign == "temporal":
                 pos, conf, self.flip_counters[b] = _realign_temporal(
-                    pos, conf, previous, self.flip_counters[b], self.params, dt_s
+                    pos, conf, previous, self.flip_counters[b], self.params, dt_s, self.sensor_positions
                 )
             for j in range(J):
                 merged, members, best_conf = self._merge_joint(pos, conf, j, previous[j])
@@ -303,14 +304,15 @@ def _realign_temporal(
     pos: list[list],
     conf: list[list[int]],
     previous: list[np.ndarray | None],
-    counters: tuple[int, int, int],
+    counters: tuple[int, int, int, int],
     params: FusionParams,
     dt_s: float,
-) -> tuple[list[list], list[list[int]], tuple[int, int, int]]:
+    sensor_positions: np.ndarray | None = None,
+) -> tuple[list[list], list[list[int]], tuple[int, int, int, int]]:
     """Whole-body flip per sensor against the previous skeleton (seed view on a cold start), with recovery."""
     S = len(pos)
     pairs = PAPER_REALIGN_PAIRS.tolist()
-    clear, simple, views_seen = counters
+    clear, simple, views_seen, rear_streak = counters
     if params.max_body_speed_mm_s is not None and _teleported(pos, previous, params.max_body_speed_mm_s * dt_s):
         previous = [None] * len(previous)  # the anchor is of another pose: start cold
     n_views = sum(
@@ -353,22 +355,52 @@ def _realign_temporal(
         flipped[s] = total < 0.0
     against = sum(evidence[s] for s in range(S) if flipped[s])
     weight = sum(evidence[s] for s in range(S) if decided[s])
+    rear_against = rear_for = 0  # decided views facing away from their own sensor, by their decision
+    if sensor_positions is not None and params.rear_view_cos is not None:
+        for s in range(S):
+            if decided[s] and _faces_away(pos[s], sensor_positions[s], params.rear_view_cos):
+                rear_against += flipped[s]
+                rear_for += not flipped[s]
     invert = False
     if cold:
-        invert = against > weight - against  # the flipped group holds more MEDIUM evidence
-        clear = simple = 0
+        if rear_against != rear_for:  # the group holding more rear views facing away is right
+            invert = rear_against > rear_for
+        else:
+            invert = against > weight - against  # the flipped group holds more MEDIUM evidence
+        clear = simple = rear_streak = 0
         views_seen = n_views
     else:
-        clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight else 0
-        simple = simple + 1 if against > weight - against else 0
+        confirmed = rear_for > rear_against
+        clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight and not confirmed else 0
+        simple = simple + 1 if against > weight - against and not confirmed else 0
+        rear_streak = rear_streak + 1 if rear_against > rear_for else 0
         slow = params.majority_recovery_frames
-        if clear >= params.recovery_frames or (slow is not None and simple >= slow):
+        if (
+            clear >= params.recovery_frames
+            or (slow is not None and simple >= slow)
+            or rear_streak >= params.rear_view_frames
+        ):
             invert = True
-            clear = simple = 0
+            clear = simple = rear_streak = 0
     pos = [row[:] for row in pos]
     conf = [row[:] for row in conf]
     for s in range(S):
         if flipped[s] != (invert and decided[s]):
             for left, right in MIRROR_PAIRS.tolist():
                 _swap(pos, conf, s, left, right)
-    return pos, conf, (clear, simple, views_seen)
+    return pos, conf, (clear, simple, views_seen, rear_streak)
+
+
+def _faces_away(joints: list, sensor_position: np.ndarray, max_cos: float) -> bool:
+    """True when the view's skeleton, as labelled, faces away from its sensor: the cosine between its facing
+    (left x up from the hips and shoulders) and the horizontal direction to the sensor is below ``max_cos``."""
+    names = ("SHOULDER_LEFT", "SHOULDER_RIGHT", "HIP_LEFT", "HIP_RIGHT")
+    quad = [joints[J[name]] for name in names]
+    if any(p is None for p in quad):
+        return False
+    left = np.asarray(quad[0]) - quad[1] + quad[2] - quad[3]
+    facing = np.array([left[1], -left[0]])
+    centre = np.mean(quad, axis=0)
+    to_sensor = np.asarray(sensor_position[:2], dtype=float) - centre[:2]
+    norms = max(math.hypot(*facing) * math.hypot(*to_sensor), 1e-9)
+    return bool(float(facing @ to_sensor) / norms < max_cos)

@@ -299,15 +299,18 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
     return fuse_sequence(run.params(), candidates[:, sensors], confidence[:, sensors], fps)
 
 
-def fuse_sequence(params: Any, candidates: np.ndarray, confidence: np.ndarray, fps: float) -> np.ndarray:
+def fuse_sequence(
+    params: Any, candidates: np.ndarray, confidence: np.ndarray, fps: float, sensor_positions: np.ndarray | None = None
+) -> np.ndarray:
     """Fuse one person's take frame by frame with ``params`` (a ``FusionParams``).
 
-    ``candidates`` (T, S, 32, 3) world mm, NaN = missing; ``confidence`` (T, S, 32). Returns (T, 32, 3), NaN where
-    the fuser gave none.
+    ``candidates`` (T, S, 32, 3) world mm, NaN = missing; ``confidence`` (T, S, 32); ``sensor_positions`` (S, 3)
+    world mm or None (the realignment's rear-view rule is off without them). Returns (T, 32, 3), NaN where the
+    fuser gave none.
     """
     cand = np.ascontiguousarray(candidates)
     conf = np.ascontiguousarray(confidence)
-    fuser = Fuser(params, n_bodies=1)
+    fuser = Fuser(params, n_bodies=1, sensor_positions=sensor_positions)
     out = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
     dt_s = 1.0 / fps
     for t in range(cand.shape[0]):

@@ -196,7 +196,8 @@ def _run_take(task: _Task) -> dict[str, Any]:
             seam = worst_seam_frame(truth)
             fused = fuse_live(presets.preset(CANDIDATE), obs, round(LIVE_PREROLL_S * FPS), seam)
         else:
-            fused = fuse_sequence(preset_params(name), world, obs.confidence, FPS)
+            positions = obs.world_from_sensor_calibrated[:, :3, 3]
+            fused = fuse_sequence(preset_params(name), world, obs.confidence, FPS, positions)
         dist = np.linalg.norm(fused - truth, axis=-1)  # (T, 32)
         row: dict[str, float] = {}
         for group, joints in JOINT_GROUPS.items():

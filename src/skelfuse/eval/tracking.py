@@ -281,6 +281,8 @@ def run_people(observations: Any, fuser: Any) -> tuple[np.ndarray, np.ndarray, n
     hyp_ids : (T, H) int64 (-1 padded), hyp_positions : (T, H, J, 3), step_ms : (T,) time per step.
     """
     world = observations.positions_world(calibrated=True)
+    # Where each sensor stands (the rig's calibration), for the realignment's rear-view rule, as the node has.
+    fuser.sensor_positions = observations.world_from_sensor_calibrated[:, :3, 3]
     T = observations.n_frames
     ids_list, pos_list, step_ms = [], [], np.zeros(T)
     for t in range(T):

@@ -108,6 +108,7 @@ class PeopleFuser:
         self.duplicate_mm = duplicate_mm
         self.table = TrackTable(track_params)
         self.last_time_s: float | None = None
+        self.sensor_positions: np.ndarray | None = None  # (S, 3) world mm, for the realignment's rear-view rule
 
     def reset(self) -> None:
         """Forget every track (ids keep counting up: an id is never reused)."""
@@ -198,7 +199,13 @@ class PeopleFuser:
                 world_orientations, association.person_of_body, rows, association.n_persons
             )
         result, new_state = fuse(
-            association.candidates[rows], association.confidence[rows], state, self.params, dt_s, orientations
+            association.candidates[rows],
+            association.confidence[rows],
+            state,
+            self.params,
+            dt_s,
+            orientations,
+            self.sensor_positions,
         )
         if every:
             table.fusion = new_state

@@ -82,9 +82,10 @@ class FusionState:
     x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
     P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
     coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
-    flip_counters : (B, 3) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
-        and a simple majority (column 1) of the evidence disagreed with the anchor, and (column 2) the most
-        views that saw the body since its last cold start (None reads as all 0).
+    flip_counters : (B, 4) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
+        and a simple majority (column 1) of the evidence disagreed with the anchor, (column 2) the most
+        views that saw the body since its last cold start, and (column 3) frames in a row rear views facing
+        away disagreed with it (None reads as all 0).
     orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
     angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
     position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
@@ -122,7 +123,7 @@ def init_state(n_bodies: int, params: FusionParams) -> FusionState:
         x=x.reshape(B, N_JOINTS, 2, 3),
         P=P.reshape(B, N_JOINTS, 3),
         coast=coast.reshape(B, N_JOINTS),
-        flip_counters=np.zeros((B, 3), dtype=np.int32),
+        flip_counters=np.zeros((B, 4), dtype=np.int32),
         orientation=orientation,
         angular_velocity=angular_velocity,
         position_cov=np.zeros((B, N_JOINTS, 3)) if params.position_std else None,
@@ -165,6 +166,7 @@ def fuse(
     params: FusionParams,
     dt_s: float = 1.0 / 30.0,
     orientations: np.ndarray | None = None,
+    sensor_positions: np.ndarray | None = None,
 ) -> tuple[FusionResult, FusionState]:
     """Fuse one instant of S sensors' skeletons of B associated bodies.
 
@@ -180,6 +182,10 @@ def fuse(
         The views' joint quaternions (w, x, y, z) in the world frame (:func:`skelfuse.fusion.orientation.
         views_to_world`), NaN or all-zero = none. Used only with ``params.orientations``; None: the fused
         orientations come from the bones and the history alone.
+    sensor_positions : (S, 3) float or None
+        Each sensor's position in the world frame, mm, in the candidates' sensor order (the translations of
+        the calibrated poses). Used only by the "temporal" realignment's rear-view rule
+        (``params.rear_view_cos``); None: that rule is off.
 
     Returns
     -------
@@ -195,11 +201,18 @@ def fuse(
     candidates = np.asarray(candidates)
     confidence = np.asarray(confidence)
     _validate(candidates, confidence, state, dt_s)
+    if sensor_positions is not None and np.shape(sensor_positions) != (candidates.shape[1], 3):
+        raise ValueError(
+            f"sensor_positions must have shape ({candidates.shape[1]}, 3), one world position per sensor of the "
+            f"candidates, got {np.shape(sensor_positions)}"
+        )
     B, _, J, _ = candidates.shape
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    positions, conf, reference, streak, flipped = _realign(positions, conf, params, previous, state.flip_counters, dt_s)
+    positions, conf, reference, streak, flipped = _realign(
+        positions, conf, params, previous, state.flip_counters, dt_s, sensor_positions
+    )
     merged = _merge(positions, conf, reference, previous, params)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
@@ -302,12 +315,13 @@ def _realign(
     previous: np.ndarray,
     streak: np.ndarray | None,
     dt_s: float,
+    sensor_positions: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
     """Realign; also return the reference positions of the result when they come for free (else None),
     the new flip counters and which views were flipped ((B, S) bool; None without realignment)."""
     B = positions.shape[0]
     if streak is None:
-        streak = np.zeros((B, 3), dtype=np.int32)
+        streak = np.zeros((B, 4), dtype=np.int32)
     if params.realign is None:
         return positions, conf, None, streak, None
     if params.realign == "temporal":
@@ -321,6 +335,9 @@ def _realign(
             params.recovery_share,
             majority_recovery_frames=params.majority_recovery_frames,
             max_jump_mm=None if params.max_body_speed_mm_s is None else params.max_body_speed_mm_s * dt_s,
+            sensor_positions=sensor_positions,
+            rear_view_cos=params.rear_view_cos,
+            rear_view_frames=params.rear_view_frames,
         )
         return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)
@@ -376,12 +393,14 @@ class Fuser:
     ----------
     params : FusionParams
     n_bodies : int
+    sensor_positions : (S, 3) float or None, the sensors' world positions passed to :func:`fuse`.
     state : FusionState, the state after the last :meth:`step`.
     """
 
-    def __init__(self, params: FusionParams, n_bodies: int = 1) -> None:
+    def __init__(self, params: FusionParams, n_bodies: int = 1, sensor_positions: np.ndarray | None = None) -> None:
         self.params = params
         self.n_bodies = int(n_bodies)
+        self.sensor_positions = None if sensor_positions is None else np.asarray(sensor_positions, dtype=np.float64)
         self.state = init_state(self.n_bodies, params)
 
     def step(
@@ -392,7 +411,9 @@ class Fuser:
         orientations: np.ndarray | None = None,
     ) -> FusionResult:
         """Fuse one frame (see :func:`fuse`) and keep the new state."""
-        result, self.state = fuse(candidates, confidence, self.state, self.params, dt_s, orientations)
+        result, self.state = fuse(
+            candidates, confidence, self.state, self.params, dt_s, orientations, self.sensor_positions
+        )
         return result
 
     def reset(self) -> None:

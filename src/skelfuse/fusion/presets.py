@@ -84,6 +84,17 @@ class FusionParams:
         of :func:`skelfuse.fusion.realign.realign_temporal`; a looped take's seam, a track handed to someone
         else). None: off. "skelfuse": 6000 mm/s (200 mm per frame at 30 fps; sprinters peak near 10 m/s,
         people walking in a capture space do not exceed about 2-3 m/s).
+    rear_view_cos : float or None
+        "temporal" only, and only where the caller passes the sensors' positions (``fuse(sensor_positions=)``):
+        a view whose own skeleton faces away from its sensor, cosine of the angle between its facing and the
+        direction to the sensor below this, is a rear view that is not mirrored (a mirrored rear view faces its
+        sensor), so its left/right decides a cold start and disproves a mirrored anchor (the rear-view rule of
+        :func:`skelfuse.fusion.realign.realign_temporal`). None: off. "skelfuse": -0.7 (facing more than
+        134 deg away; on the simulator no mirrored view crosses -0.5 without a failure family that mirrors
+        side views).
+    rear_view_frames : int
+        "temporal" only: frames in a row such rear views must disagree with the anchor before the body follows
+        them (>= 1). "skelfuse": 3.
     merge : {"dbscan", "average"}
         "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
         mean of the valid sensor candidates (the paper's A1/A2).
@@ -144,6 +155,8 @@ class FusionParams:
     recovery_share: float = 0.75
     majority_recovery_frames: int | None = None
     max_body_speed_mm_s: float | None = None
+    rear_view_cos: float | None = None
+    rear_view_frames: int = 3
     merge: MergeMode = "dbscan"
     eps_mm: float = 100.0
     reference_weight: float | None = 2.0
@@ -180,6 +193,12 @@ class FusionParams:
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
             raise ValueError(
                 f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"
+            )
+        if int(self.rear_view_frames) < 1:
+            raise ValueError(f"FusionParams.rear_view_frames must be >= 1, got {self.rear_view_frames!r}")
+        if self.rear_view_cos is not None and not -1.0 <= float(self.rear_view_cos) < 0.0:
+            raise ValueError(
+                f"FusionParams.rear_view_cos must be None or in [-1, 0) (facing away), got {self.rear_view_cos!r}"
             )
         if not 0.5 < float(self.recovery_share) <= 1.0:
             raise ValueError(f"FusionParams.recovery_share must be in (0.5, 1], got {self.recovery_share!r}")
@@ -232,6 +251,7 @@ _PRESETS: dict[str, FusionParams] = {
     "SKELFUSE": FusionParams(
         realign="temporal",
         max_body_speed_mm_s=6000.0,
+        rear_view_cos=-0.7,
         merge="dbscan",
         eps_mm=75.0,
         reference_weight=None,

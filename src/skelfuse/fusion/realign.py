@@ -50,8 +50,11 @@ Two modes:
         Measured on the simulator (scripts/tune_fusion.py, cold starts at frames where a view is
         mirrored): every view right in 92% of cold starts, against 78% for the static "body" vote; all
         3-vs-1 splits are right, the misses are 2-vs-2 splits in which the mirrored pair happened to hold
-        more MEDIUM joints. A 3-vs-1 miss is fixed by the recovery rule, a 2-vs-2 miss by the slow rule
-        below when the correct pair later holds more evidence.
+        more MEDIUM joints. That figure predates realistic confidences: rear views now report their hidden
+        torso MEDIUM, as the real tracker does, so the MEDIUM count hardly tells a mirrored rear view from a
+        front view any more. When a view faces away from its sensor (the rear-view rule below) the group
+        holding such views wins instead; otherwise a miss is fixed by the recovery rule (3-vs-1) or, once a
+        rear view stops mirroring, by the rear-view rule.
     Restart (more views than built the anchor)
         An anchor only knows the views it was built from. When more views see a body's pairs than ever did
         since its cold start (counter column 2), the body starts cold again: a body first seen by the two
@@ -63,7 +66,8 @@ Two modes:
         ``recovery_share`` of the evidence of all decided views for ``recovery_frames`` frames in a row,
         the body follows the majority: every decided view's decision is inverted in that frame (the anchor
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
-        anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4.
+        anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
+        frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -71,6 +75,32 @@ Two modes:
         A share of 2/3 also fired on correct anchors while a person turned (a rear view stays mirrored a
         little past 110 deg, so three views can be mirrored for a while); longer windows only delayed the
         fix of wrong cold starts.
+    Rear views (``sensor_positions`` and ``rear_view_cos``, off unless given)
+        A tracker that sees a person from behind and mirrors the skeleton assumes it sees the front: the
+        mirrored skeleton faces ITS OWN sensor. A view whose skeleton, as labelled, faces AWAY from its
+        sensor (:func:`facing_cosine` below ``rear_view_cos``: the facing, ``left x up`` from hips and
+        shoulders, against the horizontal direction from the body to the sensor's calibrated position) is
+        therefore a rear view that is not mirrored at that instant, and its left/right is right. A view facing
+        its sensor is ambiguous (a front view, or a mirrored rear one); a side view is weak either way and
+        stays under the threshold. So: on a cold start the group holding more such views wins (the MEDIUM
+        evidence decides only where they tie, e.g. none); a warm anchor that more of them disagree with than
+        agree with for ``rear_view_frames`` frames in a row is mirrored, and the body follows the views
+        (every decided view's decision inverted, as in recovery); and where more of them agree with the
+        anchor than disagree, the majority rules below do not count that frame (a correct anchor is not
+        overturned by a majority of mirrored views while one of them vouches for it). A wrong 2-vs-2 start
+        (both rear views mirrored at the cold frame: nothing faces away, so nothing to decide by) is thus
+        undone ``rear_view_frames`` frames after one rear view stops mirroring, and an instant 180 deg turn
+        in place (which no teleport rule sees) within ``rear_view_frames`` of a new rear view that is not
+        yet mirrored.
+        Measured (``python scripts/measure_rear_view_signal.py``), simulator (default profile, 20 seeds x 2/3/4
+        sensors): of the (frame, view) samples with a cosine below -0.5, none is mirrored (2497 samples;
+        -0.7: 1941), and 99.7% of the unmirrored rear views (over 110 deg) are below -0.3; with failure
+        families that mirror side views or report a neighbour the share of mirrored views below -0.7 is
+        0.3-1.6%, hence the 3-frame streak. Real data (../shared/data, andyj1 takes: 118 view-frames whose
+        sensor position is known): every view faces its own sensor within 3-36 deg, none faces away; no real
+        rear view was recorded, so the real data neither confirms nor refutes the rule; it rests on the
+        documented tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear
+        frame, it would simply never fire.
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
@@ -114,6 +144,7 @@ _ONES_J = np.ones(N_JOINTS)
 _ONES_2P = np.ones(2 * _N_PAIRS)
 # The body centre of the teleport rule: shoulders and hips, both sides, so that a left/right flip leaves it.
 _CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]])
+_N_COUNTERS = 4  # per-body realignment counters (see realign_temporal's ``streak``)
 
 
 def reference_positions(positions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -237,6 +268,9 @@ def realign_temporal(
     reference: np.ndarray | None = None,
     majority_recovery_frames: int | None = None,
     max_jump_mm: float | None = None,
+    sensor_positions: np.ndarray | None = None,
+    rear_view_cos: float | None = None,
+    rear_view_frames: int = 3,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -246,10 +280,12 @@ def realign_temporal(
     confidence : (B, S, J) int
     previous : (B, J, 3) float, mm
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
-    streak : (B, 3) int
+    streak : (B, 4) int
         Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
         ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
-        that have seen the body's left/right pairs since its last cold start. All 0 for a new body.
+        that have seen the body's left/right pairs since its last cold start; (column 3) frames in a row in
+        which rear views facing away disproved the anchor. All 0 for a new body (three columns are read
+        as the first three, the fourth 0).
     recovery_frames : int
         Disagreement frames in a row after which the body follows the majority (>= 1).
     recovery_share : float
@@ -264,6 +300,16 @@ def realign_temporal(
     max_jump_mm : float or None
         A body whose centre moved further than this since the anchor starts cold (the teleport rule of the
         module docstring). None: off.
+    sensor_positions : (S, 3) float, mm, or None
+        Each sensor's position in the world frame (the translation of its calibrated pose), in the views'
+        order; with ``rear_view_cos`` it enables the rear-view rule of the module docstring.
+    rear_view_cos : float or None
+        A view whose own skeleton faces away from its sensor (cosine between its facing and the horizontal
+        direction from the body to the sensor below this, e.g. -0.7: more than 134 deg away) is a rear view
+        that is not mirrored: its left/right is taken as right. None: off.
+    rear_view_frames : int
+        Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
+        before the body follows them (>= 1).
 
     Returns
     -------
@@ -271,9 +317,12 @@ def realign_temporal(
         themselves when no sensor is mirrored; do not modify them in place).
     confidence : (B, S, J), permuted along with the positions.
     mirrored : (B, S) bool, which sensors were mirrored.
-    streak : (B, 3) int32, the new counters.
+    streak : (B, 4) int32, the new counters.
     """
     B = positions.shape[0]
+    streak = np.asarray(streak, dtype=np.int32)
+    if streak.shape[1] < _N_COUNTERS:  # counters from before the rear-view rule: its streak starts at 0
+        streak = np.concatenate([streak, np.zeros((B, _N_COUNTERS - streak.shape[1]), np.int32)], axis=1)
     if max_jump_mm is not None:
         jumped = teleported(positions, previous, max_jump_mm)
         if jumped.any():
@@ -283,7 +332,6 @@ def realign_temporal(
     evidence = (confidence >= int(Confidence.MEDIUM)) @ _ONES_J  # (B, S), float: whole counts
     anchor = previous[:, _PAIR_ANCHOR]  # (B, 4P, 3): the pair joints twice, facing the labels of ``both``
     both = positions[:, :, _PAIR_BOTH]  # (B, S, 4P, 3): left, right, then the swapped labels
-    streak = np.asarray(streak, dtype=np.int32)
     # Views that see at least one whole pair. An anchor only knows the views it was built from: once more
     # views see the body than ever did since its cold start, the body starts cold again, so a start seen
     # by the rear sensors alone is re-decided when the front ones join.
@@ -314,36 +362,74 @@ def realign_temporal(
     margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
-        counters = np.zeros((B, 3), dtype=np.int32)
+        counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     decided = decidable.any(axis=2)
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
     total = (evidence * decided).sum(axis=1)
+    # Rear-view rule: views facing away from their own sensor are not mirrored; count those the anchor would
+    # flip (rear_against) and those it keeps (rear_for).
+    rear_against = rear_for = np.zeros(B)
+    if sensor_positions is not None and rear_view_cos is not None:
+        rear = (facing_cosine(positions, sensor_positions) < rear_view_cos) & decided  # NaN compares False
+        rear_against = (rear & flips) @ np.ones(flips.shape[1])
+        rear_for = (rear & ~flips) @ np.ones(flips.shape[1])
+    confirmed = rear_for > rear_against  # a rear view vouches for the anchor: no majority overturns it
     # Recovery: a clear majority against the anchor for recovery_frames frames in a row wins. Evidence
     # counts are whole numbers and the share exceeds 1/2, so the 0.5 floor only rules out total == 0.
-    majority = against >= np.maximum(recovery_share * total, 0.5)
-    simple = 2.0 * against > total
+    majority = (against >= np.maximum(recovery_share * total, 0.5)) & ~confirmed
+    simple = (2.0 * against > total) & ~confirmed
+    disproved = rear_against > rear_for
     if has_prev is not None:
         majority &= has_prev
         simple &= has_prev
+        disproved_now = disproved & ~has_prev
+        disproved &= has_prev
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
-    new_streak = np.stack([(streak[:, 0] + 1) * majority, (streak[:, 1] + 1) * simple, views_seen], axis=1).astype(
-        np.int32
-    )
-    follow = new_streak[:, 0] >= recovery_frames
+    new_streak = np.stack(
+        [
+            (streak[:, 0] + 1) * majority,
+            (streak[:, 1] + 1) * simple,
+            views_seen,
+            (streak[:, 3] + 1) * disproved,
+        ],
+        axis=1,
+    ).astype(np.int32)
+    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
     new_streak[follow, :2] = 0
-    if has_prev is not None:  # cold start: the group with more MEDIUM evidence wins (the seed's on a tie)
-        follow = np.where(has_prev, follow, 2 * against > total)
+    new_streak[follow, 3] = 0
+    if has_prev is not None:
+        # Cold start: the group holding more rear views facing away wins; without such a vote, the group with
+        # more MEDIUM evidence (the seed's on a tie).
+        by_evidence = (2 * against > total) & (rear_against == rear_for)
+        follow = np.where(has_prev, follow, disproved_now | by_evidence)
     mirrored = flips ^ (follow[:, None] & decided) if follow.any() else flips
     if not mirrored.any():
         return positions, confidence, mirrored, new_streak
     out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
+
+
+def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.ndarray:
+    """(B, S) cosine between the facing of each view's skeleton, as labelled, and the horizontal direction from
+    that body to the view's own sensor: +1 faces its sensor, -1 faces away from it.
+
+    The facing is ``left x up`` (world z up), ``left`` the sum of the hip and shoulder vectors from the right
+    joint to the left one; the body's position is the mean of those four joints. NaN where one is missing.
+    ``positions`` (B, S, J, 3) world mm; ``sensor_positions`` (S, 3) world mm.
+    """
+    quad = positions[:, :, _CENTRE_JOINTS]  # (B, S, 4, 3): shoulder L, R, hip L, R
+    left = quad[:, :, 0] - quad[:, :, 1] + quad[:, :, 2] - quad[:, :, 3]  # (B, S, 3)
+    to_sensor = np.asarray(sensor_positions, dtype=np.float64)[None] - quad.mean(axis=2)
+    # forward = left x z = (left_y, -left_x, 0); its dot with the horizontal direction to the sensor:
+    dot = left[..., 1] * to_sensor[..., 0] - left[..., 0] * to_sensor[..., 1]
+    norms = np.hypot(left[..., 0], left[..., 1]) * np.hypot(to_sensor[..., 0], to_sensor[..., 1])
+    return dot / np.maximum(norms, 1e-9)
 
 
 def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:

@@ -207,6 +207,7 @@ class GroupFuser:
             gate_mm=float(gate_mm), birth_frames=int(birth_frames), timeout_s=float(timeout_s), max_tracks=max_persons
         )
         self.people = PeopleFuser(params, duplicate_mm=duplicate_mm, track_params=track_params)
+        self.people.sensor_positions = poses[:, :3, 3]  # the rear-view rule needs where each sensor stands
         self.people.table.next_id = int(first_track_id)
         self.last_time_us: int | None = None
 
