@@ -614,12 +614,11 @@ class FusionNode:
                 wait_s = min(IDLE_WAIT_S, max((next_status - time.monotonic_ns()) / 1e9, poll_s))
             item = samples.get(timeout=wait_s)
             while item is not None:
-                # Each instant goes out as soon as it is fused, not after the rest of a backlog is read; then the
-                # loop looks at the stop, the deadlines and the status before it takes the next sample (a starved
-                # node's backlog never hides a SIGTERM from it).
-                outputs = self.core.receive(item.key, item.payload, item.arrival_ns)
-                self._publish(outputs, publisher, view)
-                if outputs or self.lifecycle.should_exit:
+                # Each instant goes out as soon as it is fused, not after the rest of a backlog is read. Deadlines
+                # are looked at only once the queue is empty (a queued frame arrived in time, whatever the time
+                # now), but a stop is seen between any two samples (a starved node's backlog never hides it).
+                self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+                if self.lifecycle.should_exit:
                     break
                 item = samples.get_nowait()
             now_ns = time.monotonic_ns()
