@@ -60,7 +60,10 @@ def run_subscriber(
     port = free_port()
     conf = zenoh_config(
         cfg,
-        [f"transport/link/tcp/so_sndbuf:{SMALL_BUFFER}"],
+        # One transmit batch (64 KB) at the fused frames' priority instead of zenoh's two: with the small socket
+        # buffers a 200 ms stop (six 17.4 KB frames) then fills the link on an idle machine too, not only when
+        # the publisher is also starved.
+        [f"transport/link/tcp/so_sndbuf:{SMALL_BUFFER}", "transport/link/tx/queue/size/data_high:1"],
         mode="peer",
         listen=[f"tcp/127.0.0.1:{port}"],
         multicast_scouting=False,
