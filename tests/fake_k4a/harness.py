@@ -2,7 +2,7 @@
 stats, C layouts) and provides a fake ``pyk4a`` module whose captures and calibrations carry real PyCapsules
 around handles made by the fake libk4a, exactly as pyk4a's C extension does.
 
-Loaded by the tests with :func:`load_harness` (the tests folder is not a package).
+Loaded by the unit tests through tests/unit/fake_sdk.py (the tests folder is not a package).
 """
 
 from __future__ import annotations

@@ -11,13 +11,10 @@ transcription of the SDK's headers (tests/fake_k4a/k4a_abi.h), not the SDK.
 from __future__ import annotations
 
 import ctypes
-import importlib.util
-import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_sdk import build_fake_libs_or_skip, harness
 
 from skelfuse.fusion.camera import Intrinsics, lift_mask
 from skelfuse.fusion.depth.cloud import clouds_to_world, person_clouds
@@ -33,28 +30,14 @@ from skelfuse.sources import k4abt
 from skelfuse.sources.depth_tracker import FRAME_PERIOD_US, VirtualCameraTracker
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings, load_k4a, virtual_calibration
 
-HARNESS_PATH = Path(__file__).resolve().parents[1] / "fake_k4a" / "harness.py"
 K = Intrinsics.azure_kinect_nfov()
 RIG = paper_rig()
 POSES = np.stack([s.world_from_sensor for s in RIG])
 
 
-def _harness():
-    spec = importlib.util.spec_from_file_location("skelfuse_fake_k4a_harness", HARNESS_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, module)
-    spec.loader.exec_module(sys.modules[spec.name])
-    return sys.modules[spec.name]
-
-
-harness = _harness()
-
-
 @pytest.fixture(scope="module")
 def fakes(tmp_path_factory):
-    if shutil.which("gcc") is None:
-        pytest.skip("gcc is not on PATH: cannot compile the fake libk4a / libk4abt the tracker call runs against")
-    libs = harness.build.build_fake_libs(tmp_path_factory.mktemp("fake_k4a_depth"), "1.1")
+    libs = build_fake_libs_or_skip(tmp_path_factory.mktemp("fake_k4a_depth"), "1.1", "the tracker call runs against")
     fake_k4abt = harness.FakeK4abt(libs.k4abt)
     fake_k4a = harness.FakeK4a(libs.k4a)
     fake_k4a.lib.fake_k4a_images_alive.restype = ctypes.c_int

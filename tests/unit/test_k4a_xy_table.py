@@ -10,40 +10,25 @@ numerical Jacobian must find the same rays and the same invalid pixels. Not the 
 from __future__ import annotations
 
 import ctypes
-import importlib.util
-import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_sdk import build_fake_libs_or_skip, harness
 
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import person_clouds, pinhole_xy_table, voxelize
 from skelfuse.sources.k4abt import depth_xy_table, load_k4a
 
-HARNESS_PATH = Path(__file__).resolve().parents[1] / "fake_k4a" / "harness.py"
 WIDTH, HEIGHT, FX, FY, CX, CY = 320, 288, 252.0, 251.5, 163.0, 146.5
 METRIC_RADIUS = 0.78  # cuts the image's corners: those pixels must come out invalid
 
 
-def _harness():
-    spec = importlib.util.spec_from_file_location("skelfuse_fake_k4a_harness", HARNESS_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, module)
-    spec.loader.exec_module(sys.modules[spec.name])
-    return sys.modules[spec.name]
-
-
-harness = _harness()
 PARAMS = {**harness.NFOV_BINNED_LENS, "fx": FX, "fy": FY, "cx": CX, "cy": CY}
 
 
 @pytest.fixture(scope="module")
 def table_and_lib(tmp_path_factory):
-    if shutil.which("gcc") is None:
-        pytest.skip("gcc is not on PATH: cannot compile the fake libk4a the lens model runs in")
-    libs = harness.build.build_fake_libs(tmp_path_factory.mktemp("fake_k4a_lens"), "1.1")
+    libs = build_fake_libs_or_skip(tmp_path_factory.mktemp("fake_k4a_lens"), "1.1", "the lens model runs in")
     k4a = load_k4a(libs.k4a)
     k4a.fake_k4a_unprojections.restype = ctypes.c_int
     calibration = harness.distorted_calibration(WIDTH, HEIGHT, FX, FY, CX, CY, METRIC_RADIUS)

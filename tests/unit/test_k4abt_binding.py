@@ -8,13 +8,10 @@ bit-exactly, hand the tracker configuration over by value, never wait forever, a
 from __future__ import annotations
 
 import ctypes
-import importlib.util
-import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_sdk import build_fake_libs_or_skip, harness
 
 from skelfuse.schema.errors import ServiceError
 from skelfuse.sources import k4abt
@@ -27,27 +24,14 @@ from skelfuse.sources.k4abt import (
     TrackerSettings,
 )
 
-HARNESS_PATH = Path(__file__).resolve().parents[1] / "fake_k4a" / "harness.py"
-
-
-def _harness():
-    spec = importlib.util.spec_from_file_location("skelfuse_fake_k4a_harness", HARNESS_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, module)
-    spec.loader.exec_module(sys.modules[spec.name])
-    return sys.modules[spec.name]
-    return module
-
-
-harness = _harness()
-
 
 @pytest.fixture(scope="module")
 def fake_libs(tmp_path_factory):
-    if shutil.which("gcc") is None:
-        pytest.skip("gcc is not on PATH: cannot compile the fake libk4abt the binding tests run against")
     root = tmp_path_factory.mktemp("fake_k4a")
-    return {abi: harness.build.build_fake_libs(root / abi.replace(".", "_"), abi) for abi in ("1.1", "1.0")}
+    return {
+        abi: build_fake_libs_or_skip(root / abi.replace(".", "_"), abi, "the binding tests run against")
+        for abi in ("1.1", "1.0")
+    }
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,7 @@ carry real PyCapsules around handles of a fake libk4a, and a fake libk4abt compi
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import shutil
 import sys
 import threading
 import time
@@ -16,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_sdk import build_fake_libs_or_skip, harness
 
 from skelfuse.config import load_rig_config
 from skelfuse.schema.errors import ServiceError
@@ -40,26 +39,12 @@ from skelfuse.sources.kinect import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-HARNESS_PATH = ROOT / "tests" / "fake_k4a" / "harness.py"
 EXAMPLE = ROOT / "config" / "rig-example-kinect-4.toml"
-
-
-def _harness():
-    spec = importlib.util.spec_from_file_location("skelfuse_fake_k4a_harness", HARNESS_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, module)
-    spec.loader.exec_module(sys.modules[spec.name])
-    return sys.modules[spec.name]
-
-
-harness = _harness()
 
 
 @pytest.fixture(scope="module")
 def fake_libs(tmp_path_factory):
-    if shutil.which("gcc") is None:
-        pytest.skip("gcc is not on PATH: cannot compile the fake libk4a / libk4abt these tests run against")
-    return harness.build.build_fake_libs(tmp_path_factory.mktemp("fake_k4a_source"), "1.1")
+    return build_fake_libs_or_skip(tmp_path_factory.mktemp("fake_k4a_source"), "1.1", "these tests run against")
 
 
 @pytest.fixture

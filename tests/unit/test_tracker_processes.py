@@ -11,16 +11,14 @@ here with numpy and mapped to the world through the person's own frontal view. W
 
 from __future__ import annotations
 
-import importlib.util
 import os
-import shutil
 import signal
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_sdk import build_fake_libs_or_skip
 
 from skelfuse.fusion.camera import lift_mask
 from skelfuse.fusion.depth.cloud import person_clouds
@@ -33,7 +31,6 @@ from skelfuse.sim.motion import facing_deg
 from skelfuse.sim.rig import paper_rig
 from skelfuse.sources.k4abt import K4A_LIBRARY_ENV, K4ABT_LIBRARY_ENV, TrackerCreateError, TrackerSettings
 
-HARNESS_PATH = Path(__file__).resolve().parents[1] / "fake_k4a" / "harness.py"
 K = VIRTUAL_INTRINSICS
 RIG = paper_rig()
 POSES = np.stack([s.world_from_sensor for s in RIG])
@@ -41,22 +38,9 @@ SETTINGS = TrackerSettings(processing_mode="cpu")
 WAIT_MS = 40
 
 
-def _harness():
-    spec = importlib.util.spec_from_file_location("skelfuse_fake_k4a_harness", HARNESS_PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, module)
-    spec.loader.exec_module(sys.modules[spec.name])
-    return sys.modules[spec.name]
-
-
-harness = _harness()
-
-
 @pytest.fixture(scope="module")
 def fake_libs(tmp_path_factory):
-    if shutil.which("gcc") is None:
-        pytest.skip("gcc is not on PATH: cannot compile the fake libk4a / libk4abt the trackers run on")
-    return harness.build.build_fake_libs(tmp_path_factory.mktemp("fake_k4a_processes"), "1.1")
+    return build_fake_libs_or_skip(tmp_path_factory.mktemp("fake_k4a_processes"), "1.1", "the trackers run on")
 
 
 @pytest.fixture
