@@ -45,7 +45,7 @@ STARVED_PUTS = 150  # 5 s
 
 
 def run_subscriber(
-    tmp_path: Path, zenoh_lines: list[str], puts: int, stops: list[tuple[float, float]]
+    tmp_path: Path, zenoh_lines: list[str], puts: int, stops: list[tuple[float, float]], raw: tuple[str, ...] = ()
 ) -> tuple[list[int], dict[str, Any]]:
     """Put ``puts`` payloads at 30 Hz; the subscriber is stopped for each (from s, for s) of ``stops``, by a
     thread of its own (a put held by the stopped subscriber must not delay its SIGCONT); then it reads.
@@ -60,10 +60,7 @@ def run_subscriber(
     port = free_port()
     conf = zenoh_config(
         cfg,
-        # One transmit batch (64 KB) at the fused frames' priority instead of zenoh's two: with the small socket
-        # buffers a 200 ms stop (six 17.4 KB frames) then fills the link on an idle machine too, not only when
-        # the publisher is also starved.
-        [f"transport/link/tcp/so_sndbuf:{SMALL_BUFFER}", "transport/link/tx/queue/size/data_high:1"],
+        [f"transport/link/tcp/so_sndbuf:{SMALL_BUFFER}", *raw],
         mode="peer",
         listen=[f"tcp/127.0.0.1:{port}"],
         multicast_scouting=False,
@@ -121,8 +118,13 @@ def run_subscriber(
 
 STARVED = [(0.6 * i, 0.2) for i in range(8)]
 """Stopped 200 ms of every 600 ms (a subscriber starved of CPU), less than the default 250 ms bound."""
+ONE_BATCH = ("transport/link/tx/queue/size/data_high:1",)
+"""One transmit batch (64 KB) at the fused frames' priority instead of zenoh's two: with the small socket buffers
+a 200 ms stop (six 17.4 KB frames) then fills the link on an idle machine too, not only when the publisher is
+starved as well (on an idle machine, with two batches, the starvation never filled it)."""
 
 
+@pytest.mark.soak  # whether a stop fills the link depends on scheduling: 1 of 5 idle runs did not
 def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp_path: Path) -> None:
     """Stopped for 4 s: one put waits the bound, later ones drop at once; once it runs again it gets frames."""
     pytest.importorskip("zenoh")
@@ -140,10 +142,11 @@ def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp
     print(f"stopped 4 s: lost {lost_while_stopped} of {STOPPED_PUTS} while stopped; {report}")
 
 
+@pytest.mark.soak  # whether a stop fills the link depends on scheduling: 1 of 5 idle runs did not
 def test_with_the_default_wait_a_starved_subscriber_loses_no_fused_frame(tmp_path: Path) -> None:
     """Stopped 200 ms of every 600 ms (starved of CPU): with the 250 ms bound it loses nothing."""
     pytest.importorskip("zenoh")
-    received, report = run_subscriber(tmp_path, [], STARVED_PUTS, STARVED)
+    received, report = run_subscriber(tmp_path, [], STARVED_PUTS, STARVED, ONE_BATCH)
     assert report["bound_ms"] == 250 and report["reached_bound"] == 0, report
     assert report["held_over_10ms"] > 0, f"the starvation never filled the link: {report}"
     assert sorted(received) == list(range(STARVED_PUTS)), f"lost {STARVED_PUTS - len(set(received))}: {report}"
@@ -154,7 +157,7 @@ def test_with_the_default_wait_a_starved_subscriber_loses_no_fused_frame(tmp_pat
 def test_with_zenohs_own_1ms_wait_the_same_starvation_loses_frames(tmp_path: Path) -> None:
     """What the bound is for: zenoh's default wait drops frames of a subscriber that is only starved."""
     pytest.importorskip("zenoh")
-    received, report = run_subscriber(tmp_path, ["wait_before_drop_ms = 1"], STARVED_PUTS, STARVED)
+    received, report = run_subscriber(tmp_path, ["wait_before_drop_ms = 1"], STARVED_PUTS, STARVED, ONE_BATCH)
     assert report["bound_ms"] == 1
     lost = STARVED_PUTS - len(set(received))
     assert lost > 0, f"nothing lost with a 1 ms wait: this setup did not congest the link ({report})"
