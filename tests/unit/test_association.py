@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -136,6 +138,17 @@ def test_nanmedian_matches_numpy_and_is_silent_on_all_nan() -> None:
     values[:, :, 0] = 1.0  # every slice has a value
     np.testing.assert_allclose(nanmedian_axis(values, 1), np.nanmedian(values, axis=1))
     assert np.isnan(nanmedian_axis(np.full((2, 3), np.nan), 1)).all()
+    # Any axis, negative ones too (the axis is moved last by a transpose); the input is left untouched.
+    values = rng.normal(size=(4, 5, 6, 3))
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[0, 0, 0] = 1.0
+    before = values.copy()
+    for axis in (0, 1, 2, 3, -1, -3):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # numpy warns on its all-NaN slices
+            expected = np.nanmedian(values, axis=axis)
+        np.testing.assert_array_equal(nanmedian_axis(values, axis), expected)
+    np.testing.assert_array_equal(values, before)
 
 
 def test_descriptor_distance_needs_common_points() -> None:

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from skelfuse.fusion import orientation as orient
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
-from skelfuse.schema.skeleton import MIRROR, N_JOINTS, ORIENTATION_AIMED, PARENTS, J
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, ORIENTATION_AIM, ORIENTATION_AIMED, PARENTS, J
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "azure-kinect-andyj1"
 
@@ -173,6 +173,27 @@ def test_swing_matches_fused_bones_and_twist_comes_from_the_views():
     err = orient.quat_angle_deg(fused, reference)[ORIENTATION_AIMED]
     assert np.nanmax(err) < 0.05  # the filter carries earlier frames' bones: swings do not commute exactly
     assert (orient.quat_angle_deg(fused, orient.body_hint_frames(result.positions[0]))[ORIENTATION_AIMED] > 25).all()
+
+
+def test_a_view_whose_x_axis_points_exactly_away_from_the_bone_is_swung_by_half_a_turn():
+    """The swing's rare branch (no unique smallest rotation): the consensus of that single view is the public,
+    axis-last ``swing_onto_aims`` of it, and its X axis lies on the bone; the other joints agree with it too."""
+    rng = np.random.default_rng(3)
+    positions = rng.normal(0.0, 300.0, (1, N_JOINTS, 3))
+    j = int(np.flatnonzero(ORIENTATION_AIMED)[3])
+    start, end, sign = ORIENTATION_AIM[j]
+    positions[0, end] = positions[0, start] + sign * np.array([100.0, 0.0, 0.0])
+    aims = orient.aim_directions(positions)
+    assert np.array_equal(aims[0, j], [1.0, 0.0, 0.0])
+    views = orient.quat_normalize(rng.normal(size=(1, 2, N_JOINTS, 4)))
+    views[0, 0, j] = [0.0, 0.0, 0.0, 1.0]  # half a turn about z: its X axis is exactly -x
+    usable = np.zeros((1, 2, N_JOINTS), dtype=bool)
+    usable[0, 0] = True
+    quats, n_views = orient.view_consensus(positions, views, usable, 45.0)
+    expected = orient.swing_onto_aims(views[:, 0], aims)
+    assert (n_views[0, ORIENTATION_AIMED] == 1).all()
+    np.testing.assert_allclose(quats[0, ORIENTATION_AIMED], expected[0, ORIENTATION_AIMED], atol=1e-12)
+    np.testing.assert_allclose(orient.quat_rotate(quats[0, j], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0], atol=1e-12)
 
 
 def test_an_outlying_view_is_outvoted():

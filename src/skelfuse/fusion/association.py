@@ -133,13 +133,18 @@ def descriptor_distance(a: np.ndarray, b: np.ndarray, min_common_points: int = D
 
 def nanmedian_axis(values: np.ndarray, axis: int) -> np.ndarray:
     """Median over ``axis`` ignoring NaN (NaN where all are NaN), without numpy's all-NaN warnings."""
-    values = np.moveaxis(np.asarray(values, dtype=np.float64), axis, -1)
+    values = np.asarray(values, dtype=np.float64)
+    axis = axis % values.ndim
+    # The axis last by a plain transpose (np.moveaxis costs a dozen Python-level calls on the hot path).
+    values = values.transpose([i for i in range(values.ndim) if i != axis] + [axis])
     if values.shape[-1] == 0:
         return np.full(values.shape[:-1], np.nan)
     n = values.shape[-1]
     finite = np.isfinite(values)
     count = finite.sum(axis=-1)
-    ordered = np.sort(np.where(finite, values, np.inf), axis=-1).reshape(-1, n)  # missing sort last
+    ordered = np.where(finite, values, np.inf)  # missing sort last
+    ordered.sort(axis=-1)
+    ordered = ordered.reshape(-1, n)
     lo = np.maximum((count - 1) // 2, 0).ravel()
     hi = np.minimum(count // 2, n - 1).ravel()
     lane = np.arange(ordered.shape[0])
@@ -221,7 +226,12 @@ def associate(
     confirmed = np.ones(K, dtype=bool) if track_confirmed is None else np.asarray(track_confirmed, dtype=bool)
     if confirmed.shape != (K,):
         raise ValueError(f"track_confirmed must have shape ({K},), got {confirmed.shape}")
-    gate = np.broadcast_to(np.asarray(gate_mm if track_gate_mm is None else track_gate_mm, dtype=np.float64), (K,))
+    if track_gate_mm is None:
+        gate = np.full(K, float(gate_mm))
+    else:
+        gate = np.asarray(track_gate_mm, dtype=np.float64)
+        if gate.shape != (K,):
+            gate = np.broadcast_to(gate, (K,))
     S, B = valid.shape
 
     body_desc = torso_descriptor(positions)  # (S, B, D, 3)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -87,88 +88,20 @@ _QMUL = _product_table(
 # a * conj(b): the conjugate's signs folded in.
 _QMUL_CONJ = _QMUL * np.array([1.0, -1.0, -1.0, -1.0] * 4)[:, None]
 _QMUL_CONJ.setflags(write=False)
-# The local X axis of q, minus (1, 0, 0): (-2(y^2 + z^2), 2(xy + wz), 2(xz - wy)) from q outer q.
-_XAXIS = _product_table(
-    {0: [(2, 2, -2.0), (3, 3, -2.0)], 1: [(1, 2, 2.0), (0, 3, 2.0)], 2: [(1, 3, 2.0), (0, 2, -2.0)]}, 3, 4, 4
-)
-# u x v from u outer v.
-_CROSS = _product_table(
-    {0: [(1, 2, 1.0), (2, 1, -1.0)], 1: [(2, 0, 1.0), (0, 2, -1.0)], 2: [(0, 1, 1.0), (1, 0, -1.0)]}, 3, 3, 3
-)
-
 
 _DERIVED_SOURCE = ORIENTATION_DERIVED_SOURCE[_DERIVED]
-_DERIVED_OFFSETS = ORIENTATION_DERIVED_OFFSET[_DERIVED][None]  # (1, n_derived, 4)
 
 
-def _einsum_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("...k,...k->...", a, b)
-
-
-_dot = getattr(np, "vecdot", _einsum_dot)
-"""Dot product over the last axis, broadcast (``np.vecdot`` from numpy 2.0, one ufunc call; einsum before)."""
-
-
-def _bilinear(a: np.ndarray, b: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """``(a outer b) @ table`` over the last axes, a and b of the same leading shape."""
-    outer = a[..., :, None] * b[..., None, :]
-    shape = outer.shape[:-2]
-    return (outer.reshape(-1, table.shape[0]) @ table).reshape(*shape, table.shape[1])
-
-
-_LARGE = 2048
-"""Elements above which the explicit formulas beat the bilinear tables (their per-call overhead is paid back and
-the (N, 4, 4) outer product costs more than the dozen elementwise products; measured on 4 x 1 and 16 x 6)."""
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`quat_multiply` for arrays of the same shape (the hot path's form)."""
-    return quat_multiply(a, b) if a.size > _LARGE else _bilinear(a, b, _QMUL)
+_ONES4 = np.ones(4)
 
 
 def _normalize(q: np.ndarray) -> np.ndarray:
-    """:func:`quat_normalize` with fewer numpy calls: unit rows, NaN where zero or non-finite."""
-    norm = np.sqrt(_dot(q, q))[..., None]
+    """:func:`quat_normalize` with fewer numpy calls: unit rows, NaN where zero or non-finite (the squared norm
+    as a matrix product: a sum over a trailing axis of 4 costs several times more)."""
+    norm = np.sqrt((q * q) @ _ONES4)[..., None]
     out = np.full(q.shape, np.nan)
     np.divide(q, norm, out=out, where=(norm > 1e-9) & (norm < np.inf))  # NaN compares False: stays NaN
     return out
-
-
-def _swing_onto(quats: np.ndarray, aims: np.ndarray) -> np.ndarray:
-    """:func:`swing_onto_aims` for arrays of the same leading shape: the smallest rotation from the quaternion's
-    X axis onto the aim, times the quaternion, normalized."""
-    large = quats.size > _LARGE
-    if large:
-        x_axis = quat_rotate(quats, _LOCAL_X)
-    else:
-        x_axis = _bilinear(quats, quats, _XAXIS)
-        x_axis[..., 0] += 1.0
-    w = 1.0 + _dot(x_axis, aims)[..., None]
-    cross = _cross(x_axis, np.broadcast_to(aims, x_axis.shape)) if large else _bilinear(x_axis, aims, _CROSS)
-    swing = np.concatenate([w, cross], axis=-1)
-    opposite = w < 1e-9
-    if opposite.any():  # rare: the X axis points exactly away from the aim
-        swing = np.where(opposite, swing_between(x_axis, aims), swing)
-    return _normalize(_qmul(_normalize(swing), quats))
-
-
-def _rotvec_to_quat(r: np.ndarray) -> np.ndarray:
-    """:func:`quat_from_rotvec` (the hot path's form)."""
-    angle = np.sqrt(_dot(r, r))[..., None]
-    half = 0.5 * angle
-    k = 0.5 - angle * angle / 48.0  # sin(a/2)/a near 0
-    np.divide(np.sin(half), angle, out=k, where=angle > 1e-8)
-    return np.concatenate([np.cos(half), k * r], axis=-1)
-
-
-def _quat_to_rotvec_fast(q: np.ndarray) -> np.ndarray:
-    """:func:`quat_to_rotvec` (the hot path's form)."""
-    sign = np.where(q[..., :1] < 0.0, -1.0, 1.0)
-    vec = q[..., 1:] * sign
-    s = np.sqrt(_dot(vec, vec))[..., None]
-    k = np.full(s.shape, 2.0)
-    np.divide(2.0 * np.arctan2(s, q[..., :1] * sign), s, out=k, where=s > 1e-12)
-    return k * vec
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -433,6 +366,143 @@ def views_to_world_by_matrix(orientations: np.ndarray, matrices: np.ndarray) -> 
 
 
 # ----------------------------------------------------------------------------------------------------------------
+# The hot path, component-major: a quaternion array is laid out (4, ...) and a vector array (3, ...), so that every
+# elementwise step runs over one contiguous row per component. numpy's cost for a trailing axis of 3 or 4 is its
+# per-element inner-loop setup (a dot product over (N, 4) costs ~15x the same work over four rows of N), and a
+# bilinear product is one broadcast outer product of rows plus one (n_out, n_a * n_b) matrix product.
+
+
+def _table_rows(table: np.ndarray) -> np.ndarray:
+    """A bilinear table of :func:`_product_table` for the component-major layout: (n_out, n_a * n_b)."""
+    rows = np.ascontiguousarray(table.T)
+    rows.setflags(write=False)
+    return rows
+
+
+_QMUL_ROWS = _table_rows(_QMUL)
+_QMUL_CONJ_ROWS = _table_rows(_QMUL_CONJ)
+# (|q|^2, X axis of q) from q outer q: (w^2 + x^2 + y^2 + z^2, w^2 + x^2 - y^2 - z^2, 2(xy + wz), 2(xz - wy)).
+# For a unit q the first row is 1 (to rounding): the four rows are (1, x_axis), ready for :data:`_SWING_ROWS`.
+_ONE_XAXIS_ROWS = _table_rows(
+    _product_table(
+        {
+            0: [(0, 0, 1.0), (1, 1, 1.0), (2, 2, 1.0), (3, 3, 1.0)],
+            1: [(0, 0, 1.0), (1, 1, 1.0), (2, 2, -1.0), (3, 3, -1.0)],
+            2: [(1, 2, 2.0), (0, 3, 2.0)],
+            3: [(1, 3, 2.0), (0, 2, -2.0)],
+        },
+        4,
+        4,
+        4,
+    )
+)
+# The unnormalized swing (1 + u.v, u x v) from (1, u) outer (1, v).
+_SWING_ROWS = _table_rows(
+    _product_table(
+        {
+            0: [(0, 0, 1.0), (1, 1, 1.0), (2, 2, 1.0), (3, 3, 1.0)],
+            1: [(2, 3, 1.0), (3, 2, -1.0)],
+            2: [(3, 1, 1.0), (1, 3, -1.0)],
+            3: [(1, 2, 1.0), (2, 1, -1.0)],
+        },
+        4,
+        4,
+        4,
+    )
+)
+_DERIVED_OFFSETS_ROWS = np.ascontiguousarray(ORIENTATION_DERIVED_OFFSET[_DERIVED].T)[:, None, :]  # (4, 1, n_derived)
+_AIM_SIGN_AIMED = np.where(ORIENTATION_AIMED, _AIM_SIGN, np.nan)  # a derived joint's aim comes out NaN
+
+
+def _rows_bilinear(a: np.ndarray, b: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``rows @ (a outer b)`` over the leading (component) axes; the trailing axes of a and b broadcast."""
+    outer = a[:, None] * b[None, :]
+    return (rows @ outer.reshape(rows.shape[1], -1)).reshape(rows.shape[0], *outer.shape[2:])
+
+
+def _rows_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit rows of a component-major array whose entries are finite or NaN; NaN where the norm is ~0."""
+    norm = np.sqrt((q * q).sum(axis=0))
+    out = np.full(q.shape, np.nan)
+    np.divide(q, norm, out=out, where=norm > 1e-9)
+    return out
+
+
+def _rows_aims(positions_rows: np.ndarray) -> np.ndarray:
+    """:func:`aim_directions` of (3, B, J) positions, (3, B, J); NaN for derived joints and missing bones."""
+    d = (positions_rows[:, :, _AIM_TO] - positions_rows[:, :, _AIM_FROM]) * _AIM_SIGN_AIMED
+    norm = np.sqrt((d * d).sum(axis=0))
+    out = np.full(d.shape, np.nan)
+    np.divide(d, norm, out=out, where=norm > 1e-6)
+    return out
+
+
+def _rows_swing_onto(quats: np.ndarray, aims_one: np.ndarray) -> np.ndarray:
+    """:func:`swing_onto_aims` component-major: quats (4, ...), ``aims_one`` (4, ...) = (1, aim), broadcast."""
+    swing = _rows_bilinear(_rows_bilinear(quats, quats, _ONE_XAXIS_ROWS), aims_one, _SWING_ROWS)
+    opposite = swing[0] < 1e-9
+    if opposite.any():  # rare: the X axis points exactly away from the aim
+        x_axis = np.moveaxis(_rows_bilinear(quats, quats, _ONE_XAXIS_ROWS)[1:], 0, -1)
+        aims = np.moveaxis(np.broadcast_to(aims_one[1:], x_axis.shape[-1:] + x_axis.shape[:-1]), 0, -1)
+        swing = np.where(opposite, np.moveaxis(swing_between(x_axis, aims), -1, 0), swing)
+    # |swing * q| = |swing| |q|: one normalization of the product is the swing's and the product's.
+    return _rows_normalize(_rows_bilinear(swing, quats, _QMUL_ROWS))
+
+
+def _rows_rotvec_to_quat(r: np.ndarray) -> np.ndarray:
+    """:func:`quat_from_rotvec` component-major: (3, ...) -> (4, ...)."""
+    angle = np.sqrt((r * r).sum(axis=0))
+    half = 0.5 * angle
+    k = 0.5 - angle * angle / 48.0  # sin(a/2)/a near 0
+    np.divide(np.sin(half), angle, out=k, where=angle > 1e-8)
+    out = np.empty((4, *r.shape[1:]))
+    np.cos(half, out=out[0])
+    np.multiply(k, r, out=out[1:])
+    return out
+
+
+def _rows_quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """:func:`quat_to_rotvec` component-major: (4, ...) -> (3, ...)."""
+    sign = np.where(q[0] < 0.0, -1.0, 1.0)
+    vec = q[1:] * sign
+    s = np.sqrt((vec * vec).sum(axis=0))
+    k = np.full(s.shape, 2.0)
+    np.divide(2.0 * np.arctan2(s, q[0] * sign), s, out=k, where=s > 1e-12)
+    return k * vec
+
+
+def _rows_consensus(swung: np.ndarray, usable: np.ndarray, agree_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 2-3 on the views already swung onto the aims, (4, S, B, J); ``usable`` (S, B, J) bool.
+
+    Returns the consensus (4, B, J) (NaN where no view) and the views averaged (B, J) int16."""
+    _, S, B, J = swung.shape
+    valid = usable & (swung[0] == swung[0])  # NaN rows are not valid
+    q = np.where(valid, swung, 0.0).reshape(4, S, B * J)
+    dots = q.transpose(2, 1, 0) @ q.transpose(2, 0, 1)  # (B*J, S, S) |cos(angle/2)| where both valid
+    # An invalid view's row is zero, so its dots are 0 and never reach the threshold (cos(agree/2) > 0 for
+    # agree_deg <= 180): only valid pairs agree, the diagonal included.
+    agree = np.abs(dots) >= math.cos(math.radians(agree_deg) / 2.0)
+    support = agree.astype(np.float64) @ np.ones(S)  # (B*J, S), exact counts (faster than a bool sum)
+    best = np.argmax(support, axis=-1)  # lowest index on ties
+    lanes = _lanes(B * J)
+    members = agree[lanes, best]  # (B*J, S)
+    signs = np.sign(dots[lanes, best])  # align to the winner
+    weights = np.where(members, np.where(signs == 0, 1.0, signs), 0.0)
+    total = np.einsum("ksn,ns->kn", q, weights)
+    n_views = members.sum(axis=-1).astype(np.int16)
+    # The mean of rotations that share an aim shares it too (up to rounding, ~1e-16): no re-swing needed.
+    total[:, n_views == 0] = np.nan
+    return _rows_normalize(total).reshape(4, B, J), n_views.reshape(B, J)
+
+
+@lru_cache(maxsize=64)
+def _lanes(n: int) -> np.ndarray:
+    out = np.arange(n)
+    out.setflags(write=False)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
 # The stage.
 
 
@@ -492,36 +562,12 @@ def view_consensus(
     quats : (B, 32, 4) the consensus (NaN where no usable view or no aim).
     n_views : (B, 32) int16, the views averaged.
     """
-    return _consensus(aim_directions(positions), view_quats, usable, agree_deg)
-
-
-def _consensus(
-    aims: np.ndarray, view_quats: np.ndarray, usable: np.ndarray, agree_deg: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`view_consensus` from the aims, laid out (B, J, S) so that every step is one batched call."""
-    quats = np.asarray(view_quats, dtype=np.float64).transpose(0, 2, 1, 3)  # (B, J, S, 4)
-    return _consensus_of_swung(_swing_onto(quats, aims[:, :, None, :]), usable, agree_deg)
-
-
-def _consensus_of_swung(swung: np.ndarray, usable: np.ndarray, agree_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Steps 2-3 on the views already swung onto the aims, (B, J, S, 4); ``usable`` (B, S, J)."""
-    B, S, J = np.shape(usable)
-    valid = np.asarray(usable, dtype=bool).transpose(0, 2, 1) & (swung[..., 0] == swung[..., 0])  # NaN rows
-    q = np.where(valid[..., None], swung, 0.0)
-    dots = q @ q.swapaxes(-1, -2)  # (B, J, S, S) |cos(angle/2)| where both valid
-    # An invalid view's row is zero, so its dots are 0 and never reach the threshold (cos(agree/2) > 0 for
-    # agree_deg <= 180): only valid pairs agree, the diagonal included.
-    agree = np.abs(dots) >= math.cos(math.radians(agree_deg) / 2.0)
-    support = agree.astype(np.float64) @ np.ones(S)  # (B, J, S), exact counts (faster than a bool sum)
-    best = np.argmax(support, axis=-1).ravel()  # (B*J,): lowest index on ties
-    lanes = np.arange(B * J)
-    members = agree.reshape(B * J, S, S)[lanes, best]  # (B*J, S)
-    signs = np.sign(dots.reshape(B * J, S, S)[lanes, best])  # align to the winner
-    weights = np.where(members, np.where(signs == 0, 1.0, signs), 0.0)
-    total = (weights[:, None, :] @ q.reshape(B * J, S, 4))[:, 0].reshape(B, J, 4)
-    n_views = members.sum(axis=-1).astype(np.int16).reshape(B, J)
-    # The mean of rotations that share an aim shares it too (up to rounding, ~1e-16): no re-swing needed.
-    return _normalize(np.where((n_views > 0)[..., None], total, np.nan)), n_views
+    aims = _rows_aims(np.asarray(positions, dtype=np.float64).transpose(2, 0, 1))
+    aims_one = np.concatenate([np.ones((1, *aims.shape[1:])), aims])[:, None]  # (4, 1, B, J)
+    views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)  # (4, S, B, J)
+    swung = _rows_swing_onto(views, aims_one)
+    quats, n_views = _rows_consensus(swung, np.asarray(usable, dtype=bool).transpose(1, 0, 2), agree_deg)
+    return quats.transpose(1, 2, 0), n_views
 
 
 def fuse_orientations(
@@ -538,7 +584,8 @@ def fuse_orientations(
     Parameters
     ----------
     positions : (B, 32, 3) fused (filtered) positions, mm, world; NaN = none.
-    view_quats : (B, S, 32, 4) the views' world quaternions, or None (no view reports orientations).
+    view_quats : (B, S, 32, 4) the views' world quaternions (finite or NaN rows), or None (no view reports
+        orientations).
     usable : (B, S, 32) bool, or None with ``view_quats``.
     quats_prev : (B, 32, 4) last output (zero or NaN rows: no history).
     omega_prev : (B, 32, 3) angular velocity estimate, rad/s, world.
@@ -548,49 +595,60 @@ def fuse_orientations(
     Returns
     -------
     result : OrientationResult
-    quats, omega : the new filter state (new arrays).
+    quats, omega : the new filter state (new arrays; like the result's quats, (B, 32, 4) views of
+        component-major arrays).
     """
     positions = np.asarray(positions, dtype=np.float64)
     B = positions.shape[0]
-    aims = aim_directions(positions)
-    prev = _normalize(np.asarray(quats_prev, dtype=np.float64))
-    has_prev = (prev[..., 0] == prev[..., 0])[..., None]
-    omega = np.where(has_prev, np.asarray(omega_prev, dtype=np.float64), 0.0)
-    predicted = _qmul(_rotvec_to_quat(omega * dt_s), prev)
-    has_aim = (aims[..., 0] == aims[..., 0])[..., None]
-    if view_quats is None or usable is None or np.asarray(view_quats).shape[1] == 0:
-        measured = np.full((B, N_JOINTS, 4), np.nan)
+    # Component-major from here on (see _rows_bilinear): quaternions (4, B, J), vectors (3, B, J).
+    position_rows = positions.transpose(2, 0, 1)
+    aims = _rows_aims(position_rows)
+    aims_one = np.concatenate([np.ones((1, B, N_JOINTS)), aims])  # (1, aim): what the swing table takes
+    prev = _rows_normalize(np.asarray(quats_prev, dtype=np.float64).transpose(2, 0, 1))
+    has_prev = prev[0] == prev[0]  # (B, J)
+    omega = np.where(has_prev, np.asarray(omega_prev, dtype=np.float64).transpose(2, 0, 1), 0.0)
+    predicted = _rows_bilinear(_rows_rotvec_to_quat(omega * dt_s), prev, _QMUL_ROWS)
+    has_aim = aims[0] == aims[0]
+    if view_quats is None or usable is None or np.shape(view_quats)[1] == 0:
+        measured = np.full((4, B, N_JOINTS), np.nan)
         n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
-        swung_prediction = _swing_onto(predicted, aims)
+        swung_prediction = _rows_swing_onto(predicted, aims_one)
     else:
-        # The views and the prediction swung onto this frame's bones in one call: (B, J, S + 1, 4).
-        views = np.asarray(view_quats, dtype=np.float64).transpose(0, 2, 1, 3)
-        swung = _swing_onto(np.concatenate([views, predicted[:, :, None]], axis=2), aims[:, :, None, :])
-        measured, n_views = _consensus_of_swung(swung[:, :, :-1], usable, params.agree_deg)
-        swung_prediction = swung[:, :, -1]
-    has_meas = (measured[..., 0] == measured[..., 0])[..., None]  # a consensus row is all finite or all NaN
+        # The views and the prediction swung onto this frame's bones in one call: (4, S + 1, B, J); the views'
+        # axis ahead of the bodies' so that the aims (4, 1, B, J) broadcast over a leading axis.
+        views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)
+        swung = _rows_swing_onto(np.concatenate([views, predicted[:, None]], axis=1), aims_one[:, None])
+        usable_rows = np.asarray(usable, dtype=bool).transpose(1, 0, 2)  # (S, B, J)
+        measured, n_views = _rows_consensus(swung[:, :-1], usable_rows, params.agree_deg)
+        swung_prediction = swung[:, -1]
+    has_meas = measured[0] == measured[0]  # a consensus row is all finite or all NaN
     # The prediction follows this frame's bone; without a bone it coasts on the rotation alone.
     predicted = np.where(has_aim, swung_prediction, predicted)
 
     # Correct: the residual rotation from the prediction to the measurement (a twist about the aim).
-    residual = _quat_to_rotvec_fast(_bilinear(measured, predicted, _QMUL_CONJ))  # (B, J, 3)
+    residual = _rows_quat_to_rotvec(_rows_bilinear(measured, predicted, _QMUL_CONJ_ROWS))  # (3, B, J)
     # Both share this frame's aim, so the residual turns about it and the corrected frame keeps it.
-    corrected = _normalize(_qmul(_rotvec_to_quat(params.alpha * residual), predicted))
+    corrected = _rows_normalize(_rows_bilinear(_rows_rotvec_to_quat(params.alpha * residual), predicted, _QMUL_ROWS))
 
     # The body's own frame, only where neither a view nor the history gives the twist (a track's start).
     need_hint = ~has_meas & ~has_prev & has_aim
     both = has_meas & has_prev
     if need_hint.any():
-        fallback = np.where(has_prev, predicted, body_hint_frames(positions))
+        fallback = np.where(has_prev, predicted, body_hint_frames(positions).transpose(2, 0, 1))
     else:
         fallback = predicted  # where has_prev is False here, has_aim is too (or has_meas): masked below
     out = np.where(both, corrected, np.where(has_meas, measured, fallback))
     omega_out = np.where(both, omega + (params.beta / dt_s) * residual, np.where(has_prev & ~has_meas, omega, 0.0))
     # Nothing to aim and nothing to coast on, or no fused position: unknown (and the history is dropped).
     out = np.where(has_aim | has_prev, out, np.nan)
-    out[..., _DERIVED, :] = _bilinear(out[..., _DERIVED_SOURCE, :], _DERIVED_OFFSETS, _QMUL)  # apply_derived
-    out = np.where(np.isfinite(positions).all(axis=-1, keepdims=True), out, np.nan)
+    out[:, :, _DERIVED] = _rows_bilinear(out[:, :, _DERIVED_SOURCE], _DERIVED_OFFSETS_ROWS, _QMUL_ROWS)
+    # The sum of the three coordinates is finite exactly when all three are (mm-sized values cannot overflow).
+    out = np.where(np.isfinite(position_rows.sum(axis=0)), out, np.nan)
     state_quats = np.where(out == out, out, 0.0)
     omega_out = np.where(np.isfinite(omega_out), omega_out, 0.0)
-    n_views = np.where(has_meas[..., 0], n_views, 0).astype(np.int16)
-    return OrientationResult(quats=out, n_views=n_views), state_quats, omega_out
+    n_views = np.where(has_meas, n_views, 0).astype(np.int16)
+    return (
+        OrientationResult(quats=out.transpose(1, 2, 0), n_views=n_views),
+        state_quats.transpose(1, 2, 0),
+        omega_out.transpose(1, 2, 0),
+    )

@@ -425,7 +425,8 @@ def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.nda
     """
     quad = positions[:, :, _CENTRE_JOINTS]  # (B, S, 4, 3): shoulder L, R, hip L, R
     left = quad[:, :, 0] - quad[:, :, 1] + quad[:, :, 2] - quad[:, :, 3]  # (B, S, 3)
-    to_sensor = np.asarray(sensor_positions, dtype=np.float64)[None] - quad.mean(axis=2)
+    # np.add.reduce / 4 is what ndarray.mean computes, without its Python-level wrapper (hot path).
+    to_sensor = np.asarray(sensor_positions, dtype=np.float64)[None] - np.add.reduce(quad, axis=2) / 4
     # forward = left x z = (left_y, -left_x, 0); its dot with the horizontal direction to the sensor:
     dot = left[..., 1] * to_sensor[..., 0] - left[..., 0] * to_sensor[..., 1]
     norms = np.hypot(left[..., 0], left[..., 1]) * np.hypot(to_sensor[..., 0], to_sensor[..., 1])
@@ -436,8 +437,9 @@ def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) 
     """(B,) bool: the body's centre now (mean of shoulders and hips in each view that has all four; per axis
     the median over those views) lies more than ``max_jump_mm`` from the centre of ``previous`` (B, J, 3).
     False where either centre is unknown."""
-    then = previous[:, _CENTRE_JOINTS].mean(axis=1)  # (B, 3), NaN unless all four are known
-    now = nanmedian_axis(positions[:, :, _CENTRE_JOINTS].mean(axis=2), axis=1)  # (B, S, 3) -> (B, 3)
+    # np.add.reduce / 4 is ndarray.mean over the four joints, without its Python-level wrapper (hot path).
+    then = np.add.reduce(previous[:, _CENTRE_JOINTS], axis=1) / 4  # (B, 3), NaN unless all four are known
+    now = nanmedian_axis(np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4, axis=1)  # (B, S, 3) -> (B, 3)
     step = now - then
     return (step * step) @ _ONES3 > max_jump_mm * max_jump_mm  # NaN compares False
 
