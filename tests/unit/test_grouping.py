@@ -572,3 +572,33 @@ def test_the_soak_race_a_forger_on_a_clock_of_its_own_then_two_forged_streams() 
     start_us = events[0][1].device_time_us  # the forger's very first frame (its own clock) was fused alone
     on_rig_time = [grp for grp in groups if start_us <= grp.time_us < start_us + 20_000_000]
     assert all(grp.frames["s1"].sequence < 10**9 for grp in on_rig_time if "s1" in grp.frames)
+
+
+def test_a_forger_does_not_take_a_clock_while_the_rig_pauses() -> None:
+    # Session 21's first soak with the candidate clocks: the soak's publisher stalled 0.8 s (all sensors silent,
+    # then a burst); the adversary (same process) went on more slowly, its stamps frozen at the last instant
+    # + 0.9 s. Those forged frames were paced in arrival and s1's stream was quiet: they took s1's clock, and
+    # the forged instants 0.9 s ahead made 17 instants of every sensor late. A sensor's own frames are also
+    # stamped a frame period apart; frozen stamps are not.
+    events = synced_stream(300, np.random.default_rng(SEED + 18))
+    stall_from = next(a for a, f in events if f.sequence == 100)
+    stall_to = stall_from + 800_000_000
+    stalled = [(max(a, stall_to + f.sequence - 100), f) if 100 <= f.sequence < 125 else (a, f) for a, f in events]
+    stalled = fix_per_sensor_order(stalled)
+    last_us = {f.sequence: f.device_time_us for _, f in events if f.sensor_id == "s0"}
+    forged = []
+    t_ns, i = events[0][0] + 200_000_000, 0
+    while t_ns < events[-1][0]:
+        stalling = stall_from <= t_ns < stall_to
+        k = 99 if stalling else max(k for k, us in last_us.items() if us * 1000 <= t_ns - 30_000_000)
+        forged.append((t_ns, frame("s1", 10**9 + i, last_us[k] + 900_000)))
+        t_ns += 25_000_000 if stalling else 8_000_000  # 40 Hz in the stall, 125 Hz otherwise
+        i += 1
+    g = grouper(deadline_us=400_000)
+    groups = run(g, sorted(stalled + forged, key=lambda e: e[0]))
+    assert g.clock_estimates()["s1"].relearns == 0
+    # At the stall's end a frozen stamp 0.9 s ahead is only ~0.1 s ahead of the arrival clock: one forged frame
+    # slips in (a duplicate), and cannot block the genuine frames (the stamps' reference is a median of three).
+    assert g.stats.sensors["s1"].off_clock >= len(forged) - 2
+    assert g.stats.sensors["s1"].grouped >= 298
+    assert len(groups) == 300 and sum(grp.complete for grp in groups) >= 298

@@ -55,31 +55,32 @@ Clock resets (resync rule)
     a resync, never within an epoch.
 
 Sensor clocks (:class:`SensorClock`, one per sensor)
-    Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual
-    ``time - arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each
-    sensor's offset (a running median) and drift (a slope) are estimated online, from that sensor's frames
-    only. A frame whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest
-    recent residual of its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's
-    shortest latency, while a backlog only makes frames late), or more than ``max_behind_us`` behind its
-    offset, is *off clock*: a peer stamping frames in the future or
-    the past, a clock that stepped. So is a frame stamped more than ``max_ahead_us`` before the sensor's
-    previous learned frame (a sensor's frames come in order: a second stream that lags the learned one is not
-    this clock). It is held back by its sensor's clock and never reaches the grouping windows or counters
-    above. Held frames are sorted into *candidate clocks* (frames within ``max_ahead_us`` of a candidate's
-    newest residual; at most four candidates, the weakest dropped) and counted ``off_clock`` when they are
-    older than ``2 * resync_after`` frame periods (or at flush). A candidate with at least ``resync_after``
-    frames, *paced* like the sensor (arriving no faster than twice the frame rate: a forger's 1 kHz or 125 Hz
-    loop never is), re-learns the clock and is replayed in order, so a genuine epoch change loses no frame, if
-    (1) the learned stream went quiet (none of its frames since the candidate's last ``resync_after``: a
-    clock step or restart), or (2) the learned stream itself is not paced (a forger that spoke first holds
-    the clock and outruns the sensor) and, in device mode, the candidate agrees with the rig's other sensors
-    no worse than the learned clock (within ``max_ahead_us``), or (3) in device mode, the candidate agrees
-    with the rig's other sensors better than the learned clock by more than ``max_ahead_us`` (a forger paced
-    like the sensor that spoke first). Until the genuine stream wins, a forger that spoke first is grouped as
-    the sensor (its lead in time can make the rig's frames late for that long). The rig's other sensors are
-    a reference only in device mode, where wired sync gives them one clock; they are read, never moved. A
-    forger paced like the sensor, agreeing with the rig and speaking first keeps the clock: timing cannot
-    tell it from the sensor (the rig's access control can, docs/multi-pc.md).
+    Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual ``time -
+    arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each sensor's
+    offset (a running median) and drift (a slope) are estimated online, from that sensor's frames only. A frame
+    whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest recent residual of
+    its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's shortest latency,
+    while a backlog only makes frames late), or more than ``max_behind_us`` behind its offset, is *off clock*: a
+    peer stamping frames in the future or the past, a clock that stepped. So is a frame stamped more than
+    ``max_ahead_us`` before the sensor's previous learned frames (the median of the last three: a sensor's
+    frames come in order, so a second stream that lags the learned one is not this clock). It is held back by
+    its sensor's clock and never reaches the grouping windows or counters above. Held frames are sorted into
+    *candidate clocks* (frames within ``max_ahead_us`` of a candidate's newest residual; at most four
+    candidates, the weakest dropped) and counted ``off_clock`` when they are older than ``2 * resync_after``
+    frame periods (or at flush). A candidate with at least ``resync_after`` frames, *paced* like the sensor
+    (arriving no faster than twice the frame rate, and stamped at least half a frame period apart on average: a
+    forger's 1 kHz or 125 Hz loop, or its stamps repeated while the sensor's stream pauses, never is), re-learns
+    the clock and is replayed in order, so a genuine epoch change loses no frame, if (1) the learned stream went
+    quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart), or (2) the
+    learned stream itself is not paced (a forger that spoke first holds the clock and outruns the sensor) and,
+    in device mode, the candidate agrees with the rig's other sensors no worse than the learned clock (within
+    ``max_ahead_us``), or (3) in device mode, the candidate agrees with the rig's other sensors better than the
+    learned clock by more than ``max_ahead_us`` (a forger paced like the sensor that spoke first). Until the
+    genuine stream wins, a forger that spoke first is grouped as the sensor (its lead in time can make the rig's
+    frames late for that long). The rig's other sensors are a reference only in device mode, where wired sync
+    gives them one clock; they are read, never moved. A forger paced like the sensor, agreeing with the rig and
+    speaking first keeps the clock: timing cannot tell it from the sensor (the rig's access control can,
+    docs/multi-pc.md).
 Host time across PCs (``by = "host"``)
     Capture PCs' clocks may be offset by hundreds of ms and jitter by tens. In host mode frames are grouped
     on the *corrected* time ``stamp - offset(sensor) + reference``: each sensor's stamps are moved onto the
@@ -222,10 +223,10 @@ def _median(values: Iterable[float]) -> float:
     return (float(ordered[middle - 1]) + float(ordered[middle])) / 2.0
 
 
-def _paced(arrivals_us: Sequence[int], period_us: float) -> bool:
-    """Whether frames arrived no faster than twice the frame rate (a sensor's own stream, give or take network
-    bunching), not at a forger's loop rate."""
-    return arrivals_us[-1] - arrivals_us[0] >= 0.5 * (len(arrivals_us) - 1) * period_us
+def _paced(times_us: Sequence[int], period_us: float) -> bool:
+    """Whether frames' times (arrivals, or their own stamps) advance no faster than twice the frame rate, as a
+    sensor's own stream does (give or take network bunching), not a forger's loop."""
+    return times_us[-1] - times_us[0] >= 0.5 * (len(times_us) - 1) * period_us
 
 
 @dataclass
@@ -277,7 +278,7 @@ class SensorClock:
         self._offset_us: int | None = None
         self._ceiling_us: float | None = None  # the largest recent residual (the fastest path), slowly decaying
         self._last_arrival_us: int | None = None
-        self._last_time_us: int | None = None  # the newest learned frame's time
+        self._stamps: collections.deque[int] = collections.deque(maxlen=3)  # the last learned frames' times
         self._phases: collections.deque[float] = collections.deque(maxlen=self.window)
         self._far = 0
         self._candidates: list[_Candidate] = []
@@ -294,17 +295,19 @@ class SensorClock:
 
     def on_clock(self, time_us: int, arrival_us: int) -> bool:
         """Whether a frame's time agrees with this sensor's learned clock (always True before the first)."""
-        if self._offset_us is None or self._ceiling_us is None or self._last_time_us is None:
+        if self._offset_us is None or self._ceiling_us is None:
             return True
         residual = time_us - arrival_us
         # Ahead: against the fastest delivery seen lately (a frame cannot beat its path's shortest latency), so
         # on-time frames after a backlog are not mistaken for the future. Behind: against the median, and a
         # sensor's stamps never go back by more than their spread (its frames come in order): a second stream
-        # on the key that lags the learned one is not this clock.
+        # on the key that lags the learned one is not this clock (the median of the last three learned stamps:
+        # one stray frame that slipped in is no reference).
+        stamps = sorted(self._stamps)
         return (
             residual - self._ceiling_us <= self.max_ahead_us
             and residual - self._offset_us >= -self.max_behind_us
-            and time_us >= self._last_time_us - self.max_ahead_us
+            and time_us >= stamps[len(stamps) // 2] - self.max_ahead_us
         )
 
     def learn(self, time_us: int, arrival_us: int) -> None:
@@ -318,7 +321,7 @@ class SensorClock:
             elapsed_s = max(int(arrival_us) - self._last_arrival_us, 0) / 1e6
             self._ceiling_us = max(float(residual), self._ceiling_us - CEILING_DECAY_US_PER_S * elapsed_s)
         self._last_arrival_us = int(arrival_us)
-        self._last_time_us = int(time_us)
+        self._stamps.append(int(time_us))
         self._offset_us = int(_median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
 
     def expire(self, arrival_us: int) -> int:
@@ -375,7 +378,7 @@ class SensorClock:
         self._offset_us = None
         self._ceiling_us = None
         self._last_arrival_us = None
-        self._last_time_us = None
+        self._stamps.clear()
         self.relearns += 1
         return list(candidate.frames), discarded
 
@@ -385,8 +388,9 @@ class SensorClock:
         if len(frames) < self.relearn_after:
             return False
         arrivals = [a // 1000 for _, _, a in frames]
-        if not _paced(arrivals, self.period_us):  # a forger's loop, not a sensor
-            return False
+        stamps = [t for _, t, _ in frames]
+        if not (_paced(arrivals, self.period_us) and _paced(stamps, self.period_us)):
+            return False  # a forger's loop, not a sensor: frames too fast, or stamps not a frame period apart
         if self._last_arrival_us is None or self._last_arrival_us < arrivals[-self.relearn_after]:
             return True  # the learned stream went quiet: the clock stepped (or the sensor restarted)
         learned = list(self._arrivals)
