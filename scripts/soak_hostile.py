@@ -212,6 +212,22 @@ def main() -> int:
         default=300.0,
         help="also report RSS growth from this many seconds in (default 300); growth from the start is always reported",
     )
+    parser.add_argument(
+        "--memory-probe",
+        type=Path,
+        default=None,
+        help="run the node under scripts/node_memory_probe.py, which writes its memory breakdown (glibc malloc, "
+        "Python blocks, gc objects, threads) to this JSONL file every 10 s",
+    )
+    parser.add_argument(
+        "--trim-every",
+        type=float,
+        default=0.0,
+        help="with --memory-probe: glibc malloc_trim(0) in the node every this many seconds (0: never)",
+    )
+    parser.add_argument(
+        "--malloc-arena-max", type=int, default=None, help="run the node with MALLOC_ARENA_MAX set to this"
+    )
     args = parser.parse_args()
     import zenoh
 
@@ -222,12 +238,25 @@ def main() -> int:
     port = free_port()
     node_log = open(workdir / "node.log", "wb")
     priority = [] if args.nice is None else ["nice", "-n", str(args.nice)]
+    probe = (
+        []
+        if args.memory_probe is None
+        else [
+            str(Path(__file__).with_name("node_memory_probe.py")),
+            str(args.memory_probe),
+            "--trim-every",
+            str(args.trim_every),
+            "--",
+        ]
+    )
+    env = dict(os.environ)
+    if args.malloc_arena_max is not None:
+        env["MALLOC_ARENA_MAX"] = str(args.malloc_arena_max)
     node = subprocess.Popen(
         [
             *priority,
             sys.executable,
-            "-m",
-            "skelfuse",
+            *(probe or ["-m", "skelfuse"]),
             "fuse",
             "--config",
             str(config),
@@ -243,6 +272,7 @@ def main() -> int:
         stdout=node_log,
         stderr=subprocess.STDOUT,
         start_new_session=True,
+        env=env,
     )
     applied = "default priority"
     if args.nice is not None:
@@ -436,6 +466,13 @@ def main() -> int:
             "sensors": args.sensors,
             "minutes": args.minutes,
             "priority": applied,
+            "commit": subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent
+            ).stdout.strip(),
+            "adversary_delay_s": args.adversary_delay_s,
+            "memory_probe": None if args.memory_probe is None else str(args.memory_probe),
+            "trim_every_s": args.trim_every,
+            "malloc_arena_max": args.malloc_arena_max,
             "instants_published": len(published_us),
             "fused_frames": len(fused_times),
             "instants_lost": lost,

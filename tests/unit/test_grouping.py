@@ -499,3 +499,106 @@ def test_a_sensor_clocks_offset_is_the_median_of_its_recent_residuals() -> None:
     for n in range(1, 12):  # the host-mode phases are floats
         phases = list(rng.normal(0.0, 1e4, n))
         assert grouping._median(phases) == float(np.median(phases))
+
+
+# -- a forged clock that speaks first --------------------------------------------------------------------------
+
+
+def forged_first(
+    events: list[tuple[int, SensorFrame]], sensor_id: str, *, ahead_us: int, hz: float, lead_s: float
+) -> list[tuple[int, SensorFrame]]:
+    """A forger on ``sensor_id``'s key: frames stamped ``ahead_us`` past the real instant at ``hz``, starting
+    ``lead_s`` before the sensor's first genuine frame and going on to the end (forged sequences)."""
+    genuine = [(a, f) for a, f in events if f.sensor_id == sensor_id]
+    first_ns, last_ns = genuine[0][0], genuine[-1][0]
+    slope = (genuine[-1][1].device_time_us - genuine[0][1].device_time_us) / ((last_ns - first_ns) / 1000)
+    forged = []
+    t_ns = first_ns - int(lead_s * 1e9)
+    i = 0
+    while t_ns < last_ns:
+        now_us = genuine[0][1].device_time_us + slope * (t_ns - first_ns) / 1000
+        forged.append((t_ns, frame(sensor_id, 10**9 + i, int(now_us) + ahead_us)))
+        t_ns += int(1e9 / hz)
+        i += 1
+    return forged
+
+
+@pytest.mark.parametrize(("by", "hz"), [("device", 125.0), ("host", 125.0), ("device", 30.0)])
+def test_a_forged_clock_that_speaks_first_loses_the_sensor_to_the_genuine_stream(by: str, hz: float) -> None:
+    # s1's key: a forger stamping 0.9 s ahead starts 0.5 s before the genuine frames and never stops. It took
+    # s1's clock for good (session 20's soak: 0 complete instants in 3 min); now the genuine stream wins it
+    # back: paced like the sensor where the forger is not (125 Hz), or, at 30 Hz in device mode, by agreeing
+    # with the rig's other sensors.
+    rng = np.random.default_rng(SEED + 16)
+    events = synced_stream(300, rng)
+    forged = forged_first(events, "s1", ahead_us=900_000, hz=hz, lead_s=0.5)
+    start_us = events[0][1].device_time_us
+    if by == "host":  # the same streams stamped in host time (one PC: stamp = arrival - 30 ms of latency)
+        events = [(a, dataclasses.replace(f, host_time_ns=a - 30_000_000)) for a, f in events]
+        forged = [(a, dataclasses.replace(f, host_time_ns=a - 30_000_000 + 900_000_000)) for a, f in forged]
+        start_us = events[0][0] // 1000 - 30_000
+    g = grouper(by=by, tolerance_us=13_000 if by == "host" else TOL_US)
+    groups = run(g, sorted(events + forged, key=lambda e: e[0]))
+    s1 = g.stats.sensors["s1"]
+    assert g.clock_estimates()["s1"].relearns == 1
+    # Every frame is accounted for; the forged ones are off clock except those of the forger's lead and of
+    # the takeover (relearn_after genuine frames), which it held the clock for.
+    assert s1.received == 300 + len(forged)
+    assert s1.grouped + s1.late + s1.duplicate + s1.out_of_window + s1.off_clock == s1.received
+    assert len(forged) - s1.off_clock <= hz * (0.5 + 0.35)
+    # From 1.5 s on (the forger's 0.9 s lead poisons the windows, then the takeover) every instant is
+    # complete, with s1's genuine frame.
+    steady = [grp for grp in groups if grp.time_us > start_us + 1_500_000]
+    assert len(steady) >= 250
+    assert all(grp.complete and grp.frames["s1"].sequence < 10**9 for grp in steady)
+
+
+def test_the_soak_race_a_forger_on_a_clock_of_its_own_then_two_forged_streams() -> None:
+    # Session 20's soak with the adversary started with the rig: its first frames, stamped on a clock of its
+    # own (0 + 0.9 s, 0 + 10^10 µs), taught s1's clock; then every frame (genuine, 0.9 s ahead, 10^10 ahead,
+    # interleaved) was off clock and no resync_after in a row agreed: s1 was never fused again.
+    events = synced_stream(300, np.random.default_rng(SEED + 17))
+    first_s1 = next(a for a, f in events if f.sensor_id == "s1")
+    forged = []
+    for i in range(int(10e9 / 4e6)):  # 250 Hz for 10 s, from 20 ms before s1's first frame
+        t_ns = first_s1 - 20_000_000 + i * 4_000_000
+        genuine_us = 0 if t_ns < first_s1 else events[0][1].device_time_us + (t_ns - first_s1) // 1000
+        forged.append((t_ns, frame("s1", 10**9 + i, genuine_us + (900_000 if i % 2 else 10**10))))
+    g = grouper()
+    groups = run(g, sorted(events + forged, key=lambda e: e[0]))
+    s1 = g.stats.sensors["s1"]
+    assert s1.grouped >= 290 and s1.off_clock >= len(forged) - 5  # the first speaker's 20 ms (5 frames)
+    assert sum(grp.complete for grp in groups) >= 290
+    start_us = events[0][1].device_time_us  # the forger's very first frame (its own clock) was fused alone
+    on_rig_time = [grp for grp in groups if start_us <= grp.time_us < start_us + 20_000_000]
+    assert all(grp.frames["s1"].sequence < 10**9 for grp in on_rig_time if "s1" in grp.frames)
+
+
+def test_a_forger_does_not_take_a_clock_while_the_rig_pauses() -> None:
+    # Session 21's first soak with the candidate clocks: the soak's publisher stalled 0.8 s (all sensors silent,
+    # then a burst); the adversary (same process) went on more slowly, its stamps frozen at the last instant
+    # + 0.9 s. Those forged frames were paced in arrival and s1's stream was quiet: they took s1's clock, and
+    # the forged instants 0.9 s ahead made 17 instants of every sensor late. A sensor's own frames are also
+    # stamped a frame period apart; frozen stamps are not.
+    events = synced_stream(300, np.random.default_rng(SEED + 18))
+    stall_from = next(a for a, f in events if f.sequence == 100)
+    stall_to = stall_from + 800_000_000
+    stalled = [(max(a, stall_to + f.sequence - 100), f) if 100 <= f.sequence < 125 else (a, f) for a, f in events]
+    stalled = fix_per_sensor_order(stalled)
+    last_us = {f.sequence: f.device_time_us for _, f in events if f.sensor_id == "s0"}
+    forged = []
+    t_ns, i = events[0][0] + 200_000_000, 0
+    while t_ns < events[-1][0]:
+        stalling = stall_from <= t_ns < stall_to
+        k = 99 if stalling else max(k for k, us in last_us.items() if us * 1000 <= t_ns - 30_000_000)
+        forged.append((t_ns, frame("s1", 10**9 + i, last_us[k] + 900_000)))
+        t_ns += 25_000_000 if stalling else 8_000_000  # 40 Hz in the stall, 125 Hz otherwise
+        i += 1
+    g = grouper(deadline_us=400_000)
+    groups = run(g, sorted(stalled + forged, key=lambda e: e[0]))
+    assert g.clock_estimates()["s1"].relearns == 0
+    # At the stall's end a frozen stamp 0.9 s ahead is only ~0.1 s ahead of the arrival clock: one forged frame
+    # slips in (a duplicate), and cannot block the genuine frames (the stamps' reference is a median of three).
+    assert g.stats.sensors["s1"].off_clock >= len(forged) - 2
+    assert g.stats.sensors["s1"].grouped >= 298
+    assert len(groups) == 300 and sum(grp.complete for grp in groups) >= 298

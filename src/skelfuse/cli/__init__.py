@@ -23,6 +23,7 @@ from skelfuse.cli import bench, calibrate, convert, demo, devices, evaluate, exp
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
+from skelfuse.service.zenoh_io import sessions_left_behind
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_USAGE", "build_parser", "entrypoint", "main"]
 
@@ -104,5 +105,12 @@ def entrypoint() -> None:
         with contextlib.suppress(OSError, ValueError, AttributeError):  # no real stderr: skip it
             faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 PID` dumps a stuck node's stacks
     code = main()
+    left_behind = sessions_left_behind()
+    if left_behind:  # a zenoh close still running would abort the interpreter's exit (service/zenoh_io.py)
+        with contextlib.suppress(Exception):
+            logging.shutdown()
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code)
     _bound_exit(code)
     sys.exit(code)

@@ -55,19 +55,32 @@ Clock resets (resync rule)
     a resync, never within an epoch.
 
 Sensor clocks (:class:`SensorClock`, one per sensor)
-    Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual
-    ``time - arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each
-    sensor's offset (a running median) and drift (a slope) are estimated online, from that sensor's frames
-    only. A frame whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest
-    recent residual of its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's
-    shortest latency, while a backlog only makes frames late), or more than ``max_behind_us`` behind its
-    offset, is *off clock*: a peer stamping frames in the future or
-    the past, a clock that stepped. It is held back by its sensor's clock and never reaches the grouping
-    windows or counters above; when the sensor's next frame is on clock, the held frames are counted as
-    ``off_clock`` and dropped. Only ``resync_after`` consecutive off-clock frames that agree with each other
-    and span at least half their nominal duration of arrival time make that sensor's clock re-learn (a real
-    clock step or restart): they are then replayed in order, so a genuine epoch change loses no frame, while
-    a burst of forged frames (1 kHz) or one stamp per second in the future never moves anything.
+    Every frame's time is compared with its arrival (``now_ns``, the node's clock): the residual ``time -
+    arrival`` of one sensor is steady (its clock's offset from the node's plus a latency), so each sensor's
+    offset (a running median) and drift (a slope) are estimated online, from that sensor's frames only. A frame
+    whose residual lies more than ``max_ahead_us`` ahead of (in the future of) the largest recent residual of
+    its sensor (its fastest delivery, forgotten at 1 ms/s: a frame cannot beat its path's shortest latency,
+    while a backlog only makes frames late), or more than ``max_behind_us`` behind its offset, is *off clock*: a
+    peer stamping frames in the future or the past, a clock that stepped. So is a frame stamped more than
+    ``max_ahead_us`` before the sensor's previous learned frames (the median of the last three: a sensor's
+    frames come in order, so a second stream that lags the learned one is not this clock). It is held back by
+    its sensor's clock and never reaches the grouping windows or counters above. Held frames are sorted into
+    *candidate clocks* (frames within ``max_ahead_us`` of a candidate's newest residual; at most four
+    candidates, the weakest dropped) and counted ``off_clock`` when they are older than ``2 * resync_after``
+    frame periods (or at flush). A candidate with at least ``resync_after`` frames, *paced* like the sensor
+    (arriving no faster than twice the frame rate, and stamped at least half a frame period apart on average: a
+    forger's 1 kHz or 125 Hz loop, or its stamps repeated while the sensor's stream pauses, never is), re-learns
+    the clock and is replayed in order, so a genuine epoch change loses no frame, if (1) the learned stream went
+    quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart), or (2) the
+    learned stream itself is not paced (a forger that spoke first holds the clock and outruns the sensor) and,
+    in device mode, the candidate agrees with the rig's other sensors no worse than the learned clock (within
+    ``max_ahead_us``), or (3) in device mode, the candidate agrees with the rig's other sensors better than the
+    learned clock by more than ``max_ahead_us`` (a forger paced like the sensor that spoke first). Until the
+    genuine stream wins, a forger that spoke first is grouped as the sensor (its lead in time can make the rig's
+    frames late for that long). The rig's other sensors are a reference only in device mode, where wired sync
+    gives them one clock; they are read, never moved. A forger paced like the sensor, agreeing with the rig and
+    speaking first keeps the clock: timing cannot tell it from the sensor (the rig's access control can,
+    docs/multi-pc.md).
 Host time across PCs (``by = "host"``)
     Capture PCs' clocks may be offset by hundreds of ms and jitter by tens. In host mode frames are grouped
     on the *corrected* time ``stamp - offset(sensor) + reference``: each sensor's stamps are moved onto the
@@ -87,7 +100,7 @@ from __future__ import annotations
 import bisect
 import collections
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -113,6 +126,8 @@ CEILING_DECAY_US_PER_S = 1000.0
 """How fast a sensor's fastest-delivery reference forgets (1 ms per s, far above any clock drift)."""
 CLOCK_WINDOW = 31
 """Frames in each sensor's running offset and phase estimates (about 1 s at 30 fps)."""
+MAX_CANDIDATE_CLOCKS = 4
+"""Candidate clocks (groups of agreeing off-clock frames) each sensor keeps; the weakest is dropped first."""
 _MAX_UNKNOWN_IDS = 16
 
 
@@ -208,6 +223,20 @@ def _median(values: Iterable[float]) -> float:
     return (float(ordered[middle - 1]) + float(ordered[middle])) / 2.0
 
 
+def _paced(times_us: Sequence[int], period_us: float) -> bool:
+    """Whether frames' times (arrivals, or their own stamps) advance no faster than twice the frame rate, as a
+    sensor's own stream does (give or take network bunching), not a forger's loop."""
+    return times_us[-1] - times_us[0] >= 0.5 * (len(times_us) - 1) * period_us
+
+
+@dataclass
+class _Candidate:
+    """Off-clock frames of one sensor key that agree with each other: a clock the sensor may have moved to."""
+
+    frames: collections.deque[tuple[SensorFrame, int, int]]  # (frame, time_us, arrival_ns), oldest first
+    newest_residual_us: int
+
+
 class SensorClock:
     """One sensor's clock against the node's arrival clock: offset, drift, off-clock frames, phase.
 
@@ -221,9 +250,11 @@ class SensorClock:
     max_ahead_us, max_behind_us : int
         A residual further ahead of / behind the offset is off clock.
     relearn_after : int
-        Consecutive off-clock frames (agreeing with each other) that re-learn the clock.
+        Off-clock frames of one candidate clock (agreeing with each other, paced like the sensor) that can
+        re-learn the clock.
     window : int
-        Frames in the running estimates.
+        Frames in the running estimates; also the most frames a candidate clock keeps. Off-clock frames are
+        held ``2 * relearn_after`` periods.
     """
 
     def __init__(
@@ -240,20 +271,27 @@ class SensorClock:
         self.max_behind_us = int(max_behind_us)
         self.relearn_after = int(relearn_after)
         self.window = int(window)
+        self.hold_us = 2 * self.relearn_after * self.period_us
         self.relearns = 0
         self._residuals: collections.deque[int] = collections.deque(maxlen=self.window)
         self._arrivals: collections.deque[int] = collections.deque(maxlen=self.window)
         self._offset_us: int | None = None
         self._ceiling_us: float | None = None  # the largest recent residual (the fastest path), slowly decaying
         self._last_arrival_us: int | None = None
+        self._stamps: collections.deque[int] = collections.deque(maxlen=3)  # the last learned frames' times
         self._phases: collections.deque[float] = collections.deque(maxlen=self.window)
         self._far = 0
-        self.held: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns) off clock
+        self._candidates: list[_Candidate] = []
 
     @property
     def offset_us(self) -> int | None:
         """The sensor's current offset (median residual), µs; None before its first frame."""
         return self._offset_us
+
+    @property
+    def n_held(self) -> int:
+        """Off-clock frames held (not yet replayed nor counted off clock)."""
+        return sum(len(c.frames) for c in self._candidates)
 
     def on_clock(self, time_us: int, arrival_us: int) -> bool:
         """Whether a frame's time agrees with this sensor's learned clock (always True before the first)."""
@@ -261,8 +299,16 @@ class SensorClock:
             return True
         residual = time_us - arrival_us
         # Ahead: against the fastest delivery seen lately (a frame cannot beat its path's shortest latency), so
-        # on-time frames after a backlog are not mistaken for the future. Behind: against the median.
-        return residual - self._ceiling_us <= self.max_ahead_us and residual - self._offset_us >= -self.max_behind_us
+        # on-time frames after a backlog are not mistaken for the future. Behind: against the median, and a
+        # sensor's stamps never go back by more than their spread (its frames come in order): a second stream
+        # on the key that lags the learned one is not this clock (the median of the last three learned stamps:
+        # one stray frame that slipped in is no reference).
+        stamps = sorted(self._stamps)
+        return (
+            residual - self._ceiling_us <= self.max_ahead_us
+            and residual - self._offset_us >= -self.max_behind_us
+            and time_us >= stamps[len(stamps) // 2] - self.max_ahead_us
+        )
 
     def learn(self, time_us: int, arrival_us: int) -> None:
         """Add an on-clock frame to the running estimates."""
@@ -275,41 +321,93 @@ class SensorClock:
             elapsed_s = max(int(arrival_us) - self._last_arrival_us, 0) / 1e6
             self._ceiling_us = max(float(residual), self._ceiling_us - CEILING_DECAY_US_PER_S * elapsed_s)
         self._last_arrival_us = int(arrival_us)
+        self._stamps.append(int(time_us))
         self._offset_us = int(_median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
 
-    def hold(self, frame: SensorFrame, time_us: int, arrival_ns: int) -> tuple[list[tuple[SensorFrame, int, int]], int]:
-        """Keep an off-clock frame.
+    def expire(self, arrival_us: int) -> int:
+        """Forget held frames older than the hold time (``window`` periods); returns how many (off clock)."""
+        if not self._candidates:
+            return 0
+        oldest_kept = arrival_us - self.hold_us
+        expired = 0
+        for candidate in self._candidates:
+            frames = candidate.frames
+            while frames and frames[0][2] // 1000 < oldest_kept:
+                frames.popleft()
+                expired += 1
+        if expired:
+            self._candidates = [c for c in self._candidates if c.frames]
+        return expired
 
-        Returns the held frames to replay when the clock must re-learn (else []), and how many held frames
-        were discarded to keep at most ``relearn_after`` (to be counted off clock).
+    def hold(
+        self, frame: SensorFrame, time_us: int, arrival_ns: int, rig_offset_us: float | None = None
+    ) -> tuple[list[tuple[SensorFrame, int, int]], int]:
+        """Keep an off-clock frame with the candidate clock it agrees with; re-learn when a candidate wins.
+
+        ``rig_offset_us``: the median offset of the rig's *other* sensors when they share this sensor's clock
+        (device mode), else None. Returns the frames to replay when the clock re-learned (else []), and how
+        many held frames were discarded (to be counted off clock).
         """
-        self.held.append((frame, time_us, arrival_ns))
-        discarded = 0
-        if len(self.held) > self.relearn_after:
-            del self.held[0]
-            discarded = 1
-        if len(self.held) < self.relearn_after:
+        arrival_us = int(arrival_ns) // 1000
+        residual = int(time_us) - arrival_us
+        discarded = self.expire(arrival_us)
+        candidate = None
+        for c in self._candidates:
+            if abs(residual - c.newest_residual_us) <= self.max_ahead_us and (
+                candidate is None or abs(residual - c.newest_residual_us) < abs(residual - candidate.newest_residual_us)
+            ):
+                candidate = c
+        if candidate is None:
+            if len(self._candidates) >= MAX_CANDIDATE_CLOCKS:  # keep the best-supported candidates
+                weakest = min(self._candidates, key=lambda c: (len(c.frames), c.frames[-1][2]))
+                self._candidates.remove(weakest)
+                discarded += len(weakest.frames)
+            candidate = _Candidate(collections.deque(), residual)
+            self._candidates.append(candidate)
+        if len(candidate.frames) >= self.window:
+            candidate.frames.popleft()
+            discarded += 1
+        candidate.frames.append((frame, int(time_us), int(arrival_ns)))
+        candidate.newest_residual_us = residual
+        if not self._wins(candidate, rig_offset_us):
             return [], discarded
-        residuals = np.array([t - a // 1000 for _, t, a in self.held], dtype=np.int64)
-        arrivals = [a // 1000 for _, _, a in self.held]
-        agree = int(residuals.max() - residuals.min()) <= self.max_ahead_us + self.max_behind_us
-        # A genuine clock step keeps the frame rate; a forged burst (1 kHz) arrives far faster than that.
-        paced = arrivals[-1] - arrivals[0] >= 0.5 * (len(arrivals) - 1) * self.period_us
-        if not (agree and paced):
-            return [], discarded
-        held, self.held = self.held, []
+        self._candidates.remove(candidate)
         self._residuals.clear()
         self._arrivals.clear()
         self._phases.clear()
         self._offset_us = None
         self._ceiling_us = None
         self._last_arrival_us = None
+        self._stamps.clear()
         self.relearns += 1
-        return held, discarded
+        return list(candidate.frames), discarded
 
-    def drop_held(self) -> list[tuple[SensorFrame, int, int]]:
-        held, self.held = self.held, []
-        return held
+    def _wins(self, candidate: _Candidate, rig_offset_us: float | None) -> bool:
+        """Whether a candidate clock replaces the learned one (see "Sensor clocks" in the module docstring)."""
+        frames = candidate.frames
+        if len(frames) < self.relearn_after:
+            return False
+        arrivals = [a // 1000 for _, _, a in frames]
+        stamps = [t for _, t, _ in frames]
+        if not (_paced(arrivals, self.period_us) and _paced(stamps, self.period_us)):
+            return False  # a forger's loop, not a sensor: frames too fast, or stamps not a frame period apart
+        if self._last_arrival_us is None or self._last_arrival_us < arrivals[-self.relearn_after]:
+            return True  # the learned stream went quiet: the clock stepped (or the sensor restarted)
+        learned = list(self._arrivals)
+        learned_over_rate = len(learned) >= self.relearn_after and not _paced(learned, self.period_us)
+        if rig_offset_us is None:
+            return learned_over_rate
+        distance_learned = abs(self._offset_us - rig_offset_us) if self._offset_us is not None else float("inf")
+        distance_candidate = abs(_median(t - a // 1000 for _, t, a in frames) - rig_offset_us)
+        if learned_over_rate:
+            return distance_candidate <= distance_learned + self.max_ahead_us
+        return distance_candidate + self.max_ahead_us < distance_learned
+
+    def drop_held(self) -> int:
+        """Forget every held frame; returns how many (off clock)."""
+        n = self.n_held
+        self._candidates.clear()
+        return n
 
     def smoothed_us(self, sequence: int, corrected_us: int) -> int:
         """A corrected host time with the stamp jitter removed, using the sequence number's frame grid.
@@ -538,10 +636,10 @@ class FrameGrouper:
         clock = self._clocks[sensor_id]
         emitted: list[FrameGroup] = []
         if clock.on_clock(raw_us, int(now_ns) // 1000):
-            counters.off_clock += len(clock.drop_held())
+            counters.off_clock += clock.expire(int(now_ns) // 1000)
             self._accept(frame, raw_us, int(now_ns), int(now_ns), emitted)
         else:
-            replay, discarded = clock.hold(frame, raw_us, int(now_ns))
+            replay, discarded = clock.hold(frame, raw_us, int(now_ns), self._rig_offset_without(sensor_id))
             counters.off_clock += discarded
             # Replayed after a clock step: their deadlines run from now, so the other sensors' frames of the
             # same step (re-learned within a frame or two) still join their instants.
@@ -564,7 +662,7 @@ class FrameGrouper:
         """Emit every open group (end of stream, shutdown); held-back frames are counted out of window,
         frames held by a sensor clock off clock."""
         for sid, clock in self._clocks.items():
-            self._stats.sensors[sid].off_clock += len(clock.drop_held())
+            self._stats.sensors[sid].off_clock += clock.drop_held()
         self._drop_held_back()
         emitted = [self._emit(group) for group in self._open]
         self._open.clear()
@@ -588,9 +686,7 @@ class FrameGrouper:
     def n_held(self) -> int:
         """Frames not yet accounted for: in open groups, or held back as out of window."""
         return (
-            sum(len(g.frames) for g in self._open)
-            + len(self._held_back)
-            + sum(len(c.held) for c in self._clocks.values())
+            sum(len(g.frames) for g in self._open) + len(self._held_back) + sum(c.n_held for c in self._clocks.values())
         )
 
     # -- internals ----------------------------------------------------------------------------------------
@@ -614,6 +710,14 @@ class FrameGrouper:
             movers = {f.sensor_id for f, _, _ in self._held_back}
             if len(self._held_back) >= self.resync_after and len(movers) >= min(2, len(self._latest_by_sensor)):
                 emitted.extend(self._resync())
+
+    def _rig_offset_without(self, sensor_id: str) -> float | None:
+        """The median offset of the other sensors' clocks: a reference for ``sensor_id``'s clock only where
+        the sensors share one clock (device mode: wired sync); None in host mode, where PCs' clocks differ."""
+        if self.by != "device":
+            return None
+        offsets = [c.offset_us for sid, c in self._clocks.items() if sid != sensor_id and c.offset_us is not None]
+        return _median(offsets) if offsets else None
 
     def _grouping_time(self, frame: SensorFrame, raw_us: int, clock: SensorClock) -> int:
         """Device mode: the device time. Host mode: the stamp on the rig's clock, jitter removed."""

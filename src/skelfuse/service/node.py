@@ -51,7 +51,7 @@ from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
-from skelfuse.service.zenoh_io import OTHER_KEYS, FusedPublisher, SampleQueue, open_session
+from skelfuse.service.zenoh_io import OTHER_KEYS, FusedPublisher, SampleQueue, close_session, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
 
@@ -576,7 +576,7 @@ class FusionNode:
             if self.depth is not None:
                 self.depth.close()
             if own_session:
-                session.close()
+                close_session(session, what=f"fusion node {self.name}")
         self.report.frames_in = self.core.frames_in
         self.report.frames_out = self.core.frames_out
         log.info(

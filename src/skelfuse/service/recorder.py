@@ -27,7 +27,7 @@ from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
 from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import SampleQueue, open_session
+from skelfuse.service.zenoh_io import SampleQueue, close_session, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError
 
@@ -85,7 +85,7 @@ def run_recorder(
             )
         except OSError as exc:  # a full disk, a read-only folder: the recorder cannot do its work
             lifecycle.request_exit()
-            session.close()
+            close_session(session, what="recorder")
             raise _write_failed(path, exc, None) from None
         failure: OSError | None = None
         try:
@@ -148,7 +148,7 @@ def run_recorder(
                 writer.close()
             except OSError as exc:
                 failure = failure or exc
-            session.close()
+            close_session(session, what="recorder")
     report.frames_written = writer.frames_written
     report.fused_frames_written = writer.fused_frames_written
     report.clouds_written = writer.clouds_written
@@ -240,6 +240,6 @@ def run_replay(
                 report.topics.add(topic)
         finally:
             lifecycle.request_exit()
-            session.close()
+            close_session(session, what="replay")
     log.info("replay: %d frames published on %d topics", report.frames_out, len(report.topics))
     return report

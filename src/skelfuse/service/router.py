@@ -26,7 +26,7 @@ from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
 
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import open_session
+from skelfuse.service.zenoh_io import close_session, open_session
 from skelfuse.service.zenoh_log import RefusalCounter, ZenohLogTap, log_filter
 from skelfuse.wire import keys
 from skelfuse.wire.codec import NodeStatus, encode_status
@@ -89,7 +89,7 @@ def run_router(
                 _publish_status(publisher, counter, "stopped")
         finally:
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
-            session.close()
+            close_session(session, what="router")
     log.info("zenoh router stopped")
     return 0
 

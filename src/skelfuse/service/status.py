@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from skelfuse.config import RigConfig
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import SampleQueue, open_session
+from skelfuse.service.zenoh_io import SampleQueue, close_session, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_status
 
@@ -131,5 +131,5 @@ def watch_status(
                 out.flush()
         finally:
             lifecycle.request_exit()
-            session.close()
+            close_session(session, what="status")
     return count

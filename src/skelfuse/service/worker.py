@@ -66,7 +66,7 @@ from skelfuse.schema.errors import ConfigError, DataError, ServiceError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, open_session
+from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, close_session, open_session
 from skelfuse.sim.depth import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
@@ -806,7 +806,7 @@ def run_capture_worker(
             _publish_loop(cfg, sensor_id, name, source, session, options, lifecycle, report)
         finally:
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
-            session.close()
+            close_session(session, what=f"capture worker {name}")
     log.info("capture worker %s stopped: %d frames published", name, report.frames_out)
     return report
 

@@ -297,6 +297,64 @@ def open_session(
     return None
 
 
+SESSION_CLOSE_TIMEOUT_S = 1.0
+"""Longest a daemon waits for zenoh to close its session at shutdown before it leaves it behind (see
+:func:`close_session`)."""
+
+
+_left_behind: list[str] = []  # daemons whose session close was left running (see close_session)
+
+
+def sessions_left_behind() -> list[str]:
+    """Which sessions :func:`close_session` left closing in a thread (the process must then end with
+    ``os._exit``: see there)."""
+    return list(_left_behind)
+
+
+def close_session(session: zenoh.Session, *, what: str, timeout_s: float = SESSION_CLOSE_TIMEOUT_S) -> bool:
+    """Close a zenoh session, waiting at most ``timeout_s``; returns whether it closed in time.
+
+    zenoh's ``Session.close()`` has no timeout in its Python API and waits on the session's links: towards a
+    peer that stopped reading (a stopped or hung subscriber: its link's buffers are full) it took 2.5 s here and
+    can end in ``close operation timed out`` after zenoh's own timeout. A daemon's stop must not depend on its
+    peers, so the close runs in a daemon thread; past the bound it is left behind (logged: the process exits
+    and the operating system closes the sockets, which the peers see as a closed link) and the caller goes on.
+    An error from zenoh's close is logged, never raised: the session is being given up either way.
+
+    A process that left a close behind must end with ``os._exit`` once its own files are closed (the command
+    line does: :func:`skelfuse.cli.entrypoint`): when the close returns while the interpreter finalizes, its
+    thread is unwound through zenoh's Rust frames and the process aborts (measured: "FATAL: exception not
+    rethrown", SIGABRT, once in two stops).
+    """
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def close() -> None:
+        try:
+            session.close()
+        except Exception as exc:  # zenoh.ZError: "close operation timed out"
+            errors.append(exc)
+        finally:
+            done.set()
+
+    started = time.monotonic()
+    threading.Thread(target=close, name="zenoh-close", daemon=True).start()
+    if not done.wait(timeout_s):
+        log.warning(
+            "%s: zenoh session not closed after %.1f s (a peer not reading: a stopped or hung subscriber?); "
+            "left behind, the process exits without waiting for it",
+            what,
+            timeout_s,
+        )
+        _left_behind.append(what)
+        return False
+    if errors:
+        log.warning("%s: zenoh session close failed (%s); left behind", what, errors[0])
+        return False
+    log.debug("%s: zenoh session closed in %.3f s", what, time.monotonic() - started)
+    return True
+
+
 def describe_zenoh(conf: zenoh.Config) -> str:
     """Mode, endpoints and scouting of a zenoh config, in one line for start-up messages."""
 

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from skelfuse.config import RigConfig
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import Received, open_session
+from skelfuse.service.zenoh_io import Received, close_session, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
@@ -136,7 +136,7 @@ def run_stream(
         finally:
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             sender.close()
-            session.close()
+            close_session(session, what="stream")
     report.dropped = samples.dropped
     log.info(
         "%s: %d fused frames in, %d sent, %d dropped (queue full), %d rejected",
