@@ -187,7 +187,7 @@ def test_temporal_cold_start_two_versus_two_picks_the_group_with_more_medium_evi
     assert away.tolist() == [False, True, True, False]
     no_previous = np.full((1, N_JOINTS, 3), np.nan)
     _, _, mirrored, streak = realign_temporal(pos, conf, no_previous, np.zeros((1, 3), np.int32))
-    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4, 0, 0]]
+    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4, 0]]
     # Same views, but the mirrored pair now holds more MEDIUM joints: evidence sides with them (documented
     # limit of a cold start; the anchor then keeps that choice until a clear majority disagrees).
     conf_swapped = conf[:, [1, 0, 3, 2]]
@@ -204,7 +204,7 @@ def test_temporal_anchor_decides_a_two_versus_two_split_the_static_vote_cannot()
     assert mirrored[0].tolist() == away.tolist()
     # The anchor mirrored: every view is realigned to it (the recovery counter does not move on 2 vs 2).
     _, _, mirrored, streak = realign_temporal(pos, conf, truth[MIRROR][None], FOUR_VIEW_ANCHOR)
-    assert mirrored[0].tolist() == (~away).tolist() and streak.tolist() == [[0, 0, 4, 0, 0]]
+    assert mirrored[0].tolist() == (~away).tolist() and streak.tolist() == [[0, 0, 4, 0]]
 
 
 def test_temporal_falls_back_to_the_static_reference_for_pairs_the_previous_lacks():
@@ -233,10 +233,10 @@ def test_temporal_recovers_from_a_mirrored_anchor_after_recovery_frames():
         assert n_valid.all()
         if frame < params.recovery_frames:
             assert n_swapped.all(), f"frame {frame}: followed the majority too early"
-            assert state.flip_counters.tolist() == [[frame, frame, 4, 0, 0]]
+            assert state.flip_counters.tolist() == [[frame, frame, 4, 0]]
         else:
             assert not n_swapped.any(), f"frame {frame}: still mirrored"
-            assert state.flip_counters.tolist() == [[0, 0, 4, 0, 0]]
+            assert state.flip_counters.tolist() == [[0, 0, 4, 0]]
 
 
 def test_temporal_undoes_a_wrong_start_in_a_two_versus_two_split_after_majority_frames():
@@ -257,7 +257,7 @@ def test_temporal_undoes_a_wrong_start_in_a_two_versus_two_split_after_majority_
         assert n_valid.all()
         if frame < params.majority_recovery_frames:
             assert n_swapped.all(), f"frame {frame}: followed the majority too early"
-            assert state.flip_counters.tolist() == [[0, frame, 4, 0, 0]]
+            assert state.flip_counters.tolist() == [[0, frame, 4, 0]]
         else:
             assert not n_swapped.any(), f"frame {frame}: still mirrored"
 
@@ -304,7 +304,7 @@ def test_temporal_without_mirrored_views_changes_nothing():
     rng = np.random.default_rng(RNG_SEED + 12)
     _, pos, conf = _views(rng)
     out, out_conf, mirrored, streak = realign_temporal(pos, conf, np.full((1, N_JOINTS, 3), np.nan), np.zeros((1, 3)))
-    assert not mirrored.any() and streak.tolist() == [[0, 0, 5, 0, 0]]  # five views
+    assert not mirrored.any() and streak.tolist() == [[0, 0, 5, 0]]  # five views
     assert out is pos and out_conf is conf
 
 
@@ -320,7 +320,7 @@ def test_temporal_starts_cold_when_the_body_teleports_and_not_when_it_walks():
     _, _, mirrored, _ = realign_temporal(pos, conf, before[None], FOUR_VIEW_ANCHOR)
     assert mirrored[0].tolist() == (~away).tolist()  # without the rule: all four decided wrong
     _, _, mirrored, streak = realign_temporal(pos, conf, before[None], FOUR_VIEW_ANCHOR, max_jump_mm=200.0)
-    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4, 0, 0]]
+    assert mirrored[0].tolist() == away.tolist() and streak.tolist() == [[0, 0, 4, 0]]
     # A walking step (60 mm, no turn) is no teleport: the anchor decides as before.
     walked = truth + np.array([60.0, 0.0, 0.0])
     assert not teleported(pos, walked[None], 200.0).any()

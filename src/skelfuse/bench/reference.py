@@ -93,7 +93,7 @@ class ReferenceFuser:
     def reset(self) -> None:
         self.previous: list[list[np.ndarray | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
         self.tracks: list[list[_Track | None]] = [[None] * N_JOINTS for _ in range(self.n_bodies)]
-        self.flip_counters: list[tuple[int, int, int, int, int]] = [(0, 0, 0, 0, 0)] * self.n_bodies
+        self.flip_counters: list[tuple[int, int, int, int]] = [(0, 0, 0, 0)] * self.n_bodies
 
     def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
         # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
@@ -308,15 +308,15 @@ def _realign_temporal(
     pos: list[list],
     conf: list[list[int]],
     previous: list[np.ndarray | None],
-    counters: tuple[int, int, int, int, int],
+    counters: tuple[int, int, int, int],
     params: FusionParams,
     dt_s: float,
     sensor_positions: np.ndarray | None = None,
-) -> tuple[list[list], list[list[int]], tuple[int, int, int, int, int]]:
+) -> tuple[list[list], list[list[int]], tuple[int, int, int, int]]:
     """Whole-body flip per sensor against the previous skeleton (seed view on a cold start), with recovery."""
     S = len(pos)
     pairs = PAPER_REALIGN_PAIRS.tolist()
-    clear, simple, views_seen, rear_streak, unanimous = counters
+    clear, simple, views_seen, rear_streak = counters
     if params.max_body_speed_mm_s is not None and _teleported(pos, previous, params.max_body_speed_mm_s * dt_s):
         previous = [None] * len(previous)  # the anchor is of another pose: start cold
     n_views = sum(
@@ -371,33 +371,28 @@ def _realign_temporal(
             invert = rear_against > rear_for
         else:
             invert = against > weight - against  # the flipped group holds more MEDIUM evidence
-        clear = simple = rear_streak = unanimous = 0
+        clear = simple = rear_streak = 0
         views_seen = n_views
     else:
         confirmed = rear_for > rear_against
         clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight and not confirmed else 0
         simple = simple + 1 if against > weight - against and not confirmed else 0
         rear_streak = rear_streak + 1 if rear_against > rear_for else 0
-        n_decided = sum(decided)
-        every_view_against = n_decided >= 3 and all(flipped[s] for s in range(S) if decided[s])
-        unanimous = unanimous + 1 if every_view_against and not confirmed else 0
         slow = params.majority_recovery_frames
-        fast = params.unanimous_recovery_frames
         if (
             clear >= params.recovery_frames
             or (slow is not None and simple >= slow)
             or rear_streak >= params.rear_view_frames
-            or (fast is not None and unanimous >= fast)
         ):
             invert = True
-            clear = simple = rear_streak = unanimous = 0
+            clear = simple = rear_streak = 0
     pos = [row[:] for row in pos]
     conf = [row[:] for row in conf]
     for s in range(S):
         if flipped[s] != (invert and decided[s]):
             for left, right in MIRROR_PAIRS.tolist():
                 _swap(pos, conf, s, left, right)
-    return pos, conf, (clear, simple, views_seen, rear_streak, unanimous)
+    return pos, conf, (clear, simple, views_seen, rear_streak)
 
 
 def _faces_away(joints: list, sensor_position: np.ndarray, max_cos: float) -> bool:

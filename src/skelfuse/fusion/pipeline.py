@@ -41,13 +41,7 @@ from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
 from skelfuse.fusion.presets import FusionParams
-from skelfuse.fusion.realign import (
-    N_FLIP_COUNTERS,
-    realign_body,
-    realign_paper,
-    realign_temporal,
-    reference_positions,
-)
+from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step
 from skelfuse.schema.skeleton import N_JOINTS
 
@@ -88,10 +82,10 @@ class FusionState:
     x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
     P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
     coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
-    flip_counters : (B, 5) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
+    flip_counters : (B, 4) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
         and a simple majority (column 1) of the evidence disagreed with the anchor, (column 2) the most
-        views that saw the body since its last cold start, (column 3) frames in a row rear views facing
-        away disagreed with it, and (column 4) frames in a row every decided view did (None reads as all 0).
+        views that saw the body since its last cold start, and (column 3) frames in a row rear views facing
+        away disagreed with it (None reads as all 0).
     orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
     angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
     position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
@@ -129,7 +123,7 @@ def init_state(n_bodies: int, params: FusionParams) -> FusionState:
         x=x.reshape(B, N_JOINTS, 2, 3),
         P=P.reshape(B, N_JOINTS, 3),
         coast=coast.reshape(B, N_JOINTS),
-        flip_counters=np.zeros((B, N_FLIP_COUNTERS), dtype=np.int32),
+        flip_counters=np.zeros((B, 4), dtype=np.int32),
         orientation=orientation,
         angular_velocity=angular_velocity,
         position_cov=np.zeros((B, N_JOINTS, 3)) if params.position_std else None,
@@ -327,7 +321,7 @@ def _realign(
     the new flip counters and which views were flipped ((B, S) bool; None without realignment)."""
     B = positions.shape[0]
     if streak is None:
-        streak = np.zeros((B, N_FLIP_COUNTERS), dtype=np.int32)
+        streak = np.zeros((B, 4), dtype=np.int32)
     if params.realign is None:
         return positions, conf, None, streak, None
     if params.realign == "temporal":
@@ -344,7 +338,6 @@ def _realign(
             sensor_positions=sensor_positions,
             rear_view_cos=params.rear_view_cos,
             rear_view_frames=params.rear_view_frames,
-            unanimous_recovery_frames=params.unanimous_recovery_frames,
         )
         return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)

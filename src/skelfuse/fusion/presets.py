@@ -23,11 +23,8 @@ costs a reference per frame), so it is off; cv_kalman with accel sigma 5000 mm/s
 15 mm and R divided by the number of agreeing views halves the jitter at a lag under 0.1 frame (the
 paper's Kalman lags 8 frames). The filter's prediction as the previous candidate measured no better than
 the merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
-seam) starts its realignment cold (``max_body_speed_mm_s``); a rear view facing away from its sensor
-decides left/right (``rear_view_cos``, where the caller gives the sensors' positions), and every view of
-three or more disagreeing with the anchor for 3 frames overturns it (``unanimous_recovery_frames``).
-"skelfuse" also outputs fused joint orientations and a per-joint position uncertainty (``orientations``,
-``position_std``); they do not change the positions.
+seam) starts its realignment cold (``max_body_speed_mm_s``). "skelfuse" also outputs fused joint orientations and a
+per-joint position uncertainty (``orientations``, ``position_std``); they do not change the positions.
 """
 
 from __future__ import annotations
@@ -98,11 +95,6 @@ class FusionParams:
     rear_view_frames : int
         "temporal" only: frames in a row such rear views must disagree with the anchor before the body follows
         them (>= 1). "skelfuse": 3.
-    unanimous_recovery_frames : int or None
-        "temporal" only: frames in a row EVERY decided view, at least three, must disagree with the anchor
-        before the body follows them (the unanimous rule of :func:`skelfuse.fusion.realign.realign_temporal`:
-        with three or more sensors round a person, a correct anchor would need every view mirrored at once).
-        None: off. "skelfuse": 3.
     merge : {"dbscan", "average"}
         "dbscan": per-joint clustering with Nc = 1 and winner-takes-all (section 2.2.2). "average": plain
         mean of the valid sensor candidates (the paper's A1/A2).
@@ -165,7 +157,6 @@ class FusionParams:
     max_body_speed_mm_s: float | None = None
     rear_view_cos: float | None = None
     rear_view_frames: int = 3
-    unanimous_recovery_frames: int | None = None
     merge: MergeMode = "dbscan"
     eps_mm: float = 100.0
     reference_weight: float | None = 2.0
@@ -202,10 +193,6 @@ class FusionParams:
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
             raise ValueError(
                 f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"
-            )
-        if self.unanimous_recovery_frames is not None and int(self.unanimous_recovery_frames) < 1:
-            raise ValueError(
-                f"FusionParams.unanimous_recovery_frames must be None or >= 1, got {self.unanimous_recovery_frames!r}"
             )
         if int(self.rear_view_frames) < 1:
             raise ValueError(f"FusionParams.rear_view_frames must be >= 1, got {self.rear_view_frames!r}")
@@ -265,7 +252,6 @@ _PRESETS: dict[str, FusionParams] = {
         realign="temporal",
         max_body_speed_mm_s=6000.0,
         rear_view_cos=-0.7,
-        unanimous_recovery_frames=3,
         merge="dbscan",
         eps_mm=75.0,
         reference_weight=None,

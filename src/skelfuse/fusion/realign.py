@@ -68,15 +68,6 @@ Two modes:
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
-        A faster rule (``unanimous_recovery_frames``, off unless given; "skelfuse": 3) follows the views when
-        EVERY decided view, at least three of them, disagrees with the anchor for that many frames in a row:
-        for a correct anchor that would need every view mirrored at once, which a ring of three or more
-        sensors rules out for a tracker that mirrors only rear views (some view is within 60 deg of the
-        person's front). It undoes a wrong 2-vs-2 start as soon as every view briefly agrees on the truth
-        (a looped take that restarts in a pose whose views are all unmirrored: the seam of a lying take
-        hardly moves the body, so the teleport rule does not see it). On the simulator's training takes
-        (baseline and no_mirroring, seeds 0-11, 3 and 4 sensors) unanimous disagreement with a correct
-        anchor never lasted 3 frames.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -153,7 +144,7 @@ _ONES_J = np.ones(N_JOINTS)
 _ONES_2P = np.ones(2 * _N_PAIRS)
 # The body centre of the teleport rule: shoulders and hips, both sides, so that a left/right flip leaves it.
 _CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]])
-N_FLIP_COUNTERS = 5  # per-body realignment counters (see realign_temporal's ``streak``)
+_N_COUNTERS = 4  # per-body realignment counters (see realign_temporal's ``streak``)
 
 
 def reference_positions(positions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -280,7 +271,6 @@ def realign_temporal(
     sensor_positions: np.ndarray | None = None,
     rear_view_cos: float | None = None,
     rear_view_frames: int = 3,
-    unanimous_recovery_frames: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -290,13 +280,12 @@ def realign_temporal(
     confidence : (B, S, J) int
     previous : (B, J, 3) float, mm
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
-    streak : (B, 5) int
+    streak : (B, 4) int
         Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
         ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
         that have seen the body's left/right pairs since its last cold start; (column 3) frames in a row in
-        which rear views facing away disproved the anchor; (column 4) frames in a row in which every decided
-        view, at least three, disagreed with it. All 0 for a new body (fewer columns are read as the first
-        ones, the others 0).
+        which rear views facing away disproved the anchor. All 0 for a new body (three columns are read
+        as the first three, the fourth 0).
     recovery_frames : int
         Disagreement frames in a row after which the body follows the majority (>= 1).
     recovery_share : float
@@ -321,9 +310,6 @@ def realign_temporal(
     rear_view_frames : int
         Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
         before the body follows them (>= 1).
-    unanimous_recovery_frames : int or None
-        Frames in a row in which every decided view, at least three, disagrees with the anchor before the
-        body follows them (the unanimous rule of the module docstring). None: off.
 
     Returns
     -------
@@ -331,12 +317,12 @@ def realign_temporal(
         themselves when no sensor is mirrored; do not modify them in place).
     confidence : (B, S, J), permuted along with the positions.
     mirrored : (B, S) bool, which sensors were mirrored.
-    streak : (B, 5) int32, the new counters.
+    streak : (B, 4) int32, the new counters.
     """
     B = positions.shape[0]
     streak = np.asarray(streak, dtype=np.int32)
-    if streak.shape[1] < N_FLIP_COUNTERS:  # counters from before the rear-view / unanimous rules: theirs start at 0
-        streak = np.concatenate([streak, np.zeros((B, N_FLIP_COUNTERS - streak.shape[1]), np.int32)], axis=1)
+    if streak.shape[1] < _N_COUNTERS:  # counters from before the rear-view rule: its streak starts at 0
+        streak = np.concatenate([streak, np.zeros((B, _N_COUNTERS - streak.shape[1]), np.int32)], axis=1)
     if max_jump_mm is not None:
         jumped = teleported(positions, previous, max_jump_mm)
         if jumped.any():
@@ -376,7 +362,7 @@ def realign_temporal(
     margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
-        counters = np.zeros((B, N_FLIP_COUNTERS), dtype=np.int32)
+        counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     decided = decidable.any(axis=2)
@@ -394,13 +380,10 @@ def realign_temporal(
     # counts are whole numbers and the share exceeds 1/2, so the 0.5 floor only rules out total == 0.
     majority = (against >= np.maximum(recovery_share * total, 0.5)) & ~confirmed
     simple = (2.0 * against > total) & ~confirmed
-    n_decided = decided @ np.ones(decided.shape[1])
-    unanimous = (n_decided >= 3) & ((flips & decided) @ np.ones(decided.shape[1]) == n_decided) & ~confirmed
     disproved = rear_against > rear_for
     if has_prev is not None:
         majority &= has_prev
         simple &= has_prev
-        unanimous &= has_prev
         disproved_now = disproved & ~has_prev
         disproved &= has_prev
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
@@ -412,17 +395,14 @@ def realign_temporal(
             (streak[:, 1] + 1) * simple,
             views_seen,
             (streak[:, 3] + 1) * disproved,
-            (streak[:, 4] + 1) * unanimous,
         ],
         axis=1,
     ).astype(np.int32)
     follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
-    if unanimous_recovery_frames is not None:
-        follow |= new_streak[:, 4] >= unanimous_recovery_frames
     new_streak[follow, :2] = 0
-    new_streak[follow, 3:] = 0
+    new_streak[follow, 3] = 0
     if has_prev is not None:
         # Cold start: the group holding more rear views facing away wins; without such a vote, the group with
         # more MEDIUM evidence (the seed's on a tie).
