@@ -101,24 +101,6 @@ def test_tie_prefers_more_sensors_then_confidence_then_smaller_centroid():
         np.testing.assert_allclose(pos, [5.0, 0, 0])
 
 
-def test_views_that_all_disagree_keep_the_joint_nearest_where_it_was():
-    # Three views more than eps apart and the previous position in none of their clusters: every cluster is
-    # one view with the same score and confidence. The one nearest the previous position wins (key 5), not
-    # the smallest x (key 6), whatever the sensor order.
-    sensors = np.array([[-400.0, 900.0, 0], [30.0, -50.0, 0], [-90.0, 60.0, 0]])
-    previous = [-10.0, 0.0, 250.0]  # 258 mm from s1, 269 mm from s2, 1012 mm from s0: in no cluster
-    for order in ([0, 1, 2], [2, 0, 1], [1, 2, 0]):
-        pos, n, _, _ = _one_joint(sensors[order], previous=previous, reference_weight=None, previous_weight=1.0)
-        np.testing.assert_allclose(pos, [30.0, -50.0, 0])
-        assert n == 1
-    # Without the previous position in play the old order holds: the smallest centroid x.
-    pos, *_ = _one_joint(sensors, reference_weight=None, previous_weight=None)
-    np.testing.assert_allclose(pos, [-400.0, 900.0, 0])
-    # A previous position that is unknown for the joint leaves the choice to the centroid order as well.
-    pos, *_ = _one_joint(sensors, previous=[np.nan] * 3, reference_weight=None, previous_weight=1.0)
-    np.testing.assert_allclose(pos, [-400.0, 900.0, 0])
-
-
 def test_cluster_without_sensor_cannot_win():
     # Reference (2) + previous (1) far from the only sensor: their cluster scores 3 but holds no sensor.
     pos, n, conf, _ = _one_joint([[0.0, 0, 0]], reference=[500.0, 0, 0], previous=[510.0, 0, 0])

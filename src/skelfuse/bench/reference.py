@@ -187,16 +187,12 @@ class ReferenceFuser:
                 score += weights[i]
             centroid = np.mean([pos[s][j] for s in cluster_sensors], axis=0)
             rounded = np.round(centroid, 6)
-            to_previous = math.inf  # nearest to the previous position first, where it takes part
-            if "prev" in kinds and np.isfinite(previous).all():
-                to_previous = round(float(np.sqrt(((centroid - previous) ** 2).sum())), 6)
             key = (
                 score,
                 any(kinds[i] == "prev" for i in idx),
                 len(cluster_sensors),
                 any(kinds[i] == "ref" for i in idx),
                 sum(conf[s][j] for s in cluster_sensors),
-                -to_previous,
                 -rounded[0],
                 -rounded[1],
                 -rounded[2],

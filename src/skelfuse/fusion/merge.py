@@ -24,16 +24,9 @@ Winner
     Among those, the cluster with the largest score wins; ties are broken, in order, by
     (1) containing the previous position (temporal continuity), (2) more sensor candidates,
     (3) containing the reference, (4) larger summed tracker confidence of its sensor candidates,
-    (5) centroid nearest the previous position (rounded to 1e-6 mm; only where the previous position is
-    used and known), (6) smallest centroid x, then y, then z (rounded to 1e-6 mm). Every key depends only
-    on the cluster's content, so the result does not depend on the order of the sensors; only clusters
-    identical in every key (which would need identical centroids) fall back to the lowest sensor index.
-    Key (5) is temporal continuity again, for the case where the views of a joint all disagree by more
-    than eps (every cluster a single view, the previous position in none): the joint stays with the view
-    nearest where it was, instead of jumping to whichever lies furthest along x. Without it a view whose
-    whole skeleton was displaced (a neighbour merged into it, a person partly out of its frustum) won
-    every such joint whenever it lay at the smallest x, dragged the fused body by hundreds of mm and set
-    off the realignment's teleport rule.
+    (5) smallest centroid x, then y, then z (rounded to 1e-6 mm). Every key depends only on the cluster's
+    content, so the result does not depend on the order of the sensors; only clusters identical in every
+    key (which would need identical centroids) fall back to the lowest sensor index.
 Output
     The merged position is the centroid of the winning cluster's *sensor* candidates; the reference and
     the previous position vote but are not averaged (paper). ``n_agree`` is the number of those sensor
@@ -207,8 +200,7 @@ def merge_dbscan(
     tied = (key == key[rows, winner][:, None]) & valid
     safe_axes = np.where(valid, sensor_axes, 0.0)  # (3, N, S), 0 where missing
     if np.count_nonzero(tied) != np.count_nonzero(members):  # another cluster has the same key somewhere
-        previous_pts = np.asarray(previous, dtype=np.float64).reshape(N, 3) if use_prev else None
-        winner = _break_ties(tied, sensor_same, safe_axes.transpose(1, 2, 0), previous_pts)
+        winner = _break_ties(tied, sensor_same, safe_axes.transpose(1, 2, 0))
         members = sensor_same[rows, winner]
 
     n_agree = code[rows, winner] % span
@@ -224,22 +216,13 @@ def merge_dbscan(
     )
 
 
-def _break_ties(
-    tied: np.ndarray, sensor_same: np.ndarray, safe_pts: np.ndarray, previous_pts: np.ndarray | None
-) -> np.ndarray:
-    """Among tied clusters pick the sensor centroid nearest ``previous_pts`` (N, 3) where given and known,
-    then the smallest x, then y, then z; returns winner indices (N,).
+def _break_ties(tied: np.ndarray, sensor_same: np.ndarray, safe_pts: np.ndarray) -> np.ndarray:
+    """Among tied clusters pick the smallest sensor centroid, x then y then z; returns winner indices (N,).
 
     Only runs on frames where some joint has a tie, so the common path stays cheap.
     """
     count = np.maximum(sensor_same.sum(axis=2), 1.0)[..., None]
-    exact = (sensor_same @ safe_pts) / count  # (N, S, 3)
-    if previous_pts is not None:
-        gap = exact - previous_pts[:, None, :]
-        distance = np.round(np.sqrt((gap * gap).sum(axis=2)), _ROUND_DECIMALS)  # NaN where no previous
-        value = np.where(tied & (distance == distance), distance, np.inf)
-        tied = tied & (value == value.min(axis=1, keepdims=True))
-    centroid = np.round(exact, _ROUND_DECIMALS)
+    centroid = np.round((sensor_same @ safe_pts) / count, _ROUND_DECIMALS)  # (N, S, 3)
     for axis in range(3):  # lexicographic over the three axes
         value = np.where(tied, centroid[..., axis], np.inf)
         tied = tied & (value == value.min(axis=1, keepdims=True))
