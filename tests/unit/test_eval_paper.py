@@ -527,3 +527,33 @@ def test_orientations_do_not_change_the_fused_positions() -> None:
     knowable = np.isfinite(aim_directions(plain)).all(axis=-1)[..., ORIENTATION_DERIVED_SOURCE]
     assert knowable[:, :26].mean() > 0.9
     assert np.isfinite(fused_quats[knowable]).all()
+
+
+def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(monkeypatch) -> None:
+    """The live node knows where its sensors stand (the rear-view rule of the temporal realignment needs it);
+    the paper experiment must fuse with the same knowledge, each run with the positions of the sensors it uses."""
+    _require_core()
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.rig import best_view_sensor, paper_rig
+
+    task = paper.TakeTask("squat", 0.0, 1.0, 30.0, 4, 5, None, (100.0,))
+    seen: list[np.ndarray | None] = []
+    real_fuser = paper.Fuser
+
+    def spy(params, n_bodies=1, sensor_positions=None):
+        seen.append(None if sensor_positions is None else np.array(sensor_positions))
+        return real_fuser(params, n_bodies=n_bodies, sensor_positions=sensor_positions)
+
+    monkeypatch.setattr(paper, "Fuser", spy)
+    paper.evaluate_take(task)
+    # the same take, simulated the same way: where its capture sensors stand
+    motion = make_gesture("squat", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=4)
+    sensors = [*list(paper_rig(paper.N_CAPTURE)), best_view_sensor(0.0)]
+    obs = simulate(motion, sensors, paper.scenario_profile(load_profile(None), "rear_mirroring"), seed=5)
+    where = obs.world_from_sensor_calibrated[: paper.N_CAPTURE, :3, 3]
+    runs = paper.fusion_runs(paper.N_CAPTURE, (100.0,), ours=(paper.OURS,))
+    assert len(seen) == len(runs)
+    for run, given in zip(runs, seen, strict=True):
+        assert given is not None, run.key
+        np.testing.assert_allclose(given, where[list(run.sensors)], err_msg=run.key)

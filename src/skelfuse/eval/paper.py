@@ -280,7 +280,13 @@ def _world_skeletons(obs: Any) -> np.ndarray:
     return np.where(tracked[..., None, None], world, np.nan)
 
 
-def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fps: float) -> np.ndarray:
+def fuse_take(
+    run: FusionRun,
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    fps: float,
+    sensor_positions: np.ndarray | None = None,
+) -> np.ndarray:
     """Fuse a whole take with one configuration.
 
     Parameters
@@ -289,6 +295,9 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
     candidates : (T, S, 32, 3) world mm, NaN = missing (all capture sensors; ``run.sensors`` picks)
     confidence : (T, S, 32) uint8
     fps : frame rate of the take
+    sensor_positions : (S, 3) world mm of all capture sensors, or None
+        Where the sensors stand (the live node passes its calibrated poses' translations): the temporal
+        realignment's rear-view rule needs them and is off without them.
 
     Returns
     -------
@@ -296,7 +305,8 @@ def fuse_take(run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, fp
     """
 
     sensors = list(run.sensors)
-    return fuse_sequence(run.params(), candidates[:, sensors], confidence[:, sensors], fps)
+    positions = None if sensor_positions is None else np.asarray(sensor_positions)[sensors]
+    return fuse_sequence(run.params(), candidates[:, sensors], confidence[:, sensors], fps, positions)
 
 
 def fuse_sequence(
@@ -320,7 +330,12 @@ def fuse_sequence(
 
 
 def fuse_take_oriented(
-    run: FusionRun, candidates: np.ndarray, confidence: np.ndarray, orientations: np.ndarray, fps: float
+    run: FusionRun,
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    orientations: np.ndarray,
+    fps: float,
+    sensor_positions: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse_take` with the views' world orientations (T, S, 32, 4) as well: returns the fused positions
     (the same as :func:`fuse_take`'s: orientations never change them) and (T, 32, 4) fused orientations (NaN
@@ -329,7 +344,8 @@ def fuse_take_oriented(
     cand = np.ascontiguousarray(candidates[:, sensors])
     conf = np.ascontiguousarray(confidence[:, sensors])
     views = np.ascontiguousarray(orientations[:, sensors])
-    fuser = Fuser(run.params(), n_bodies=1)
+    positions_of_sensors = None if sensor_positions is None else np.asarray(sensor_positions)[sensors]
+    fuser = Fuser(run.params(), n_bodies=1, sensor_positions=positions_of_sensors)
     positions = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
     quats = np.full((cand.shape[0], N_JOINTS, 4), np.nan)
     dt_s = 1.0 / fps
@@ -405,12 +421,15 @@ def evaluate_take(task: TakeTask) -> TakeResult:
 
     t1 = time.perf_counter()
     runs = fusion_runs(N_CAPTURE, task.eps_values, ours=task.ours)
+    sensor_positions = obs.world_from_sensor_calibrated[:N_CAPTURE, :3, 3]  # as the live node knows them
     for run in runs:
         if run.params().orientations and len(run.sensors) == N_CAPTURE:
-            fused, fused_quats = fuse_take_oriented(run, capture, confidence, view_quats[:, :N_CAPTURE], task.fps)
+            fused, fused_quats = fuse_take_oriented(
+                run, capture, confidence, view_quats[:, :N_CAPTURE], task.fps, sensor_positions
+            )
             score_orientation(run.key, fused_quats)
         else:
-            fused = fuse_take(run, capture, confidence, task.fps)
+            fused = fuse_take(run, capture, confidence, task.fps, sensor_positions)
         score(run.key, fused, with_lag=len(run.sensors) == N_CAPTURE)
     t_fuse = time.perf_counter() - t1
 
