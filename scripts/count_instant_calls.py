@@ -17,13 +17,15 @@ from __future__ import annotations
 import argparse
 import collections
 import dis
-import importlib.util
 import sys
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 from skelfuse.wire.codec import encode_fused_frame
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from profile_instant import _bench_instant  # one loader of bench instant's take for both scripts
 
 _KINDS = {
     dis.opmap["CALL"]: "call",
@@ -34,18 +36,6 @@ _KINDS = {
     dis.opmap["BINARY_SUBSCR"]: "subscript",
     dis.opmap["STORE_SUBSCR"]: "subscript",
 }
-
-
-def _bench_instant() -> Any:
-    """This checkout's ``skelfuse/bench/instant.py`` loaded by path (its inputs use only stable interfaces), so that
-    the take is the same whichever tree ``PYTHONPATH`` points at."""
-    path = Path(__file__).resolve().parents[1] / "src" / "skelfuse" / "bench" / "instant.py"
-    spec = importlib.util.spec_from_file_location("_bench_instant_inputs", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def main() -> int:
