@@ -325,7 +325,7 @@ class SensorClock:
         self._offset_us = int(_median(self._residuals)) if len(self._residuals) > 2 else self._residuals[0]
 
     def expire(self, arrival_us: int) -> int:
-        """Forget held frames older than the hold time (``window`` periods); returns how many (off clock)."""
+        """Forget held frames older than the hold time (``2 * relearn_after`` periods); returns how many (off clock)."""
         if not self._candidates:
             return 0
         oldest_kept = arrival_us - self.hold_us
