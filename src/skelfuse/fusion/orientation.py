@@ -138,12 +138,14 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
 
 def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
     """Unit quaternion of a rotation vector (axis times angle, rad)."""
-    return np.moveaxis(_rows_rotvec_to_quat(np.moveaxis(np.asarray(r, dtype=np.float64), -1, 0)), 0, -1)
+    r = np.asarray(r, dtype=np.float64)
+    return _rows_rotvec_to_quat(r.reshape(-1, 3).T).T.reshape(*r.shape[:-1], 4)
 
 
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) of unit quaternions, the short way round (angle <= pi)."""
-    return np.moveaxis(_rows_quat_to_rotvec(np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)), 0, -1)
+    q = np.asarray(q, dtype=np.float64)
+    return _rows_quat_to_rotvec(q.reshape(-1, 4).T).T.reshape(*q.shape[:-1], 3)
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
