@@ -66,6 +66,14 @@ def test_quaternion_algebra_matches_scipy():
     assert np.allclose(np.abs(np.sum(orient.quat_from_rotvec(a.as_rotvec()) * qa, axis=-1)), 1.0, atol=1e-12)
     assert np.allclose(orient.quat_to_matrix(qa), a.as_matrix(), atol=1e-12)
     assert np.allclose(orient.quat_angle_deg(qa, qb), np.degrees((a.inv() * b).magnitude()), atol=1e-6)
+    # Shapes broadcast like numpy's (one rotation against many, a grid), and an empty batch stays empty.
+    grid = orient.quat_multiply(qa[:5, None], qb[None, :7])
+    assert grid.shape == (5, 7, 4)
+    assert np.allclose(np.abs(np.sum(grid[2] * _wxyz(a[2] * b[:7]), axis=-1)), 1.0, atol=1e-12)
+    assert orient.quat_multiply(qa[0], qb[:3]).shape == (3, 4)
+    assert np.allclose(orient.quat_to_rotvec(qa[7]), a[7].as_rotvec(), atol=1e-9)  # one quaternion, no batch
+    assert np.allclose(np.abs(orient.quat_from_rotvec(a[7].as_rotvec()) @ qa[7]), 1.0, atol=1e-12)
+    assert orient.quat_multiply(np.zeros((0, 32, 4)), orient.quat_from_rotvec(np.zeros((0, 32, 3)))).shape == (0, 32, 4)
 
 
 def test_swing_between_is_the_smallest_rotation():

@@ -7,6 +7,7 @@ import numpy as np
 
 from skelfuse.eval.metrics import swap_counts
 from skelfuse.fusion import Fuser, fuse, init_state, preset
+from skelfuse.fusion.mirror import pair_costs
 from skelfuse.fusion.realign import (
     _swap_pairs,
     realign_body,
@@ -298,6 +299,33 @@ def test_temporal_follows_a_person_turning_around():
         n_swapped, n_valid = swap_counts(result.positions, truth[None], PAPER_REALIGN_PAIRS)
         assert n_valid.all() and not n_swapped.any(), f"frame {frame}, facing {facing % 360:.0f} deg"
     assert flipped_views > 100  # the test did see mirrored views
+
+
+def test_temporal_two_wild_arms_do_not_outvote_shoulders_hips_and_legs():
+    # Arms spread wide (wrists 1400 mm apart): a view whose occlusion guesses put both arms on the wrong
+    # sides costs 2 x 1400 + 2 x 900 mm more kept than swapped, more than the other four pairs (about
+    # 2 x 300 mm each) cost swapped. Each pair's vote is bounded by twice the anchor's width of that pair
+    # (triangle inequality), so after dividing by it every pair weighs at most 1: 4 pairs against 2.
+    rng = np.random.default_rng(RNG_SEED + 13)
+    truth = _skeleton(rng)
+    for name, half_width in (("ELBOW", 450.0), ("WRIST", 700.0)):
+        truth[J[f"{name}_LEFT"], 0], truth[J[f"{name}_RIGHT"], 0] = -half_width, half_width
+    pos = truth + rng.normal(0.0, 8.0, (1, 3, N_JOINTS, 3))
+    conf = np.full((1, 3, N_JOINTS), int(Confidence.MEDIUM), dtype=np.uint8)
+    for name in ("ELBOW", "WRIST"):  # view 0: both arms guessed on the other side, and further out
+        left, right = J[f"{name}_LEFT"], J[f"{name}_RIGHT"]
+        pos[0, 0, [left, right]] = pos[0, 0, [right, left]] * np.array([1.3, 1.0, 1.0])
+    pos[0, 2] = pos[0, 2, MIRROR]  # view 2: a whole mirrored skeleton, which must still be flipped
+    _, _, mirrored, _ = realign_temporal(pos, conf, truth[None] + 15.0, np.array([[0, 0, 3]], np.int32))
+    assert mirrored[0].tolist() == [False, False, True]
+    # The same view judged by the summed millimetres (realign_body's measure) would have been flipped:
+    keep, swap = pair_costs(
+        pos[:, :, PAPER_REALIGN_PAIRS[:, 0]],
+        pos[:, :, PAPER_REALIGN_PAIRS[:, 1]],
+        truth[None, None, PAPER_REALIGN_PAIRS[:, 0]] + 15.0,
+        truth[None, None, PAPER_REALIGN_PAIRS[:, 1]] + 15.0,
+    )
+    assert (swap - keep)[0, 0].sum() < 0.0
 
 
 def test_temporal_without_mirrored_views_changes_nothing():

@@ -351,7 +351,7 @@ def _realign_temporal(
             decided[s] = True
             keep = math.dist(a_right, p_right) + math.dist(a_left, p_left)
             swap = math.dist(a_right, p_left) + math.dist(a_left, p_right)
-            total += swap - keep
+            total += (swap - keep) / max(2.0 * math.dist(a_left, a_right), 1.0)  # each pair votes in [-1, 1]
         flipped[s] = total < 0.0
     against = sum(evidence[s] for s in range(S) if flipped[s])
     weight = sum(evidence[s] for s in range(S) if decided[s])

@@ -37,8 +37,13 @@ Two modes:
 
     Anchor
         Per pair, the previous merged pair where the previous holds both of its joints; otherwise the
-        static reference (:func:`reference_positions` of the unaligned candidates). Each sensor's cost is
-        then the ``realign_body`` sum over its decidable pairs.
+        static reference (:func:`reference_positions` of the unaligned candidates). Each sensor's margin
+        is then the sum over its decidable pairs of ``(swap - keep) / (2 |anchor_L - anchor_R|)``: by the
+        triangle inequality ``|swap - keep|`` never exceeds twice the anchor's width of that pair, so each
+        pair votes in [-1, 1] and a pair held wide apart (arms spread) weighs no more than the hips. In
+        millimetres, as ``realign_body`` sums them, two arms whose occlusion guesses land on the wrong
+        sides outvoted shoulders, hips, knees and ankles and mirrored a correct view (simulator,
+        ``mixture`` with 3 sensors, seed 1002: 357 mm fused error with millimetres, 42 mm with votes).
     Initialization (no previous pair at all: the first frame, after a reset, after a loss of track)
         A 2-vs-2 split of views is geometrically ambiguous: a mirrored rear view faces "its" sensor just as a
         correct front view does. The *evidence* of a view is its number of MEDIUM-or-better joints (all
@@ -357,6 +362,9 @@ def realign_temporal(
     diff = both - anchor[:, None]
     cost = np.sqrt((diff * diff) @ _ONES3)  # (B, S, 4P): keep costs, then swap costs
     pair_delta = _SWAP_MINUS_KEEP @ cost.reshape(*cost.shape[:2], 4, _N_PAIRS)  # (B, S, P) swap - keep
+    width = anchor[:, :_N_PAIRS] - anchor[:, _N_PAIRS : 2 * _N_PAIRS]  # (B, P, 3): anchor left - right
+    width = np.sqrt((width * width) @ _ONES3)
+    pair_delta = pair_delta / np.maximum(2.0 * width, 1.0)[:, None]  # each pair's vote in [-1, 1]
     # A pair decides only where both of the sensor's joints and both anchors exist: NaN propagates.
     decidable = pair_delta == pair_delta
     margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
