@@ -49,7 +49,6 @@ from skelfuse.rig.instant import GroupFuser
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.memory import bound_malloc_arenas
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
 from skelfuse.service.zenoh_io import (
@@ -798,7 +797,6 @@ def run_fusion_node(
     cfg: RigConfig, zenoh_conf: zenoh.Config, *, options: NodeOptions, lifecycle: Lifecycle
 ) -> NodeReport:
     """``skelfuse fuse --config RIG.toml``: run the node in this thread (signals via ``lifecycle``)."""
-    log.info("fusion node: %s", bound_malloc_arenas())  # before zenoh's threads start (service/memory.py)
     node = FusionNode(cfg, zenoh_conf, options=options, lifecycle=lifecycle)
     with lifecycle.capture_signals():
         return node.run()
