@@ -642,16 +642,23 @@ class FusionNode:
             else:
                 wait_s = min(IDLE_WAIT_S, max((next_status - time.monotonic_ns()) / 1e9, poll_s))
             item = samples.get(timeout=wait_s)
+            emptied = True
             while item is not None:
                 # Each instant goes out as soon as it is fused, not after the rest of a backlog is read. Deadlines
                 # are looked at only once the queue is empty (a queued frame arrived in time, whatever the time
-                # now), but a stop is seen between any two samples (a starved node's backlog never hides it).
+                # now), but a stop is seen between any two samples (a starved node's backlog never hides it),
+                # and so is an overdue status: a node a little behind for long (its queue never quite empty)
+                # published none for over 10 s (session 22).
                 self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
                 if self.lifecycle.should_exit:
                     break
+                if time.monotonic_ns() >= next_status + period_ns:
+                    emptied = False
+                    break
                 item = samples.get_nowait()
             now_ns = time.monotonic_ns()
-            self._publish(self.core.poll(now_ns), publisher, view)
+            if emptied:
+                self._publish(self.core.poll(now_ns), publisher, view)
             # The status waits for a quiet moment (no instant half received, so no frame of one queues behind
             # it), at most one period.
             quiet = not self.core.grouper.n_open or now_ns >= next_status + period_ns
