@@ -633,3 +633,20 @@ def test_a_forger_does_not_take_a_clock_while_the_whole_rig_is_silent(forged_hz:
     assert stats.sensors["s1"].off_clock == len(forged)
     assert stats.totals.late == stats.totals.out_of_window == 0
     assert len(groups) == 300 and all(grp.complete for grp in groups)
+
+
+def test_a_lone_live_sensors_clock_step_is_relearned_though_the_others_are_dead() -> None:
+    # The rig check of the "quiet" rule must not read dead sensors as a silent rig: s0, s1 and s3 stop for good
+    # at frame 50, then s2's PC steps its clock by +3 s at frame 100. Without the liveness condition s2's 100
+    # frames after the step were all off clock (never re-learned).
+    events = rig_stream(200, np.random.default_rng(SEED + 14))
+    lone = [
+        (a, dataclasses.replace(f, host_time_ns=f.host_time_ns + 3 * 10**9) if f.sequence >= 1100 else f)
+        for a, f in events
+        if f.sensor_id == "s2" or f.sequence < 1050
+    ]
+    g = grouper(by="host", tolerance_us=13_000)
+    run(g, lone)
+    s2 = g.stats.sensors["s2"]
+    assert g.clock_estimates()["s2"].relearns == 1
+    assert s2.off_clock == 0 and s2.grouped + s2.late == 200 and s2.late <= 8

@@ -74,7 +74,8 @@ Sensor clocks (:class:`SensorClock`, one per sensor)
     quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart) while the
     rig's other sensors kept arriving (a frame of any of them since then, on clock or not; a starved node or a
     stalled link silences the whole rig, and then a forger's frames are merely the only ones getting through:
-    session 21's one-hour soak lost 37 instants that way), or (2) the
+    session 21's one-hour soak lost 37 instants that way; other sensors silent since ``2 * resync_after``
+    periods before the stream went quiet are dead, not a reference), or (2) the
     learned stream itself is not paced (a forger that spoke first holds the clock and outruns the sensor) and,
     in device mode, the candidate agrees with the rig's other sensors no worse than the learned clock (within
     ``max_ahead_us``), or (3) in device mode, the candidate agrees with the rig's other sensors better than the
@@ -402,12 +403,17 @@ class SensorClock:
         if not (_paced(arrivals, self.period_us) and _paced(stamps, self.period_us)):
             return False  # a forger's loop, not a sensor: frames too fast, or stamps not a frame period apart
         run_began_us = arrivals[-self.relearn_after]
-        quiet = self._last_arrival_us is None or self._last_arrival_us < run_began_us
-        if quiet and (rig_arrival_us is None or rig_arrival_us >= run_began_us):
-            # The learned stream went quiet while the rest of the rig kept arriving: the clock stepped (or the
-            # sensor restarted). Quiet together with the whole rig is a starved node or a stalled link, not a
-            # step: the candidate's frames are merely the only ones getting through.
-            return True
+        last_us = self._last_arrival_us
+        if last_us is None or last_us < run_began_us:
+            # The learned stream went quiet. With the rest of the rig arriving meanwhile, the clock stepped (or
+            # the sensor restarted). Quiet together with the whole rig is a starved node or a stalled link, not
+            # a step: the candidate's frames are merely the only ones getting through. The rig is a reference
+            # only if it was still arriving when this stream went quiet: sensors silent since long before are
+            # dead and must not keep a lone live sensor on a stepped clock.
+            if rig_arrival_us is None or last_us is None or rig_arrival_us < last_us - self.hold_us:
+                return True
+            if rig_arrival_us >= run_began_us:
+                return True
         learned = list(self._arrivals)
         learned_over_rate = len(learned) >= self.relearn_after and not _paced(learned, self.period_us)
         if rig_offset_us is None:
