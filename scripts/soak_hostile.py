@@ -19,7 +19,9 @@ a limit of the node: the machine's load average and CPU pressure (/proc/pressure
 own CPU time and its run-queue wait (/proc/<pid>/task/<pid>/schedstat: time it was runnable but not running),
 the whole node's CPU time, and the lag of each stage: this script's publishing behind its schedule, fused
 frame received behind its instant's publishing, and the node's own added latency (its status); plus the
-instants lost in that window. A window that loses instants while the loop thread waits for a CPU is starvation;
+instants lost in that window, the change of the node's grouping counters that lose or thin out instants (late,
+duplicate, dropped, out of window, resyncs, partial groups, deadline emits) and each sensor clock's re-learns.
+A window that loses instants while the loop thread waits for a CPU is starvation;
 one where the loop thread is busy the whole window is the node's limit.
 
 ``--nice N`` (root for N < 0) runs the node as its systemd unit does (``Nice=-10``): under ``nice -n N``, in its
@@ -53,6 +55,8 @@ from skelfuse.wire.codec import decode_fused_frame, decode_status, encode_sensor
 RIG = "soak"
 FPS = 30.0
 WINDOW_S = 10.0
+GROUPING_COUNTERS = ("late", "duplicate", "dropped", "out_of_window", "resyncs", "groups_partial", "deadline_emits")
+"""Node counters recorded per window (their change): where the grouping loses or thins out instants."""
 
 
 def write_rig(directory: Path, n_sensors: int) -> Path:
@@ -370,6 +374,23 @@ def main() -> int:
             flush=True,
         )
 
+        last_grouping: dict[str, int] = {}
+        last_relearns: dict[str, int] = {}
+
+        def grouping_changes(status) -> tuple[dict[str, int], dict[str, int]]:
+            """Since the previous window: the node's grouping counters that lose or thin out instants, and each
+            sensor's clock re-learns (status ``info.sensors.<id>.clock.relearns``), only those that moved."""
+            counters = {name: int(status.counters.get(name, 0)) for name in GROUPING_COUNTERS}
+            relearns = {
+                sid: int((report.get("clock") or {}).get("relearns") or 0)
+                for sid, report in status.info.get("sensors", {}).items()
+            }
+            moved = {k: v - last_grouping.get(k, 0) for k, v in counters.items() if v != last_grouping.get(k, 0)}
+            stepped = {k: v - last_relearns.get(k, 0) for k, v in relearns.items() if v != last_relearns.get(k, 0)}
+            last_grouping.update(counters)
+            last_relearns.update(relearns)
+            return moved, stepped
+
         def close_window(now: float) -> None:
             nonlocal last_sched
             then, (loop_cpu0, loop_wait0), (cpu0, wait0) = last_sched
@@ -385,6 +406,7 @@ def main() -> int:
             rss.append((now - start, rss_mb(node.pid)))
             memory = memory_map_mb(node.pid)
             publish = recent[-1].info.get("fused_publish") if recent else None
+            grouping, relearns = grouping_changes(recent[-1]) if recent else ({}, {})
             windows.append(
                 {
                     "t_s": round(now - start, 1),
@@ -399,6 +421,8 @@ def main() -> int:
                     "rss_mb": round(rss[-1][1], 1),
                     "rss_by_kind_mb": memory,
                     "fused_publish": publish,
+                    "grouping": grouping,
+                    "clock_relearns": relearns,
                 }
             )
             last_sched = (now, (loop_cpu, loop_wait), (cpu, wait))
@@ -503,6 +527,7 @@ def main() -> int:
             "loop_runqueue_wait_pct_max": max(w["loop_runqueue_wait_pct"] for w in windows),
             "node_cpu_seconds": round(schedstat(node.pid)[0], 1),
             "node_counters": last_status.counters,
+            "clock_relearns": dict(last_relearns),
             "windows": windows,
         }
         summary = {k: v for k, v in figures.items() if k != "windows"}

@@ -54,7 +54,7 @@ from skelfuse.service.viewer import (
     stop_server,
 )
 from skelfuse.service.worker import simulate_rig
-from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+from skelfuse.service.zenoh_io import close_session, free_port, loopback_args, loopback_config
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import paper_rig
@@ -712,7 +712,7 @@ def run_demo(
             log_file.close()
         node_lifecycle.request_exit()
         node_thread.join(15.0)
-        session.close()
+        close_session(session, what="demo")
         if recording is not None:
             release_recording(recording)
         stop_server(server)

@@ -602,3 +602,51 @@ def test_a_forger_does_not_take_a_clock_while_the_rig_pauses() -> None:
     assert g.stats.sensors["s1"].off_clock >= len(forged) - 2
     assert g.stats.sensors["s1"].grouped >= 298
     assert len(groups) == 300 and sum(grp.complete for grp in groups) >= 298
+
+
+@pytest.mark.parametrize("forged_hz", [30.0, 40.0])
+def test_a_forger_does_not_take_a_clock_while_the_whole_rig_is_silent(forged_hz: float) -> None:
+    # Session 21's one-hour soak lost 37 instants in two windows where the node was starved: the rig's frames
+    # (one link) stopped arriving for a few hundred ms and then came as a burst, while the adversary's link
+    # went on delivering frames on s1's key stamped 0.9 s ahead on a clock that keeps running (slowed to
+    # 30-40 Hz, so paced like a sensor). s1's learned stream was "quiet", so the forged clock re-learned s1's
+    # clock; its instants 0.9 s ahead were emitted and every sensor's frames of the next 0.9 s were late. A
+    # sensor whose stream goes quiet together with the whole rig has not stepped its clock: nothing arrived.
+    events = synced_stream(300, np.random.default_rng(SEED + 19))
+    stall_from = next(a for a, f in events if f.sequence == 100)
+    stall_to = stall_from + 400_000_000  # 400 ms without any rig frame, then the backlog in one burst
+    stalled = [(max(a, stall_to + f.sequence - 100), f) if a >= stall_from else (a, f) for a, f in events]
+    stalled = fix_per_sensor_order(stalled)
+    start_ns, start_us = events[0][0], events[0][1].device_time_us  # device time = arrival - 30 ms
+    forged = []
+    t_ns, i = start_ns + 200_000_000, 0
+    while t_ns < events[-1][0]:
+        now_us = start_us + (t_ns - start_ns) // 1000
+        ahead = 900_000 if i % 2 == 0 else 10**10  # the soak's two forged streams, interleaved
+        forged.append((t_ns, frame("s1", 10**9 + i, now_us + ahead)))
+        t_ns += int(0.5e9 / forged_hz)
+        i += 1
+    g = grouper()
+    groups = run(g, sorted(stalled + forged, key=lambda e: e[0]))
+    stats = g.stats
+    assert g.clock_estimates()["s1"].relearns == 0
+    assert stats.sensors["s1"].off_clock == len(forged)
+    assert stats.totals.late == stats.totals.out_of_window == 0
+    assert len(groups) == 300 and all(grp.complete for grp in groups)
+
+
+def test_a_lone_live_sensors_clock_step_is_relearned_though_the_others_are_dead() -> None:
+    # The rig check of the "quiet" rule must not read dead sensors as a silent rig: s0, s1 and s3 stop for good
+    # at frame 50, then s2's PC steps its clock by +3 s at frame 100. Without the liveness condition s2's 100
+    # frames after the step were all off clock (never re-learned).
+    events = rig_stream(200, np.random.default_rng(SEED + 14))
+    lone = [
+        (a, dataclasses.replace(f, host_time_ns=f.host_time_ns + 3 * 10**9) if f.sequence >= 1100 else f)
+        for a, f in events
+        if f.sensor_id == "s2" or f.sequence < 1050
+    ]
+    g = grouper(by="host", tolerance_us=13_000)
+    run(g, lone)
+    s2 = g.stats.sensors["s2"]
+    assert g.clock_estimates()["s2"].relearns == 1
+    assert s2.off_clock == 0 and s2.grouped + s2.late == 200 and s2.late <= 8

@@ -39,7 +39,7 @@ import numpy as np
 
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
-from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config
+from skelfuse.service.zenoh_io import close_session, free_port, loopback_args, loopback_config
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
@@ -231,7 +231,8 @@ def measure(
     published: dict[int, int] = {}
     measure_from = measured_until = 0
     try:
-        with zenoh.open(loopback_config(connect_ports=[port])) as session:
+        session = zenoh.open(loopback_config(connect_ports=[port]))
+        try:
             session.declare_subscriber(keys.fused_skeletons("bench"), on_fused)
             session.declare_subscriber(keys.status("bench", "fusion"), on_status)
             if not ready.wait(60.0):
@@ -274,6 +275,8 @@ def measure(
                     f"{workdir / f'node-{n_sensors}.log'})",
                     file=sys.stderr,
                 )
+        finally:
+            close_session(session, what="bench latency")
     finally:
         if node.poll() is None:
             os.killpg(node.pid, signal.SIGKILL)

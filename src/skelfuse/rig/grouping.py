@@ -71,7 +71,11 @@ Sensor clocks (:class:`SensorClock`, one per sensor)
     (arriving no faster than twice the frame rate, and stamped at least half a frame period apart on average: a
     forger's 1 kHz or 125 Hz loop, or its stamps repeated while the sensor's stream pauses, never is), re-learns
     the clock and is replayed in order, so a genuine epoch change loses no frame, if (1) the learned stream went
-    quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart), or (2) the
+    quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart) while the
+    rig's other sensors kept arriving (a frame of any of them since then, on clock or not; a starved node or a
+    stalled link silences the whole rig, and then a forger's frames are merely the only ones getting through:
+    session 21's one-hour soak lost 37 instants that way; other sensors silent since ``2 * resync_after``
+    periods before the stream went quiet are dead, not a reference), or (2) the
     learned stream itself is not paced (a forger that spoke first holds the clock and outruns the sensor) and,
     in device mode, the candidate agrees with the rig's other sensors no worse than the learned clock (within
     ``max_ahead_us``), or (3) in device mode, the candidate agrees with the rig's other sensors better than the
@@ -340,13 +344,20 @@ class SensorClock:
         return expired
 
     def hold(
-        self, frame: SensorFrame, time_us: int, arrival_ns: int, rig_offset_us: float | None = None
+        self,
+        frame: SensorFrame,
+        time_us: int,
+        arrival_ns: int,
+        rig_offset_us: float | None = None,
+        rig_arrival_us: int | None = None,
     ) -> tuple[list[tuple[SensorFrame, int, int]], int]:
         """Keep an off-clock frame with the candidate clock it agrees with; re-learn when a candidate wins.
 
         ``rig_offset_us``: the median offset of the rig's *other* sensors when they share this sensor's clock
-        (device mode), else None. Returns the frames to replay when the clock re-learned (else []), and how
-        many held frames were discarded (to be counted off clock).
+        (device mode), else None. ``rig_arrival_us``: the latest arrival of any frame of the rig's other
+        sensors (None in a one-sensor rig or before any arrived): whether the rest of the rig kept arriving
+        while this sensor's stream was quiet. Returns the frames to replay when the clock re-learned (else []),
+        and how many held frames were discarded (to be counted off clock).
         """
         arrival_us = int(arrival_ns) // 1000
         residual = int(time_us) - arrival_us
@@ -369,7 +380,7 @@ class SensorClock:
             discarded += 1
         candidate.frames.append((frame, int(time_us), int(arrival_ns)))
         candidate.newest_residual_us = residual
-        if not self._wins(candidate, rig_offset_us):
+        if not self._wins(candidate, rig_offset_us, rig_arrival_us):
             return [], discarded
         self._candidates.remove(candidate)
         self._residuals.clear()
@@ -382,7 +393,7 @@ class SensorClock:
         self.relearns += 1
         return list(candidate.frames), discarded
 
-    def _wins(self, candidate: _Candidate, rig_offset_us: float | None) -> bool:
+    def _wins(self, candidate: _Candidate, rig_offset_us: float | None, rig_arrival_us: int | None = None) -> bool:
         """Whether a candidate clock replaces the learned one (see "Sensor clocks" in the module docstring)."""
         frames = candidate.frames
         if len(frames) < self.relearn_after:
@@ -391,8 +402,18 @@ class SensorClock:
         stamps = [t for _, t, _ in frames]
         if not (_paced(arrivals, self.period_us) and _paced(stamps, self.period_us)):
             return False  # a forger's loop, not a sensor: frames too fast, or stamps not a frame period apart
-        if self._last_arrival_us is None or self._last_arrival_us < arrivals[-self.relearn_after]:
-            return True  # the learned stream went quiet: the clock stepped (or the sensor restarted)
+        run_began_us = arrivals[-self.relearn_after]
+        last_us = self._last_arrival_us
+        if last_us is None or last_us < run_began_us:
+            # The learned stream went quiet. With the rest of the rig arriving meanwhile, the clock stepped (or
+            # the sensor restarted). Quiet together with the whole rig is a starved node or a stalled link, not
+            # a step: the candidate's frames are merely the only ones getting through. The rig is a reference
+            # only if it was still arriving when this stream went quiet: sensors silent since long before are
+            # dead and must not keep a lone live sensor on a stepped clock.
+            if rig_arrival_us is None or last_us is None or rig_arrival_us < last_us - self.hold_us:
+                return True
+            if rig_arrival_us >= run_began_us:
+                return True
         learned = list(self._arrivals)
         learned_over_rate = len(learned) >= self.relearn_after and not _paced(learned, self.period_us)
         if rig_offset_us is None:
@@ -576,6 +597,7 @@ class FrameGrouper:
         self._stats = GrouperStats(sensors={sid: SensorCounters() for sid in ids})
         self._last_sequence: dict[str, int] = {}
         self._held_back: list[tuple[SensorFrame, int, int]] = []  # (frame, time_us, arrival_ns), out of window
+        self._arrived_us: dict[str, int] = {}  # each expected sensor's latest frame arrival, on clock or not
         self._clocks = {
             sid: SensorClock(
                 period_us=1e6 / self.fps,
@@ -632,6 +654,7 @@ class FrameGrouper:
             return self._emit_due(now_ns)
         counters = self._stats.sensors[sensor_id]
         counters.received += 1
+        self._arrived_us[sensor_id] = int(now_ns) // 1000
         raw_us = self._time_of(frame)
         clock = self._clocks[sensor_id]
         emitted: list[FrameGroup] = []
@@ -639,7 +662,13 @@ class FrameGrouper:
             counters.off_clock += clock.expire(int(now_ns) // 1000)
             self._accept(frame, raw_us, int(now_ns), int(now_ns), emitted)
         else:
-            replay, discarded = clock.hold(frame, raw_us, int(now_ns), self._rig_offset_without(sensor_id))
+            replay, discarded = clock.hold(
+                frame,
+                raw_us,
+                int(now_ns),
+                rig_offset_us=self._rig_offset_without(sensor_id),
+                rig_arrival_us=self._rig_arrival_without(sensor_id),
+            )
             counters.off_clock += discarded
             # Replayed after a clock step: their deadlines run from now, so the other sensors' frames of the
             # same step (re-learned within a frame or two) still join their instants.
@@ -718,6 +747,13 @@ class FrameGrouper:
             return None
         offsets = [c.offset_us for sid, c in self._clocks.items() if sid != sensor_id and c.offset_us is not None]
         return _median(offsets) if offsets else None
+
+    def _rig_arrival_without(self, sensor_id: str) -> int | None:
+        """When the latest frame of any other expected sensor arrived (µs; None if none has): the rig arriving.
+
+        The latest, not a median: dead sensors must not keep a live one from re-learning its stepped clock."""
+        latest = [us for sid, us in self._arrived_us.items() if sid != sensor_id]
+        return max(latest) if latest else None
 
     def _grouping_time(self, frame: SensorFrame, raw_us: int, clock: SensorClock) -> int:
         """Device mode: the device time. Host mode: the stamp on the rig's clock, jitter removed."""

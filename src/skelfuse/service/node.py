@@ -51,7 +51,15 @@ from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
-from skelfuse.service.zenoh_io import OTHER_KEYS, FusedPublisher, SampleQueue, close_session, open_session
+from skelfuse.service.zenoh_io import (
+    OTHER_KEYS,
+    SESSION_CLOSE_TIMEOUT_S,
+    FusedPublisher,
+    SampleQueue,
+    StopBudget,
+    close_session,
+    open_session,
+)
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
 
@@ -384,7 +392,9 @@ class NodeOptions:
     poll_interval_s : float
         How often deadlines are checked when no frame arrives while an instant is open.
     drain_timeout_s : float
-        At shutdown, how long queued samples may still be fused.
+        The stop's budget after SIGTERM: queued samples are fused until the session close's share is left
+        (``service.zenoh_io.StopBudget``), then open instants are flushed, "stopped" is said and the session
+        closed with what is left.
     limits : RunLimits
         ``max_frames`` counts fused frames published.
     view : ViewOptions
@@ -502,6 +512,7 @@ class FusionNode:
                 return self.report
         view, server = self._open_view()
         self.view = view
+        budget: StopBudget | None = None  # from the stop's start
         rig = self.cfg.name
         intake = self.cfg.intake
         samples = self._samples = SampleQueue(
@@ -551,22 +562,36 @@ class FusionNode:
             self.ready.set()
             self._loop(samples, publisher, status_pub, view)
             self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)
-            # Shutdown: stop taking input, fuse what is queued (bounded), flush open instants, say "stopped".
+            # Shutdown, all within the drain timeout: stop taking input, fuse what is queued until the budget
+            # leaves only the close's share, flush open instants, say "stopped", close with what is left.
+            budget = StopBudget.start(self.options.drain_timeout_s)
             subscriber.undeclare()
             if clouds is not None:
                 clouds.undeclare()
-            deadline = time.monotonic() + self.options.drain_timeout_s
-            while not self.lifecycle.force_exit and time.monotonic() < deadline:
+            drained = 0
+            while not self.lifecycle.force_exit and time.monotonic() < budget.drain_until:
                 item = samples.get_nowait()
                 if item is None:
                     break
                 self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+                drained += 1
+            drained_s = time.monotonic() - budget.began
             self._publish(self.core.flush(), publisher, view)
             self._publish_status(status_pub, "stopped", time.monotonic_ns())
             token.undeclare()
             queryable.undeclare()
             publisher.undeclare()
             status_pub.undeclare()
+            log.info(
+                "fusion node %s: stopping: %d queued samples fused in %.3f s (%d left), flushed and said "
+                "stopped at %.3f s of its %.1f s drain timeout",
+                self.name,
+                drained,
+                drained_s,
+                samples.qsize(),
+                time.monotonic() - budget.began,
+                self.options.drain_timeout_s,
+            )
         finally:
             self.lifecycle.request_exit()
             self.ready.set()
@@ -576,7 +601,11 @@ class FusionNode:
             if self.depth is not None:
                 self.depth.close()
             if own_session:
-                close_session(session, what=f"fusion node {self.name}")
+                close_session(
+                    session,
+                    what=f"fusion node {self.name}",
+                    timeout_s=SESSION_CLOSE_TIMEOUT_S if budget is None else budget.close_timeout_s(),
+                )
         self.report.frames_in = self.core.frames_in
         self.report.frames_out = self.core.frames_out
         log.info(
@@ -613,16 +642,23 @@ class FusionNode:
             else:
                 wait_s = min(IDLE_WAIT_S, max((next_status - time.monotonic_ns()) / 1e9, poll_s))
             item = samples.get(timeout=wait_s)
+            emptied = True
             while item is not None:
                 # Each instant goes out as soon as it is fused, not after the rest of a backlog is read. Deadlines
                 # are looked at only once the queue is empty (a queued frame arrived in time, whatever the time
-                # now), but a stop is seen between any two samples (a starved node's backlog never hides it).
+                # now), but a stop is seen between any two samples (a starved node's backlog never hides it),
+                # and so is an overdue status: a node a little behind for long (its queue never quite empty)
+                # published none for over 10 s (session 22).
                 self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
                 if self.lifecycle.should_exit:
                     break
+                if time.monotonic_ns() >= next_status + period_ns:
+                    emptied = False
+                    break
                 item = samples.get_nowait()
             now_ns = time.monotonic_ns()
-            self._publish(self.core.poll(now_ns), publisher, view)
+            if emptied:
+                self._publish(self.core.poll(now_ns), publisher, view)
             # The status waits for a quiet moment (no instant half received, so no frame of one queues behind
             # it), at most one period.
             quiet = not self.core.grouper.n_open or now_ns >= next_status + period_ns

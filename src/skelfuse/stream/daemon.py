@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from skelfuse.config import RigConfig
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import Received, close_session, open_session
+from skelfuse.service.zenoh_io import SESSION_CLOSE_TIMEOUT_S, Received, StopBudget, close_session, open_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
@@ -113,6 +113,7 @@ def run_stream(
         if session is None:
             sender.close()
             return report
+        budget: StopBudget | None = None  # from the stop's start
         try:
             subscriber = session.declare_subscriber(keys.fused_skeletons(cfg.name), samples)
             token = session.liveliness().declare_token(keys.alive(cfg.name, node))
@@ -123,9 +124,10 @@ def run_stream(
                 if item is not None:
                     _forward(item, sender, report, node)
             subscriber.undeclare()
-            # Drain: what was received before the stop is still sent, within the drain timeout.
-            deadline = time.monotonic() + cfg.stream.drain_timeout_s
-            while not lifecycle.force_exit and time.monotonic() < deadline:
+            # Drain: what was received before the stop is still sent, within the drain timeout, which the
+            # session close comes out of too (service.zenoh_io.StopBudget).
+            budget = StopBudget.start(cfg.stream.drain_timeout_s)
+            while not lifecycle.force_exit and time.monotonic() < budget.drain_until:
                 if limits.max_frames is not None and report.frames_out >= limits.max_frames:
                     break
                 item = samples.get(timeout=0)
@@ -136,7 +138,8 @@ def run_stream(
         finally:
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
             sender.close()
-            close_session(session, what="stream")
+            close_timeout_s = SESSION_CLOSE_TIMEOUT_S if budget is None else budget.close_timeout_s()
+            close_session(session, what="stream", timeout_s=close_timeout_s)
     report.dropped = samples.dropped
     log.info(
         "%s: %d fused frames in, %d sent, %d dropped (queue full), %d rejected",
