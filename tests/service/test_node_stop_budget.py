@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from fake_zenoh import FakeSample
 from skelfuse.config import load_rig_config
 from skelfuse.service.node import FusionNode, NodeOptions
 from skelfuse.service.worker import SimSource
@@ -25,23 +25,6 @@ from skelfuse.wire.codec import encode_sensor_frame
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 DRAIN_TIMEOUT_S = 2.0
 SLOW_S = 0.005
-
-
-@dataclass
-class _Payload:
-    data: bytes
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-
-@dataclass
-class _Sample:
-    key_expr: str
-    payload: _Payload
 
 
 def test_the_stop_budget_gives_the_close_its_share_of_the_drain_timeout() -> None:
@@ -58,7 +41,7 @@ def test_a_starved_node_with_a_backlog_stops_within_its_drain_timeout(caplog: py
     rig = load_rig_config(RIG_SIM_4)
     sources = {sid: SimSource(rig, sid, take_duration_s=4.0) for sid in rig.sensor_ids}
     backlog = [
-        _Sample(f"skelfuse/{rig.name}/sensors/{sid}/skeletons", _Payload(encode_sensor_frame(source.frame_at(n))))
+        FakeSample(f"skelfuse/{rig.name}/sensors/{sid}/skeletons", encode_sensor_frame(source.frame_at(n)))
         for n in range(250)
         for sid, source in sources.items()
     ]

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fake_zenoh import FakeSample
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import IntakeConfig, RigConfig, load_rig_config, parse_rig_config
 from skelfuse.demo import sim_sensor_tables
@@ -141,24 +142,6 @@ def test_oversized_payloads_are_dropped_unread(rig: RigConfig) -> None:
     samples = SampleQueue(max_items=4, max_payload_bytes=rig.intake.max_payload_bytes)
     samples(Sample(4 << 20))
     assert samples.oversized == 1 and samples.qsize() == 0
-
-
-class FakeSample:
-    """What a zenoh callback receives, as far as SampleQueue reads it."""
-
-    class Payload:
-        def __init__(self, data: bytes) -> None:
-            self.data = data
-
-        def __len__(self) -> int:
-            return len(self.data)
-
-        def to_bytes(self) -> bytes:
-            return self.data
-
-    def __init__(self, key_expr: str, data: bytes) -> None:
-        self.key_expr = key_expr
-        self.payload = self.Payload(data)
 
 
 def test_sample_queue_is_bounded_and_drops_the_oldest(rig: RigConfig) -> None:

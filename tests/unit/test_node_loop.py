@@ -7,12 +7,12 @@ watchdog on SIGTERM (exit status 4 after 15 s while still fusing the backlog).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from fake_zenoh import FakeSample
 from skelfuse.config import RigConfig, load_rig_config
 from skelfuse.service.node import FusionNode, NodeOptions
 from skelfuse.service.worker import SimSource
@@ -21,23 +21,6 @@ from skelfuse.wire.codec import decode_fused_frame, encode_sensor_frame
 
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 INSTANTS = 60
-
-
-@dataclass
-class _Payload:
-    data: bytes
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-
-@dataclass
-class _Sample:
-    key_expr: str
-    payload: _Payload
 
 
 class _Publisher:
@@ -74,7 +57,7 @@ def _backlog(rig: RigConfig, payloads: list[tuple[str, bytes]]) -> tuple[FusionN
     node = FusionNode(rig, None, options=NodeOptions(status_period_s=3600.0))
     samples = SampleQueue()
     for key, payload in payloads:
-        samples(_Sample(key, _Payload(payload)))
+        samples(FakeSample(key, payload))
     return node, samples
 
 
@@ -124,12 +107,12 @@ def test_a_backlog_that_never_empties_does_not_hold_the_status_back(
     samples = SampleQueue()
     feed = iter(payloads * 50)
     for key, payload in (next(feed) for _ in range(8)):
-        samples(_Sample(key, _Payload(payload)))
+        samples(FakeSample(key, payload))
     take, take_now = samples.get, samples.get_nowait
 
     def arrive() -> None:  # a sample arrives for each one taken: the queue never empties
         key, payload = next(feed)
-        samples(_Sample(key, _Payload(payload)))
+        samples(FakeSample(key, payload))
 
     samples.get = lambda timeout: arrive() or take(timeout)  # type: ignore[method-assign]
     samples.get_nowait = lambda: arrive() or take_now()  # type: ignore[method-assign]
