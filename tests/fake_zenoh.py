@@ -1,5 +1,6 @@
 """A stand-in for what a zenoh subscriber callback receives, as far as skelfuse reads it (``key_expr``,
-``payload`` with ``len()`` and ``to_bytes()``): feeds ``SampleQueue`` and the node's loop without a network."""
+``payload`` with ``len()`` and ``to_bytes()``): feeds ``SampleQueue`` and the node's loop without a network.
+Importable from every test folder (``pythonpath`` in pyproject.toml's pytest settings)."""
 
 from __future__ import annotations
 
