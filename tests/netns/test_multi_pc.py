@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import HERE, Lab
+from netns_lab import HERE, Lab
 
 from skelfuse.config import load_rig_config
 from skelfuse.config.access import rig_identities
