@@ -7,6 +7,9 @@ this script replaces what lies between them, so a table cannot drift from its co
     python scripts/update_doc_tables.py robustness     # docs/simulator.md: skelfuse eval robustness (long)
     python scripts/update_doc_tables.py paper [--report eval_out/paper/report.md]
                                                        # README.md: experiment 1 of skelfuse eval paper's summary
+    python scripts/update_doc_tables.py speed          # docs/service.md: skelfuse bench instant (back to back and
+                                                       # paced) and bench latency (x 1 and x 6 people), ~10 min;
+                                                       # run it on an otherwise idle machine
 
 ``paper`` reads the summary an earlier ``skelfuse eval paper`` wrote (run it first; it takes minutes), and
 copies its experiment-1 table.
@@ -51,7 +54,7 @@ def experiment_one(report: Path) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("table", choices=["sim-check", "robustness", "paper"])
+    parser.add_argument("table", choices=["sim-check", "robustness", "paper", "speed"])
     parser.add_argument("--report", type=Path, default=ROOT / "eval_out" / "paper" / "report.md")
     args = parser.parse_args()
     skelfuse = [sys.executable, "-m", "skelfuse"]
@@ -59,6 +62,13 @@ def main() -> None:
         replace_block(ROOT / "docs" / "simulator.md", "sim-check", run([*skelfuse, "sim", "check", "-q"]))
     elif args.table == "robustness":
         replace_block(ROOT / "docs" / "simulator.md", "robustness", run([*skelfuse, "eval", "robustness", "-q"]))
+    elif args.table == "speed":
+        service = ROOT / "docs" / "service.md"
+        instant = [*skelfuse, "bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3"]
+        replace_block(service, "bench-instant", run(instant) + "\n" + run([*instant, "--paced"]))
+        latency = [*skelfuse, "bench", "latency", "--duration", "10"]
+        one = run([*latency, "--sensors", "4", "8", "16"])
+        replace_block(service, "bench-latency", one + "\n" + run([*latency, "--sensors", "8", "--people", "6"]))
     else:
         replace_block(ROOT / "README.md", "eval-paper", experiment_one(args.report))
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import time
 
 import pytest
 
-from skelfuse.bench.instant import OWN_SRC, format_instant_bench, run_instant_bench
+from skelfuse.bench.instant import FPS, OWN_SRC, format_instant_bench, run_instant_bench, time_instants
 from skelfuse.cli.bench import _sensors_by_people
 
 
@@ -25,3 +26,18 @@ def test_cases_parse_as_sensors_by_people() -> None:
     assert _sensors_by_people("16x6") == (16, 6)
     with pytest.raises(argparse.ArgumentTypeError, match="16x6"):
         _sensors_by_people("16-6")
+
+
+def test_paced_runs_give_each_instant_its_frame_period() -> None:
+    # 30 warm-up + 6 timed instants, one every 1/FPS s: the run cannot take less than 35 periods.
+    start = time.perf_counter()
+    run = time_instants(2, 1, 6, paced=True)
+    assert time.perf_counter() - start >= 35 / FPS
+    assert run["paced"] is True and run["n_frames"] == 6 and run["cpu_p50_ms"] > 0
+    assert time_instants(2, 1, 6)["paced"] is False
+
+
+def test_the_table_says_whether_instants_were_paced() -> None:
+    result = run_instant_bench([(2, 1)], n_frames=3, rounds=1, paced=True, progress=False)
+    assert result["paced"] and result["cases"][0]["runs"]["current"][0]["paced"]
+    assert f"paced at {FPS:g} Hz" in format_instant_bench(result)

@@ -32,6 +32,7 @@ from skelfuse.schema.errors import DataError
             {"cases": [(4, 1), (16, 6)], "baseline": Path("base/src"), "rounds": 2, "frames": 300},
             id="bench-instant",
         ),
+        pytest.param(["bench", "instant", "--paced"], {"paced": True, "cases": [(4, 1), (16, 6)]}, id="bench-paced"),
         pytest.param(
             ["bench", "latency", "--sensors", "8", "--people", "6", "--node-src", "base/src"],
             {"sensors": [8], "people": 6, "node_src": Path("base/src")},
