@@ -396,6 +396,18 @@ def test_host_grouping_holds_when_one_pc_clock_is_offset(offset_ms: int) -> None
     assert all(abs(estimates[sid].relative_offset_ms) < 2.0 for sid in ("s0", "s1", "s3"))  # type: ignore[arg-type]
 
 
+def test_clock_estimates_match_numpys_median_and_asdict() -> None:
+    # The status reads these every second; their fast forms (session 23) against numpy and dataclasses.
+    g = grouper(by="host", tolerance_us=13_000)
+    run(g, rig_stream(120, np.random.default_rng(SEED + 12), clock_jitter_us={"s1": 3_000.0}))
+    clock = g._clocks["s1"]
+    residuals = np.asarray(clock._residuals, dtype=np.float64)
+    estimate = g.clock_estimates()["s1"]
+    assert estimate.jitter_ms == round(float(np.median(np.abs(residuals - clock._offset_us))) / 1000, 3)
+    assert estimate.jitter_ms > 0.5  # the 3 ms jitter is seen
+    assert estimate.to_dict() == dataclasses.asdict(estimate)
+
+
 def test_host_grouping_holds_with_20ms_jitter_and_offset_on_one_pc_clock() -> None:
     # 20 ms (one sigma) of jitter in one PC's clock readings used to split instants.
     g = grouper(by="host", tolerance_us=13_000)

@@ -89,6 +89,24 @@ def test_no_verdict_before_enough_instants_saw_the_sensor() -> None:
     assert monitor.update(nobody, fused) == []  # an empty instant changes nothing
 
 
+def test_the_medians_are_numpys_nanmedian_and_nan_for_a_sensor_nobody_saw() -> None:
+    # The monitor's medians (a fast path since session 23) against numpy's own nanmedian, odd and even counts.
+    rng = np.random.default_rng(3)
+    monitor = PoseFitMonitor(("a", "b", "c", "d"), window=40, min_frames=5, check_every=1000)
+    for t in range(57):  # wraps the 40-instant window
+        world = rng.normal(0.0, 80.0, (4, 1, 32, 3))
+        world[1, :, :, :] = np.nan if t % 3 == 0 else world[1]  # b: a joint set missing in some instants
+        world[3] = np.nan  # d: never sees anyone
+        monitor.update(world, np.zeros((1, 32, 3)))
+    report = monitor.report()
+    window = monitor._distances
+    for i, sid in enumerate(("a", "b", "c")):
+        assert report[sid]["median_mm"] == round(float(np.nanmedian(window[:, i])), 1)
+        assert report[sid]["frames"] == int(np.isfinite(window[:, i]).sum())
+    assert report["b"]["frames"] % 2 == 0 or report["a"]["frames"] % 2 == 0  # an even count is covered
+    assert report["d"] == {"median_mm": None, "frames": 0, "fits": None}
+
+
 def test_the_node_logs_and_reports_the_alarm(caplog: pytest.LogCaptureFixture) -> None:
     from skelfuse.service.node import FusionNode
     from skelfuse.service.pose_fit import FitChange

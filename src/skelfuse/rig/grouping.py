@@ -213,7 +213,14 @@ class ClockEstimate:
     relearns: int
 
     def to_dict(self) -> dict[str, float | int | None]:
-        return dataclasses.asdict(self)
+        # A literal, not dataclasses.asdict (a deep copy): the node builds one per sensor in every status.
+        return {
+            "offset_ms": self.offset_ms,
+            "relative_offset_ms": self.relative_offset_ms,
+            "drift_ppm": self.drift_ppm,
+            "jitter_ms": self.jitter_ms,
+            "relearns": self.relearns,
+        }
 
 
 def _median(values: Iterable[float]) -> float:
@@ -461,7 +468,7 @@ class SensorClock:
         if residuals.size >= 8 and np.ptp(arrivals) > 0:
             x = (arrivals - arrivals.mean()) / 1e6
             drift = round(float(np.dot(x, residuals - residuals.mean()) / np.dot(x, x)), 3)
-        jitter = float(np.median(np.abs(residuals - self._offset_us))) / 1000
+        jitter = _median(np.abs(residuals - self._offset_us).tolist()) / 1000
         relative = None if rig_offset_us is None else round((self._offset_us - rig_offset_us) / 1000, 3)
         return ClockEstimate(round(self._offset_us / 1000, 3), relative, drift, round(jitter, 3), self.relearns)
 

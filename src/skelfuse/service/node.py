@@ -371,12 +371,8 @@ def _percentiles(values: Any) -> dict[str, float | int | None]:
     data = np.fromiter(values, dtype=np.float64)
     if data.size == 0:
         return {"p50": None, "p99": None, "max": None, "n": 0}
-    return {
-        "p50": round(float(np.percentile(data, 50)), 4),
-        "p99": round(float(np.percentile(data, 99)), 4),
-        "max": round(float(data.max()), 4),
-        "n": int(data.size),
-    }
+    p50, p99 = np.percentile(data, (50, 99)).tolist()  # one sort of up to LATENCY_WINDOW values, not two
+    return {"p50": round(p50, 4), "p99": round(p99, 4), "max": round(float(data.max()), 4), "n": int(data.size)}
 
 
 @dataclass(frozen=True)
@@ -477,8 +473,6 @@ class FusionNode:
         self.on_fused = on_fused
         self.report = NodeReport()
         self.ready = threading.Event()
-        self._added = collections.deque(maxlen=LATENCY_WINDOW)
-        self._fusion = collections.deque(maxlen=LATENCY_WINDOW)
         self._window_added: list[float] = []
         self._window_fusion: list[float] = []
         self._first_time_us: int | None = None
@@ -665,7 +659,7 @@ class FusionNode:
             if now_ns >= next_status and quiet:
                 window_s = (now_ns - last_status) / 1e9
                 self._rates = None
-                self._publish_status(status_pub, self._state(now_ns), now_ns, window_s)
+                self._publish_status(status_pub, None, now_ns, window_s)
                 last_status = now_ns
                 next_status = now_ns + period_ns
             if limits.max_frames is not None and self.core.frames_out >= limits.max_frames:
@@ -682,13 +676,11 @@ class FusionNode:
             for change in self.pose_fit.update(out.sensors_world, out.frame.positions):
                 self._log_fit(change)
             fusion_ms = out.fusion_ns / 1e6
-            self._fusion.append(fusion_ms)
             self._window_fusion.append(fusion_ms)
             self.report.fusion_ms.append(fusion_ms)
             added_ms = None
             if out.trigger_arrival_ns is not None:
                 added_ms = (done_ns - out.trigger_arrival_ns) / 1e6
-                self._added.append(added_ms)
                 self._window_added.append(added_ms)
                 self.report.added_ms.append(added_ms)
             if view is not None:
@@ -729,16 +721,20 @@ class FusionNode:
             extra={"sensor": change.sensor_id, "alarm": "pose_moved"},
         )
 
-    def _state(self, now_ns: int) -> str:
+    def _state(self, now_ns: int, pose_fit: dict[str, dict[str, Any]]) -> str:
         seen = [w.last_seen_ns for w in self.core._sensors.values()]
         if all(s is None for s in seen):
             return "starting"
         stale = any(s is None or now_ns - s > 1e9 for s in seen)
-        moved = any(fit["fits"] is False for fit in self.pose_fit.report().values())
+        moved = any(fit["fits"] is False for fit in pose_fit.values())
         return "degraded" if stale or moved else "running"
 
-    def _publish_status(self, status_pub: Any, state: str, now_ns: int, window_s: float | None = None) -> None:
+    def _publish_status(self, status_pub: Any, state: str | None, now_ns: int, window_s: float | None = None) -> None:
+        """Build and put the status (``state`` None: judged from the sensors and the pose-fit monitor). It runs
+        on the fusion loop, so a frame arriving meanwhile waits for it: kept to about a millisecond."""
         core = self.core
+        pose_fit = self.pose_fit.report()
+        state = state or self._state(now_ns, pose_fit)
         window_s = window_s or 1.0
         sensors = core.sensor_report(now_ns, window_s)
         self._rates = {sid: s["rate_hz"] for sid, s in sensors.items() if s["rate_hz"] is not None}
@@ -776,15 +772,15 @@ class FusionNode:
             "window_s": round(window_s, 4),
             "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
             "sensors": sensors,
-            "pose_fit": self.pose_fit.report(),
+            "pose_fit": pose_fit,
             "unknown_ids": stats.unknown_ids,
             "rejects_unknown_sensor": dict(core.rejects.get(UNKNOWN_SENSOR, {})),
             "queue_unknown_keys": queue.get(OTHER_KEYS, no_drops),
             "fused_publish": None if self._fused_publisher is None else self._fused_publisher.report(),
             "fusion_ms": _percentiles(self._window_fusion),
             "node_added_ms": _percentiles(self._window_added),
-            "fusion_ms_total": _percentiles(self._fusion),
-            "node_added_ms_total": _percentiles(self._added),
+            "fusion_ms_total": _percentiles(self.report.fusion_ms),  # the latest LATENCY_WINDOW
+            "node_added_ms_total": _percentiles(self.report.added_ms),
         }
         if self.depth is not None:
             info["depth"] = self.depth.report()

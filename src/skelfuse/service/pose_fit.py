@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion.association import nanmedian_axis
 from skelfuse.schema.skeleton import TORSO_TRACKING_JOINTS
 
 DEFAULT_THRESHOLD_MM = 100.0
@@ -88,12 +89,9 @@ class PoseFitMonitor:
 
     def _medians(self) -> tuple[np.ndarray, np.ndarray]:
         frames = np.isfinite(self._distances).sum(axis=0)
-        with np.errstate(all="ignore"):
-            medians = np.full(len(self.sensor_ids), np.nan)
-            seen = frames > 0
-            if seen.any():
-                medians[seen] = np.nanmedian(self._distances[:, seen], axis=0)
-        return medians, frames
+        # NaN where a sensor saw nobody in the window; not np.nanmedian, whose masked-array path took ~1 ms
+        # of the node's loop at 16 sensors, twice per status (session 23).
+        return nanmedian_axis(self._distances, 0), frames
 
     def _verdicts(self) -> list[FitChange]:
         medians, frames = self._medians()
