@@ -7,8 +7,9 @@ this script replaces what lies between them, so a table cannot drift from its co
     python scripts/update_doc_tables.py robustness     # docs/simulator.md: skelfuse eval robustness (long)
     python scripts/update_doc_tables.py paper [--report eval_out/paper/report.md]
                                                        # README.md: experiment 1 of skelfuse eval paper's summary
-    python scripts/update_doc_tables.py speed          # docs/service.md: skelfuse bench instant (back to back and
-                                                       # paced) and bench latency (x 1 and x 6 people), ~10 min;
+    python scripts/update_doc_tables.py speed          # docs/service.md: skelfuse bench instant (back to back,
+                                                       # paced, positions only) and bench latency (x 1 and x 6
+                                                       # people), ~12 min;
                                                        # run it on an otherwise idle machine
 
 ``paper`` reads the summary an earlier ``skelfuse eval paper`` wrote (run it first; it takes minutes), and
@@ -65,7 +66,8 @@ def main() -> None:
     elif args.table == "speed":
         service = ROOT / "docs" / "service.md"
         instant = [*skelfuse, "bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3"]
-        replace_block(service, "bench-instant", run(instant) + "\n" + run([*instant, "--paced"]))
+        tables = [run(instant), run([*instant, "--paced"]), run([*instant, "--positions-only"])]
+        replace_block(service, "bench-instant", "\n".join(tables))
         latency = [*skelfuse, "bench", "latency", "--duration", "10"]
         one = run([*latency, "--sensors", "4", "8", "16"])
         replace_block(service, "bench-latency", one + "\n" + run([*latency, "--sensors", "8", "--people", "6"]))

@@ -5,9 +5,17 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
 import pytest
 
-from skelfuse.bench.instant import FPS, OWN_SRC, format_instant_bench, run_instant_bench, time_instants
+from skelfuse.bench.instant import (
+    FPS,
+    OWN_SRC,
+    format_instant_bench,
+    instant_take,
+    run_instant_bench,
+    time_instants,
+)
 from skelfuse.cli.bench import _sensors_by_people
 
 
@@ -41,3 +49,22 @@ def test_the_table_says_whether_instants_were_paced() -> None:
     result = run_instant_bench([(2, 1)], n_frames=3, rounds=1, paced=True, progress=False)
     assert result["paced"] and result["cases"][0]["runs"]["current"][0]["paced"]
     assert f"paced at {FPS:g} Hz" in format_instant_bench(result)
+
+
+def test_positions_only_turns_off_the_orientation_and_uncertainty_stages_and_keeps_the_positions() -> None:
+    # What the option times is a rig whose consumers need positions only: the same fused positions, bit for bit,
+    # without the orientations and position_std that the stages it leaves out would have added.
+    full, groups = instant_take(3, 2, 40)
+    lean, _ = instant_take(3, 2, 40, positions_only=True)
+    persons = 0
+    for group in groups:
+        a, b = full.step(group).frame, lean.step(group).frame
+        np.testing.assert_array_equal(a.track_ids, b.track_ids)
+        np.testing.assert_array_equal(a.positions, b.positions)
+        assert a.orientations is not None and a.position_std is not None
+        assert b.orientations is None and b.position_std is None
+        persons += a.n_persons
+    assert persons > 40  # both walkers were fused for most of the take
+    result = run_instant_bench([(2, 1)], n_frames=3, rounds=1, positions_only=True, progress=False)
+    assert result["positions_only"] and result["cases"][0]["runs"]["current"][0]["positions_only"]
+    assert "fuse positions only" in format_instant_bench(result)

@@ -34,6 +34,9 @@ from skelfuse.schema.errors import DataError
         ),
         pytest.param(["bench", "instant", "--paced"], {"paced": True, "cases": [(4, 1), (16, 6)]}, id="bench-paced"),
         pytest.param(
+            ["bench", "instant", "--positions-only"], {"positions_only": True, "paced": False}, id="bench-positions"
+        ),
+        pytest.param(
             ["bench", "latency", "--sensors", "8", "--people", "6", "--node-src", "base/src"],
             {"sensors": [8], "people": 6, "node_src": Path("base/src")},
             id="bench-latency-people",

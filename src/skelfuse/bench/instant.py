@@ -16,6 +16,9 @@ data. A live node gets an instant every 1/30 s and idles in between; ``--paced``
 each instant's due time). Measured on the 2-core development VM (session 23), the same code took about twice
 the CPU time per instant paced (4 x 1: 1.9 ms back to back, 4.3 ms paced), close to the fusion step's time
 inside a live node (``skelfuse bench latency``): quote the paced figure for what a node spends.
+``--positions-only`` times the same path with the preset's orientation and uncertainty stages off (a rig whose
+consumers need positions only: ``[fusion.params] orientations = false, position_std = false``); the fused
+positions are the same either way (those stages never change them).
 Each timing runs in a fresh subprocess: this file executed as a script with ``PYTHONPATH`` set to a source tree
 (it imports only interfaces that have been stable since orientations landed), so ``--baseline SRC`` times an
 older checkout of skelfuse (e.g. a worktree at the starting revision) on the same inputs, alternating
@@ -26,6 +29,7 @@ records the machine's load (``os.getloadavg``) before and after: on a shared mac
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -51,8 +55,11 @@ OWN_SRC = Path(__file__).resolve().parents[2]
 """The source tree this module was imported from (what ``--baseline`` is compared against)."""
 
 
-def instant_take(n_sensors: int, n_people: int, n_frames: int, seed: int = 0) -> tuple[GroupFuser, list[FrameGroup]]:
-    """A fresh GroupFuser ("skelfuse" preset) and the simulated crowd's instants as frame groups."""
+def instant_take(
+    n_sensors: int, n_people: int, n_frames: int, seed: int = 0, positions_only: bool = False
+) -> tuple[GroupFuser, list[FrameGroup]]:
+    """A fresh GroupFuser ("skelfuse" preset; ``positions_only``: its orientation and uncertainty stages off) and
+    the simulated crowd's instants as frame groups."""
     scenario = crowd_scenario(n_people=n_people, n_sensors=n_sensors, duration_s=n_frames / FPS, seed=seed)
     obs = simulate_scenario(scenario, load_profile(), seed=seed)
     rng = np.random.default_rng(seed)
@@ -77,15 +84,24 @@ def instant_take(n_sensors: int, n_people: int, n_frames: int, seed: int = 0) ->
             )
         groups.append(FrameGroup(time_us, frames, (), True))
     poses = obs.world_from_sensor_calibrated
-    return GroupFuser(obs.sensor_ids, poses, preset("skelfuse")), groups
+    params = preset("skelfuse")
+    if positions_only:
+        params = dataclasses.replace(params, orientations=False, position_std=False)
+    return GroupFuser(obs.sensor_ids, poses, params), groups
 
 
 def time_instants(
-    n_sensors: int, n_people: int, n_frames: int, warmup: int = 30, seed: int = 0, paced: bool = False
+    n_sensors: int,
+    n_people: int,
+    n_frames: int,
+    warmup: int = 30,
+    seed: int = 0,
+    paced: bool = False,
+    positions_only: bool = False,
 ) -> dict[str, Any]:
     """One timing run in this process: ms per instant (p50 / p99 / max) of GroupFuser.step + encode; ``paced``:
     one instant every 1/FPS s (sleeping in between, as a live node idles), else back to back."""
-    fuser, groups = instant_take(n_sensors, n_people, n_frames + warmup, seed)
+    fuser, groups = instant_take(n_sensors, n_people, n_frames + warmup, seed, positions_only)
     load_before = os.getloadavg()
     samples = []
     cpu_samples = []
@@ -115,6 +131,7 @@ def time_instants(
         "n_people": n_people,
         "n_frames": int(ms.size),
         "paced": paced,
+        "positions_only": positions_only,
         "p50_ms": float(np.percentile(ms, 50)),
         "p99_ms": float(np.percentile(ms, 99)),
         "max_ms": float(ms.max()),
@@ -126,11 +143,14 @@ def time_instants(
     }
 
 
-def _run_worker(src: Path, n_sensors: int, n_people: int, n_frames: int, paced: bool) -> dict[str, Any]:
+def _run_worker(
+    src: Path, n_sensors: int, n_people: int, n_frames: int, paced: bool, positions_only: bool
+) -> dict[str, Any]:
     """One timing run in a subprocess on the source tree ``src``."""
     env = dict(os.environ, PYTHONPATH=str(src))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(n_sensors), str(n_people), str(n_frames)]
     cmd += ["--paced"] if paced else []
+    cmd += ["--positions-only"] if positions_only else []
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False, timeout=600)
     if out.returncode != 0:
         raise RuntimeError(f"bench instant: the run on {src} failed:\n{out.stderr[-2000:]}")
@@ -146,15 +166,18 @@ def run_instant_bench(
     rounds: int = 3,
     baseline: Path | None = None,
     paced: bool = False,
+    positions_only: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Every (sensors, people) case ``rounds`` times, alternating baseline and current runs (baseline first in
     even rounds, current first in odd ones); ratios = baseline / current per round, median over rounds.
-    ``paced``: instants at the frame rate (see the module docstring), else back to back."""
+    ``paced``: instants at the frame rate (see the module docstring), else back to back; ``positions_only``: the
+    orientation and uncertainty stages off."""
     out: dict[str, Any] = {
         "current_src": str(OWN_SRC),
         "baseline_src": None if baseline is None else str(baseline),
         "paced": paced,
+        "positions_only": positions_only,
     }
     results = []
     for n_sensors, n_people in cases:
@@ -174,7 +197,7 @@ def run_instant_bench(
                     )
                 src = OWN_SRC if which == "current" else baseline
                 assert src is not None
-                runs[which].append(_run_worker(src, n_sensors, n_people, n_frames, paced))
+                runs[which].append(_run_worker(src, n_sensors, n_people, n_frames, paced, positions_only))
         case: dict[str, Any] = {"n_sensors": n_sensors, "n_people": n_people, "runs": runs}
         for which, items in runs.items():
             if items:
@@ -195,8 +218,9 @@ _TIMES = ("p50_ms", "p99_ms", "max_ms", "cpu_p50_ms", "cpu_p99_ms")
 def format_instant_bench(result: dict[str, Any]) -> str:
     compared = result["baseline_src"] is not None
     columns = ["p50", "p99"] + (["baseline p50", "baseline p99", "ratio p50", "ratio p99"] if compared else [])
+    stages = "positions only" if result.get("positions_only") else "incl. orientations and position_std"
     lines = [
-        "Per-instant path (group -> associate -> tracks -> fuse incl. orientations and position_std -> encode), "
+        f"Per-instant path (group -> associate -> tracks -> fuse {stages} -> encode), "
         "ms per instant, median over rounds (wall clock, and the thread's CPU time), instants "
         + (f"paced at {FPS:g} Hz (as a live node gets them):" if result.get("paced") else "back to back:"),
         "",
@@ -237,9 +261,10 @@ def _worker_main(argv: Sequence[str]) -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--worker", action="store_true")
     parser.add_argument("--paced", action="store_true")
+    parser.add_argument("--positions-only", action="store_true")
     parser.add_argument("numbers", type=int, nargs=3)
     args = parser.parse_args(argv)
-    print(json.dumps(time_instants(*args.numbers, paced=args.paced)))
+    print(json.dumps(time_instants(*args.numbers, paced=args.paced, positions_only=args.positions_only)))
     return 0
 
 

@@ -45,6 +45,7 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
         rounds=args.rounds,
         baseline=args.baseline,
         paced=args.paced,
+        positions_only=args.positions_only,
         progress=not args.json,
     )
     if args.json:
@@ -164,6 +165,12 @@ def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         action="store_true",
         help="one instant every 1/30 s, idle in between, as a live node gets them (default: back to back, which "
         "keeps the caches warm and times the path at its fastest; paced took about twice the CPU here)",
+    )
+    instant.add_argument(
+        "--positions-only",
+        action="store_true",
+        help="the preset's orientation and uncertainty stages off, as in a rig with [fusion.params] orientations = "
+        "false, position_std = false (the fused positions are the same)",
     )
     instant.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     instant.set_defaults(func=_cmd_bench_instant)
