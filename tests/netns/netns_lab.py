@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from process_groups import kill_group, stop_group
+
 HERE = Path(__file__).resolve().parent
 
 
@@ -94,15 +96,7 @@ class Lab:
         return Path(process.log_path).read_text(errors="replace")[-3000:]  # type: ignore[attr-defined]
 
     def stop(self, process: subprocess.Popen[bytes], sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> int | None:
-        if process.poll() is None:
-            try:
-                os.killpg(process.pid, sig)
-                process.wait(timeout_s)
-            except ProcessLookupError:
-                pass
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait(5.0)
+        stop_group(process, sig, timeout_s)
         return process.returncode
 
     def wait_listening(self, ns: str, port: int, timeout_s: float = 60.0) -> bool:
@@ -116,12 +110,7 @@ class Lab:
 
     def cleanup(self) -> None:
         for process in self.processes:
-            if process.poll() is None:
-                try:
-                    os.killpg(process.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                process.wait(5.0)
+            kill_group(process)
             process.log_file.close()  # type: ignore[attr-defined]
         for ns in reversed(self.namespaces):
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)  # deletes its veth ends too

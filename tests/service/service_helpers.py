@@ -6,7 +6,6 @@ a timeout; every process is started in its own process group and killed at teard
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from process_groups import kill_group, stop_group
 from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
 from skelfuse.wire import keys
@@ -88,29 +88,14 @@ class Processes:
         return Path(process.log_path).read_text(errors="replace")[-3000:]  # type: ignore[attr-defined]
 
     def stop(self, process: subprocess.Popen[bytes], sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> int:
-        if process.poll() is None:
-            try:
-                os.killpg(process.pid, sig)
-                process.wait(timeout_s)
-            except ProcessLookupError:
-                pass
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGUSR1)  # skelfuse dumps every thread's stack on SIGUSR1
-                time.sleep(0.5)
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait(5.0)
-                raise AssertionError(f"process did not stop within {timeout_s} s:\n{self.log(process)}") from None
+        if not stop_group(process, sig, timeout_s, dump_stacks=True):
+            raise AssertionError(f"process did not stop within {timeout_s} s:\n{self.log(process)}")
         process.log_file.close()  # type: ignore[attr-defined]
         return int(process.returncode)
 
     def cleanup(self) -> None:
         for process in self.started:
-            if process.poll() is None:
-                try:
-                    os.killpg(process.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                process.wait(5.0)
+            kill_group(process)
             if not process.log_file.closed:  # type: ignore[attr-defined]
                 process.log_file.close()  # type: ignore[attr-defined]
 
