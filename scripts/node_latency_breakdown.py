@@ -18,6 +18,9 @@ completed by a frame (the frames the node's own ``node_added_ms`` is measured on
   after ``put``);
 * ``total``: arrival -> ``_publish`` end.
 
+Then the slowest 2% of those instants (at least 3), one by one: their stages and what overlapped them (gc passes
+by generation, status publishes, other zenoh deliveries), to tell where the tail comes from.
+
 ``--node-src`` runs the node from another checkout's ``src`` (e.g. the starting revision) under the same probe.
 On a shared machine the wall-clock stages include waits for a core; the CPU column does not.
 """
@@ -107,11 +110,13 @@ def breakdown(rec: dict[str, list], skip: int = 30) -> dict[str, dict[str, float
     fused = {t: (s, e, c) for t, s, e, c in rec["fuse"] if t is not None}
     published = {t: (s, e) for triggers, s, e in rec["put"] for t in triggers if t is not None}
     rows = []
+    spans = []  # (arrival, publish end) of each row: what else ran in between (outliers below)
     for t in sorted(fused)[skip:]:
         if t not in taken or t not in received or t not in published:
             continue
         fs, fe, fc = fused[t]
         ps, pe = published[t]
+        spans.append((t, pe))
         rows.append(
             {
                 "queue": taken[t] - t,
@@ -145,6 +150,22 @@ def breakdown(rec: dict[str, list], skip: int = 30) -> dict[str, dict[str, float
         st = np.array([e - s for s, e, _ in rec["status"]]) / 1e6
         out["status publish"] = {"n": len(st), "p50": round(float(np.median(st)), 3), "max": round(float(st.max()), 3)}
     out["instants"] = {"n": len(rows)}
+    out.update(_outliers(rec, rows, spans))
+    return out
+
+
+def _outliers(rec: dict[str, list], rows: list[dict[str, int]], spans: list[tuple[int, int]]) -> dict[str, dict]:
+    """The slowest 2% of instants (at least 3): each one's stages, ms, and what overlapped it between the frame's
+    arrival and the end of the put: gc passes (generation: ms), status publishes (ms), zenoh deliveries."""
+    out: dict[str, dict] = {}
+    order = sorted(range(len(rows)), key=lambda i: rows[i]["total"], reverse=True)
+    for rank, i in enumerate(order[: max(3, len(rows) // 50)]):
+        start, end = spans[i]
+        item: dict = {stage: round(v / 1e6, 3) for stage, v in rows[i].items()}
+        item["gc"] = [f"gen{g}: {(e - s) / 1e6:.3f}" for g, s, e in rec["gc"] if s < end and e > start]
+        item["status"] = [round((e - s) / 1e6, 3) for s, e, _ in rec["status"] if s < end and e > start]
+        item["deliveries"] = sum(1 for s, e, _ in rec["cb"] if start < s < end)
+        out[f"slowest #{rank + 1}"] = item
     return out
 
 
@@ -188,7 +209,7 @@ def main() -> int:
             f"load {result['load'][0]:.2f}-{result['load'][1]:.2f}"
         )
         for stage, figures in result["stages"].items():
-            print(f"  {stage:36s} " + "  ".join(f"{k} {v:g}" for k, v in figures.items()))
+            print(f"  {stage:36s} " + "  ".join(f"{k} {v}" for k, v in figures.items()))
     return 0
 
 
