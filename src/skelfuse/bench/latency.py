@@ -9,9 +9,10 @@ stamps each fused frame on arrival.
 Measured (``time.monotonic_ns``, one process, so no cross-process clock error):
 
 * ``e2e``: publish of the last sensor frame of an instant -> its fused frame received: what an app sees;
-* ``node_added``: the node's own share, from its final status document: arrival of the frame that completed
-  an instant (zenoh callback in the node) -> fused frame handed to zenoh;
-* ``fusion``: the fusion step plus encoding, from the same status.
+* ``node_added``: the node's own share, from its status documents of the measured window (each carries its
+  window's values, so the percentiles are over every measured instant): arrival of the frame that completed an
+  instant (zenoh callback in the node) -> fused frame handed to zenoh;
+* ``fusion``: the fusion step plus encoding, from the same statuses.
 
 Shaped like zenoh-python's ``z_ping``: warm-up (1 s, not counted), then every instant of the measured
 window, and the distribution (p50 / p99 / max), never a mean. A sweep doubles N from 16 to 64 (the wire
@@ -156,14 +157,24 @@ def _percentile(values: Sequence[float], q: float) -> float | None:
     return round(float(np.percentile(values, q)), 4) if len(values) else None
 
 
-def _merge_windows(windows: list[dict[str, Any]]) -> dict[str, float | None]:
-    windows = [w for w in windows if w.get("n")]
-    if not windows:
+def _merge_windows(windows: list[dict[str, Any]], name: str) -> dict[str, float | None]:
+    """p50 / p99 / max of the status field ``name`` (e.g. ``node_added_ms``) over several status windows.
+
+    Exact over every instant of the windows when they carry ``<name>_samples`` (nodes since 2026-11-28). A node
+    without them (an older ``--node-src``) gives only each window's percentiles, which do not merge: then p50 is
+    the median of the windows' p50 and p99 / max the largest window's (a 0.5 s window holds 15 instants, so its
+    p99 is about its max: the largest window p99 is about the run's max, not its p99).
+    """
+    if any(f"{name}_samples" in w for w in windows):
+        samples = [v for w in windows for v in w.get(f"{name}_samples") or ()]
+        return {"p50": _percentile(samples, 50), "p99": _percentile(samples, 99), "max": max(samples, default=None)}
+    parts = [w[name] for w in windows if (w.get(name) or {}).get("n")]
+    if not parts:
         return {"p50": None, "p99": None, "max": None}
     return {
-        "p50": round(float(np.median([w["p50"] for w in windows])), 4),
-        "p99": max(w["p99"] for w in windows),
-        "max": max(w["max"] for w in windows),
+        "p50": round(float(np.median([p["p50"] for p in parts])), 4),
+        "p99": max(p["p99"] for p in parts),
+        "max": max(p["max"] for p in parts),
     }
 
 
@@ -284,14 +295,13 @@ def measure(
     with lock:
         e2e = [(received[t] - p) / 1e6 for t, p in published.items() if t in received]
         n_complete = sum(1 for t in published if t in complete)
-        # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up.
-        # Percentiles of windows do not merge exactly: p50 = median of the windows' p50, p99 and max = the
-        # largest window p99 / max (conservative).
+        # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up, over
+        # every instant of those windows (_merge_windows).
         windows = [
             st.info for t, st in statuses if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"
         ]
-    added = _merge_windows([w.get("node_added_ms") or {} for w in windows])
-    fusion = _merge_windows([w.get("fusion_ms") or {} for w in windows])
+    added = _merge_windows(windows, "node_added_ms")
+    fusion = _merge_windows(windows, "fusion_ms")
     sent = len(published)
     complete_fraction = n_complete / sent if sent else 0.0
     p99 = _percentile(e2e, 99)
@@ -385,7 +395,8 @@ def format_table(result: LatencyResult) -> str:
     lines += [
         "",
         "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",
-        "node: the fusion node's own added latency (completing frame in -> fused frame out), from its status.",
+        "node: the fusion node's own added latency (completing frame in -> fused frame out), over every measured "
+        "instant (from the node's status windows).",
         f"load 1 min: os.getloadavg() before-after each case, on {os.cpu_count()} CPUs (a shared machine inflates "
         "every figure).",
         f"Largest sensor count sustained at {FPS:g} Hz: {result.max_sustained_sensors or 'none measured'}.",

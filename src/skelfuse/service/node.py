@@ -779,6 +779,9 @@ class FusionNode:
             "fused_publish": None if self._fused_publisher is None else self._fused_publisher.report(),
             "fusion_ms": _percentiles(self._window_fusion),
             "node_added_ms": _percentiles(self._window_added),
+            # The window's own values: percentiles of windows do not merge, samples do (bench latency, dashboards).
+            "fusion_ms_samples": [round(v, 4) for v in self._window_fusion],
+            "node_added_ms_samples": [round(v, 4) for v in self._window_added],
             "fusion_ms_total": _percentiles(self.report.fusion_ms),  # the latest LATENCY_WINDOW
             "node_added_ms_total": _percentiles(self.report.added_ms),
         }
