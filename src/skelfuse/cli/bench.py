@@ -5,15 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skelfuse.bench import fusion as bench_fusion
-from skelfuse.bench import latency
-from skelfuse.bench.depth import format_depth_bench, run_depth_bench
-from skelfuse.bench.instant import format_instant_bench, run_instant_bench
-from skelfuse.bench.people import bench_people, format_people_bench
 from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, SEED, preset_name, print_json
 
 
 def _cmd_bench_fusion(args: argparse.Namespace) -> int:
+    from skelfuse.bench import fusion as bench_fusion  # each command imports what it runs (start-up)
+
     result = bench_fusion.run_fusion_bench(
         sensor_counts=args.sensors,
         body_counts=args.bodies,
@@ -30,6 +27,8 @@ def _cmd_bench_fusion(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_people(args: argparse.Namespace) -> int:
+    from skelfuse.bench.people import bench_people, format_people_bench
+
     result = bench_people(args.sensors, args.people, args.frames, preset_name=args.preset)
     if args.json:
         print_json(result)
@@ -39,6 +38,8 @@ def _cmd_bench_people(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_instant(args: argparse.Namespace) -> int:
+    from skelfuse.bench.instant import format_instant_bench, run_instant_bench
+
     result = run_instant_bench(
         args.cases,
         n_frames=args.frames,
@@ -56,6 +57,8 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_latency(args: argparse.Namespace) -> int:
+    from skelfuse.bench import latency
+
     result = latency.run_latency_bench(
         sensor_counts=args.sensors,
         duration_s=args.duration,
@@ -72,6 +75,8 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_depth(args: argparse.Namespace) -> int:
+    from skelfuse.bench.depth import format_depth_bench, run_depth_bench
+
     result = run_depth_bench(
         tuple(args.people),
         n_sensors=args.sensors,

@@ -34,13 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.calibration.marker import calibrate_world_from_marker
-from skelfuse.calibration.refine import refine, refine_report, simulated_walk, walk_frames
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
-from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
-from skelfuse.calibration.takes import load_recording_take, take_arrays
-from skelfuse.calibration.view import log_calibration
 from skelfuse.cli.common import (
     COUNT,
     EXISTING_DIR,
@@ -63,7 +58,7 @@ from skelfuse.config.calibration_file import (
 )
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.progress import note
-from skelfuse.recording import RecordingReader
+from skelfuse.recording.mcap_io import RecordingReader
 from skelfuse.schema.errors import CalibrationError, ConfigError, DataError
 from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
 
@@ -158,6 +153,8 @@ def _print_result(result: CalibrationResult, path: Path) -> None:
 def _save_rrd(path: Path, result: CalibrationResult) -> None:
     import rerun as rr
 
+    from skelfuse.calibration.view import log_calibration  # rerun: imported by the command that uses it
+
     recording = rr.RecordingStream("skelfuse_calibration")
     recording.save(path)
     log_calibration(recording, result)
@@ -172,7 +169,6 @@ def _save_rrd(path: Path, result: CalibrationResult) -> None:
 
 
 def _cmd_capture(args: argparse.Namespace) -> int:
-
     cfg = _rig(args)
     kinects = kinect_start_order(cfg.sensors)
     if args.sensors:
@@ -274,6 +270,7 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
 
 
 def _cmd_sphere(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
 
     cfg = _rig(args)
     frames, intrinsics = load_rgbd_folder(args.folder)
@@ -321,6 +318,7 @@ def _cmd_sphere(args: argparse.Namespace) -> int:
 
 
 def _cmd_marker(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.marker import calibrate_world_from_marker
 
     cfg = _rig(args)
     output = _output_path(args, cfg)
@@ -382,6 +380,8 @@ def _cmd_marker(args: argparse.Namespace) -> int:
 
 
 def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    from skelfuse.calibration.takes import load_recording_take, take_arrays
+
     specs = ([str(args.recording)] if args.recording is not None else []) + list(args.take)
     if not specs:
         raise ConfigError(
@@ -515,6 +515,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_refine(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.refine import refine, refine_report, simulated_walk, walk_frames
+
     if args.sim:
         note(
             f"refine: simulated walk, {args.frames} instants, every sensor but the reference off by "

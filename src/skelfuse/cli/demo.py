@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from skelfuse import demo
+from skelfuse.apps import demo
+from skelfuse.apps.demo import CONVERGE_S, DEMO_TAKE_S
 from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, POSITIVE, SEED, Number, preset_name, print_json
 from skelfuse.config import DEFAULT_PRESET
-from skelfuse.demo import CONVERGE_S, DEMO_TAKE_S
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -66,11 +66,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="how long to run, seconds of fused output (default: %(default)s); the take loops through it",
     )
     demo.add_argument(
+        "--take-duration",
         "--take",
+        dest="take",
         type=Number(float, ge=2 * CONVERGE_S, le=600),
         default=DEMO_TAKE_S,
         metavar="SECONDS",
-        help="length of the simulated take, played in a loop; the accuracy is scored over take seconds "
+        help="length of the simulated take, played in a loop (as capture's --take-duration); the accuracy is "
+        "scored over take seconds "
         f"{CONVERGE_S}-SECONDS of each whole pass, so any --duration of at least one pass gives the "
         "same figure (default: %(default)s)",
     )

@@ -10,7 +10,6 @@ from skelfuse.sources.kinect import KinectUnavailable
 
 
 def _cmd_devices(args: argparse.Namespace) -> int:
-
     try:
         devices = list_devices()
     except KinectUnavailable:

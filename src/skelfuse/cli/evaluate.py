@@ -13,16 +13,15 @@ from skelfuse.cli.common import COUNT, EXISTING_DIR, EXISTING_FILE, EXIT_OK, POS
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.cli.robustness import add_robustness_parser
 from skelfuse.config import load_calibration, load_rig_config
-from skelfuse.eval import depth, paper, real, report, rig
-from skelfuse.eval.rig import DEFAULT_PRESETS
-from skelfuse.eval.tracking import run_tracking_eval
+from skelfuse.fusion.presets import COMPARED_PRESETS
 from skelfuse.progress import note
 from skelfuse.schema.errors import ConfigError
-from skelfuse.service.depth_stage import K4abtDepthTracker
 from skelfuse.sources.k4abt import TrackerSettings
 
 
 def _cmd_eval_paper(args: argparse.Namespace) -> int:
+    from skelfuse.eval import paper, report  # each command imports what it runs (start-up)
+
     result = paper.run_paper_eval(
         quick=args.quick,
         seed=args.seed,
@@ -43,6 +42,8 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_real(args: argparse.Namespace) -> int:
+    from skelfuse.eval import real, rig
+
     specs = list(args.inputs)
     if not specs:  # the andyj1 3-sensor take: one input among others, its subordinates already registered
         specs = [f"{name}={args.data / file}" for name, file in real.VIEW_FILES.items()]
@@ -74,6 +75,8 @@ def _cmd_eval_real(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_tracking(args: argparse.Namespace) -> int:
+    from skelfuse.eval.tracking import run_tracking_eval
+
     result = run_tracking_eval(quick=args.quick, seed=args.seed, preset_name=args.preset)
     if args.json:
         print_json(result.to_dict())
@@ -83,6 +86,11 @@ def _cmd_eval_tracking(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_depth(args: argparse.Namespace) -> int:
+    from skelfuse.eval import depth
+    from skelfuse.service.depth_stage import K4abtDepthTracker
+
+    if args.sim_take not in depth.SIM_TAKES:
+        raise ConfigError(f"--sim-take {args.sim_take}: expected one of {', '.join(sorted(depth.SIM_TAKES))}")
     if args.sim:
         note(f"eval depth: simulated {args.sim_take} take, {args.duration:g} s, seed {args.seed} (stand-in tracker)")
         instants, obs = depth.simulated_instants(args.sim_take, args.duration, args.seed)
@@ -190,7 +198,7 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
         "--preset",
         action="append",
         default=[],
-        help=f"fusion preset to evaluate; repeatable (default: {', '.join(DEFAULT_PRESETS)})",
+        help=f"fusion preset to evaluate; repeatable (default: {', '.join(COMPARED_PRESETS)})",
     )
     real.add_argument(
         "--eps", type=POSITIVE, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
@@ -239,7 +247,7 @@ def _add_depth(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     )
     parser.add_argument("--sim", action="store_true", help="a simulated take and the stand-in tracker instead")
     parser.add_argument(
-        "--sim-take", choices=sorted(depth.SIM_TAKES), default="crossing", help="--sim: the take (crossing)"
+        "--sim-take", default="crossing", metavar="NAME", help="--sim: the take, crossing or bystander (crossing)"
     )
     parser.add_argument("--duration", type=POSITIVE, default=4.0, metavar="S", help="--sim: seconds (4)")
     parser.add_argument("--seed", type=SEED, default=3, help="--sim: seed (3)")

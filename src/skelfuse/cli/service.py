@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from skelfuse.cli.common import (
     EXISTING_FILE,
@@ -29,16 +30,15 @@ from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
-from skelfuse.recording import fuse_recording
-from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
-from skelfuse.service.node import NodeOptions, run_fusion_node
-from skelfuse.service.recorder import run_recorder, run_replay
 from skelfuse.service.status import watch_status
-from skelfuse.service.viewer import ViewOptions
 from skelfuse.wire.keys import validate_name
+
+if TYPE_CHECKING:
+    from skelfuse.recording.inputs import InputTake
+    from skelfuse.service.viewer import ViewOptions
 
 log = logging.getLogger("skelfuse.cli")
 
@@ -71,6 +71,8 @@ def _cmd_capture(args: argparse.Namespace) -> int:
 
 
 def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
+    from skelfuse.service.viewer import ViewOptions  # each command imports what it runs (start-up)
+
     r = cfg.rerun
     if args.no_view:
         return ViewOptions(mode="off")
@@ -94,6 +96,8 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
 
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
+    from skelfuse.service.node import NodeOptions, run_fusion_node
+
     if args.input is not None:
         return _fuse_offline(args)
     if args.output is not None:
@@ -121,6 +125,8 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
 
 
 def _fuse_offline(args: argparse.Namespace) -> int:
+    from skelfuse.recording.offline import fuse_recording
+
     if args.output is None:
         raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
     cfg = rig_config(args) if args.config is not None else None
@@ -137,11 +143,12 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"input": [str(i) for i in args.input], "output": args.output, "rows": rows, "notes": take.notes})
     else:
-        print(f"Fused {args.input} -> {args.output} ({rows} rows)", file=sys.stderr)
+        print(f"Fused {', '.join(args.input)} -> {args.output} ({rows} rows)", file=sys.stderr)
     return EXIT_OK
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
+    from skelfuse.service.recorder import run_recorder
 
     cfg = rig_config(args)
     report = run_recorder(
@@ -165,6 +172,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from skelfuse.service.recorder import run_replay
 
     if args.rig is not None:
         try:
@@ -191,7 +199,6 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
-
     cfg = rig_config(args)
     watch_status(
         cfg,

@@ -6,8 +6,6 @@ import argparse
 from pathlib import Path
 
 from skelfuse.cli.common import COUNT, EXIT_OK, POSITIVE, SEED, print_json
-from skelfuse.eval import realism
-from skelfuse.sim.observe import load_profile
 
 
 def _default_data_dir() -> Path:
@@ -16,6 +14,9 @@ def _default_data_dir() -> Path:
 
 
 def _cmd_sim_check(args: argparse.Namespace) -> int:
+    from skelfuse.eval import realism  # each command imports what it runs (start-up)
+    from skelfuse.sim.observe import load_profile
+
     profile = load_profile(args.profile)
     data_dir = None
     if not args.no_real:

@@ -1,20 +1,6 @@
-"""``skelfuse demo``: a simulated 4-sensor rig fused frame by frame and drawn in Rerun.
+"""The demo's runs: live (:func:`run_demo`, the real service on loopback) and offline (:func:`run_demo_offline`).
 
-The first thing a new user runs. It needs no sensor and no data: the simulator plays a person walking
-through a rig of four virtual Azure Kinects (rear views mirror left and right, occluded joints are guessed,
-everything trembles), the fusion core merges the views frame by frame, and Rerun shows the raw and fused
-skeletons live. Where there is no screen the recording is saved to a .rrd file instead.
-
-Two modes:
-
-* live (default, :func:`run_demo`): the real service on loopback zenoh: four capture workers
-  (``python -m skelfuse capture`` subprocesses, one per virtual sensor, each in its own process group),
-  the fusion node in this process, and a subscriber that scores the fused stream against the simulator's
-  ground truth (the demo knows the motion) and measures latency from the workers' publish timestamps.
-  Peer mode with explicit ``tcp/127.0.0.1`` endpoints and multicast scouting off, so it runs in CI
-  sandboxes. Child processes are always stopped (SIGTERM to their group, then SIGKILL); a spawned Rerun
-  viewer is left open for the user.
-* offline (``--offline``, :func:`run_demo_offline`): the same per-frame cycle in one loop, no zenoh.
+What the demo is and its settings: :mod:`skelfuse.apps.demo`.
 """
 
 from __future__ import annotations
@@ -37,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.apps.demo import CONVERGE_S, DEFAULT_RRD, DEMO_RIG, DEMO_TAKE_S
 from skelfuse.config import DEFAULT_PRESET, load_rig_config
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
@@ -63,16 +50,6 @@ from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
 log = logging.getLogger(__name__)
-
-DEFAULT_RRD = Path("skelfuse-demo.rrd")
-CONVERGE_S = 1.5
-"""Accuracy is scored from this long after a fused track appears, and from this long into each pass of the
-take: a new track starts from one noisy measurement and its filter settles within about 0.7 s (hundreds of
-mm at first), and each pass of the looping take starts with the person jumping back to the take's start."""
-DEMO_TAKE_S = 10.0
-"""The demo's take: this many seconds of the gesture, played in a loop for the whole ``--duration``. Every
-pass shows the sensors exactly the same frames, so the score over whole passes is the same figure for any
-duration of at least one pass (a longer run only adds passes of the same material)."""
 
 
 @dataclass(frozen=True)
@@ -342,7 +319,6 @@ def _window_text(summary: DemoSummary) -> str:
 # ----------------------------------------------------------------------------------------------------------
 # Live demo: capture workers + fusion node over loopback zenoh
 
-DEMO_RIG = "demo"
 RESULT_GRACE_S = 0.5
 """After ``--duration``, how long the demo still collects fused frames (they arrive milliseconds late)."""
 TAKE_ORIGIN_DELAY_S = 8.0
