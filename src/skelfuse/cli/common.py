@@ -133,7 +133,9 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"cannot serialize {type(value).__name__} to JSON")
 
 
-def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
+def add_run_limits(parser: argparse.ArgumentParser, what: str | None) -> None:
+    """``--duration``, and ``--max-frames`` (``--max-messages``) counting ``what``; None: a command that
+    counts nothing (the router) gets ``--duration`` only."""
     parser.add_argument(
         "--duration",
         type=POSITIVE,
@@ -142,6 +144,8 @@ def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
         help="stop cleanly after this many seconds of work; a zenoh session that cannot open is given up after as "
         "long (default: run until SIGINT/SIGTERM)",
     )
+    if what is None:
+        return
     flags = ("--max-messages", "--max-frames") if what.endswith("messages") else ("--max-frames",)
     parser.add_argument(
         *flags,
