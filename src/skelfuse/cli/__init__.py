@@ -19,7 +19,20 @@ import time
 from collections.abc import Sequence
 
 from skelfuse import __version__
-from skelfuse.cli import bench, calibrate, convert, demo, devices, evaluate, export, network, service, sim, stream
+from skelfuse.cli import (
+    bench,
+    calibrate,
+    convert,
+    demo,
+    devices,
+    evaluate,
+    export,
+    network,
+    service,
+    setup,
+    sim,
+    stream,
+)
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
@@ -30,7 +43,7 @@ __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_USAGE", "build_parser", "entrypoint", 
 log = logging.getLogger("skelfuse")
 
 #: Command groups in the order ``skelfuse --help`` lists them.
-COMMAND_GROUPS = (demo, evaluate, sim, bench, service, network, convert, devices, calibrate, export, stream)
+COMMAND_GROUPS = (demo, evaluate, sim, bench, service, network, convert, devices, calibrate, export, stream, setup)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -47,6 +47,7 @@ from skelfuse.cli.common import (
     POSITIVE,
     SEED,
     Number,
+    add_output_option,
 )
 from skelfuse.cli.inputs import add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import load_rig_config
@@ -597,11 +598,8 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
         help="the rig config: its sensors are checked, its sync master is the default master and "
         "its [calibration] file the default output",
     )
-    parser.add_argument(
-        "--output",
-        "-o",
-        type=OUTPUT_FILE,
-        default=None,
+    add_output_option(
+        parser,
         metavar="FILE",
         help=f"calibration TOML to write (default: the rig config's [calibration] file, else {DEFAULT_OUTPUT})",
     )
@@ -673,7 +671,9 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
         "the ball through the space while it runs, or show the marker plate to the master.",
     )
     capture.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
-    capture.add_argument("--out", type=Path, required=True, metavar="DIR", help="RGB-D folder to write")
+    add_output_option(
+        capture, type=Path, required=True, dest="out", aliases=("--out",), metavar="DIR", help="RGB-D folder to write"
+    )
     capture.add_argument(
         "--frames",
         type=COUNT,

@@ -110,6 +110,24 @@ OUTPUT_FILE = PathArg("output")
 """A file to write: its folder must exist (it is never created behind the user's back)."""
 
 
+def add_output_option(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    *,
+    metavar: str,
+    help: str,
+    type: Any = OUTPUT_FILE,
+    default: Any = None,
+    required: bool = False,
+    dest: str = "output",
+    aliases: tuple[str, ...] = (),
+) -> None:
+    """``-o/--output`` (and any older spelling in ``aliases``): the one spelling of "where this command
+    writes", as in git, ffmpeg and Blender's command line."""
+    parser.add_argument(
+        "-o", "--output", *aliases, dest=dest, type=type, default=default, required=required, metavar=metavar, help=help
+    )
+
+
 def preset_name(text: str) -> str:
     """argparse ``type`` of ``--preset``: one of the fusion presets."""
     if text not in ALL_PRESETS:

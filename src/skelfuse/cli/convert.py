@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, add_output_option, print_json
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.recording.inputs import write_mcap
 from skelfuse.schema.errors import ConfigError
@@ -52,7 +51,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "the matching and the assumed confidence.",
     )
     convert.add_argument("inputs", nargs="+", metavar="[ID=]PATH", help=INPUT_HELP)
-    convert.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.mcap", help="the MCAP to write")
+    add_output_option(convert, type=OUTPUT_FILE, required=True, metavar="OUT.mcap", help="the MCAP to write")
     convert.add_argument(
         "--rig", default="converted", metavar="NAME", help="rig name of the channel topics (default: %(default)s)"
     )

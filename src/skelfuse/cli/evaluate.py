@@ -9,7 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.cli.common import COUNT, EXISTING_DIR, EXISTING_FILE, EXIT_OK, POSITIVE, SEED, preset_name, print_json
+from skelfuse.cli.common import (
+    COUNT,
+    EXISTING_DIR,
+    EXISTING_FILE,
+    EXIT_OK,
+    POSITIVE,
+    SEED,
+    add_output_option,
+    preset_name,
+    print_json,
+)
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.cli.robustness import add_robustness_parser
 from skelfuse.config import load_calibration, load_rig_config
@@ -150,7 +160,15 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     )
     paper.add_argument("--quick", action="store_true", help="a small subset that runs in well under a minute")
     paper.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    paper.add_argument("--out", type=Path, default=Path("eval_out/paper"), help="output folder (default: %(default)s)")
+    add_output_option(
+        paper,
+        type=Path,
+        default=Path("eval_out/paper"),
+        dest="out",
+        aliases=("--out",),
+        metavar="DIR",
+        help="output folder (default: %(default)s)",
+    )
     paper.add_argument("--no-files", action="store_true", help="write no output folder, only print")
     paper.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
     paper.add_argument(
@@ -204,7 +222,9 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
         "--eps", type=POSITIVE, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
     )
     real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    real.add_argument("--out", type=Path, default=None, help="write report.md and the plots into this folder")
+    add_output_option(
+        real, type=Path, dest="out", aliases=("--out",), metavar="DIR", help="write report.md and the plots into DIR"
+    )
     add_input_options(real)
     real.set_defaults(func=_cmd_eval_real)
 

@@ -12,6 +12,7 @@ from typing import Any
 from skelfuse.cli.common import (
     COUNT,
     EXIT_OK,
+    add_output_option,
     add_run_limits,
     add_zenoh_arguments,
     print_json,
@@ -155,7 +156,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "app-<name> per --app. Point [zenoh.tls] directory at OUTPUT. See docs/multi-pc.md.",
     )
     certs.add_argument("--config", required=True, type=Path, metavar="RIG.toml", help="the rig config")
-    certs.add_argument("--output", required=True, type=Path, metavar="DIR", help="directory of the certificates")
+    add_output_option(certs, required=True, type=Path, metavar="DIR", help="directory of the certificates")
     certs.add_argument("--app", action="append", default=[], metavar="NAME", help="an app certificate (repeatable)")
     certs.add_argument(
         "--only", action="append", default=[], metavar="IDENTITY", help="issue only these identities (repeatable)"

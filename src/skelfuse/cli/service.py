@@ -18,6 +18,7 @@ from skelfuse.cli.common import (
     POSITIVE,
     SEED,
     Number,
+    add_output_option,
     add_run_limits,
     add_zenoh_arguments,
     preset_name,
@@ -311,13 +312,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     fuse.add_argument(
         "--input", nargs="+", default=None, metavar="[ID=]PATH", help=f"offline: the recording(s). {INPUT_HELP}"
     )
-    fuse.add_argument(
-        "--output",
-        type=OUTPUT_FILE,
-        default=None,
-        metavar="OUT",
-        help="offline: fused frames to OUT.csv or OUT.parquet",
-    )
+    add_output_option(fuse, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet")
     fuse.add_argument(
         "--preset",
         default=None,
@@ -388,10 +383,8 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
     )
     record.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
-    record.add_argument(
-        "--output",
-        type=OUTPUT_FILE,
-        default=None,
+    add_output_option(
+        record,
         metavar="FILE",
         help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
     )
