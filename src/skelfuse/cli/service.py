@@ -27,7 +27,14 @@ from skelfuse.cli.common import (
     run_limits,
     zenoh_conf,
 )
-from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single_recorded_mcap
+from skelfuse.cli.inputs import (
+    INPUT_HELP,
+    add_input_options,
+    add_level_options,
+    open_take,
+    single_recorded_mcap,
+    world_poses,
+)
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
@@ -126,7 +133,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
 
 
 def _fuse_offline(args: argparse.Namespace) -> int:
-    from skelfuse.recording.offline import fuse_recording
+    from skelfuse.recording.offline import fuse_recording  # the fusion pipeline: imported when it runs
 
     if args.output is None:
         raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
@@ -136,7 +143,10 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if single_recorded_mcap(args.input) and not (args.time_offset or args.registered or args.by):
         # a skelfuse recording as it is: grouped on its recorded host arrival times, exactly as live
         source = Path(args.input[0])
-    frames = fuse_recording(source, rig_config=cfg, preset_name=args.preset, progress=not args.json)
+    poses = world_poses(args, take, cfg)
+    frames = fuse_recording(
+        source, rig_config=cfg, world_from_sensor=poses, preset_name=args.preset, progress=not args.json
+    )
     try:
         rows = write_fused(frames, args.output)
     except ValueError as exc:
@@ -313,6 +323,15 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         "--input", nargs="+", default=None, metavar="[ID=]PATH", help=f"offline: the recording(s). {INPUT_HELP}"
     )
     add_output_option(fuse, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet")
+    fuse.add_argument(
+        "--calibration",
+        type=EXISTING_FILE,
+        default=None,
+        metavar="FILE",
+        help="offline: the sensors' poses from this calibration file (what `skelfuse calibrate skeleton` "
+        "writes); overrides the config's and the recording's",
+    )
+    add_level_options(fuse)
     fuse.add_argument(
         "--preset",
         default=None,
