@@ -35,6 +35,7 @@ LAZY_ALLOWED = {
     "ezc3d",
     "pylsl",
     "cryptography",  # only `skelfuse certs` needs it
+    "scipy",  # its optimize / signal / stats take most of a daemon's start-up to import; loaded where used
 }
 #: Our modules that exist to wrap an optional dependency (the dev extra's scikit-learn and filterpy).
 LAZY_OURS_ALLOWED = {"skelfuse.bench.reference"}

@@ -7,7 +7,7 @@ import sys
 
 from skelfuse.apps import demo
 from skelfuse.apps.demo import CONVERGE_S, DEMO_TAKE_S
-from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, POSITIVE, SEED, Number, preset_name, print_json
+from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, PORT, POSITIVE, SEED, Number, preset_name, print_json
 from skelfuse.config import DEFAULT_PRESET
 
 
@@ -31,8 +31,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             preset_name=args.preset,
             seed=args.seed,
             rrd_path=args.rrd,
-            spawn=False if args.rrd is not None or args.serve else None,
-            serve=args.serve,
+            spawn=False if args.rrd is not None or args.serve or args.web else None,
+            serve=args.serve or args.web,
+            web_port=args.web_port if args.web else None,
+            grpc_port=args.grpc_port,
             progress=not args.json,
             take_duration_s=args.take,
         )
@@ -54,6 +56,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="a simulated 4-sensor rig fused live over zenoh and shown in Rerun (a .rrd where there is no screen)",
         description="Start a simulated rig of four virtual Azure Kinects: four capture workers (subprocesses) "
         "publish over zenoh on loopback (peer mode, no router, no multicast), the fusion node fuses them live "
+        "(it prints its rig name, its endpoint and how `skelfuse status`, `skelfuse stream` and other apps attach) "
         "and draws raw and fused skeletons in the Rerun viewer. Without a display (or with --rrd) the view is "
         "saved to a .rrd file. Runs for --duration seconds of fused output or until Ctrl-C, then prints "
         "frames fused, accuracy against the simulator's ground truth and latency p50/p99.",
@@ -100,7 +103,18 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     demo.add_argument(
         "--serve",
         action="store_true",
-        help="serve the view to Rerun viewers (gRPC on 127.0.0.1:9876) instead of spawning one",
+        help="serve the view to Rerun viewers (gRPC on 127.0.0.1, --grpc-port) instead of spawning one",
+    )
+    demo.add_argument(
+        "--web",
+        action="store_true",
+        help="serve the view and Rerun's web viewer (--web-port) and print the URL to open in a browser",
+    )
+    demo.add_argument(
+        "--grpc-port", type=PORT, default=None, metavar="PORT", help="with --serve/--web: gRPC port (default: 9876)"
+    )
+    demo.add_argument(
+        "--web-port", type=PORT, default=9090, metavar="PORT", help="with --web: the web viewer's port (default: 9090)"
     )
     demo.add_argument(
         "--offline",

@@ -47,7 +47,6 @@ from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
 from skelfuse.schema.frames import FusedFrame
-from skelfuse.service.depth_stage import DepthStage, depth_stage_for
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
@@ -65,6 +64,8 @@ from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, en
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import zenoh
+
+    from skelfuse.service.depth_stage import DepthStage
 
 log = logging.getLogger("skelfuse.service.node")
 
@@ -463,7 +464,7 @@ class FusionNode:
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
-        self.depth = depth_stage_for(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
+        self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
@@ -798,6 +799,16 @@ class FusionNode:
             status_pub.put(encode_status(status))
         except ValueError:
             log.exception("fusion node %s: status could not be encoded", self.name)
+
+
+def _depth_stage(cfg: RigConfig) -> DepthStage | None:
+    """The depth stage of a depth or hybrid rig; its module (scipy's spatial and ndimage) is imported only
+    there, so a skeleton rig's node opens its session sooner."""
+    if cfg.fusion.mode == "skeleton":
+        return None
+    from skelfuse.service.depth_stage import depth_stage_for
+
+    return depth_stage_for(cfg)
 
 
 def run_fusion_node(
