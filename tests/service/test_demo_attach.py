@@ -3,6 +3,7 @@ example subscriber attach to it; its working folder is gone when it ends."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -56,19 +57,12 @@ def test_apps_attach_to_the_demo_with_the_flags_it_prints(tmp_path: Path) -> Non
         _wait_for(err, r"the run starts|frames fused", demo, START_TIMEOUT_S)  # fused frames are flowing
 
         status = _attach(
-            sys.executable,
-            "-m",
-            "skelfuse",
-            "status",
-            "--config",
-            str(config),
-            "--json",
-            "--max-messages",
-            "2",
-            "--duration",
-            "30",
-        )
-        assert status.returncode == 0 and '"fusion"' in status.stdout, status.stderr[-2000:]
+            sys.executable, "-m", "skelfuse", "status", "--config", str(config), "--json", "--max-messages", "12",
+            "--duration", "30",
+        )  # fmt: skip
+        assert status.returncode == 0, status.stderr[-2000:]
+        nodes = {json.loads(line)["node"] for line in status.stdout.splitlines() if line.strip()}
+        assert "fusion" in nodes and any(n.startswith("capture-") for n in nodes), nodes
 
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as receiver:
             receiver.bind(("127.0.0.1", 0))

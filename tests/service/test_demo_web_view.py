@@ -1,0 +1,156 @@
+"""The web viewer URL the demo prints, opened as printed in headless Chromium (Debian's package), shows the fused
+skeleton: a screenshot in which the skeleton's pixels are found, against the control of the same viewer page
+with no stream to connect to (its own UI only)."""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import importlib.util
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from skelfuse.sinks.rerun_sink import TRACK_COLORS
+
+pytestmark = [pytest.mark.live, pytest.mark.service]
+
+REPO = Path(__file__).resolve().parents[2]
+BROWSER = shutil.which("chromium") or shutil.which("google-chrome")
+START_TIMEOUT_S = 120.0
+DRAW_TIMEOUT_S = 240.0
+MIN_SKELETON_PX = 300
+
+
+def _screenshot_tools():
+    """The DevTools client of scripts/live_view_screenshot.py (the same code makes the docs' screenshots)."""
+    spec = importlib.util.spec_from_file_location("live_view_screenshot", REPO / "scripts" / "live_view_screenshot.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def skeleton_pixels(png: bytes) -> int:
+    """Pixels within 12 of a fused skeleton's colour (any track's) in every channel."""
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1].astype(np.int16)
+    near = [np.all(np.abs(image - np.asarray(c, np.int16)) <= 12, axis=-1) for c in TRACK_COLORS]
+    return int(np.logical_or.reduce(near).sum())
+
+
+class Browser:
+    """Headless Chromium on one URL, screenshots through the DevTools protocol."""
+
+    def __init__(self, url: str, workdir: Path) -> None:
+        self.tools = _screenshot_tools()
+        self.port = self.tools.free_port()
+        self.process = subprocess.Popen(
+            [
+                str(BROWSER),
+                "--headless=new",
+                "--no-sandbox",
+                "--disable-dev-shm-usage",
+                "--use-gl=angle",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",
+                "--ignore-gpu-blocklist",
+                "--window-size=1280,800",
+                f"--remote-debugging-port={self.port}",
+                f"--user-data-dir={workdir}",
+                url,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        self.tools.wait_http(f"http://127.0.0.1:{self.port}/json/version", 60.0)
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/list", timeout=10) as answer:
+            page = next(p for p in json.load(answer) if p.get("type") == "page")
+        self.devtools = self.tools.DevTools(page["webSocketDebuggerUrl"])
+
+    def screenshot(self) -> bytes:
+        return base64.b64decode(self.devtools.call("Page.captureScreenshot", format="png")["data"])
+
+    def close(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.process.wait(10)
+
+
+def _printed_url(err: Path, demo: subprocess.Popen[bytes]) -> str:
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while True:
+        text = err.read_text(errors="replace")
+        found = re.search(r"web viewer: (http\S+)", text)
+        if found:
+            return found.group(1)
+        assert demo.poll() is None, f"the demo exited ({demo.returncode}):\n{text[-3000:]}"
+        assert time.monotonic() < deadline, f"no web viewer URL within {START_TIMEOUT_S:.0f} s:\n{text[-3000:]}"
+        time.sleep(0.2)
+
+
+@pytest.mark.skipif(BROWSER is None, reason="needs Chromium (Debian: apt-get install -y chromium)")
+@pytest.mark.skipif(shutil.which("rerun") is None, reason="needs the rerun executable of rerun-sdk on PATH")
+def test_the_printed_web_viewer_url_shows_the_fused_skeleton(tmp_path: Path) -> None:
+    tools = _screenshot_tools()
+    web, grpc = tools.free_port(), tools.free_port()
+    err = tmp_path / "demo.err"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    with open(err, "wb") as log:
+        demo = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "skelfuse",
+                "demo",
+                "--web",
+                "--web-port",
+                str(web),
+                "--grpc-port",
+                str(grpc),
+                "--duration",
+                "600",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+            start_new_session=True,
+            env=env,
+        )
+    browsers: list[Browser] = []
+    try:
+        url = _printed_url(err, demo)
+        assert f"?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy" in url
+        control = Browser(url.split("?")[0], tmp_path / "control")  # the same viewer, no stream to connect to
+        browsers.append(control)
+        viewer = Browser(url, tmp_path / "viewer")  # the URL exactly as printed
+        browsers.append(viewer)
+        deadline = time.monotonic() + DRAW_TIMEOUT_S
+        found = 0
+        while found < MIN_SKELETON_PX:
+            assert demo.poll() is None, err.read_text(errors="replace")[-3000:]
+            if time.monotonic() > deadline:
+                (tmp_path / "viewer.png").write_bytes(viewer.screenshot())
+                pytest.fail(f"no skeleton drawn within {DRAW_TIMEOUT_S:.0f} s ({found} px; {tmp_path / 'viewer.png'})")
+            shot = viewer.screenshot()
+            found = skeleton_pixels(shot)
+            time.sleep(2.0)
+        background = skeleton_pixels(control.screenshot())
+        assert found > 4 * max(background, 1), f"{found} skeleton pixels, {background} on the page without a stream"
+    finally:
+        for browser in browsers:
+            browser.close()
+        os.killpg(demo.pid, signal.SIGINT)
+        demo.wait(60)
