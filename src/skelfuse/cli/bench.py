@@ -5,7 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, SEED, preset_name, print_json
+from skelfuse.cli.common import (
+    COUNT,
+    EXIT_ERROR,
+    EXIT_OK,
+    POSITIVE,
+    add_json_option,
+    add_seed_option,
+    preset_name,
+    print_json,
+)
 
 
 def _cmd_bench_fusion(args: argparse.Namespace) -> int:
@@ -123,7 +132,7 @@ def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     fusion.add_argument("--preset", type=preset_name, default="A5", help="fusion preset to time (default: %(default)s)")
     fusion.add_argument("--frames", type=COUNT, default=300, help="timed frames per case (default: %(default)s)")
     fusion.add_argument("--quick", action="store_true", help="fewer frames and a few cases, for CI")
-    fusion.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(fusion)
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     fusion.set_defaults(func=_cmd_bench_fusion)
 
@@ -137,7 +146,7 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     people.add_argument("--people", type=COUNT, default=6, help="people in the crowd (default: %(default)s)")
     people.add_argument("--frames", type=COUNT, default=300, help="timed frames (default: %(default)s)")
     people.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
-    people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(people)
     people.set_defaults(func=_cmd_bench_people)
 
 
@@ -177,7 +186,7 @@ def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         help="the preset's orientation and uncertainty stages off, as in a rig with [fusion.params] orientations = "
         "false, position_std = false (the fused positions are the same)",
     )
-    instant.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(instant)
     instant.set_defaults(func=_cmd_bench_instant)
 
 
@@ -224,7 +233,7 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         "to compare the two in the same session",
     )
     latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
-    latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(latency)
     latency.set_defaults(func=_cmd_bench_latency)
 
 
@@ -245,6 +254,6 @@ def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ign
     depth.add_argument("--frames", type=COUNT, default=30, help="frames per people count (default: %(default)s)")
     depth.add_argument("--voxel", type=POSITIVE, default=15.0, help="voxel edge, mm (default: %(default)s)")
     depth.add_argument("--no-icp", action="store_true", help="skip the variant with ICP refinement (the slow one)")
-    depth.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
-    depth.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_seed_option(depth, default=0)
+    add_json_option(depth)
     depth.set_defaults(func=_cmd_bench_depth)

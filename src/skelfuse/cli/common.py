@@ -128,6 +128,20 @@ def add_output_option(
     )
 
 
+def add_json_option(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "the results", note: str = ""
+) -> None:
+    """``--json``: ``what`` as JSON on stdout instead of text (progress and logs stay on stderr)."""
+    parser.add_argument(
+        "--json", action="store_true", help=f"print {what} as JSON on stdout" + (f" ({note})" if note else "")
+    )
+
+
+def add_seed_option(parser: argparse.ArgumentParser, *, default: int = 0, what: str = "simulation seed") -> None:
+    """``--seed``: the seed everything random in a simulated run derives from."""
+    parser.add_argument("--seed", type=SEED, default=default, help=f"{what} (default: %(default)s)")
+
+
 def preset_name(text: str) -> str:
     """argparse ``type`` of ``--preset``: one of the fusion presets."""
     if text not in ALL_PRESETS:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, add_output_option, print_json
+from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, add_json_option, add_output_option, print_json
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.recording.inputs import write_mcap
 from skelfuse.schema.errors import ConfigError
@@ -56,5 +56,5 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--rig", default="converted", metavar="NAME", help="rig name of the channel topics (default: %(default)s)"
     )
     add_input_options(convert, by=False)
-    convert.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_json_option(convert, "a summary")
     convert.set_defaults(func=_cmd_convert)

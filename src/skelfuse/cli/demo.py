@@ -7,7 +7,17 @@ import sys
 
 from skelfuse.apps import demo
 from skelfuse.apps.demo import CONVERGE_S, DEMO_TAKE_S
-from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, PORT, POSITIVE, SEED, Number, preset_name, print_json
+from skelfuse.cli.common import (
+    EXIT_OK,
+    OUTPUT_FILE,
+    PORT,
+    POSITIVE,
+    Number,
+    add_json_option,
+    add_seed_option,
+    preset_name,
+    print_json,
+)
 from skelfuse.config import DEFAULT_PRESET
 
 
@@ -92,7 +102,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=DEFAULT_PRESET,
         help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)",
     )
-    demo.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    add_seed_option(demo, default=0)
     demo.add_argument(
         "--rrd",
         type=OUTPUT_FILE,
@@ -127,5 +137,5 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=None,
         help="with --offline: pace frames at 30 Hz (default: only when a live viewer is open)",
     )
-    demo.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    add_json_option(demo, "the summary")
     demo.set_defaults(func=_cmd_demo)

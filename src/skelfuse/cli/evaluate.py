@@ -16,7 +16,9 @@ from skelfuse.cli.common import (
     EXIT_OK,
     POSITIVE,
     SEED,
+    add_json_option,
     add_output_option,
+    add_seed_option,
     preset_name,
     print_json,
 )
@@ -159,7 +161,7 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
         "best-view reference. Writes markdown, CSV and PNG charts to --out.",
     )
     paper.add_argument("--quick", action="store_true", help="a small subset that runs in well under a minute")
-    paper.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(paper)
     add_output_option(
         paper,
         type=Path,
@@ -170,7 +172,7 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
         help="output folder (default: %(default)s)",
     )
     paper.add_argument("--no-files", action="store_true", help="write no output folder, only print")
-    paper.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    add_seed_option(paper, default=0)
     paper.add_argument(
         "--duration",
         type=POSITIVE,
@@ -221,7 +223,7 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
     real.add_argument(
         "--eps", type=POSITIVE, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
     )
-    real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(real)
     add_output_option(
         real, type=Path, dest="out", aliases=("--out",), metavar="DIR", help="write report.md and the plots into DIR"
     )
@@ -238,9 +240,9 @@ def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: i
         "fragmentation) and per-person accuracy against ground truth.",
     )
     tracking.add_argument("--quick", action="store_true", help="shorter takes, for CI")
-    tracking.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    add_seed_option(tracking, default=0)
     tracking.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
-    tracking.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(tracking)
     tracking.set_defaults(func=_cmd_eval_tracking)
 
 

@@ -14,7 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.cli.common import COUNT, EXIT_OK, INDEX, POSITIVE, add_output_option, print_json, rig_config
+from skelfuse.cli.common import (
+    COUNT,
+    EXIT_OK,
+    INDEX,
+    POSITIVE,
+    add_json_option,
+    add_output_option,
+    print_json,
+    rig_config,
+)
 from skelfuse.config import DEFAULT_PRESET
 from skelfuse.export.bvh import write_bvh_arrays
 from skelfuse.export.c3d import write_c3d
@@ -269,5 +278,5 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     export.add_argument(
         "--fuse", action="store_true", help="recording: fuse its sensor frames even if it holds a fused stream"
     )
-    export.add_argument("--json", action="store_true", help="print a JSON summary on stdout (no progress output)")
+    add_json_option(export, "a summary", "no progress output")
     export.set_defaults(func=_cmd_export)

@@ -18,6 +18,7 @@ from skelfuse.cli.common import (
     POSITIVE,
     SEED,
     Number,
+    add_json_option,
     add_output_option,
     add_run_limits,
     add_zenoh_arguments,
@@ -296,7 +297,7 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         help="watchdog before the first answer: restart a source that has not opened (device open, tracker create, "
         "a master's wait for its subordinates) within this long (default: [capture] open_timeout_s, 120)",
     )
-    capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(capture, "a summary at exit")
     add_run_limits(capture, "publishing N frames")
     add_zenoh_arguments(capture)
     capture.set_defaults(func=_cmd_capture)
@@ -385,7 +386,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         help="with --serve: also serve the web viewer on this port",
     )
     view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
-    fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(fuse, "a summary at exit")
     add_input_options(fuse)
     add_run_limits(fuse, "publishing N fused frames")
     add_zenoh_arguments(fuse)
@@ -407,7 +408,7 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         metavar="FILE",
         help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
     )
-    record.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(record, "a summary at exit")
     add_run_limits(record, "writing N frames")
     add_zenoh_arguments(record)
     record.set_defaults(func=_cmd_record)
@@ -435,7 +436,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         metavar="RIG.toml",
         help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
     )
-    replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(replay, "a summary at exit")
     add_input_options(replay)
     add_run_limits(replay, "publishing N frames")
     add_zenoh_arguments(replay)

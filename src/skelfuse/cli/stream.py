@@ -11,6 +11,7 @@ from skelfuse.cli.common import (
     EXIT_OK,
     INDEX,
     PORT,
+    add_json_option,
     add_run_limits,
     add_zenoh_arguments,
     print_json,
@@ -131,7 +132,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     stream.add_argument(
         "--node", default=None, metavar="NAME", help="node name for the liveliness key (default: stream-<protocol>)"
     )
-    stream.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(stream, "a summary at exit")
     add_run_limits(stream, "sending N fused frames")
     add_zenoh_arguments(stream)
     stream.set_defaults(func=_cmd_stream)
