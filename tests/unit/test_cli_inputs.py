@@ -277,7 +277,7 @@ def test_an_output_on_a_full_disk_is_a_message_not_a_traceback(
 
 
 def test_live_fuse_honours_preset(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    from skelfuse.service import node  # the command imports the node when it runs
+    from skelfuse.cli import service
 
     seen = {}
 
@@ -285,7 +285,7 @@ def test_live_fuse_honours_preset(monkeypatch: pytest.MonkeyPatch, tmp_path: Pat
         seen["preset"] = cfg.fusion.preset  # type: ignore[attr-defined]
         return NodeReport()
 
-    monkeypatch.setattr(node, "run_fusion_node", fake_node)
+    monkeypatch.setattr(service, "run_fusion_node", fake_node)
     assert cli.main(["fuse", "--config", str(SIM_RIG), "--preset", "A3", "--no-view", "--duration", "1"]) == 0
     assert seen["preset"] == "A3"  # before: the config's preset, --preset silently ignored
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
+from skelfuse.calibration.takes import load_recording_take, take_arrays
 from skelfuse.cli.common import (
     COUNT,
     EXISTING_DIR,
@@ -381,8 +382,6 @@ def _cmd_marker(args: argparse.Namespace) -> int:
 
 
 def _load_take(args: argparse.Namespace, cfg: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    from skelfuse.calibration.takes import load_recording_take, take_arrays
-
     specs = ([str(args.recording)] if args.recording is not None else []) + list(args.take)
     if not specs:
         raise ConfigError(

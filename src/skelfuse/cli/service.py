@@ -39,16 +39,18 @@ from skelfuse.cli.inputs import (
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
+from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
+from skelfuse.service.node import NodeOptions, run_fusion_node
+from skelfuse.service.recorder import run_recorder, run_replay
 from skelfuse.service.status import watch_status
+from skelfuse.service.viewer import ViewOptions
 from skelfuse.wire.keys import validate_name
 
 if TYPE_CHECKING:
     from skelfuse.recording.inputs import InputTake
-    from skelfuse.service.viewer import ViewOptions
-
 log = logging.getLogger("skelfuse.cli")
 
 
@@ -80,8 +82,6 @@ def _cmd_capture(args: argparse.Namespace) -> int:
 
 
 def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
-    from skelfuse.service.viewer import ViewOptions  # each command imports what it runs (start-up)
-
     r = cfg.rerun
     if args.no_view:
         return ViewOptions(mode="off")
@@ -105,8 +105,6 @@ def _view_options(args: argparse.Namespace, cfg: RigConfig) -> ViewOptions:
 
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
-    from skelfuse.service.node import NodeOptions, run_fusion_node
-
     if args.input is not None:
         return _fuse_offline(args)
     if args.output is not None:
@@ -134,8 +132,6 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
 
 
 def _fuse_offline(args: argparse.Namespace) -> int:
-    from skelfuse.recording.offline import fuse_recording  # the fusion pipeline: imported when it runs
-
     if args.output is None:
         raise ConfigError("skelfuse fuse --input FILE needs --output OUT.csv or OUT.parquet")
     cfg = rig_config(args) if args.config is not None else None
@@ -160,8 +156,6 @@ def _fuse_offline(args: argparse.Namespace) -> int:
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-    from skelfuse.service.recorder import run_recorder
-
     cfg = rig_config(args)
     report = run_recorder(
         cfg, zenoh_conf(args, cfg), output=args.output, limits=run_limits(args), lifecycle=Lifecycle("recorder")
@@ -184,8 +178,6 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from skelfuse.service.recorder import run_replay
-
     if args.rig is not None:
         try:
             validate_name(args.rig, "rig")

@@ -19,6 +19,7 @@ from pathlib import Path
 from skelfuse.config import RigConfig
 from skelfuse.export.csv import FUSED_FORMATS, read_fused_table
 from skelfuse.recording.mcap_io import RecordingReader
+from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 
@@ -85,7 +86,5 @@ def open_fused(
         return FusedSource(reader.fused_frames(), "recorded fused stream", reader.fused_message_count)
     if not reader.sensors:
         raise DataError(f"recording {path} holds neither a fused stream nor sensor frames: nothing to export")
-    from skelfuse.recording.offline import fuse_recording  # the fusion pipeline: only for sensor frames
-
     frames = fuse_recording(path, rig_config=rig_config, preset_name=preset_name, progress=progress)
     return FusedSource(frames, "fused from the sensor frames", reader.message_count)
