@@ -8,7 +8,7 @@ machine's load average is printed before and after: on a shared machine report t
 
 Usage::
 
-    python scripts/startup_time.py --baseline ../other-checkout/src [--runs 10]
+    python scripts/startup_time.py --baseline ../other-checkout/src [--runs 10] [--quick]
 """
 
 from __future__ import annotations
@@ -67,10 +67,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline", required=True, metavar="SRC", help="the src/ folder to compare against")
     parser.add_argument("--runs", type=int, default=10, help="runs per command and tree (default: 10)")
+    parser.add_argument("--quick", action="store_true", help="only `skelfuse --help`, `fuse --help` and the daemons")
     args = parser.parse_args()
     trees = {"baseline": str(Path(args.baseline).resolve()), "this": str(REPO / "src")}
     print(f"load average before: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
-    rows = [(f"skelfuse {' '.join(c)} --help".replace("  ", " "), help_time, c) for c in HELP_COMMANDS]
+    commands = HELP_COMMANDS[:2] if args.quick else HELP_COMMANDS
+    rows = [(f"skelfuse {' '.join(c)} --help".replace("  ", " "), help_time, c) for c in commands]
     rows += [(f"skelfuse {name}: launch -> zenoh session open", session_open_time, c) for name, c in DAEMONS.items()]
     for label, measure, command in rows:
         times: dict[str, list[float]] = {name: [] for name in trees}
