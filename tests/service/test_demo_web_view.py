@@ -109,6 +109,7 @@ class Browser:
         raise TimeoutError("Chromium did not answer four screenshot requests of 60 s each")
 
     def close(self) -> None:
+        self.devtools.sock.close()
         with contextlib.suppress(ProcessLookupError):
             os.killpg(self.process.pid, signal.SIGTERM)
         with contextlib.suppress(subprocess.TimeoutExpired):
