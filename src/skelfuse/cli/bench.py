@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXIT_ERROR,
@@ -104,7 +105,7 @@ def _cmd_bench_depth(args: argparse.Namespace) -> int:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``bench`` with its sub-commands."""
-    bench = commands.add_parser("bench", help="measure speed")
+    bench = commands.add_parser("bench", help=COMMAND_HELP["bench"])
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
     _add_fusion(bench_commands)
     _add_people(bench_commands)

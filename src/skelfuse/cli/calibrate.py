@@ -37,6 +37,7 @@ import numpy as np
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
 from skelfuse.calibration.takes import load_recording_take, take_arrays
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXISTING_DIR,
@@ -644,7 +645,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``calibrate`` with its sub-commands (capture, sphere, marker, skeleton, check) to ``commands``."""
     calibrate = commands.add_parser(
         "calibrate",
-        help="measure where each sensor stands (sphere, marker plate, or skeletons) and write the calibration file",
+        help=COMMAND_HELP["calibrate"],
         description="Calibrate the rig: sensor to sensor from a red ball (sphere) or from a person walking "
         "(skeleton), then sensor to world from an ArUco plate on the floor (marker); check a stored "
         "calibration against a new walk (check). Procedure: docs/calibration.md. Exit code 3: the calibration "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, add_json_option, add_output_option, print_json
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.recording.inputs import write_mcap
@@ -43,7 +44,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``convert``."""
     convert = commands.add_parser(
         "convert",
-        help="convert recordings of any supported format into one time-matched skelfuse MCAP",
+        help=COMMAND_HELP["convert"],
         description="Read one or more recordings (offline_processor JSON, azure-kinect-mkv-extractor CSV, "
         "andyj1 CSV, long CSV, .mkv through the SDK, or MCAP), match their frames in time (device clock, "
         "estimated offsets, or index where files hold no timestamps: the output says which) and write every "

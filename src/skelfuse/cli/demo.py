@@ -7,6 +7,7 @@ import sys
 
 from skelfuse.apps import demo
 from skelfuse.apps.demo import CONVERGE_S, DEMO_TAKE_S
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     EXIT_OK,
     OUTPUT_FILE,
@@ -63,7 +64,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     # demo -----------------------------------------------------------------------------------------
     demo = commands.add_parser(
         "demo",
-        help="a simulated 4-sensor rig fused live over zenoh and shown in Rerun (a .rrd where there is no screen)",
+        help=COMMAND_HELP["demo"],
         description="Start a simulated rig of four virtual Azure Kinects: four capture workers (subprocesses) "
         "publish over zenoh on loopback (peer mode, no router, no multicast), the fusion node fuses them live "
         "(it prints its rig name, its endpoint and how `skelfuse status`, `skelfuse stream` and other apps attach) "

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXISTING_DIR,
@@ -142,7 +143,7 @@ def _default_data_dir() -> Path:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``eval`` with its sub-commands."""
-    evaluate = commands.add_parser("eval", help="reproduce the paper's experiments / evaluate on real data")
+    evaluate = commands.add_parser("eval", help=COMMAND_HELP["eval"])
     eval_commands = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
 
     _add_paper(eval_commands)

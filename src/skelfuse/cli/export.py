@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXIT_OK,
@@ -225,7 +226,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``export``."""
     export = commands.add_parser(
         "export",
-        help="write fused skeletons as CSV/Parquet, C3D, OpenSim TRC, BVH or FBX (one file per person)",
+        help=COMMAND_HELP["export"],
         description="Read fused skeletons from a fused table (.csv/.parquet), a recording's fused stream, or a "
         "recording of sensor frames (fused on the way, with --config's poses and [fusion] or the recording's "
         "calibration), and write them for other tools: csv = the fused table (docs/export.md); c3d = one C3D "

@@ -9,6 +9,7 @@ import socket
 from pathlib import Path
 from typing import Any
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXIT_OK,
@@ -129,7 +130,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``router`` and ``certs``."""
     router = commands.add_parser(
         "router",
-        help="run the rig's zenoh router (several PCs: capture PCs, fusion node and apps connect to it)",
+        help=COMMAND_HELP["router"],
         description="Run zenoh's router from the Python package, with the rig's [zenoh] settings: listen "
         "endpoints ([zenoh] listen or --zenoh-listen; default tcp/[::]:7447), mutual TLS ([zenoh.tls], "
         "certificate 'router') and the access control generated from the rig ([zenoh] access_control = true). "
@@ -150,7 +151,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
     certs = commands.add_parser(
         "certs",
-        help="make the rig's certificate authority and one certificate per capture PC, fusion node, router, app",
+        help=COMMAND_HELP["certs"],
         description="Make (or reuse) the rig's CA in OUTPUT and issue one certificate per identity: router, "
         "fusion, capture-<host> for every capture PC of the rig ([[sensors]] host, default the sensor id) and "
         "app-<name> per --app. Point [zenoh.tls] directory at OUTPUT. See docs/multi-pc.md.",

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
@@ -227,7 +228,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     capture = commands.add_parser(
         "capture",
-        help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
+        help=COMMAND_HELP["capture"],
         description="Run the capture worker of one sensor of the rig: read its frames from its source (sim, "
         "replay or kinect, as its [[sensors]] source says; docs/service.md, docs/kinect.md) and publish them over "
         "zenoh. Retries with backoff when the zenoh session cannot open or the source fails; a kinect source "
@@ -298,7 +299,7 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
 def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     fuse = commands.add_parser(
         "fuse",
-        help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
+        help=COMMAND_HELP["fuse"],
         description="Live: subscribe to every sensor of the rig, group the frames of one instant (device or "
         "host time, [sync]), fuse them as soon as all sensors arrived or the deadline passed, and publish on "
         "skelfuse/<rig>/fused/skeletons; status every [node] status_period_s on skelfuse/<rig>/status/<node>; "
@@ -388,7 +389,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
 def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     record = commands.add_parser(
         "record",
-        help="record every raw sensor frame of the rig (and its fused stream) to an MCAP file",
+        help=COMMAND_HELP["record"],
         description="Subscribe to skelfuse/<rig>/sensors/*/skeletons (and, with [record] fused = true, the "
         "default, to skelfuse/<rig>/fused/skeletons) and write every payload with its timestamps to an MCAP "
         "file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
@@ -409,7 +410,7 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
 def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     replay = commands.add_parser(
         "replay",
-        help="republish a recording's sensor frames over zenoh (original or maximum speed)",
+        help=COMMAND_HELP["replay"],
         description="Publish the sensor frames of an MCAP recording on their recorded keys, byte for byte, "
         "paced by their recorded host time, so a session can be fused again live with other settings. Other "
         "formats (one file per sensor, or a long CSV) are matched in time and published on "
@@ -438,7 +439,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
 def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     status = commands.add_parser(
         "status",
-        help="print the status messages of the rig's nodes",
+        help=COMMAND_HELP["status"],
         description="Subscribe to skelfuse/<rig>/status/* and print one line per status message (rates, "
         "counts, latency), or the documents as JSON lines with --json.",
     )

@@ -7,6 +7,7 @@ import argparse
 import shutil
 import sys
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK
 from skelfuse.export.blender import (
     BPY_PYTHON,
@@ -49,9 +50,7 @@ def _cmd_setup_blender(args: argparse.Namespace) -> int:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``setup`` with its components."""
-    setup = commands.add_parser(
-        "setup", help="install an optional component on request (blender: what FBX export needs)"
-    )
+    setup = commands.add_parser("setup", help=COMMAND_HELP["setup"])
     components = setup.add_subparsers(dest="setup_command", metavar="COMPONENT", required=True)
     blender = components.add_parser(
         "blender",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import COUNT, EXIT_OK, POSITIVE, SEED, print_json
 
 
@@ -41,7 +42,7 @@ def _cmd_sim_check(args: argparse.Namespace) -> int:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add ``sim`` with its sub-commands."""
-    sim = commands.add_parser("sim", help="the simulator: how close it is to real recordings")
+    sim = commands.add_parser("sim", help=COMMAND_HELP["sim"])
     sim_commands = sim.add_subparsers(dest="sim_command", metavar="WHAT", required=True)
     check = sim_commands.add_parser(
         "check",

@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
@@ -104,7 +105,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add ``stream``."""
     stream = commands.add_parser(
         "stream",
-        help="stream daemon: re-send the fused skeletons live as OSC, VMC (UDP) or a Lab Streaming Layer stream",
+        help=COMMAND_HELP["stream"],
         description="Subscribe to skelfuse/<rig>/fused/skeletons and re-send every fused frame: osc = one OSC "
         "bundle per frame to [stream] host:osc_port (address scheme in docs/streaming.md); vmc = one VMC bundle per "
         "frame (one person's root and "
