@@ -58,9 +58,9 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, IndexType, Writer
 
-import skelfuse
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.version import __version__
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import PersonCloudsFrame, decode_person_clouds
 from skelfuse.wire.codec import (
@@ -233,12 +233,12 @@ class RecordingWriter:
         self.flushes = 0
 
         start_ns = time.time_ns()
-        self._writer.start(profile=PROFILE, library=f"skelfuse/{skelfuse.__version__}")
+        self._writer.start(profile=PROFILE, library=f"skelfuse/{__version__}")
         record = {str(k): v if isinstance(v, str) else json.dumps(v) for k, v in user.items()}
         record.update(
             {
                 "rig": self.rig,
-                "skelfuse_version": skelfuse.__version__,
+                "skelfuse_version": __version__,
                 "wire_version": f"{VERSION_MAJOR}.{VERSION_MINOR}",
                 "start_time_ns": str(start_ns),
                 "start_time_utc": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
