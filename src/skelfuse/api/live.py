@@ -254,7 +254,7 @@ def _rig_config(
 ) -> RigConfig:
     """The rig config to subscribe with: the given one (its name checked against ``rig``), or a bare one."""
     if config is not None:
-        cfg = config if isinstance(config, RigConfig) else load_rig_config(config)
+        cfg = config if isinstance(config, RigConfig) else load_rig_config(Path(config))
         if rig is not None and _rig_name(rig) != cfg.name:
             raise ConfigError(f"rig {rig!r} but {cfg.source} is rig {cfg.name!r}; give one of them")
         if any(f is not None for f in tls_files):

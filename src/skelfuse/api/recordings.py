@@ -108,7 +108,7 @@ def fuse_recording(
     DataError
         A missing or malformed file, or no calibration for every sensor (the message says where to get one).
     """
-    cfg = config if config is None or isinstance(config, RigConfig) else load_rig_config(config)
+    cfg = config if config is None or isinstance(config, RigConfig) else load_rig_config(Path(config))
     fps = cfg.sync.fps if cfg is not None else 30.0
     by = cfg.sync.by if cfg is not None else "device"
     source: Path | InputTake

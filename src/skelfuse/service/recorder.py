@@ -17,13 +17,14 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from skelfuse.config import RigConfig
-from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
+from skelfuse.recording import RecordedFrame, RecordingReader, RecordingWriter, replay_frames
 from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
@@ -207,20 +208,21 @@ def run_replay(
 
     if isinstance(path, InputTake):
         take = path
-        reader = take.records(rig or "replay")
+        reader: RecordingReader | Iterable[RecordedFrame] = take.records(rig or "replay")
         sensors = ", ".join(take.sensor_ids)
         rig = None  # the records' topics already name the rig
         path = Path(take.recordings[0].source)
     else:
-        reader = RecordingReader(path)
-        sensors = ", ".join(reader.sensors)
+        recording = RecordingReader(path)
+        sensors = ", ".join(recording.sensors)
+        reader = recording
     report = ReplayReport()
     with lifecycle.capture_signals():
         start = time.monotonic()
         session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay", deadline=limits.deadline(start))
         if session is None:
             return report
-        publishers: dict[str, object] = {}
+        publishers: dict[str, zenoh.Publisher] = {}
         try:
             log.info(
                 "replay: %s (%s) at %s",
@@ -235,7 +237,7 @@ def run_replay(
                 publisher = publishers.get(topic)
                 if publisher is None:
                     publisher = publishers[topic] = session.declare_publisher(topic, express=True)
-                publisher.put(record.payload)  # type: ignore[attr-defined]
+                publisher.put(record.payload)
                 report.frames_out += 1
                 report.topics.add(topic)
         finally:

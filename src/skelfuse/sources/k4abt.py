@@ -940,16 +940,16 @@ class Tracker:
                 raise TrackerFailedError(f"k4abt_frame_get_body_skeleton failed for body {index} of {n}")
             raw[index * N_JOINTS : (index + 1) * N_JOINTS] = np.frombuffer(bytes(skeleton), dtype=JOINT_DTYPE)
             ids[index] = lib.k4abt_frame_get_body_id(frame, index)
-        raw = raw.reshape(n, N_JOINTS)
-        confidence = raw["confidence"]
+        joints = raw.reshape(n, N_JOINTS)
+        confidence = joints["confidence"]
         confidence = np.where((confidence >= 0) & (confidence <= 3), confidence, 0).astype(np.uint8)
         system = self.library._system_timestamp
         return BodyFrameData(
             device_time_us=int(self.library._device_timestamp(frame)),
             system_time_ns=None if system is None else int(system(frame)),
             body_ids=ids,
-            positions=np.ascontiguousarray(raw["position"], dtype=np.float32),
-            orientations=np.ascontiguousarray(raw["orientation"], dtype=np.float32),
+            positions=np.ascontiguousarray(joints["position"], dtype=np.float32),
+            orientations=np.ascontiguousarray(joints["orientation"], dtype=np.float32),
             confidence=confidence,
         )
 
