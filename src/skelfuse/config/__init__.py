@@ -57,4 +57,3 @@ from skelfuse.config.model import (
 )
 from skelfuse.config.parse import load_rig_config, parse_rig_config
 from skelfuse.config.zenoh_session import zenoh_config
-
