@@ -421,30 +421,66 @@ def calibrate_from_skeletons(
         ]
         bar.update(note="half-take agreement")
 
-        ok = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
-        plate = None
-        if master_world_from_sensor is not None:
-            plate = np.asarray(master_world_from_sensor, dtype=np.float64)
-            make_transform(plate[:3, :3], plate[:3, 3])  # validates a proper rigid transform
-        try:
-            floor = fit_floor(pos, ok, poses, opts)
-        except CalibrationError:
-            if plate is None:
-                raise
-            floor = FloorFit(np.full(3, np.nan), np.full(3, np.nan), 0, float("nan"), float("nan"))
-        if plate is None:
-            world_from_master = floor_world_from_master(floor)
-            source = "floor"
-        else:
-            world_from_master = plate
-            source = "plate"
-            plate_up = plate[2, :3]  # world z expressed in the master frame (row 3 of R)
-            tilt = float(np.degrees(np.arccos(np.clip(plate_up @ floor.normal, -1, 1))))
-            floor = FloorFit(floor.normal, floor.point_mm, floor.n_points, floor.rms_mm, floor.spine_tilt_deg, tilt)
+        world_from_master, floor, source = _world_frame(pos, conf, poses, opts, master_world_from_sensor)
         bar.update(note="world frame")
     finally:
         bar.close()
 
+    quality = _sensor_qualities(pos, conf, ids, m, edges, residual, counts, halves, opts)
+    pairs = _pair_fits(edges, per_edge, ids)
+    return SkeletonCalibration(
+        sensor_ids=ids,
+        master=ids[m],
+        world_from_sensor={sensor_id: world_from_master @ poses[s] for s, sensor_id in enumerate(ids)},
+        master_from_sensor={sensor_id: poses[s] for s, sensor_id in enumerate(ids)},
+        quality=quality,
+        pairs=pairs,
+        floor=floor,
+        world_source=source,
+        n_frames=n_frames,
+    )
+
+
+def _world_frame(
+    pos: np.ndarray,
+    conf: np.ndarray,
+    poses: np.ndarray,
+    opts: SkeletonCalibrationOptions,
+    master_world_from_sensor: np.ndarray | None,
+) -> tuple[np.ndarray, FloorFit, str]:
+    """world_from_master from the plate when given (the floor fit then only reports its tilt), else from the
+    floor; with the floor fit and which of the two set the world ("plate" or "floor")."""
+    ok = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
+    plate = None
+    if master_world_from_sensor is not None:
+        plate = np.asarray(master_world_from_sensor, dtype=np.float64)
+        make_transform(plate[:3, :3], plate[:3, 3])  # validates a proper rigid transform
+    try:
+        floor = fit_floor(pos, ok, poses, opts)
+    except CalibrationError:
+        if plate is None:
+            raise
+        floor = FloorFit(np.full(3, np.nan), np.full(3, np.nan), 0, float("nan"), float("nan"))
+    if plate is None:
+        return floor_world_from_master(floor), floor, "floor"
+    plate_up = plate[2, :3]  # world z expressed in the master frame (row 3 of R)
+    tilt = float(np.degrees(np.arccos(np.clip(plate_up @ floor.normal, -1, 1))))
+    floor = FloorFit(floor.normal, floor.point_mm, floor.n_points, floor.rms_mm, floor.spine_tilt_deg, tilt)
+    return plate, floor, "plate"
+
+
+def _sensor_qualities(
+    pos: np.ndarray,
+    conf: np.ndarray,
+    ids: tuple[str, ...],
+    m: int,
+    edges: list[PairEdge],
+    residual: np.ndarray,
+    counts: np.ndarray,
+    halves: list[tuple[np.ndarray, np.ndarray]],
+    opts: SkeletonCalibrationOptions,
+) -> dict[str, SensorQuality]:
+    """Per sensor: residual, half-take agreement, pairing check and the verdict they give."""
     quality = {}
     ok_all = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
     for s, sensor_id in enumerate(ids):
@@ -466,7 +502,12 @@ def calibrate_from_skeletons(
             better_shift_frames=None if pairing is None else pairing.better_shift_frames,
             better_shift_rms_mm=None if pairing is None else pairing.better_shift_rms_mm,
         )
-    pairs = tuple(
+    return quality
+
+
+def _pair_fits(edges: list[PairEdge], per_edge: list[float], ids: tuple[str, ...]) -> tuple[PairFit, ...]:
+    """The report's record of each fitted sensor pair."""
+    return tuple(
         PairFit(
             sensor_a=ids[e.a],
             sensor_b=ids[e.b],
@@ -479,17 +520,6 @@ def calibrate_from_skeletons(
             mirrored_frames=e.mirrored_frames,
         )
         for e, r in zip(edges, per_edge, strict=True)
-    )
-    return SkeletonCalibration(
-        sensor_ids=ids,
-        master=ids[m],
-        world_from_sensor={sensor_id: world_from_master @ poses[s] for s, sensor_id in enumerate(ids)},
-        master_from_sensor={sensor_id: poses[s] for s, sensor_id in enumerate(ids)},
-        quality=quality,
-        pairs=pairs,
-        floor=floor,
-        world_source=source,
-        n_frames=n_frames,
     )
 
 

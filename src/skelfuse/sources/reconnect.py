@@ -93,17 +93,6 @@ def run_with_reconnect(
     report = ReconnectReport()
     delays = backoff.delays()
 
-    def pause(seconds: float) -> None:
-        if wait is not None:
-            wait(seconds)
-            return
-        deadline = time.monotonic() + seconds
-        while not should_exit():
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return
-            time.sleep(min(0.05, remaining))
-
     while not should_exit():
         source: SkeletonSource | None = None
         try:
@@ -124,18 +113,7 @@ def run_with_reconnect(
             raise
         except Exception as exc:
             delay = next(delays)
-            report.failures += 1
-            report.last_error = f"{type(exc).__name__}: {exc}"
-            report.delays.append(delay)
-            expected = isinstance(exc, SkelfuseError)
-            log.log(
-                logging.WARNING if expected else logging.ERROR,
-                "source %s failed (%s); reconnecting in %.1f s",
-                getattr(source, "sensor_id", "?"),
-                report.last_error,
-                delay,
-                exc_info=not expected,
-            )
+            _note_failure(exc, source, delay, report)
             if on_error is not None:
                 on_error(exc, delay)
         finally:
@@ -143,8 +121,37 @@ def run_with_reconnect(
                 source.close()
         if should_exit():
             break
-        pause(delay)
+        _pause(delay, wait, should_exit)
     return report
+
+
+def _pause(seconds: float, wait: Callable[[float], Any] | None, should_exit: Callable[[], bool]) -> None:
+    """Wait ``seconds`` before the next attempt (with ``wait`` when given), returning early on ``should_exit``."""
+    if wait is not None:
+        wait(seconds)
+        return
+    deadline = time.monotonic() + seconds
+    while not should_exit():
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return
+        time.sleep(min(0.05, remaining))
+
+
+def _note_failure(exc: Exception, source: SkeletonSource | None, delay: float, report: ReconnectReport) -> None:
+    """Count a failure and log it: a warning for a typed error, an error with its traceback for anything else."""
+    report.failures += 1
+    report.last_error = f"{type(exc).__name__}: {exc}"
+    report.delays.append(delay)
+    expected = isinstance(exc, SkelfuseError)
+    log.log(
+        logging.WARNING if expected else logging.ERROR,
+        "source %s failed (%s); reconnecting in %.1f s",
+        getattr(source, "sensor_id", "?"),
+        report.last_error,
+        delay,
+        exc_info=not expected,
+    )
 
 
 class WorkerFrameSource:
