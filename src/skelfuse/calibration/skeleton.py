@@ -588,41 +588,65 @@ def check_calibration(
     residual_fresh, _, _ = pair_residuals(edges, fresh, n_sensors)
     sensors, warnings = {}, []
     for s, sensor_id in enumerate(ids):
-        if counts[s]:
-            rot, trans = pose_difference(fresh[s], stored[s], sensor_points(edges, s))
-        else:
-            rot = trans = float("nan")
         ref = None if reference_residual_mm is None else reference_residual_mm.get(sensor_id)
-        reasons = []
-        if s != m and rot > max_rotation_deg:
-            reasons.append(f"rotated {rot:.1f}° (> {max_rotation_deg:g}°)")
-        if s != m and trans > max_translation_mm:
-            reasons.append(f"shifted {trans:.0f} mm at the subject (> {max_translation_mm:g} mm)")
-        if reasons:
-            warnings.append(f"sensor {sensor_id} looks moved: {'; '.join(reasons)}; recalibrate it")
-        if ref is not None and residual_stored[s] - ref > max_residual_growth_mm:
-            # Not by itself "moved": a residual is shared by both sensors of every pair, so one moved sensor
-            # raises its partners' residuals too. The correction says which one moved.
-            warnings.append(
-                f"sensor {sensor_id}: residual {residual_stored[s]:.0f} mm vs {ref:.0f} mm at calibration "
-                f"(+{max_residual_growth_mm:g} allowed): the rig or the tracking changed since"
-            )
-        if not counts[s]:
-            warnings.append(f"sensor {sensor_id}: no corresponding points in this take; it could not be checked")
-        sensors[sensor_id] = SensorCheck(
-            sensor_id=sensor_id,
-            residual_mm=float(residual_stored[s]),
-            refit_residual_mm=float(residual_fresh[s]),
-            reference_residual_mm=None if ref is None else float(ref),
-            correction_rotation_deg=float(rot),
-            correction_translation_mm=float(trans),
-            n_points=int(counts[s]),
-            moved=bool(reasons),
+        limits = (max_rotation_deg, max_translation_mm, max_residual_growth_mm)
+        sensors[sensor_id], notes = _check_sensor(
+            s, sensor_id, s == m, fresh, stored, edges, residual_stored, residual_fresh, counts, ref, limits
         )
+        warnings += notes
     flagged = [s for s in ids if sensors[s].moved and s != ids[m]]
     if n_sensors > 2 and len(flagged) == n_sensors - 1:
         warnings.append(f"every sensor moved relative to master {ids[m]}: the master itself has probably moved")
     return CalibrationCheck(master=ids[m], sensors=sensors, warnings=tuple(warnings))
+
+
+def _check_sensor(
+    s: int,
+    sensor_id: str,
+    is_master: bool,
+    fresh: np.ndarray,
+    stored: np.ndarray,
+    edges: list[PairEdge],
+    residual_stored: np.ndarray,
+    residual_fresh: np.ndarray,
+    counts: np.ndarray,
+    ref: float | None,
+    limits: tuple[float, float, float],
+) -> tuple[SensorCheck, list[str]]:
+    """One sensor's check against its stored pose: the correction a refit would make, and the warnings."""
+    max_rotation_deg, max_translation_mm, max_residual_growth_mm = limits
+    warnings = []
+    if counts[s]:
+        rot, trans = pose_difference(fresh[s], stored[s], sensor_points(edges, s))
+    else:
+        rot = trans = float("nan")
+    reasons = []
+    if not is_master and rot > max_rotation_deg:
+        reasons.append(f"rotated {rot:.1f}° (> {max_rotation_deg:g}°)")
+    if not is_master and trans > max_translation_mm:
+        reasons.append(f"shifted {trans:.0f} mm at the subject (> {max_translation_mm:g} mm)")
+    if reasons:
+        warnings.append(f"sensor {sensor_id} looks moved: {'; '.join(reasons)}; recalibrate it")
+    if ref is not None and residual_stored[s] - ref > max_residual_growth_mm:
+        # Not by itself "moved": a residual is shared by both sensors of every pair, so one moved sensor
+        # raises its partners' residuals too. The correction says which one moved.
+        warnings.append(
+            f"sensor {sensor_id}: residual {residual_stored[s]:.0f} mm vs {ref:.0f} mm at calibration "
+            f"(+{max_residual_growth_mm:g} allowed): the rig or the tracking changed since"
+        )
+    if not counts[s]:
+        warnings.append(f"sensor {sensor_id}: no corresponding points in this take; it could not be checked")
+    check = SensorCheck(
+        sensor_id=sensor_id,
+        residual_mm=float(residual_stored[s]),
+        refit_residual_mm=float(residual_fresh[s]),
+        reference_residual_mm=None if ref is None else float(ref),
+        correction_rotation_deg=float(rot),
+        correction_translation_mm=float(trans),
+        n_points=int(counts[s]),
+        moved=bool(reasons),
+    )
+    return check, warnings
 
 
 def _finite_or_none(value: float | None) -> float | None:

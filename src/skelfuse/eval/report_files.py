@@ -110,46 +110,58 @@ def write_csvs(result: PaperEvalResult, out_dir: Path) -> list[Path]:
                         "algorithm",
                     ]
                 )
-                for config in result.experiment_configs(exp):
-                    by = by_label(exp, config).strip("*")
-                    for gesture in gestures:
-                        s = result.joint_stats(exp, config, protocol, gesture)
-                        for k, name in enumerate(EVAL_JOINT_NAMES):
-                            jw.writerow(
-                                [
-                                    config,
-                                    gesture,
-                                    name,
-                                    csv_number(s.ae_mm[k]),
-                                    csv_number(s.rmse_mm[k]),
-                                    csv_number(s.std_mm[k]),
-                                    int(s.n_frames[k]),
-                                    int(s.n_missing[k]),
-                                    int(s.n_ref_missing[k]),
-                                    by,
-                                ]
-                            )
-                        gs = result.group_stats(exp, config, protocol, gesture)
-                        for g in GROUP_NAMES:
-                            paper = [
-                                result.paper_value(exp, config, m, g) if gesture == "all" else None
-                                for m in ("ae_mm", "std_mm")
-                            ]
-                            gw.writerow(
-                                [
-                                    config,
-                                    gesture,
-                                    g,
-                                    csv_number(gs[g]["ae_mm"]),
-                                    csv_number(gs[g]["rmse_mm"]),
-                                    csv_number(gs[g]["std_mm"]),
-                                    gs[g]["n_frames"],
-                                    gs[g]["n_missing"],
-                                    *("" if p is None else p for p in paper),
-                                    by,
-                                ]
-                            )
+                _write_experiment_rows(jw, gw, result, exp, protocol, gestures)
             paths += [jpath, gpath]
+    paths.append(_write_lag_csv(result, out_dir))
+    return paths
+
+
+def _write_experiment_rows(
+    jw: Any, gw: Any, result: PaperEvalResult, exp: str, protocol: str, gestures: list[str]
+) -> None:
+    """One experiment and protocol: a row per config, gesture and joint (``jw``), and per group (``gw``)."""
+    for config in result.experiment_configs(exp):
+        by = by_label(exp, config).strip("*")
+        for gesture in gestures:
+            s = result.joint_stats(exp, config, protocol, gesture)
+            for k, name in enumerate(EVAL_JOINT_NAMES):
+                jw.writerow(
+                    [
+                        config,
+                        gesture,
+                        name,
+                        csv_number(s.ae_mm[k]),
+                        csv_number(s.rmse_mm[k]),
+                        csv_number(s.std_mm[k]),
+                        int(s.n_frames[k]),
+                        int(s.n_missing[k]),
+                        int(s.n_ref_missing[k]),
+                        by,
+                    ]
+                )
+            gs = result.group_stats(exp, config, protocol, gesture)
+            for g in GROUP_NAMES:
+                paper = [
+                    result.paper_value(exp, config, m, g) if gesture == "all" else None for m in ("ae_mm", "std_mm")
+                ]
+                gw.writerow(
+                    [
+                        config,
+                        gesture,
+                        g,
+                        csv_number(gs[g]["ae_mm"]),
+                        csv_number(gs[g]["rmse_mm"]),
+                        csv_number(gs[g]["std_mm"]),
+                        gs[g]["n_frames"],
+                        gs[g]["n_missing"],
+                        *("" if p is None else p for p in paper),
+                        by,
+                    ]
+                )
+
+
+def _write_lag_csv(result: PaperEvalResult, out_dir: Path) -> Path:
+    """lag.csv: per output and group, lag (frames), its error and the jitter."""
     lag_path = out_dir / "lag.csv"
     with lag_path.open("w", newline="") as f:
         w = csv.writer(f)
@@ -170,8 +182,7 @@ def write_csvs(result: PaperEvalResult, out_dir: Path) -> list[Path]:
                 )
         for g, jitter in result.jitter.get("exact_truth", {}).items():
             w.writerow(["exact_truth", g, "", "", csv_number(jitter, 3), "truth"])
-    paths.append(lag_path)
-    return paths
+    return lag_path
 
 
 def csv_number(value: float, digits: int = 2) -> str:
