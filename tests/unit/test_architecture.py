@@ -37,8 +37,9 @@ LAZY_ALLOWED = {
     "cryptography",  # only `skelfuse certs` needs it
     "scipy",  # its optimize / signal / stats take most of a daemon's start-up to import; loaded where used
 }
-#: Our modules that exist to wrap an optional dependency (the dev extra's scikit-learn and filterpy).
-LAZY_OURS_ALLOWED = {"skelfuse.bench.reference"}
+#: Our modules a function may import lazily beyond the heavy ones (test_our_lazy_imports_are_heavy): none (a
+#: module that wraps an optional package imports the package in a function, as skelfuse.bench.reference does).
+LAZY_OURS_ALLOWED: set[str] = set()
 #: What makes one of our modules heavy enough to import lazily: loading one of these.
 HEAVY = ("scipy", "rerun", "cv2", "matplotlib", "numba", "skelfuse.sim", "skelfuse.eval", "skelfuse.bench")
 

@@ -216,7 +216,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``capture``, ``fuse``, ``record``, ``replay`` and ``status``."""
     _add_capture(commands)
     _add_fuse(commands)
@@ -225,7 +225,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_status(commands)
 
 
-def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_capture(commands: argparse._SubParsersAction) -> None:
     capture = commands.add_parser(
         "capture",
         help=COMMAND_HELP["capture"],
@@ -296,7 +296,7 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
     capture.set_defaults(func=_cmd_capture)
 
 
-def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_fuse(commands: argparse._SubParsersAction) -> None:
     fuse = commands.add_parser(
         "fuse",
         help=COMMAND_HELP["fuse"],
@@ -386,7 +386,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     fuse.set_defaults(func=_cmd_fuse)
 
 
-def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_record(commands: argparse._SubParsersAction) -> None:
     record = commands.add_parser(
         "record",
         help=COMMAND_HELP["record"],
@@ -407,7 +407,7 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
     record.set_defaults(func=_cmd_record)
 
 
-def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_replay(commands: argparse._SubParsersAction) -> None:
     replay = commands.add_parser(
         "replay",
         help=COMMAND_HELP["replay"],
@@ -436,7 +436,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
     replay.set_defaults(func=_cmd_replay)
 
 
-def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_status(commands: argparse._SubParsersAction) -> None:
     status = commands.add_parser(
         "status",
         help=COMMAND_HELP["status"],

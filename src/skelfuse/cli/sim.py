@@ -40,7 +40,7 @@ def _cmd_sim_check(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``sim`` with its sub-commands."""
     sim = commands.add_parser("sim", help=COMMAND_HELP["sim"])
     sim_commands = sim.add_subparsers(dest="sim_command", metavar="WHAT", required=True)

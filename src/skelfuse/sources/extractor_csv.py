@@ -244,7 +244,8 @@ def write_extractor_csv(recording: Recording, folder: str | Path) -> Path:
                 continue
             for b in present:
                 head = [str(int(times[t])), str(int(recording.body_ids[t, b]))]
-                pos_cells, ori_cells = [], []
+                pos_cells: list[str] = []
+                ori_cells: list[str] = []
                 for j in range(N_JOINTS):
                     pos_cells.append(str(int(recording.confidence[t, b, j])))
                     pos_cells.extend(f"{v:.6f}" for v in recording.positions[t, b, j])
