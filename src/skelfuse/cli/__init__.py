@@ -58,7 +58,7 @@ def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 def _in_listed_order(
     parser: argparse.ArgumentParser,
-    commands: argparse._SubParsersAction,  # type: ignore[type-arg]
+    commands: argparse._SubParsersAction,
 ) -> argparse.ArgumentParser:
     """Commands listed in :data:`COMMANDS`' order whichever were built first."""
     order = list(COMMANDS)

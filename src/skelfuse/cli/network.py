@@ -71,7 +71,7 @@ def is_own_endpoint(endpoint: str, listen: list[str]) -> bool:
     if port not in ports:
         return False
     try:
-        addresses = {info[4][0] for info in socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)}
+        addresses = {str(info[4][0]) for info in socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)}
     except OSError:
         return False  # a name this host cannot resolve is not this host
     for address in addresses:

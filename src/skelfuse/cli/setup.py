@@ -48,7 +48,7 @@ def _cmd_setup_blender(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``setup`` with its components."""
     setup = commands.add_parser("setup", help=COMMAND_HELP["setup"])
     components = setup.add_subparsers(dest="setup_command", metavar="COMPONENT", required=True)
