@@ -27,8 +27,9 @@ from skelfuse.service.depth_stage import (
     depth_stage_for,
 )
 from skelfuse.service.node import FusionCore
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.service.worker import SimSource
-from skelfuse.sim.depth import EXACT, sensor_person_clouds
+from skelfuse.sim.depth import EXACT
 from skelfuse.sim.depth_tracker import JOINT_RADIUS_MM, SimulatedDepthTracker
 from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.icp import IcpResult, refine_poses_from_walk
 from skelfuse.fusion.transform import invert_transform, transform_points
-from skelfuse.sim.depth import sensor_person_clouds
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.rig import paper_rig
 from skelfuse.wire.clouds import PersonCloudsFrame

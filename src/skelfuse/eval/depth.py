@@ -36,8 +36,8 @@ from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import EVAL_JOINTS, N_JOINTS
 from skelfuse.service.depth_stage import CloudBuffer, DepthStage, DepthTracker
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.sim import crowd
-from skelfuse.sim.depth import sensor_person_clouds
 from skelfuse.sim.depth_tracker import PriorEchoTracker, SimulatedDepthTracker
 from skelfuse.sim.observe import load_profile
 from skelfuse.sim.rig import VirtualSensor

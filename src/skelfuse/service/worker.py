@@ -66,8 +66,8 @@ from skelfuse.schema.errors import ConfigError, DataError, ServiceError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.service.zenoh_io import BACKOFF_FIRST_S, BACKOFF_MAX_S, close_session, open_session
-from skelfuse.sim.depth import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
