@@ -31,3 +31,27 @@ def test_bases_and_sweep_on_a_tiny_matrix() -> None:
     assert shares[0] == 0.0 < shares[1]
     assert set(sweep["break_even"]["2"]) == {"torso", "upper_limb", "lower_limb"}
     assert "Break-even" in mirroring.format_sweep(sweep) and "no_mirroring" in mirroring.format_bases(result)
+
+
+def test_the_cli_prints_the_sweep_with_its_break_even_table(capsys) -> None:
+    from skelfuse.cli import main
+
+    code = main(
+        [
+            "eval",
+            "robustness",
+            "--mirroring-sweep",
+            "--sensors",
+            "2",
+            "--seeds",
+            "2",
+            "--duration",
+            "1",
+            "--workers",
+            "1",
+            "-q",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "| 0.15 | 2 |" in out and "Break-even" in out and "| 2 |" in out.split("Break-even")[1]
