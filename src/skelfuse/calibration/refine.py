@@ -209,7 +209,10 @@ def refine(
     poses = np.asarray(poses, dtype=np.float64)
     whole, results = refine_poses_from_walk(frames, poses, reference=reference, passes=passes)
     folds = (frames[0::2], frames[1::2])
-    fitted = tuple(refine_poses_from_walk(fold, poses, reference=reference, passes=passes)[0] for fold in folds)
+    fitted = (
+        refine_poses_from_walk(folds[0], poses, reference=reference, passes=passes)[0],
+        refine_poses_from_walk(folds[1], poses, reference=reference, passes=passes)[0],
+    )
     n_sensors = poses.shape[0]
     before, after = np.full(n_sensors, np.nan), np.full(n_sensors, np.nan)
     for s in range(n_sensors):

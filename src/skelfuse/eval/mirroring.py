@@ -162,7 +162,7 @@ def run_sweep(
     ]
     t0 = time.perf_counter()
     takes = _run(tasks, workers, progress, "eval robustness --mirroring-sweep")
-    points = []
+    points: list[dict[str, Any]] = []
     for rate in flip_on:
         for n in sensors:
             rows = [t for t, task in zip(takes, tasks, strict=True) if task.base[0][1] == rate and task.n_sensors == n]
