@@ -24,7 +24,7 @@ from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 RIG = "lab"
 PORT = 7447

@@ -39,6 +39,8 @@ from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import FusedPublisher, free_port
 from skelfuse.wire import keys
 
+pytestmark = pytest.mark.live
+
 SUBSCRIBER = Path(__file__).with_name("stoppable_subscriber.py")
 SMALL_BUFFER = 2048  # bytes; Linux doubles it and keeps a floor of a few KB
 FRAME_BYTES = 17_400  # a fused frame of eight people (four: 8.7 KB, measured)

@@ -25,7 +25,7 @@ from skelfuse.service.zenoh_io import loopback_args
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_fused_frame
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 SENSORS = ("capture_0", "capture_1")
 DRAIN_S = 1.0

@@ -24,6 +24,8 @@ from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
+pytestmark = pytest.mark.live
+
 RIG = "flood"
 INSTANTS = 75
 STALL_AFTER = 20  # fused instants before the loop stalls for STALL_S

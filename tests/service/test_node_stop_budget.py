@@ -22,6 +22,8 @@ from skelfuse.service.worker import SimSource
 from skelfuse.service.zenoh_io import StopBudget, free_port, loopback_config
 from skelfuse.wire.codec import encode_sensor_frame
 
+pytestmark = pytest.mark.live
+
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 DRAIN_TIMEOUT_S = 2.0
 SLOW_S = 0.005

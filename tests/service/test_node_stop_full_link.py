@@ -32,6 +32,8 @@ from skelfuse.service.zenoh_io import SESSION_CLOSE_TIMEOUT_S, free_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
+pytestmark = pytest.mark.live
+
 SUBSCRIBER = Path(__file__).with_name("stoppable_subscriber.py")
 DRAIN_TIMEOUT_S = NodeOptions().drain_timeout_s
 MARGIN_S = 1.0

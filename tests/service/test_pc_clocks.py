@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from service_helpers import Processes, start_node, worker_args, write_rig
 
-pytestmark = [pytest.mark.service, pytest.mark.soak]  # five processes: ~30 s on a loaded machine
+pytestmark = [pytest.mark.live, pytest.mark.soak]  # five processes: ~30 s on a loaded machine
 
 SENSORS = ("capture_0", "capture_1", "capture_2", "capture_3")
 

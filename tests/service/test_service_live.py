@@ -25,7 +25,7 @@ from skelfuse.schema.frames import FusedFrame
 from skelfuse.wire import keys
 from skelfuse.wire.codec import decode_sensor_frame, encode_sensor_frame
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 SENSORS = ("capture_0", "capture_1", "capture_2", "capture_3")
 BIRTH_FRAMES = 3

@@ -13,6 +13,8 @@ from skelfuse.service.worker import camera_node, wait_for_subordinates
 from skelfuse.service.zenoh_io import free_port, loopback_config, wait_for_port
 from skelfuse.wire import keys
 
+pytestmark = pytest.mark.live
+
 zenoh = pytest.importorskip("zenoh")
 
 RIG = "order"

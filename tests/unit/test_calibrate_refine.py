@@ -66,6 +66,7 @@ def test_pose_errors_by_hand() -> None:
     assert centre_mm == pytest.approx([0.0, 50.0]) and CAPTURE_CENTRE_MM[2] == 1000.0
 
 
+@pytest.mark.live
 def test_the_recorder_writes_the_person_clouds_of_a_depth_rig(tmp_path: Path) -> None:
     import zenoh
 

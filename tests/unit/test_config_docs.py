@@ -131,6 +131,7 @@ def test_record_with_nothing_to_record_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("record_sensors", [True, False])
+@pytest.mark.live
 def test_record_sensors_decides_whether_sensor_frames_are_recorded(tmp_path: Path, record_sensors: bool) -> None:
     import zenoh
 

@@ -183,6 +183,7 @@ def test_bodies_join_the_nearest_previous_person_within_the_gate() -> None:
     assert associate_bodies(world, valid, np.zeros((0, 32, 3))).tolist() == [[-1, -1], [-1, -1]]
 
 
+@pytest.mark.live
 def test_the_node_subscribes_to_the_clouds_and_fuses_them_over_zenoh(tmp_path: Path) -> None:
     """A FusionNode in depth mode on a loopback zenoh session: clouds and skeletons published on their keys
     (clouds first, as the capture worker does) come out as the tracker's skeletons, and the rejects of a bad

@@ -200,6 +200,7 @@ def test_rows_mark_ours_and_average_lag_and_jitter_over_their_members() -> None:
     assert result.paper_value("n_sensors", "4", "ae_mm", "torso") == 39.6
 
 
+@pytest.mark.live
 def test_report_files_markdown_and_json(tmp_path) -> None:
     from skelfuse.eval.report import write_report
 

@@ -173,15 +173,16 @@ def test_trc_read_by_opensim(tmp_path: Path, fused_csv: Path, capsys) -> None:
         assert markers.getUnits().getAbbreviation() == "mm"
 
 
-def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path) -> None:
+@pytest.mark.parametrize("track", [3, 8], ids=["with-gap-row", "arriving-late"])
+def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path, track: int) -> None:
     """The layout OpenSim's documentation gives for .trc files, without OpenSim."""
     out = tmp_path / "p.trc"
-    export(str(fused_csv), "--format", "trc", "--person", "8", "--output", str(out), "--world-axes")
+    export(str(fused_csv), "--format", "trc", "--person", str(track), "--output", str(out), "--world-axes")
     lines = out.read_text(encoding="utf-8").split("\n")
     assert lines[0].split("\t") == ["PathFileType", "4", "(X/Y/Z)", "p.trc"]
     assert tuple(lines[1].split("\t")) == HEADER_KEYS
     values = dict(zip(HEADER_KEYS, lines[2].split("\t"), strict=True))
-    first, positions = expected_person(8)
+    first, positions = expected_person(track)
     assert float(values["DataRate"]) == float(values["CameraRate"]) == float(values["OrigDataRate"])
     assert int(values["NumFrames"]) == len(positions) and int(values["NumMarkers"]) == N_JOINTS
     assert values["Units"] == "mm" and values["OrigDataStartFrame"] == "1"
@@ -198,8 +199,16 @@ def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path) -> None:
         cells = row[2 : 2 + 3 * N_JOINTS]
         got = np.array([np.nan if c == "" else float(c) for c in cells]).reshape(N_JOINTS, 3)
         np.testing.assert_allclose(got, positions[k], atol=1e-4, equal_nan=True)  # --world-axes: z up as fused
-    gap_row = rows[DROPPED - first] if first <= DROPPED else None
-    assert gap_row is None  # track 8 starts after the dropped slot: no gap row in its file
+    if first > DROPPED:
+        assert track == 8  # it arrives after the dropped slot: no gap row in its file
+        return
+    # The dropped slot is a row of its own, with its frame number and time and no marker value.
+    gap_row = rows[DROPPED - first]
+    assert int(gap_row[0]) == DROPPED + 1 and float(gap_row[1]) == pytest.approx(DROPPED * STEP_US / 1e6, abs=1e-3)
+    assert gap_row[2 : 2 + 3 * N_JOINTS] == [""] * (3 * N_JOINTS)
+    nan_row = rows[NAN_JOINT[0] - first]  # one joint without an estimate: only its three cells are empty
+    empty = [k // 3 for k, cell in enumerate(nan_row[2 : 2 + 3 * N_JOINTS]) if cell == ""]
+    assert empty == [NAN_JOINT[1]] * 3
 
 
 def test_csv_export_from_a_fused_recording_and_a_sensor_recording(tmp_path: Path, capsys) -> None:

@@ -361,6 +361,7 @@ def test_describe_environment_says_what_is_missing(monkeypatch):
 
 
 @pytest.mark.parametrize("kind", ["device", "mkv"])
+@pytest.mark.live
 def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
     stack, fake_libs, monkeypatch, tmp_path, kind
 ):
@@ -430,6 +431,7 @@ def test_depth_mode_makes_each_bodys_cloud_from_the_trackers_body_index_map(
     assert stats.frames_alive == 0 and world.k4a.captures_alive() == captures_before  # nothing held or leaked
 
 
+@pytest.mark.live
 def test_eval_depth_groups_the_mkv_takes_of_several_sensors_into_instants(stack, fake_libs, monkeypatch, tmp_path):
     """skelfuse eval depth's reader: two sensors' takes replayed one after the other through the (fake) SDK,
     frames and clouds grouped by device time within the rig's tolerance (a subordinate 160 µs after its

@@ -150,6 +150,7 @@ def test_a_bad_fused_payload_is_refused_and_a_file_without_fused_channel_yields_
 
 
 @pytest.mark.parametrize("record_fused", [True, False], ids=["fused on", "fused off"])
+@pytest.mark.live
 def test_recorder_records_the_fused_key_as_configured_and_rejects_bad_payloads(
     tmp_path: Path, record_fused: bool
 ) -> None:

@@ -84,6 +84,7 @@ def _until_tracked(tracker, requests, *, timeout_s: float = 90.0) -> list:
         time.sleep(0.05)
 
 
+@pytest.mark.live
 def test_an_sdk_with_one_tracker_per_process_needs_and_gets_a_process_per_person(one_tracker_sdk, views) -> None:
     requests = [(11, views[0], None), (12, views[1], None)]
     here = K4abtDepthTracker(SETTINGS, wait_ms=WAIT_MS, processes="in_process")
@@ -108,6 +109,7 @@ def test_an_sdk_with_one_tracker_per_process_needs_and_gets_a_process_per_person
     assert not Path(f"/proc/{pids[12]}").exists()  # the worker is gone (and reaped) after close
 
 
+@pytest.mark.live
 def test_a_dead_or_hung_tracker_process_is_counted_restarted_and_never_stalls_the_node(
     one_tracker_sdk, views, monkeypatch
 ) -> None:

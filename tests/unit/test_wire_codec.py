@@ -627,6 +627,7 @@ def test_example_decoder_rejects_other_versions_and_kinds() -> None:
     assert line == "t=1.235s persons=1 | track 7: pelvis (250, -1200, 950) mm"
 
 
+@pytest.mark.live
 def test_example_subscriber_receives_over_zenoh(capsys: pytest.CaptureFixture[str]) -> None:
     """Two peers on loopback, multicast scouting off: the example prints what a publisher sends."""
     zenoh = pytest.importorskip("zenoh")
