@@ -44,6 +44,7 @@ def wait_for_subscriber(publisher: Any, what: str = "a subscriber", timeout_s: f
     """Waits until a zenoh ``publisher`` has a matching subscriber, so what it puts next is delivered."""
     wait_until(lambda: publisher.matching_status.matching, f"{what} to match {publisher.key_expr}", timeout_s)
 
+
 SCHEDULING_ALLOWANCE_S = 5.0
 """How late a starved machine may wake a thread. A bound on a timing the product promises is the configured
 value plus this, never more: the promise is checked, the machine's speed is not."""

@@ -133,7 +133,6 @@ starved as well (on an idle machine, with two batches, the starvation never fill
 
 def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp_path: Path) -> None:
     """Not read for 2 s: one put waits the bound, later ones drop at once; once it is read again, frames flow."""
-    pytest.importorskip("zenoh")
     received, report = run_subscriber(tmp_path, [], STOPPED_PUTS + 45, [(0.0, STOPPED_PUTS / 30.0)])
     assert report["congestion_control"] == "drop" and report["bound_ms"] == 250
     assert report["reached_bound"] >= 1, f"the stop never congested the link: {report}"
@@ -150,7 +149,6 @@ def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp
 
 def test_with_the_default_wait_a_starved_subscriber_loses_no_fused_frame(tmp_path: Path) -> None:
     """Stopped 200 ms of every 600 ms (starved of CPU): with the 250 ms bound it loses nothing."""
-    pytest.importorskip("zenoh")
     received, report = run_subscriber(tmp_path, [], STARVED_PUTS, STARVED, ONE_BATCH)
     assert report["bound_ms"] == 250 and report["reached_bound"] == 0, report
     assert report["held_over_10ms"] > 0, f"the starvation never filled the link: {report}"
@@ -161,7 +159,6 @@ def test_with_the_default_wait_a_starved_subscriber_loses_no_fused_frame(tmp_pat
 @pytest.mark.soak
 def test_with_zenohs_own_1ms_wait_the_same_starvation_loses_frames(tmp_path: Path) -> None:
     """What the bound is for: zenoh's default wait drops frames of a subscriber that is only starved."""
-    pytest.importorskip("zenoh")
     received, report = run_subscriber(tmp_path, ["wait_before_drop_ms = 1"], STARVED_PUTS, STARVED, ONE_BATCH)
     assert report["bound_ms"] == 1
     lost = STARVED_PUTS - len(set(received))

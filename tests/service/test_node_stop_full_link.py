@@ -50,7 +50,6 @@ def fused_publish(listener) -> dict:
 def test_sigterm_with_a_full_link_to_a_subscriber_stops_the_node_within_its_drain_timeout(
     tmp_path: Path, processes: Processes, run: int
 ) -> None:
-    pytest.importorskip("zenoh")
     assert SESSION_CLOSE_TIMEOUT_S < DRAIN_TIMEOUT_S
     port = free_port()
     config = write_rig(tmp_path)

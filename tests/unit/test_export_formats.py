@@ -11,6 +11,8 @@ import json
 import warnings
 from pathlib import Path
 
+import c3d
+import ezc3d
 import numpy as np
 import pytest
 
@@ -99,8 +101,6 @@ def test_tracks_on_the_grid() -> None:
 
 
 def test_c3d_read_back_by_ezc3d_and_by_c3d(tmp_path: Path, fused_csv: Path, capsys) -> None:
-    ezc3d = pytest.importorskip("ezc3d")
-    c3d = pytest.importorskip("c3d", reason="the independent pure-Python C3D reader (pip install c3d)")
     summary = export(str(fused_csv), "--format", "c3d", "--output", str(tmp_path / "out.c3d"), capsys=capsys)
     files = [Path(f) for f in summary["files"]]
     assert [f.name for f in files] == ["out_track3.c3d", "out_track8.c3d"]
@@ -138,13 +138,16 @@ def test_c3d_read_back_by_ezc3d_and_by_c3d(tmp_path: Path, fused_csv: Path, caps
         np.testing.assert_allclose(values[~gaps], positions[~gaps], rtol=0, atol=1e-3)
 
 
+OPENSIM_MISSING = "OpenSim's TRC reader: the optional extra `opensim` is not installed (pip install -e '.[opensim]')"
+
+
 def osim_table(path: Path):
-    osim = pytest.importorskip("opensim", reason="OpenSim's TRC reader (pip install opensim)")
+    osim = pytest.importorskip("opensim", reason=OPENSIM_MISSING)
     return osim, osim.TimeSeriesTableVec3(str(path))
 
 
 def test_trc_read_by_opensim(tmp_path: Path, fused_csv: Path, capsys) -> None:
-    pytest.importorskip("opensim", reason="OpenSim's TRC reader (pip install opensim)")
+    pytest.importorskip("opensim", reason=OPENSIM_MISSING)
     summary = export(str(fused_csv), "--format", "trc", "--output", str(tmp_path / "out.trc"), capsys=capsys)
     rate = summary["rate_hz"]  # from the timestamps: 1e6 / the median step
     assert rate == pytest.approx(1e6 / STEP_US, rel=1e-4)

@@ -187,13 +187,13 @@ def test_lsl_without_pylsl_says_how_to_get_it(monkeypatch: pytest.MonkeyPatch) -
 
 
 def test_lsl_outlet_seen_by_a_real_inlet() -> None:
-    pylsl = pytest.importorskip("pylsl", reason="LSL needs pylsl with its liblsl (pip install pylsl)")
+    import pylsl  # a dev dependency: its wheel bundles liblsl
+
     source_id = f"skelfuse-test-{time.monotonic_ns()}"
     outlet = lsl.LslOutlet(name="skelfuse-test", source_id=source_id, max_persons=2, rate_hz=30.0, rig="lab")
     try:
         streams = pylsl.resolve_byprop("source_id", source_id, timeout=10.0)
-        if not streams:
-            pytest.skip("LSL stream discovery does not work on this host (no loopback multicast/broadcast)")
+        assert streams, "a real inlet did not discover the outlet (LSL needs loopback multicast/broadcast)"
         inlet = pylsl.StreamInlet(streams[0])
         info = inlet.info(timeout=10.0)
         assert info.type() == "Mocap" and info.channel_count() == 2 * lsl.CHANNELS_PER_PERSON
@@ -268,7 +268,7 @@ class FlakySender:
 def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
     """In-process daemon on a real zenoh loopback session: garbage and a sensor frame on the fused key are
     rejected by reason, a sender error is counted, the good frames go through, request_exit stops it."""
-    zenoh = pytest.importorskip("zenoh")
+    import zenoh
     port = free_port()
     cfg = parse_rig_config({**RIG, "stream": {"drain_timeout_s": 0.5}})
     sender = FlakySender(fail_at={2000})
