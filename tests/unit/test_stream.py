@@ -31,6 +31,7 @@ from skelfuse.stream.osc import MAX_DATAGRAM_BYTES, OscSender, frame_bundles
 from skelfuse.stream.vmc import VMC_BONES, VmcSender, vmc_messages
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_fused_frame, encode_sensor_frame
+from waiting import wait_for_subscriber, wait_until
 
 
 def fused(persons: int = 2, time_us: int = 1_234_567_890_123, seed: int = 0) -> FusedFrame:
@@ -123,9 +124,7 @@ def test_a_python_osc_server_receives_what_the_sender_sends() -> None:
         frames = [fused(1, time_us=1000 + 33_333 * i, seed=i) for i in range(5)]  # one datagram each
         for frame in frames:
             sender.send(frame)
-        deadline = time.monotonic() + 5
-        while sum(a == "/skelfuse/frame" for a, _ in received) < 5 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: sum(a == "/skelfuse/frame" for a, _ in received) >= 5, "5 frames at the OSC server")
         sender.close()
     finally:
         server.shutdown()
@@ -207,12 +206,12 @@ def test_lsl_outlet_seen_by_a_real_inlet() -> None:
         assert info.desc().child("skelfuse").child_value("units") == "mm"
         inlet.open_stream(timeout=10.0)
         frame = fused(1)
-        sample = None
-        deadline = time.monotonic() + 10
-        while sample is None and time.monotonic() < deadline:
+
+        def pulled() -> list[float] | None:  # the inlet may join after the first sends: send until one arrives
             outlet.send(frame)
-            sample, _ = inlet.pull_sample(timeout=0.2)
-        assert sample is not None
+            return inlet.pull_sample(timeout=0.2)[0]
+
+        sample = wait_until(pulled, "a sample at the inlet")
         values = np.asarray(sample, np.float32).reshape(2, -1)
         assert values[0, 0] == 3 and values[1, 0] == -1
         xyz = values[0, 1:].reshape(N_JOINTS, len(lsl.PER_JOINT))[:, :3]
@@ -269,6 +268,7 @@ def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
     """In-process daemon on a real zenoh loopback session: garbage and a sensor frame on the fused key are
     rejected by reason, a sender error is counted, the good frames go through, request_exit stops it."""
     import zenoh
+
     port = free_port()
     cfg = parse_rig_config({**RIG, "stream": {"drain_timeout_s": 0.5}})
     sender = FlakySender(fail_at={2000})
@@ -289,15 +289,8 @@ def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
     thread.start()
     session = zenoh.open(loopback_config(connect_ports=[port]))
     try:
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            replies = session.liveliness().get(keys.alive("lab", "stream-test"), timeout=0.5)
-            if any(getattr(r, "ok", None) is not None for r in replies):
-                break
-        else:
-            pytest.fail("the daemon never declared its liveliness token")
-        time.sleep(0.3)
         publisher = session.declare_publisher(keys.fused_skeletons("lab"))
+        wait_for_subscriber(publisher, "the daemon's subscription")
         sensor_payload = encode_sensor_frame(
             SensorFrame(
                 "a",
@@ -318,9 +311,8 @@ def test_the_daemon_survives_bad_payloads_and_a_failing_sender() -> None:
             encode_fused_frame(fused(1, time_us=3000)),
         ):
             publisher.put(payload)
-        deadline = time.monotonic() + 10
-        while sender.sent != [1000, 3000] and time.monotonic() < deadline:
-            time.sleep(0.02)
+        # in order: once 3000 is through, the rejects and the failed send before it have been counted
+        wait_until(lambda: 3000 in sender.sent, "the last good frame to be sent", details=lambda: str(sender.sent))
     finally:
         lifecycle.request_exit()
         thread.join(10)
