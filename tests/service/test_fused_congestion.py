@@ -33,11 +33,13 @@ from typing import Any
 
 import pytest
 from stall_relay import StallRelay
+from stoppable_subscriber import END
 
 from skelfuse.config import parse_rig_config, zenoh_config
 from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import FusedPublisher, free_port
 from skelfuse.wire import keys
+from waiting import wait_for_subscriber, wait_until
 
 pytestmark = pytest.mark.live
 
@@ -90,7 +92,7 @@ def run_subscriber(
         )
         assert subscriber.stdout is not None and subscriber.stdout.readline().strip() == b"subscribed"
         subscriber.stdout.close()
-        time.sleep(1.0)  # its subscription reaches the publisher's session
+        wait_for_subscriber(publisher._publisher, "the stoppable subscriber")
         start = time.monotonic()
 
         def stop_and_continue() -> None:
@@ -109,9 +111,12 @@ def run_subscriber(
             publisher.put(k.to_bytes(8, "little") + bytes(FRAME_BYTES - 8))
         stopper.join(30)
         relay.resume()
-        time.sleep(1.0)  # it reads what waits for it
-        os.kill(subscriber.pid, signal.SIGTERM)
-        subscriber.wait(15)
+
+        def read_to_the_end() -> bool:  # the end marker, after every frame: put again until one gets through
+            publisher._publisher.put(END)  # not through FusedPublisher: its report counts the frames only
+            return subscriber.poll() is not None
+
+        wait_until(read_to_the_end, "the subscriber to read everything up to the end marker and exit")
         subscriber = None
         return json.loads(out.read_text()), publisher.report()
     finally:
