@@ -20,8 +20,15 @@ import subprocess
 from collections.abc import Callable, Iterator
 from typing import Any
 
-import pytest
-import zenoh
+# One thread per process in native libraries (OpenMP: scikit-learn's DBSCAN in the reference fuser; OpenBLAS),
+# set before any of them loads and inherited by the processes tests start. Their threads spin while they wait
+# for each other; on a busy machine, or beside a second xdist worker, that made a 4-point DBSCAN take 0.2 s
+# instead of 2 ms. Results do not depend on it. A value set in the environment wins.
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import pytest  # noqa: E402
+import zenoh  # noqa: E402
 
 pytest_plugins = ["pytester"]  # tests/unit/test_suite_rules.py runs these rules on small suites
 
