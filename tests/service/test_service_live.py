@@ -315,10 +315,13 @@ def test_grouping_with_constant_offsets_and_jitter(
         if by == "device":
             assert [f.time_us for f in fused] == expected_times
         else:  # on the rig's clock: each sensor's offset removed, the stamps' jitter smoothed (module docs)
-            # The reference is the sensors' median offset when the epoch began (latencies on a loaded machine
-            # included): within half a frame of the stamps, and one frame period apart.
+            # The reference is the sensors' median offset when the epoch began, this machine's latency then
+            # included (23 ms measured beside two CPU burners): so not the stamps' absolute value, but one
+            # offset from them for every instant (within half a frame), and one frame period apart. The offsets
+            # themselves are checked on injected arrival times in tests/unit/test_grouping.py.
             assert len(fused) == n_instants
-            assert max(abs(f.time_us - t) for f, t in zip(fused, expected_times, strict=True)) < 16_000
+            offsets = [f.time_us - t for f, t in zip(fused, expected_times, strict=True)]
+            assert max(offsets) - min(offsets) < 16_000, offsets
             steps = np.diff([f.time_us for f in fused])
             assert np.abs(steps[3:] - 33_333).max() <= 3_000
         assert all(f.n_persons == (i >= BIRTH_FRAMES - 1) for i, f in enumerate(fused))
