@@ -30,7 +30,7 @@ import tempfile
 import threading
 import time
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -89,7 +89,7 @@ class DemoSummary:
     preset: str
     n_sensors: int
     error_fused_mm: dict[str, float]
-    error_best_single_sensor_mm: dict[str, float]
+    error_best_single_sensor_mm: dict[str, Any]  # the groups' errors (mm) and "sensor": which one
     fusion_p50_ms: float
     fusion_p99_ms: float
     recording: str | None
@@ -268,7 +268,7 @@ def run_demo_offline(
         preset=preset_name,
         n_sensors=len(sensors),
         error_fused_mm=_group_errors(fused[scored], truth[scored]),
-        error_best_single_sensor_mm=single[best_sensor] | {"sensor": best_sensor},  # type: ignore[dict-item]
+        error_best_single_sensor_mm=single[best_sensor] | {"sensor": best_sensor},
         fusion_p50_ms=float(np.percentile(fusion_ns, 50)) / 1e6,
         fusion_p99_ms=float(np.percentile(fusion_ns, 99)) / 1e6,
         recording=str(rrd_path) if rrd_path is not None else None,
@@ -440,8 +440,8 @@ class _Scorer:
         self.start_n = origin_n  # the pass the scored run starts with (run_demo moves it when workers come late)
         self.track_birth_us: dict[int, int] = {}
         self.single: list[list[tuple[int, np.ndarray]]] = [[] for _ in sensor_ids]
-        self.first_fused = None
-        self.on_error = None
+        self.first_fused: float | None = None
+        self.on_error: Callable[[int, float], None] | None = None
 
     def instant(self, time_us: int) -> int:
         return round(time_us / self.period_us)
@@ -459,7 +459,7 @@ class _Scorer:
             world = apply_transform(self.poses[column : column + 1], frame.positions[:1])[0]
         with self.lock:
             self.published_ns[n] = max(self.published_ns.get(n, 0), frame.host_time_ns)
-            if world is not None:
+            if world is not None and column is not None:
                 self.single[column].append((n, world))
 
     def on_fused(self, sample: Any) -> None:
@@ -725,7 +725,7 @@ def run_demo(
         raise ServiceError("the demo stopped before the first fused frame; nothing to summarize")
     report = node.report
 
-    def pct(values: list[float], q: float) -> float | None:
+    def pct(values: Sequence[float], q: float) -> float | None:
         return float(np.percentile(values, q)) if values else None
 
     fusion_ms = report.fusion_ms
@@ -736,7 +736,7 @@ def run_demo(
         preset=preset_name,
         n_sensors=len(cfg.sensors),
         error_fused_mm=fused_errors,
-        error_best_single_sensor_mm=best | {"sensor": best_id},  # type: ignore[dict-item]
+        error_best_single_sensor_mm=best | {"sensor": best_id},
         fusion_p50_ms=float(np.percentile(fusion_ms, 50)),
         fusion_p99_ms=float(np.percentile(fusion_ms, 99)),
         recording=str(rrd_path) if rrd_path is not None and not spawn else None,

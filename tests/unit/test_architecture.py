@@ -32,8 +32,9 @@ LAZY_ALLOWED = {
     "pylsl",
     "cryptography",  # only `skelfuse certs` needs it
 }
-#: Our modules that exist to wrap an optional dependency (the dev extra's scikit-learn and filterpy).
-LAZY_OURS_ALLOWED = {"skelfuse.bench.reference"}
+#: Our modules a function may import lazily: none (a module that wraps an optional package imports the package
+#: in a function, as skelfuse.bench.reference does with the dev extra's scikit-learn and filterpy).
+LAZY_OURS_ALLOWED: set[str] = set()
 
 
 def _function_local_imports(path: Path) -> list[tuple[int, str]]:

@@ -26,7 +26,7 @@ from skelfuse.sim.depth import render_rig
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import facing_deg
 from skelfuse.sim.rig import paper_rig
-from skelfuse.sources import k4abt
+from skelfuse.sources import k4a_abi, k4abt
 from skelfuse.sources.depth_tracker import FRAME_PERIOD_US, VirtualCameraTracker
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings, load_k4a, virtual_calibration
 
@@ -106,7 +106,7 @@ def test_a_virtual_image_goes_through_the_tracker_and_its_skeleton_comes_back_to
         found = tracker.collect(timeout_ms=50)
         # popped and released: the capture and its images are gone, the buffers unpinned
         assert fake_k4a.captures_alive() == captures_before
-        assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4abt._PINNED
+        assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4a_abi._PINNED  # the pinned-buffer registry
     assert found is not None and found.device_time_us == FRAME_PERIOD_US and found.body_id == 1
     # What the fake computed from the image, recomputed here from the same image.
     depth = to_k4a_depth(view.image.depth_mm)

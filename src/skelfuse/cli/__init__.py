@@ -18,12 +18,12 @@ import threading
 import time
 from collections.abc import Sequence
 
-from skelfuse import __version__
 from skelfuse.cli import bench, calibrate, convert, demo, devices, evaluate, export, network, service, sim, stream
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
 from skelfuse.service.zenoh_io import sessions_left_behind
+from skelfuse.version import __version__
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_USAGE", "build_parser", "entrypoint", "main"]
 

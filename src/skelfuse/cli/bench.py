@@ -88,7 +88,7 @@ def _cmd_bench_depth(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``bench`` with its sub-commands."""
     bench = commands.add_parser("bench", help="measure speed")
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
@@ -99,7 +99,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_depth(bench_commands)
 
 
-def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:
     fusion = bench_commands.add_parser(
         "fusion",
         help="time per fused frame against a scikit-learn + filterpy reference on the same inputs",
@@ -123,7 +123,7 @@ def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     fusion.set_defaults(func=_cmd_bench_fusion)
 
 
-def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_people(bench_commands: argparse._SubParsersAction) -> None:
     people = bench_commands.add_parser(
         "people",
         help="time per frame of multi-person fusion (association + tracks + fusion) on a simulated crowd",
@@ -136,7 +136,7 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     people.set_defaults(func=_cmd_bench_people)
 
 
-def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_instant(bench_commands: argparse._SubParsersAction) -> None:
     instant = bench_commands.add_parser(
         "instant",
         help="time per instant of the whole per-instant path (group, associate, tracks, fuse, encode), "
@@ -184,7 +184,7 @@ def _sensors_by_people(text: str) -> tuple[int, int]:
     return int(parts[0]), int(parts[1])
 
 
-def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_latency(bench_commands: argparse._SubParsersAction) -> None:
     latency = bench_commands.add_parser(
         "latency",
         help="publish -> fused-receive latency over zenoh on loopback, the node's own latency, max sensors",
@@ -223,7 +223,7 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
     latency.set_defaults(func=_cmd_bench_latency)
 
 
-def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_depth(bench_commands: argparse._SubParsersAction) -> None:
     depth = bench_commands.add_parser(
         "depth",
         help="depth-level fusion: person-cloud bytes on the wire, capture and fusion time per person (simulated)",

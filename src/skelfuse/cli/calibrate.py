@@ -570,8 +570,8 @@ def _cmd_refine(args: argparse.Namespace) -> int:
         sid: SensorCalibration(
             result.after[s],
             "refine",
-            residual_mm=None if result.results[s] is None else float(result.results[s].rmse_after_mm),
-            n_points=None if result.results[s] is None else int(result.results[s].n_pairs),
+            residual_mm=None if (icp := result.results[s]) is None else float(icp.rmse_after_mm),
+            n_points=None if icp is None else int(icp.n_pairs),
             notes=f"ICP on {result.n_frames} instants of person clouds from {Path(args.recording).name}",
         )
         for s, sid in enumerate(ids)
@@ -641,7 +641,7 @@ def _add_take(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``calibrate`` with its sub-commands (capture, sphere, marker, skeleton, check) to ``commands``."""
     calibrate = commands.add_parser(
         "calibrate",
@@ -661,7 +661,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_refine(sub)
 
 
-def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_capture(sub: argparse._SubParsersAction) -> None:
     capture = sub.add_parser(
         "capture",
         help="grab colour (registered to depth) + depth frames from the rig's Azure Kinects into an RGB-D folder",
@@ -724,7 +724,7 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
     capture.set_defaults(func=_cmd_capture)
 
 
-def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_sphere(sub: argparse._SubParsersAction) -> None:
     sphere = sub.add_parser(
         "sphere",
         help="sensor-to-sensor calibration from a coloured ball carried through the space (paper 2.1.1)",
@@ -792,7 +792,7 @@ def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     sphere.set_defaults(func=_cmd_sphere)
 
 
-def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_marker(sub: argparse._SubParsersAction) -> None:
     marker = sub.add_parser(
         "marker",
         help="sensor-to-world calibration from a plate of 4 ArUco markers on the floor, seen by the master "
@@ -866,7 +866,7 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     marker.set_defaults(func=_cmd_marker)
 
 
-def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_skeleton(sub: argparse._SubParsersAction) -> None:
     skeleton = sub.add_parser(
         "skeleton",
         help="sensor-to-sensor (and floor) calibration from one person walking ~30 s through the shared space",
@@ -888,7 +888,7 @@ def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type
     skeleton.set_defaults(func=_cmd_skeleton)
 
 
-def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_check(sub: argparse._SubParsersAction) -> None:
     check = sub.add_parser(
         "check",
         help="has a sensor moved since calibration? compare the stored calibration with a new walk",
@@ -935,7 +935,7 @@ def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     check.set_defaults(func=_cmd_check)
 
 
-def _add_refine(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_refine(sub: argparse._SubParsersAction) -> None:
     refine_parser = sub.add_parser(
         "refine",
         help="refine every sensor's pose by ICP on the person clouds of one person walking through (depth mode)",

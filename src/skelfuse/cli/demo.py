@@ -12,6 +12,7 @@ from skelfuse.demo import CONVERGE_S, DEMO_TAKE_S
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    summary: demo.DemoSummary | None
     if args.offline:
         summary = demo.run_demo_offline(
             duration_s=args.duration,
@@ -46,7 +47,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``demo``."""
     # demo -----------------------------------------------------------------------------------------
     demo = commands.add_parser(

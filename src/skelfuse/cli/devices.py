@@ -20,7 +20,7 @@ def _cmd_devices(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``devices``."""
     # devices and calibration ------------------------------------------------------------------------
     devices = commands.add_parser(

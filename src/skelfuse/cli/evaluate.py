@@ -120,7 +120,7 @@ def _default_data_dir() -> Path:
     return Path.cwd().parent / "shared" / "data" / "azure-kinect-andyj1" / "saved_data_2_3dev"
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``eval`` with its sub-commands."""
     evaluate = commands.add_parser("eval", help="reproduce the paper's experiments / evaluate on real data")
     eval_commands = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
@@ -132,7 +132,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_robustness_parser(eval_commands)
 
 
-def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_paper(eval_commands: argparse._SubParsersAction) -> None:
     paper = eval_commands.add_parser(
         "paper",
         help="the paper's three experiments on simulated data with exact ground truth",
@@ -163,7 +163,7 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     paper.set_defaults(func=_cmd_eval_paper)
 
 
-def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_real(eval_commands: argparse._SubParsersAction) -> None:
     real = eval_commands.add_parser(
         "real",
         help="report on any real recording of 2+ sensors: jitter, lag, agreement, gross errors, leave-one-out",
@@ -201,7 +201,7 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
     real.set_defaults(func=_cmd_eval_real)
 
 
-def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:
     tracking = eval_commands.add_parser(
         "tracking",
         help="several people: association, stable ids and per-person accuracy on simulated crowds",
@@ -216,7 +216,7 @@ def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: i
     tracking.set_defaults(func=_cmd_eval_tracking)
 
 
-def _add_depth(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_depth(eval_commands: argparse._SubParsersAction) -> None:
     parser = eval_commands.add_parser(
         "depth",
         help="the depth-level fusion on recorded .mkv takes (needs the Body Tracking SDK): agreement with "

@@ -213,7 +213,7 @@ def _export_per_person(args: argparse.Namespace, frames: Iterator[FusedFrame]) -
     }
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``export``."""
     export = commands.add_parser(
         "export",

@@ -12,7 +12,10 @@ from collections.abc import Sequence
 
 from skelfuse.config import RigConfig
 from skelfuse.recording.inputs import CLOCK_MODES, InputTake, open_inputs, parse_time_offsets
-from skelfuse.sources.formats import FORMATS, InputSpec, detect_format
+from skelfuse.recording.inputs import (
+    single_recorded_mcap as single_recorded_mcap,  # its home; the commands import it here
+)
+from skelfuse.sources.formats import FORMATS
 from skelfuse.sources.recorded import ASSUME_CONFIDENCE
 
 INPUT_HELP = (
@@ -63,14 +66,6 @@ def add_input_options(parser: argparse.ArgumentParser, *, by: bool = True) -> No
             help="match frames by device time or recorded host time (MCAP) (default: the config's [sync] by, "
             "else device)",
         )
-
-
-def single_recorded_mcap(specs: Sequence[str]) -> bool:
-    """True when ``specs`` is one plain path to a skelfuse MCAP (no ``ID=``)."""
-    if len(specs) != 1:
-        return False
-    spec = InputSpec.parse(specs[0])
-    return spec.sensor_id is None and spec.path.is_file() and detect_format(spec.path) == "mcap"
 
 
 def open_take(

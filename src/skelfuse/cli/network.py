@@ -72,7 +72,7 @@ def _cmd_certs(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``router`` and ``certs``."""
     router = commands.add_parser(
         "router",

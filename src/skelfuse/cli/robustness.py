@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from skelfuse.cli.common import COUNT, EXIT_ATTENTION, EXIT_OK, POSITIVE, print_json
 from skelfuse.eval import robustness
 from skelfuse.progress import note
 
-QUICK = {"sensors": [3], "seeds": 2, "duration": 3.0}
+QUICK: dict[str, Any] = {"sensors": [3], "seeds": 2, "duration": 3.0}
 
 
 def _cmd_eval_robustness(args: argparse.Namespace) -> int:
@@ -48,7 +49,7 @@ def _cmd_eval_robustness(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:
     """Add ``eval robustness``."""
     parser = eval_commands.add_parser(
         "robustness",

@@ -204,7 +204,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``capture``, ``fuse``, ``record``, ``replay`` and ``status``."""
     _add_capture(commands)
     _add_fuse(commands)
@@ -213,7 +213,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_status(commands)
 
 
-def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_capture(commands: argparse._SubParsersAction) -> None:
     capture = commands.add_parser(
         "capture",
         help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
@@ -284,7 +284,7 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
     capture.set_defaults(func=_cmd_capture)
 
 
-def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_fuse(commands: argparse._SubParsersAction) -> None:
     fuse = commands.add_parser(
         "fuse",
         help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
@@ -371,7 +371,7 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     fuse.set_defaults(func=_cmd_fuse)
 
 
-def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_record(commands: argparse._SubParsersAction) -> None:
     record = commands.add_parser(
         "record",
         help="record every raw sensor frame of the rig (and its fused stream) to an MCAP file",
@@ -394,7 +394,7 @@ def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
     record.set_defaults(func=_cmd_record)
 
 
-def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_replay(commands: argparse._SubParsersAction) -> None:
     replay = commands.add_parser(
         "replay",
         help="republish a recording's sensor frames over zenoh (original or maximum speed)",
@@ -423,7 +423,7 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
     replay.set_defaults(func=_cmd_replay)
 
 
-def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_status(commands: argparse._SubParsersAction) -> None:
     status = commands.add_parser(
         "status",
         help="print the status messages of the rig's nodes",

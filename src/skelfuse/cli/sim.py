@@ -38,7 +38,7 @@ def _cmd_sim_check(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``sim`` with its sub-commands."""
     sim = commands.add_parser("sim", help="the simulator: how close it is to real recordings")
     sim_commands = sim.add_subparsers(dest="sim_command", metavar="WHAT", required=True)

@@ -99,7 +99,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``stream``."""
     stream = commands.add_parser(
         "stream",

@@ -328,6 +328,24 @@ def run_rig_eval(
                 quats, fused_by_preset[name], view_quats, views, ids
             )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
+    result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated]))
+    for label, seq in candidates.items():
+        others = [i for i, s in enumerate(ids) if label != f"view {s}"]
+        flags, _ = mirrored_frames(seq, views_s[others])
+        result.mirrored[label] = int(flags.sum())
+    if len(ids) >= 3:
+        result.leave_one_out.update(_leave_one_out(world, views, confidence, medium, evaluated, ids, presets, eps_mm))
+    if out_dir is not None:
+        result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
+    return result
+
+
+def _agreement_groups(
+    candidates: dict[str, np.ndarray], ids: Sequence[str], views: np.ndarray, medium_evaluated: np.ndarray
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per report group and candidate (each preset's fused person, each view): jitter, agreement with the other
+    views, lag, gross errors and dropouts."""
+    groups: dict[str, dict[str, dict[str, Any]]] = {}
     for group, joints in REPORT_GROUPS.items():
         rows: dict[str, dict[str, Any]] = {}
         for label, seq in candidates.items():
@@ -336,33 +354,41 @@ def run_rig_eval(
             rows[label] = {
                 "jitter": median_jitter(seq, joints),
                 "agreement": {
-                    ids[i]: median_distance(seq, views[:, i], joints, medium[evaluated][:, i]) for i in others
+                    ids[i]: median_distance(seq, views[:, i], joints, medium_evaluated[:, i]) for i in others
                 },
                 "lag": {ids[i]: velocity_lag(seq, views[:, i], joints) for i in others} if not is_view else {},
                 "gross": gross_share(seq, views[:, others], joints),
                 "dropouts": dropout_share(seq, views, joints) if not is_view else math.nan,
             }
-        result.groups[group] = rows
-    for label, seq in candidates.items():
-        others = [i for i, s in enumerate(ids) if label != f"view {s}"]
-        flags, _ = mirrored_frames(seq, views_s[others])
-        result.mirrored[label] = int(flags.sum())
-    if len(ids) >= 3:
-        conf_s = np.moveaxis(confidence, 1, 0)
-        for name in presets:
-            per_held: dict[str, dict[str, float]] = {}
-            for h, held in enumerate(ids):
-                rest = [i for i in range(len(ids)) if i != h]
-                fused = fuse_views(np.moveaxis(world[:, rest], 1, 0), conf_s[rest], name, eps_mm)[evaluated]
-                mask = medium[evaluated][:, h]
-                row = {"fused": median_distance(fused, views[:, h], np.arange(N_JOINTS), mask)}
-                for i in rest:
-                    row[f"view {ids[i]}"] = median_distance(views[:, i], views[:, h], np.arange(N_JOINTS), mask)
-                per_held[held] = row
-            result.leave_one_out[name] = per_held
-    if out_dir is not None:
-        result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
-    return result
+        groups[group] = rows
+    return groups
+
+
+def _leave_one_out(
+    world: np.ndarray,
+    views: np.ndarray,
+    confidence: np.ndarray,
+    medium: np.ndarray,
+    evaluated: Any,
+    ids: Sequence[str],
+    presets: Sequence[str],
+    eps_mm: float | None,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Per preset and held-out view: the fusion of the other views, and each other view, against the held one."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    conf_s = np.moveaxis(confidence, 1, 0)
+    for name in presets:
+        per_held: dict[str, dict[str, float]] = {}
+        for h, held in enumerate(ids):
+            rest = [i for i in range(len(ids)) if i != h]
+            fused = fuse_views(np.moveaxis(world[:, rest], 1, 0), conf_s[rest], name, eps_mm)[evaluated]
+            mask = medium[evaluated][:, h]
+            row = {"fused": median_distance(fused, views[:, h], np.arange(N_JOINTS), mask)}
+            for i in rest:
+                row[f"view {ids[i]}"] = median_distance(views[:, i], views[:, h], np.arange(N_JOINTS), mask)
+            per_held[held] = row
+        out[name] = per_held
+    return out
 
 
 def _orientation_agreement(

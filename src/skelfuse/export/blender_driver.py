@@ -15,6 +15,7 @@ Commands (``request["command"]``):
 
 import json
 import sys
+from typing import Any
 
 import bpy
 
@@ -63,7 +64,7 @@ def _sample(frames: list) -> dict:
     scene = bpy.context.scene
     keyed = _keyed_range(obj)
     first = round(keyed[0])  # the FBX importer offsets the keys (anim_offset); the file's frame 0 is the first key
-    heads = {bone.name: [] for bone in obj.pose.bones}
+    heads: dict[str, list[Any]] = {bone.name: [] for bone in obj.pose.bones}
     for index in frames:
         scene.frame_set(first + int(index))
         for bone in obj.pose.bones:

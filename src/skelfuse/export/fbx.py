@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.export.armature import FittedMotion, fit_frames, fit_motion
 from skelfuse.export.blender import run_blender
 from skelfuse.export.bvh import UNIT_MM, write_bvh_motion
+from skelfuse.retarget.armature import FittedMotion, fit_frames, fit_motion
 from skelfuse.schema.frames import FusedFrame
 
 _BVH_UNIT = "cm"

@@ -180,11 +180,11 @@ def _person(track_id: int, rows: list[tuple[int, FusedFrame, int]]) -> PersonTra
     if any(getattr(f, "orientations", None) is not None for _, f, _ in rows):
         orientations = np.full((t, N_JOINTS, 4), np.nan)
         for i, (_, f, p) in zip(at, rows, strict=True):
-            if getattr(f, "orientations", None) is not None:
-                orientations[i] = f.orientations[p]
+            if (quats := getattr(f, "orientations", None)) is not None:
+                orientations[i] = quats[p]
     if any(getattr(f, "position_std", None) is not None for _, f, _ in rows):
         position_std = np.full((t, N_JOINTS), np.nan)
         for i, (_, f, p) in zip(at, rows, strict=True):
-            if getattr(f, "position_std", None) is not None:
-                position_std[i] = f.position_std[p]
+            if (std := getattr(f, "position_std", None)) is not None:
+                position_std[i] = std[p]
     return PersonTrack(track_id, first, positions, n_agree, orientations, position_std)

@@ -88,7 +88,7 @@ def resolve_poses(
     if take is not None and take.poses:
         what = "--registered identity poses" if take.registered else "calibration metadata of the recording"
         sources.append((what, take.poses))
-    tried = []
+    tried: list[str] = []
     for name, poses in sources:
         missing = [s for s in sensor_ids if s not in poses]
         if not missing:
@@ -279,7 +279,7 @@ def replay_frames(
     *,
     speed: float | None = 1.0,
     clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
+    sleep: Callable[[float], object] = time.sleep,
 ) -> Iterator[tuple[float, RecordedFrame]]:
     """Yield recorded frames when they are due, paced by their log time (host clock).
 

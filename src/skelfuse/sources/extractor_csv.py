@@ -159,21 +159,7 @@ def load_extractor_csv(path: str | Path, *, sensor_id: str | None = None) -> Rec
 
     missing_orientations = 0
     if orientations_path is not None:
-        index = {(t, b[0]): b for t, bodies in frames.items() for b in bodies}
-        for line_no, row in _read_rows(orientations_path, "wxyz"):
-            if not row or all(not cell.strip() for cell in row):
-                continue
-            values = _numbers(orientations_path, line_no, row, width)
-            key = (int(values[0]), int(values[1]))
-            if key[1] == NO_BODY:
-                continue
-            target = index.get(key)
-            if target is None:
-                raise DataError(
-                    f"{orientations_path}:{line_no}: orientation of body {key[1]} at timestamp {key[0]} has no "
-                    f"row in {positions_path.name}; are the two files from the same export?"
-                )
-            target[2][:] = np.asarray(values[2:], dtype=np.float32).reshape(N_JOINTS, 4)
+        _read_orientations(orientations_path, positions_path, frames, width)
     for bodies in frames.values():
         missing_orientations += sum(int(np.isnan(b[2]).all()) for b in bodies)
 
@@ -196,6 +182,30 @@ def load_extractor_csv(path: str | Path, *, sensor_id: str | None = None) -> Rec
     )
 
 
+def _read_orientations(
+    orientations_path: Path,
+    positions_path: Path,
+    frames: dict[int, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]],
+    width: int,
+) -> None:
+    """Fill the quaternions of the bodies read from the positions file from the orientations file (in place)."""
+    index = {(t, b[0]): b for t, bodies in frames.items() for b in bodies}
+    for line_no, row in _read_rows(orientations_path, "wxyz"):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        values = _numbers(orientations_path, line_no, row, width)
+        key = (int(values[0]), int(values[1]))
+        if key[1] == NO_BODY:
+            continue
+        target = index.get(key)
+        if target is None:
+            raise DataError(
+                f"{orientations_path}:{line_no}: orientation of body {key[1]} at timestamp {key[0]} has no "
+                f"row in {positions_path.name}; are the two files from the same export?"
+            )
+        target[2][:] = np.asarray(values[2:], dtype=np.float32).reshape(N_JOINTS, 4)
+
+
 def write_extractor_csv(recording: Recording, folder: str | Path) -> Path:
     """Write ``recording`` as the tool would: ``folder/positions_3d.csv`` and ``folder/orientations_3d.csv``.
 
@@ -216,7 +226,8 @@ def write_extractor_csv(recording: Recording, folder: str | Path) -> Path:
                 continue
             for b in present:
                 head = [str(int(times[t])), str(int(recording.body_ids[t, b]))]
-                pos_cells, ori_cells = [], []
+                pos_cells: list[str] = []
+                ori_cells: list[str] = []
                 for j in range(N_JOINTS):
                     pos_cells.append(str(int(recording.confidence[t, b, j])))
                     pos_cells.extend(f"{v:.6f}" for v in recording.positions[t, b, j])
