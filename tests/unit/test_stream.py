@@ -16,9 +16,9 @@ import pytest
 from pythonosc.dispatcher import Dispatcher
 from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_server import BlockingOSCUDPServer
-from skelfuse.export.armature import build_armature
 
 from skelfuse.config import StreamConfig, parse_rig_config
+from skelfuse.retarget.armature import build_armature
 from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
