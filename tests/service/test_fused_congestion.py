@@ -35,8 +35,8 @@ import pytest
 from stall_relay import StallRelay
 from stoppable_subscriber import END
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.config import parse_rig_config, zenoh_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import FusedPublisher, free_port
 from skelfuse.wire import keys
 from waiting import wait_for_subscriber, wait_until

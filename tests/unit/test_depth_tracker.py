@@ -161,8 +161,8 @@ def test_the_nodes_depth_stage_runs_the_sdk_adapter_one_tracker_per_person(echo,
     node finds the SDK: SKELFUSE_K4A_LIBRARY / SKELFUSE_K4ABT_LIBRARY), says so, creates one tracker per track
     id, and outputs what the tracker found mapped back to the world (the echo body's joint 0: the centroid of
     the virtual depth image, on the person); everything is released when the stage closes."""
+    from skelfuse.apps.demo import sim_sensor_tables
     from skelfuse.config import load_rig_config
-    from skelfuse.demo import sim_sensor_tables
     from skelfuse.service.depth_stage import depth_stage_for
     from skelfuse.service.node import FusionCore
     from skelfuse.service.worker import SimSource

@@ -52,6 +52,7 @@ from skelfuse.calibration.skeleton import calibrate_from_skeletons
 from skelfuse.calibration.takes import take_arrays
 from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
+from skelfuse.fusion import presets
 from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform
@@ -72,7 +73,7 @@ REPORT_GROUPS: dict[str, np.ndarray] = {
 }
 """The report's joint groups, unions of the body regions (schema): every joint in exactly one."""
 
-DEFAULT_PRESETS = ("skelfuse", "A5", "A1")
+DEFAULT_PRESETS = presets.COMPARED_PRESETS
 GROSS_MM = 100.0
 MAX_LAG_FRAMES = 10
 TRACE_JOINT = "WRIST_RIGHT"

@@ -60,7 +60,6 @@ from skelfuse.retarget.rotations import (
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PARENTS, J
-from skelfuse.sim.gestures import rest_offsets as sim_rest_offsets
 
 REST_FORWARD = np.array([0.0, -1.0, 0.0])
 """The direction the rest pose faces, world axes."""
@@ -341,6 +340,8 @@ def resample(
 
 def _default_offsets() -> np.ndarray:
     """Offsets of the simulator's 1750 mm body, turned into the rest axes (for bones the data never showed)."""
+    from skelfuse.sim.gestures import rest_offsets as sim_rest_offsets  # the simulator's scipy: only when used
+
     sim = sim_rest_offsets(1750.0)  # body frame: x forward, y left, z up
     return sim[:, 0:1] * REST_FORWARD + sim[:, 1:2] * REST_LEFT + sim[:, 2:3] * REST_UP
 

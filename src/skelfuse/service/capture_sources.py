@@ -28,23 +28,21 @@ from skelfuse.schema.errors import ConfigError, DataError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
 from skelfuse.service.lifecycle import RunLimits
-from skelfuse.sim.depth import sensor_person_clouds
-from skelfuse.sim.gestures import make_gesture
-from skelfuse.sim.observe import load_profile, simulate
-from skelfuse.sim.orientation import observe_orientations, truth_orientations
-from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.formats import detect_format
 from skelfuse.sources.kinect import KinectSource
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import PersonCloudsFrame
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
+    from skelfuse.sim.rig import VirtualSensor
+
     pass
 
 log = logging.getLogger("skelfuse.service.worker")  # one logger for the worker and its sources
 
 DEFAULT_GESTURE = "walking"
-DEFAULT_TAKE_S = 20.0
+DEFAULT_TAKE_S = 10.0
+"""A simulated take's length before it loops (`capture --take-duration`, `demo --take-duration`)."""
 DEFAULT_STALL_TIMEOUT_S = 10.0
 """The watchdog's default (``WorkerOptions.stall_timeout_s``; the config parser has its own copy)."""
 DEFAULT_OPEN_TIMEOUT_S = 120.0
@@ -119,6 +117,9 @@ def simulate_rig(
     cfg: RigConfig, *, gesture: str, take_duration_s: float, seed: int, observation_seed: int | None = None
 ) -> Any:
     """Simulate the rig's sim sensors (:func:`sim_rig_order`) for one take: ``skelfuse.sim`` Observations."""
+    from skelfuse.sim.gestures import make_gesture  # the simulator: imported by the sources that simulate
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.rig import VirtualSensor
 
     sensors = sim_rig_order(cfg)
     if not sensors:
@@ -177,6 +178,8 @@ class SimSource:
         clock_ns: Any = time.time_ns,
         take_origin_ns: int = 0,
     ) -> None:
+        from skelfuse.sim.orientation import observe_orientations, truth_orientations
+
         sensor = cfg.sensor(sensor_id)
         if sensor.source != "sim":
             raise ConfigError(f"{cfg.source}: sensor {sensor_id!r} has source {sensor.source!r}, not 'sim'")
@@ -230,6 +233,8 @@ class SimSource:
         )
 
     def _render_clouds(self, f: int) -> dict[int, np.ndarray]:
+        from skelfuse.sim.depth import sensor_person_clouds
+
         if f not in self._clouds:
             rng = np.random.default_rng([self.seed, self.column, f])
             self._clouds[f] = sensor_person_clouds(
@@ -244,6 +249,8 @@ class SimSource:
     @property
     def depth_sensor(self) -> VirtualSensor:
         """This sensor's true pose, as the simulation observes from it."""
+        from skelfuse.sim.rig import VirtualSensor
+
         return VirtualSensor(self.sensor_id, self.observations.world_from_sensor[self.column])
 
     def host_time_ns(self) -> int:

@@ -21,12 +21,11 @@ from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
 from skelfuse.schema.frames import FusedFrame
-from skelfuse.service.depth_stage import DepthStage
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_sensor_frame, encode_fused_frame
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
-    pass
+    from skelfuse.service.depth_stage import DepthStage
 
 log = logging.getLogger("skelfuse.service.node")  # one logger for the node and its core
 

@@ -43,7 +43,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
-from skelfuse.service.depth_stage import depth_stage_for
 from skelfuse.service.fusion_core import (
     BAD_KEY,
     FUSION_ERROR,
@@ -77,6 +76,8 @@ from skelfuse.wire.codec import NodeStatus, encode_status
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import zenoh
+
+    from skelfuse.service.depth_stage import DepthStage
 
 log = logging.getLogger("skelfuse.service.node")
 
@@ -211,7 +212,7 @@ class FusionNode:
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
-        self.depth = depth_stage_for(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
+        self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
@@ -560,6 +561,16 @@ class FusionNode:
             status_pub.put(encode_status(status))
         except ValueError:
             log.exception("fusion node %s: status could not be encoded", self.name)
+
+
+def _depth_stage(cfg: RigConfig) -> DepthStage | None:
+    """The depth stage of a depth or hybrid rig; its module (scipy's spatial and ndimage) is imported only
+    there, so a skeleton rig's node opens its session sooner."""
+    if cfg.fusion.mode == "skeleton":
+        return None
+    from skelfuse.service.depth_stage import depth_stage_for
+
+    return depth_stage_for(cfg)
 
 
 def run_fusion_node(
