@@ -194,6 +194,7 @@ def _child_record(path: str) -> None:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL")
+@pytest.mark.live
 def test_kill_9_leaves_a_readable_file_up_to_the_last_flush(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     code = (
