@@ -22,7 +22,11 @@ Stages (each a pure function of its own module, so it can be tested and timed al
 5. Optional (``params.orientations``): :func:`skelfuse.fusion.orientation.fuse_orientations` on the filtered
    positions and the views' world quaternions (``fuse(..., orientations=)``); views the realignment flipped
    (any pair, for "paper") and views whose candidate was not merged into the joint are left out.
-6. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
+6. Optional (``params.plausibility_gate_mm``, between 2 and 3): :mod:`skelfuse.fusion.plausibility` holds out
+   the views whose body cannot be the tracked person (a teleport away from the track's prediction, upside
+   down, another body size) and single joints far beyond their prediction; when every view has failed for a
+   while the body's filter restarts at the views.
+7. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
    uncertainty from the merged cluster's spread and a covariance recursion. Neither changes the positions.
 
 Quality fields: ``n_agree`` and ``confidence`` describe this frame's measurement, so a coasted (predicted
@@ -40,6 +44,14 @@ import numpy as np
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
+from skelfuse.fusion.plausibility import (
+    PlausibilityParams,
+    PlausibilityResult,
+    PlausibilityState,
+    init_plausibility_state,
+    learn_bones,
+    plausibility_step,
+)
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step
@@ -62,6 +74,11 @@ class FusionResult:
         unless ``params.orientations``.
     position_std : (B, J) float64, mm, one-sigma position uncertainty per axis, NaN = no estimate; None unless
         ``params.position_std``.
+    held_out : (B, S) uint8, why each view was held out of the merge
+        (:data:`skelfuse.fusion.plausibility.HOLD_REASONS`, ``reason - 1``; 0 = used or absent); None unless
+        ``params.plausibility_gate_mm``.
+    merged : (B, J, 3) float64, mm, the merge's output before the temporal filter (NaN = no measurement): what
+        an offline smoother takes as its measurements.
     """
 
     positions: np.ndarray
@@ -70,6 +87,8 @@ class FusionResult:
     contributors: np.ndarray
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
+    held_out: np.ndarray | None = None
+    merged: np.ndarray | None = None
 
 
 @dataclass
@@ -89,6 +108,11 @@ class FusionState:
     orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
     angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
     position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
+    view_held, view_release : (B, S) uint8 / int32 or None, the plausibility stage's hold-out reason and release
+        streak per view (None reads as nothing held).
+    follow_streak : (B,) int32 or None, frames in a row every view failed the plausibility checks.
+    bone_lengths : (B, NB) float64 or None, mm, the person's learned bone lengths (0 or NaN: not learned).
+    bone_frames : (B,) int32 or None, frames the bone lengths were learned from.
     """
 
     previous: np.ndarray
@@ -99,6 +123,11 @@ class FusionState:
     orientation: np.ndarray | None = None
     angular_velocity: np.ndarray | None = None
     position_cov: np.ndarray | None = None
+    view_held: np.ndarray | None = None
+    view_release: np.ndarray | None = None
+    follow_streak: np.ndarray | None = None
+    bone_lengths: np.ndarray | None = None
+    bone_frames: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -213,11 +242,21 @@ def fuse(
     positions, conf, reference, streak, flipped = _realign(
         positions, conf, params, previous, state.flip_counters, dt_s, sensor_positions
     )
+    held_out = plausibility = None
+    state_coast = state.coast
+    if params.plausibility_gate_mm is not None:
+        verdict, plausibility = _plausibility(positions, conf, state, params, dt_s)
+        positions, conf, held_out = verdict.positions, verdict.confidence, verdict.held
+        if verdict.restart.any():  # the track follows the views: its filter and trick 2 start over there
+            state_coast = np.where(verdict.restart[:, None], -1, state.coast)
+            previous = np.where(verdict.restart[:, None, None], np.nan, previous)
     merged = _merge(positions, conf, reference, previous, params)
+    if plausibility is not None:
+        plausibility = learn_bones(plausibility, merged.positions, merged.n_agree)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
         state.P.reshape(B * J, 3),
-        state.coast.reshape(B * J),
+        state_coast.reshape(B * J),
         merged.positions.reshape(B * J, 3),
         merged.n_agree.reshape(B * J),
         params,
@@ -234,7 +273,7 @@ def fuse(
         r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
         previous_cov = state.position_cov if state.position_cov is not None else np.zeros((B, J, 3))
         std, position_cov = uncertainty_step(
-            previous_cov.reshape(B * J, 3), state.coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+            previous_cov.reshape(B * J, 3), state_coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
         )
         std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
         position_cov = position_cov.reshape(B, J, 3)
@@ -245,6 +284,8 @@ def fuse(
         contributors=merged.members.any(axis=1),
         orientations=orientation_out,
         position_std=std,
+        held_out=held_out,
+        merged=merged.positions,
     )
     new_state = FusionState(
         previous=merged.positions,
@@ -255,8 +296,53 @@ def fuse(
         orientation=orientation_state,
         angular_velocity=angular_velocity,
         position_cov=position_cov,
+        **_plausibility_fields(plausibility),
     )
     return result, new_state
+
+
+def _plausibility(
+    positions: np.ndarray, conf: np.ndarray, state: FusionState, params: FusionParams, dt_s: float
+) -> tuple[PlausibilityResult, PlausibilityState]:
+    """The plausibility stage on the realigned candidates, against the track's one-step prediction."""
+    B, S = positions.shape[:2]
+    x = state.x
+    predicted = np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)  # x + v dt
+    if state.view_held is None or state.view_held.shape != (B, S):
+        previous = init_plausibility_state(B, S)
+    else:
+        previous = PlausibilityState(
+            held=state.view_held,
+            release=state.view_release,
+            follow=state.follow_streak,
+            bones=state.bone_lengths,
+            bone_frames=state.bone_frames,
+        )
+    return plausibility_step(positions, conf, predicted, previous, _plausibility_params(params), dt_s)
+
+
+def _plausibility_params(params: FusionParams) -> PlausibilityParams:
+    return PlausibilityParams(
+        gate_mm=float(params.plausibility_gate_mm or 0.0),
+        up_cos=params.plausibility_up_cos,
+        bone_ratio=params.plausibility_bone_ratio,
+        joint_speed_mm_s=params.plausibility_joint_speed_mm_s,
+        release_frames=params.plausibility_release_frames,
+        follow_frames=params.plausibility_follow_frames,
+    )
+
+
+def _plausibility_fields(state: PlausibilityState | None) -> dict[str, np.ndarray | None]:
+    """The FusionState fields of the plausibility stage (all None when it is off)."""
+    if state is None:
+        return {}
+    return {
+        "view_held": state.held,
+        "view_release": state.release,
+        "follow_streak": state.follow,
+        "bone_lengths": state.bones,
+        "bone_frames": state.bone_frames,
+    }
 
 
 def _orientations(
