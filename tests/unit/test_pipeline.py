@@ -69,7 +69,7 @@ def test_fuse_equals_reference_implementation(params):
     "params",
     [
         # The loop reference has no plausibility stage (tests/unit/test_plausibility.py checks that one).
-    pytest.param(replace(preset("skelfuse"), plausibility_gate_mm=None), id="skelfuse"),
+        pytest.param(replace(preset("skelfuse"), plausibility_gate_mm=None), id="skelfuse"),
         pytest.param(
             replace(preset("A5"), realign="temporal", recovery_frames=2, recovery_share=0.6), id="A5-temporal"
         ),

@@ -45,6 +45,7 @@ from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
 from skelfuse.fusion.plausibility import (
+    TORSO_JOINTS,
     PlausibilityParams,
     PlausibilityResult,
     PlausibilityState,
@@ -54,7 +55,7 @@ from skelfuse.fusion.plausibility import (
 )
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step
+from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step, view_agreement
 from skelfuse.schema.skeleton import N_JOINTS
 
 _ONES3 = np.ones(3)
@@ -77,6 +78,9 @@ class FusionResult:
     held_out : (B, S) uint8, why each view was held out of the merge
         (:data:`skelfuse.fusion.plausibility.HOLD_REASONS`, ``reason - 1``; 0 = used or absent); None unless
         ``params.plausibility_gate_mm``.
+    agreement_mm : (B,) float64, mm, how far the views used lie from the fused torso
+        (:func:`skelfuse.fusion.uncertainty.view_agreement`; NaN: fewer than two views); None unless
+        ``params.position_std``.
     merged : (B, J, 3) float64, mm, the merge's output before the temporal filter (NaN = no measurement): what
         an offline smoother takes as its measurements.
     """
@@ -88,6 +92,7 @@ class FusionResult:
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
     held_out: np.ndarray | None = None
+    agreement_mm: np.ndarray | None = None
     merged: np.ndarray | None = None
 
 
@@ -268,8 +273,9 @@ def fuse(
         orientation_out, orientation_state, angular_velocity = _orientations(
             fused, orientations, flipped, merged, state, params, dt_s
         )
-    std = position_cov = None
+    std = position_cov = agreement = None
     if params.position_std:
+        agreement = view_agreement(positions, merged.positions, TORSO_JOINTS)
         r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
         previous_cov = state.position_cov if state.position_cov is not None else np.zeros((B, J, 3))
         std, position_cov = uncertainty_step(
@@ -285,6 +291,7 @@ def fuse(
         orientations=orientation_out,
         position_std=std,
         held_out=held_out,
+        agreement_mm=agreement,
         merged=merged.positions,
     )
     new_state = FusionState(

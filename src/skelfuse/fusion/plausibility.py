@@ -19,8 +19,8 @@ track already knows, and holds out the views that fail:
 * ``JOINT_SPEED`` (a single joint, not the view): a candidate farther from its own prediction than
   ``plausibility_joint_speed_mm_s * dt`` plus the gate is dropped alone (the view stays in).
 
-Hysteresis: a view that fails is held out at once; it comes back after ``plausibility_release_frames``
-plausible frames in a row. When every present view of a body fails for ``plausibility_follow_frames``
+Hysteresis: a view that fails is held out at once; it is used again in its ``plausibility_release_frames``-th
+plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
 frames in a row, the track is what is wrong (real fast motion, a track started on a glitch): every view is
 released and the caller restarts the body's filter where the views are. A body-id change at a sensor needs no
 rule here: association matches bodies to tracks by position, so a re-acquired body that fits the track is
@@ -155,8 +155,9 @@ def _up(positions: np.ndarray) -> np.ndarray:
         return up / norm
 
 
-def _median_of_finite(values: np.ndarray, finite: np.ndarray) -> np.ndarray:
-    """Median over the last axis of the finite entries (1.0 where none; no all-NaN warning)."""
+def median_of_finite(values: np.ndarray, finite: np.ndarray) -> np.ndarray:
+    """Median over the last axis of the entries where ``finite`` (1.0 where none), without numpy's all-NaN
+    warning (vectorized: one sort)."""
     count = finite.sum(axis=-1)
     ordered = np.sort(np.where(finite, values, np.inf), axis=-1)
     low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[..., None], axis=-1)[..., 0]
@@ -197,7 +198,7 @@ def check_views(
         ratio = bone_lengths(candidates) / learned_bones[:, None]  # (B, S, NB)
     known = np.isfinite(ratio)
     enough = known.sum(axis=-1) >= 3
-    median = _median_of_finite(ratio, known)
+    median = median_of_finite(ratio, known)
     wrong_size = (
         enough & bones_ready[:, None] & (np.abs(np.log(np.where(enough, median, 1.0))) > math.log1p(p.bone_ratio))
     )
