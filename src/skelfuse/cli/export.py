@@ -23,6 +23,7 @@ from skelfuse.export.fbx import write_fbx_arrays
 from skelfuse.export.source import INPUT_FORMATS, FusedSource, open_fused
 from skelfuse.export.tracks import PersonTrack, TakeTracks, take_tracks
 from skelfuse.export.trc import write_trc
+from skelfuse.fusion.smoother import SMOOTHERS
 from skelfuse.progress import Progress, note
 from skelfuse.schema.errors import ConfigError, DataError
 from skelfuse.schema.frames import FusedFrame
@@ -128,7 +129,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
     cfg = rig_config(args) if args.config is not None else None
     quiet = bool(args.json)
     source: FusedSource = open_fused(
-        args.input, rig_config=cfg, preset_name=args.preset, refuse=args.fuse, progress=not quiet
+        args.input,
+        rig_config=cfg,
+        preset_name=args.preset,
+        refuse=args.fuse,
+        progress=not quiet,
+        smoother=args.smoother,
     )
     if not quiet:
         note(f"export: reading {args.input} ({source.kind})")
@@ -265,6 +271,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     export.add_argument(
         "--preset", default=None, help=f"recording of sensor frames: fusion preset (default: {DEFAULT_PRESET})"
+    )
+    export.add_argument(
+        "--smoother",
+        choices=SMOOTHERS,
+        default=None,
+        help="recording of sensor frames: zero-lag smoothing of the fused take (rts) or the live filter's output "
+        "(none); default rts with the skelfuse preset",
     )
     export.add_argument(
         "--fuse", action="store_true", help="recording: fuse its sensor frames even if it holds a fused stream"

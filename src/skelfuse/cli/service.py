@@ -29,6 +29,7 @@ from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
+from skelfuse.fusion.smoother import SMOOTHERS
 from skelfuse.recording import fuse_recording
 from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError
@@ -129,7 +130,9 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if single_recorded_mcap(args.input) and not (args.time_offset or args.registered or args.by):
         # a skelfuse recording as it is: grouped on its recorded host arrival times, exactly as live
         source = Path(args.input[0])
-    frames = fuse_recording(source, rig_config=cfg, preset_name=args.preset, progress=not args.json)
+    frames = fuse_recording(
+        source, rig_config=cfg, preset_name=args.preset, progress=not args.json, smoother=args.smoother
+    )
     try:
         rows = write_fused(frames, args.output)
     except ValueError as exc:
@@ -310,6 +313,13 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         default=None,
         metavar="OUT",
         help="offline: fused frames to OUT.csv or OUT.parquet",
+    )
+    fuse.add_argument(
+        "--smoother",
+        choices=SMOOTHERS,
+        default=None,
+        help="offline: zero-lag smoothing of the whole take (rts) or the live filter's output, frame by frame (none); "
+        "default rts with the skelfuse preset",
     )
     fuse.add_argument(
         "--preset",

@@ -55,6 +55,7 @@ class PeopleResult:
     agreement_mm : (P,) float64 or None, how far the used views lie from the fused torso (see
         :attr:`skelfuse.fusion.pipeline.FusionResult.agreement_mm`), with ``params.position_std``.
     merged : (P, J, 3) float64 or None, mm, the merge before the temporal filter (NaN = no measurement).
+    restarted : (P,) bool or None, the person's filter restarted at the views (plausibility follow rule).
     """
 
     time_s: float
@@ -71,6 +72,7 @@ class PeopleResult:
     held_out: np.ndarray | None = None
     agreement_mm: np.ndarray | None = None
     merged: np.ndarray | None = None
+    restarted: np.ndarray | None = None
 
     @property
     def n_persons(self) -> int:
@@ -192,6 +194,7 @@ class PeopleFuser:
                 held_out=np.zeros((0, S), dtype=np.uint8) if self.params.plausibility_gate_mm is not None else None,
                 agreement_mm=np.zeros(0) if self.params.position_std else None,
                 merged=np.zeros((0, N_JOINTS, 3)),
+                restarted=np.zeros(0, dtype=bool) if self.params.plausibility_gate_mm is not None else None,
                 time_s=time_s,
                 track_ids=np.zeros(0, dtype=np.int64),
                 positions=np.zeros((0, N_JOINTS, 3)),
@@ -237,6 +240,7 @@ class PeopleFuser:
             held_out=result.held_out,
             agreement_mm=result.agreement_mm,
             merged=result.merged,
+            restarted=result.restarted,
         )
 
     def _init_fusion(self, n_tracks: int) -> FusionState:

@@ -83,6 +83,8 @@ class FusionResult:
         ``params.position_std``.
     merged : (B, J, 3) float64, mm, the merge's output before the temporal filter (NaN = no measurement): what
         an offline smoother takes as its measurements.
+    restarted : (B,) bool, the plausibility stage's follow rule restarted the body's filter at the views this
+        frame (an offline smoother does not smooth across it); None unless ``params.plausibility_gate_mm``.
     """
 
     positions: np.ndarray
@@ -94,6 +96,7 @@ class FusionResult:
     held_out: np.ndarray | None = None
     agreement_mm: np.ndarray | None = None
     merged: np.ndarray | None = None
+    restarted: np.ndarray | None = None
 
 
 @dataclass
@@ -247,11 +250,11 @@ def fuse(
     positions, conf, reference, streak, flipped = _realign(
         positions, conf, params, previous, state.flip_counters, dt_s, sensor_positions
     )
-    held_out = plausibility = None
+    held_out = plausibility = restarted = None
     state_coast = state.coast
     if params.plausibility_gate_mm is not None:
         verdict, plausibility = _plausibility(positions, conf, state, params, dt_s)
-        positions, conf, held_out = verdict.positions, verdict.confidence, verdict.held
+        positions, conf, held_out, restarted = verdict.positions, verdict.confidence, verdict.held, verdict.restart
         if verdict.restart.any():  # the track follows the views: its filter and trick 2 start over there
             state_coast = np.where(verdict.restart[:, None], -1, state.coast)
             previous = np.where(verdict.restart[:, None, None], np.nan, previous)
@@ -293,6 +296,7 @@ def fuse(
         held_out=held_out,
         agreement_mm=agreement,
         merged=merged.positions,
+        restarted=restarted,
     )
     new_state = FusionState(
         previous=merged.positions,

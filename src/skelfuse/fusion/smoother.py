@@ -146,3 +146,51 @@ def fixed_lag_smooth(
             state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
         result[t] = state[:, 0]
     return np.where(np.isfinite(fwd.out), result, np.nan)
+
+
+def smooth_tracks(
+    times_s: np.ndarray,
+    track_ids: list[np.ndarray],
+    merged: list[np.ndarray],
+    n_agree: list[np.ndarray],
+    restarted: list[np.ndarray | None],
+    params: FusionParams,
+    lag: int | None = None,
+) -> list[np.ndarray]:
+    """Smooth every track of a fused take, instant by instant as the live fusion gave them.
+
+    Parameters
+    ----------
+    times_s : (T,) the instants' times, s (increasing).
+    track_ids : per instant, (P_t,) the persons' track ids (a track appears in every instant from its
+        confirmation to its death).
+    merged : per instant, (P_t, J, 3) the merged positions before the filter, mm.
+    n_agree : per instant, (P_t, J) the views behind them.
+    restarted : per instant, (P_t,) bool or None, the follow rule restarted the person's filter.
+    params : the FusionParams of the live fusion ("cv_kalman").
+    lag : None for the fixed-interval smoother, else the fixed lag in frames.
+
+    Returns
+    -------
+    per instant, (P_t, J, 3) the smoothed positions in the instant's person order (NaN where the live filter
+    had no estimate).
+    """
+    times_s = np.asarray(times_s, dtype=np.float64)
+    out = [np.full(np.shape(m), np.nan) for m in merged]
+    rows: dict[int, list[tuple[int, int]]] = {}
+    for t, ids in enumerate(track_ids):
+        for row, track_id in enumerate(np.asarray(ids).tolist()):
+            rows.setdefault(int(track_id), []).append((t, row))
+    for where in rows.values():
+        instants = np.array([t for t, _ in where])
+        z = np.stack([merged[t][row] for t, row in where])
+        agree = np.stack([n_agree[t][row] for t, row in where])
+        restart = np.array([restarted[t] is not None and bool(restarted[t][row]) for t, row in where])
+        dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
+        if lag is None:
+            smoothed, _ = rts_smooth(z, agree, dt, restart, params)
+        else:
+            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag)
+        for k, (t, row) in enumerate(where):
+            out[t][row] = smoothed[k]
+    return out
