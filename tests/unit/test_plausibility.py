@@ -174,3 +174,26 @@ def test_uncertainty_and_agreement_follow_the_views_disagreement():
     # 120 mm is beyond eps: the merge keeps one view, the other lies 120 mm off: RMS 120 / sqrt(2).
     assert abs(np.nanmedian(agreement["apart"]) - 120.0 / np.sqrt(2.0)) < 10.0
     assert np.isnan(agreement["alone"]).all()
+
+
+def test_continuity_flags_the_episode_without_plausibility_and_not_with_it():
+    # The metric of eval real on the recorded episode's shape: the fusion without the plausibility stage
+    # (today's code path) follows the glitching view and is flagged; with it, nothing is.
+    from skelfuse.eval.continuity import continuity
+
+    rng = np.random.default_rng(SEED + 6)
+    truth = make_gesture("hands_up_down", duration_s=3.0, seed=SEED).positions
+    views = _tracker_loss(_two_views(truth, rng), start=40)
+    times = np.arange(len(views)) / 30.0
+    found = {}
+    for name, params in (
+        ("plain", replace(preset("skelfuse"), plausibility_gate_mm=None)),
+        ("checked", preset("skelfuse")),
+    ):
+        fused = np.array([r.positions[0] for r in _fuse(params, views)])
+        found[name] = continuity(fused, views[:, 0], times)
+    assert found["plain"]["one_view_episodes"] >= 1 and found["plain"]["one_view_frames"] >= 8
+    assert found["plain"]["steps"] >= 1
+    assert found["checked"] == {"steps": 0, "one_view_episodes": 0, "one_view_frames": 0}
+    clean = np.array([r.positions[0] for r in _fuse(preset("skelfuse"), _two_views(truth, rng))])
+    assert continuity(clean, _two_views(truth, rng)[:, 0], times)["one_view_episodes"] == 0

@@ -156,6 +156,7 @@ def fuse_recording(
     end_ns: int | None = None,
     progress: bool = True,
     smoother: str | None = None,
+    smoother_lag: int | None = None,
 ) -> Iterator[FusedFrame]:
     """Fuse every instant of a recording, as the live node would have, then smooth it with zero lag.
 
@@ -191,6 +192,9 @@ def fuse_recording(
         the live filter's output, frame by frame, exactly as the live node publishes it. None (default):
         "rts" where the fusion's filter is "cv_kalman", else "none" (the paper's presets have no velocity
         model to smooth over); the choice is logged.
+    smoother_lag : int, optional
+        With "rts": the fixed-lag form instead, each instant estimated from the frames up to this many instants
+        later (what the live fixed-lag option would give; ``eval real`` reports it beside the others).
 
     Returns
     -------
@@ -213,7 +217,7 @@ def fuse_recording(
         take = recording_path
         poses = resolve_poses(take.sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, take=take)
         grouper = take.grouper(sync, tolerance_us=tolerance_us, deadline_us=deadline_us)
-        return _smoothed(_fuse_take(take, poses, params, grouper, progress), params, smooth)
+        return _smoothed(_fuse_take(take, poses, params, grouper, progress), params, smooth, smoother_lag)
     reader = RecordingReader(recording_path)
     sensor_ids = reader.require_sensors("nothing to fuse")
     if reader.truncated or reader.bad_chunks:
@@ -227,7 +231,8 @@ def fuse_recording(
         )
     poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
     grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
-    return _smoothed(_fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress), params, smooth)
+    instants = _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+    return _smoothed(instants, params, smooth, smoother_lag)
 
 
 def _smoother(name: str | None, params: FusionParams) -> bool:
@@ -251,14 +256,16 @@ def _smoother(name: str | None, params: FusionParams) -> bool:
     return name == "rts"
 
 
-def _smoothed(instants: Iterator[FusedInstant], params: FusionParams, smooth: bool) -> Iterator[FusedFrame]:
+def _smoothed(
+    instants: Iterator[FusedInstant], params: FusionParams, smooth: bool, lag: int | None
+) -> Iterator[FusedFrame]:
     """The instants' frames, live (streamed) or, when ``smooth``, after the RTS smoother over the whole take."""
     if not smooth:
         return (instant.frame for instant in instants)
-    return _smooth_take(instants, params)
+    return _smooth_take(instants, params, lag)
 
 
-def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams) -> Iterator[FusedFrame]:
+def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams, lag: int | None) -> Iterator[FusedFrame]:
     frames, times, ids, merged, agree, restarted = [], [], [], [], [], []
     for instant in instants:
         people = instant.people
@@ -268,7 +275,7 @@ def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams) -> Iter
         merged.append(people.merged)
         agree.append(people.n_agree)
         restarted.append(people.restarted)
-    smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params)
+    smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params, lag)
     for frame, people_ids, positions in zip(frames, ids, smoothed, strict=True):
         rows = np.searchsorted(people_ids, frame.track_ids)  # both ascending; the frame's are a subset
         yield replace(frame, positions=positions[rows])
