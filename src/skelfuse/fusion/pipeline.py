@@ -22,10 +22,11 @@ Stages (each a pure function of its own module, so it can be tested and timed al
 5. Optional (``params.orientations``): :func:`skelfuse.fusion.orientation.fuse_orientations` on the filtered
    positions and the views' world quaternions (``fuse(..., orientations=)``); views the realignment flipped
    (any pair, for "paper") and views whose candidate was not merged into the joint are left out.
-6. Optional (``params.plausibility_gate_mm``, between 2 and 3): :mod:`skelfuse.fusion.plausibility` holds out
-   the views whose body cannot be the tracked person (a teleport away from the track's prediction, upside
-   down, another body size) and single joints far beyond their prediction; when every view has failed for a
-   while the body's filter restarts at the views.
+6. Optional (``params.plausibility_gate_mm``, between 1 and 2, and after 2): :mod:`skelfuse.fusion.plausibility`
+   holds out the views whose body cannot be the tracked person (a teleport away from the track's prediction,
+   upside down, another body size) before they can vote on the left/right labels, and after the realignment
+   drops single joints far beyond their prediction; when every view has failed for a while the body's filter
+   and realignment restart at the views.
 7. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
    uncertainty from the merged cluster's spread and a covariance recursion. Neither changes the positions.
 
@@ -49,9 +50,12 @@ from skelfuse.fusion.plausibility import (
     PlausibilityParams,
     PlausibilityResult,
     PlausibilityState,
+    drop_far_joints,
     init_plausibility_state,
     learn_bones,
     plausibility_step,
+    realignment_views,
+    remove_held,
 )
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
@@ -247,17 +251,25 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    positions, conf, reference, streak, flipped = _realign(
-        positions, conf, params, previous, state.flip_counters, dt_s, sensor_positions
-    )
-    held_out = plausibility = restarted = None
-    state_coast = state.coast
+    held_out = plausibility = restarted = predicted = None
+    state_coast, flip_counters = state.coast, state.flip_counters
     if params.plausibility_gate_mm is not None:
-        verdict, plausibility = _plausibility(positions, conf, state, params, dt_s)
-        positions, conf, held_out, restarted = verdict.positions, verdict.confidence, verdict.held, verdict.restart
-        if verdict.restart.any():  # the track follows the views: its filter and trick 2 start over there
-            state_coast = np.where(verdict.restart[:, None], -1, state.coast)
-            previous = np.where(verdict.restart[:, None, None], np.nan, previous)
+        predicted = _predicted(state, dt_s)
+        verdict, plausibility = _plausibility(positions, conf, predicted, state, params, dt_s)
+        held_out, restarted = verdict.held, verdict.restart
+        positions, conf = realignment_views(positions, conf, held_out, verdict.offset)
+        if restarted.any():  # the track follows the views: filter, trick 2 and the realignment start over there
+            state_coast = np.where(restarted[:, None], -1, state.coast)
+            previous = np.where(restarted[:, None, None], np.nan, previous)
+            if flip_counters is not None:
+                flip_counters = np.where(restarted[:, None], 0, flip_counters).astype(flip_counters.dtype)
+    positions, conf, reference, streak, flipped = _realign(
+        positions, conf, params, previous, flip_counters, dt_s, sensor_positions
+    )
+    if predicted is not None and restarted is not None and held_out is not None:
+        positions, conf = remove_held(positions, conf, held_out)
+        positions, conf = drop_far_joints(positions, conf, predicted, restarted, _plausibility_params(params), dt_s)
+        reference = None  # recomputed from what is left where the merge needs one
     merged = _merge(positions, conf, reference, previous, params)
     if plausibility is not None:
         plausibility = learn_bones(plausibility, merged.positions, merged.n_agree)
@@ -312,13 +324,22 @@ def fuse(
     return result, new_state
 
 
-def _plausibility(
-    positions: np.ndarray, conf: np.ndarray, state: FusionState, params: FusionParams, dt_s: float
-) -> tuple[PlausibilityResult, PlausibilityState]:
-    """The plausibility stage on the realigned candidates, against the track's one-step prediction."""
-    B, S = positions.shape[:2]
+def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
+    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track)."""
     x = state.x
-    predicted = np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)  # x + v dt
+    return np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)
+
+
+def _plausibility(
+    positions: np.ndarray,
+    conf: np.ndarray,
+    predicted: np.ndarray,
+    state: FusionState,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[PlausibilityResult, PlausibilityState]:
+    """The plausibility stage's view checks, before the realignment, against the track's prediction."""
+    B, S = positions.shape[:2]
     if state.view_held is None or state.view_held.shape != (B, S):
         previous = init_plausibility_state(B, S)
     else:

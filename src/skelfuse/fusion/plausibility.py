@@ -16,8 +16,16 @@ track already knows, and holds out the views that fail:
   body's, learned while the views are plausible) is off by more than ``plausibility_bone_ratio`` (the
   tracker scales every bone together by 2-5 % per frame and by up to 11 % in a deep squat; a body of another
   size is not this person);
-* ``JOINT_SPEED`` (a single joint, not the view): a candidate farther from its own prediction than
-  ``plausibility_joint_speed_mm_s * dt`` plus the gate is dropped alone (the view stays in).
+* a single joint (not the view): a candidate farther from its own prediction than
+  ``plausibility_joint_speed_mm_s * dt`` plus the gate is dropped alone (the view stays in;
+  :func:`drop_far_joints`, run after the left/right realignment).
+
+The view checks are mirror-invariant (torso mean, pelvis-to-neck direction, median bone ratio), so they run
+*before* the realignment. A view upside down or of another size does not vote on the body's left/right (a
+180 deg turned body looks mirrored and, with one other view, could turn the body's labels); a view held for a
+teleport still votes, moved back onto the track (:func:`realignment_views`): with two sensors it is often the
+only view that keeps the labels right while the other is a mirrored rear view. No held view is merged
+(:func:`remove_held`).
 
 Hysteresis: a view that fails is held out at once; it is used again in its ``plausibility_release_frames``-th
 plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
@@ -115,19 +123,16 @@ class PlausibilityResult:
 
     Attributes
     ----------
-    positions, confidence : the candidates with held-out views and implausible joints removed (NaN / 0).
     held : (B, S) uint8, reason per view this frame (0 = used, or absent).
     failed : (B, S) uint8, reason the view failed this frame's checks (0 = passed or absent).
-    joints_dropped : (B, S) int32, single joints dropped by the joint-speed check.
     restart : (B,) bool, every view had failed for ``follow_frames``: restart the body's filter at the views.
+    offset : (B, S, 3) mm, each view's torso offset from the prediction (NaN: unknown).
     """
 
-    positions: np.ndarray
-    confidence: np.ndarray
     held: np.ndarray
     failed: np.ndarray
-    joints_dropped: np.ndarray
     restart: np.ndarray
+    offset: np.ndarray
 
 
 def init_plausibility_state(n_bodies: int, n_sensors: int) -> PlausibilityState:
@@ -165,6 +170,17 @@ def median_of_finite(values: np.ndarray, finite: np.ndarray) -> np.ndarray:
     return np.where(count > 0, 0.5 * (low + high), 1.0)
 
 
+def torso_offset(candidates: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(B, S, 3) mean offset of each view's torso joints from the prediction, mm (NaN: fewer than two in common).
+
+    Mirror-invariant: the torso joints hold both hips or neither."""
+    offset = candidates[:, :, TORSO_JOINTS] - predicted[:, None, TORSO_JOINTS]  # (B, S, T, 3)
+    common = np.isfinite(offset).all(axis=-1)
+    n_common = common.sum(axis=-1)
+    mean_offset = np.where(common[..., None], offset, 0.0).sum(axis=-2) / np.maximum(n_common, 1)[..., None]
+    return np.where((n_common >= 2)[..., None], mean_offset, np.nan)
+
+
 def check_views(
     candidates: np.ndarray,
     predicted: np.ndarray,
@@ -185,11 +201,8 @@ def check_views(
     -------
     (B, S) uint8 reason (UPSIDE_DOWN before BONES before TELEPORT where several hold).
     """
-    offset = candidates[:, :, TORSO_JOINTS] - predicted[:, None, TORSO_JOINTS]  # (B, S, T, 3)
-    common = np.isfinite(offset).all(axis=-1)
-    n_common = common.sum(axis=-1)
-    mean_offset = np.where(common[..., None], offset, 0.0).sum(axis=-2) / np.maximum(n_common, 1)[..., None]
-    teleport = (n_common >= 2) & (np.sum(mean_offset * mean_offset, axis=-1) > p.gate_mm**2)
+    mean_offset = torso_offset(candidates, predicted)
+    teleport = np.sum(mean_offset * mean_offset, axis=-1) > p.gate_mm**2  # NaN compares False
 
     cos_up = np.sum(_up(candidates) * _up(predicted)[:, None], axis=-1)  # NaN where unknown: compares False
     upside_down = cos_up < p.up_cos
@@ -216,7 +229,7 @@ def plausibility_step(
     p: PlausibilityParams,
     dt_s: float,
 ) -> tuple[PlausibilityResult, PlausibilityState]:
-    """Check every view, apply the hysteresis and the follow rule, drop implausible joints.
+    """Check every view, apply the hysteresis and the follow rule.
 
     Parameters
     ----------
@@ -229,7 +242,7 @@ def plausibility_step(
 
     Returns
     -------
-    result : PlausibilityResult
+    result : PlausibilityResult (:func:`realignment_views` and :func:`remove_held` apply it)
     state : the new PlausibilityState (the caller learns the bones with :func:`learn_bones` after the merge).
     """
     present = np.isfinite(candidates[..., TORSO_JOINTS, 0]).any(axis=-1)  # (B, S)
@@ -249,23 +262,55 @@ def plausibility_step(
     release = np.where(held > 0, release, 0).astype(np.int32)
     follow = np.where(restart, 0, follow).astype(np.int32)
 
-    # A single joint far beyond its own prediction is dropped (views in use only; none after a restart).
-    distance = np.sqrt(np.sum((candidates - predicted[:, None]) ** 2, axis=-1))  # (B, S, J), NaN: unknown
-    too_far = (distance > p.joint_speed_mm_s * dt_s + p.gate_mm) & ~restart[:, None, None]
-    use = (held == PLAUSIBLE)[..., None] & ~too_far
-    positions = np.where(use[..., None], candidates, np.nan)
-    conf = np.where(use, confidence, 0).astype(np.uint8)
     new_state = PlausibilityState(
         held=held, release=release, follow=follow, bones=state.bones, bone_frames=state.bone_frames
     )
     return PlausibilityResult(
-        positions=positions,
-        confidence=conf,
         held=np.where(present, held, 0).astype(np.uint8),
         failed=failed,
-        joints_dropped=(too_far & (held == PLAUSIBLE)[..., None]).sum(axis=-1).astype(np.int32),
         restart=restart,
+        offset=torso_offset(candidates, predicted),
     ), new_state
+
+
+def realignment_views(
+    candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray, offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the left/right realignment may see: a view held out for a teleport, moved back onto the track (its
+    labels still tell left from right, and its position must not look like the body jumping); a view upside
+    down or of another size, removed (a body turned 180 deg looks mirrored: it would vote the labels wrong)."""
+    garbage = (held == UPSIDE_DOWN) | (held == BONES)
+    shift = np.where(((held == TELEPORT) & np.isfinite(offset).all(axis=-1))[..., None], offset, 0.0)
+    positions = np.where(garbage[..., None, None], np.nan, candidates - shift[:, :, None, :])
+    return positions, np.where(garbage[..., None], 0, confidence).astype(np.uint8)
+
+
+def remove_held(candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates without the held-out views (NaN / confidence 0): what the merge gets."""
+    use = held == PLAUSIBLE
+    return np.where(use[..., None, None], candidates, np.nan), np.where(use[..., None], confidence, 0).astype(np.uint8)
+
+
+def drop_far_joints(
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    predicted: np.ndarray,
+    restart: np.ndarray,
+    p: PlausibilityParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Drop single candidates farther from their own prediction than ``joint_speed_mm_s * dt`` plus the gate.
+
+    Run on the *realigned* candidates (a mirrored view's limbs are far from their prediction until the
+    realignment swaps them back); nothing is dropped for a body whose track restarts this frame.
+
+    Returns
+    -------
+    positions : (B, S, J, 3) NaN where dropped; confidence : (B, S, J) 0 where dropped.
+    """
+    distance = np.sqrt(np.sum((candidates - predicted[:, None]) ** 2, axis=-1))  # (B, S, J), NaN: unknown
+    too_far = (distance > p.joint_speed_mm_s * dt_s + p.gate_mm) & ~restart[:, None, None]
+    return np.where(too_far[..., None], np.nan, candidates), np.where(too_far, 0, confidence).astype(np.uint8)
 
 
 def learn_bones(state: PlausibilityState, merged: np.ndarray, n_agree: np.ndarray) -> PlausibilityState:
