@@ -255,9 +255,9 @@ def fuse(
     state_coast, flip_counters = state.coast, state.flip_counters
     if params.plausibility_gate_mm is not None:
         predicted = _predicted(state, dt_s)
-        verdict, plausibility = _plausibility(positions, conf, predicted, state, params, dt_s)
+        verdict, plausibility = _plausibility(positions, predicted, state, params)
         held_out, restarted = verdict.held, verdict.restart
-        positions, conf = realignment_views(positions, conf, held_out, verdict.offset)
+        positions, conf = realignment_views(positions, conf, held_out)
         if restarted.any():  # the track follows the views: filter, trick 2 and the realignment start over there
             state_coast = np.where(restarted[:, None], -1, state.coast)
             previous = np.where(restarted[:, None, None], np.nan, previous)
@@ -331,12 +331,7 @@ def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
 
 
 def _plausibility(
-    positions: np.ndarray,
-    conf: np.ndarray,
-    predicted: np.ndarray,
-    state: FusionState,
-    params: FusionParams,
-    dt_s: float,
+    positions: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
 ) -> tuple[PlausibilityResult, PlausibilityState]:
     """The plausibility stage's view checks, before the realignment, against the track's prediction."""
     B, S = positions.shape[:2]
@@ -350,7 +345,7 @@ def _plausibility(
             bones=state.bone_lengths,
             bone_frames=state.bone_frames,
         )
-    return plausibility_step(positions, conf, predicted, previous, _plausibility_params(params), dt_s)
+    return plausibility_step(positions, predicted, previous, _plausibility_params(params))
 
 
 def _plausibility_params(params: FusionParams) -> PlausibilityParams:

@@ -23,9 +23,8 @@ track already knows, and holds out the views that fail:
 The view checks are mirror-invariant (torso mean, pelvis-to-neck direction, median bone ratio), so they run
 *before* the realignment. A view upside down or of another size does not vote on the body's left/right (a
 180 deg turned body looks mirrored and, with one other view, could turn the body's labels); a view held for a
-teleport still votes, moved back onto the track (:func:`realignment_views`): with two sensors it is often the
-only view that keeps the labels right while the other is a mirrored rear view. No held view is merged
-(:func:`remove_held`).
+teleport still votes (:func:`realignment_views`): with two sensors it is often the only view that keeps the
+labels right while the other is a mirrored rear view. No held view is merged (:func:`remove_held`).
 
 Hysteresis: a view that fails is held out at once; it is used again in its ``plausibility_release_frames``-th
 plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
@@ -126,13 +125,11 @@ class PlausibilityResult:
     held : (B, S) uint8, reason per view this frame (0 = used, or absent).
     failed : (B, S) uint8, reason the view failed this frame's checks (0 = passed or absent).
     restart : (B,) bool, every view had failed for ``follow_frames``: restart the body's filter at the views.
-    offset : (B, S, 3) mm, each view's torso offset from the prediction (NaN: unknown).
     """
 
     held: np.ndarray
     failed: np.ndarray
     restart: np.ndarray
-    offset: np.ndarray
 
 
 def init_plausibility_state(n_bodies: int, n_sensors: int) -> PlausibilityState:
@@ -222,23 +219,16 @@ def check_views(
 
 
 def plausibility_step(
-    candidates: np.ndarray,
-    confidence: np.ndarray,
-    predicted: np.ndarray,
-    state: PlausibilityState,
-    p: PlausibilityParams,
-    dt_s: float,
+    candidates: np.ndarray, predicted: np.ndarray, state: PlausibilityState, p: PlausibilityParams
 ) -> tuple[PlausibilityResult, PlausibilityState]:
     """Check every view, apply the hysteresis and the follow rule.
 
     Parameters
     ----------
-    candidates : (B, S, J, 3) float64 mm, the (realigned) candidates; NaN = missing.
-    confidence : (B, S, J) uint8.
+    candidates : (B, S, J, 3) float64 mm, the selected candidates, before the realignment; NaN = missing.
     predicted : (B, J, 3) mm, the track's one-step prediction; NaN = no track.
     state : PlausibilityState for the same B and S.
     p : PlausibilityParams
-    dt_s : seconds since the previous frame.
 
     Returns
     -------
@@ -269,19 +259,18 @@ def plausibility_step(
         held=np.where(present, held, 0).astype(np.uint8),
         failed=failed,
         restart=restart,
-        offset=torso_offset(candidates, predicted),
     ), new_state
 
 
 def realignment_views(
-    candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray, offset: np.ndarray
+    candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """What the left/right realignment may see: a view held out for a teleport, moved back onto the track (its
-    labels still tell left from right, and its position must not look like the body jumping); a view upside
-    down or of another size, removed (a body turned 180 deg looks mirrored: it would vote the labels wrong)."""
+    """What the left/right realignment may see: every view but those upside down or of another size (a body
+    turned 180 deg looks mirrored: it would vote the labels wrong, and its jump would restart the realignment).
+    A view held for a teleport still votes where it is: its labels still tell left from right, and a jump that
+    every view makes (a looped take's seam) must still restart the realignment."""
     garbage = (held == UPSIDE_DOWN) | (held == BONES)
-    shift = np.where(((held == TELEPORT) & np.isfinite(offset).all(axis=-1))[..., None], offset, 0.0)
-    positions = np.where(garbage[..., None, None], np.nan, candidates - shift[:, :, None, :])
+    positions = np.where(garbage[..., None, None], np.nan, candidates)
     return positions, np.where(garbage[..., None], 0, confidence).astype(np.uint8)
 
 
