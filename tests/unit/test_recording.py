@@ -19,6 +19,7 @@ from mcap.writer import Writer
 
 import skelfuse
 from skelfuse.config import FusionConfig, RigConfig, SensorConfig
+from skelfuse.fusion.orientation import aim_directions, quat_rotate
 from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.recording import (
     RecordingReader,
@@ -29,7 +30,7 @@ from skelfuse.recording import (
 )
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import SensorFrame
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS, ORIENTATION_AIMED
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
@@ -506,6 +507,10 @@ def test_offline_smoothing_lowers_the_jitter_and_the_error(tmp_path: Path) -> No
         np.testing.assert_array_equal(a_frame.track_ids, b_frame.track_ids)
         np.testing.assert_array_equal(a_frame.n_agree, b_frame.n_agree)
         np.testing.assert_array_equal(np.isnan(a_frame.positions), np.isnan(b_frame.positions))
+        if b_frame.n_persons:  # the orientations follow the smoothed bones (their X axis on the aim bone)
+            x_axes = quat_rotate(b_frame.orientations[0], np.array([1.0, 0.0, 0.0]))
+            aims = aim_directions(b_frame.positions[0])
+            np.testing.assert_allclose(x_axes[ORIENTATION_AIMED], aims[ORIENTATION_AIMED], atol=1e-9)
 
 
 def test_the_rts_smoother_refuses_a_filter_without_velocity(tmp_path: Path) -> None:

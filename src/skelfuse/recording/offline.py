@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
+from skelfuse.fusion.orientation import aim_directions, apply_derived, swing_onto_aims
 from skelfuse.fusion.presets import FusionParams, preset
 from skelfuse.fusion.smoother import SMOOTHERS, smooth_tracks
 from skelfuse.progress import Progress
@@ -278,7 +279,16 @@ def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams, lag: in
     smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params, lag)
     for frame, people_ids, positions in zip(frames, ids, smoothed, strict=True):
         rows = np.searchsorted(people_ids, frame.track_ids)  # both ascending; the frame's are a subset
-        yield replace(frame, positions=positions[rows])
+        yield replace(frame, positions=positions[rows], orientations=follow_bones(frame.orientations, positions[rows]))
+
+
+def follow_bones(orientations: np.ndarray | None, positions: np.ndarray) -> np.ndarray | None:
+    """The fused orientations swung onto the smoothed bones (their twist kept): every aimed joint's X axis lies
+    on its bone of the smoothed positions, as the live fusion's lies on the live positions' (docs/orientations.md)."""
+    if orientations is None:
+        return None
+    swung = apply_derived(swing_onto_aims(orientations, aim_directions(positions)))
+    return np.where(np.isfinite(swung).all(axis=-1, keepdims=True), swung, orientations)
 
 
 def _fuse_take(
