@@ -29,7 +29,8 @@ labels right while the other is a mirrored rear view. No held view is merged (:f
 Hysteresis: a view that fails is held out at once; it is used again in its ``plausibility_release_frames``-th
 plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
 frames in a row, the track is what is wrong (real fast motion, a track started on a glitch): every view is
-released and the caller restarts the body's filter where the views are. A body-id change at a sensor needs no
+released and the caller restarts the body's filter where the views are; at once when two or more views moved
+away from the track together (:func:`views_agree_elsewhere`). A body-id change at a sensor needs no
 rule here: association matches bodies to tracks by position, so a re-acquired body that fits the track is
 simply checked like any other view.
 
@@ -243,7 +244,9 @@ def plausibility_step(
     # Every present view failed: count; after follow_frames the track follows the views.
     all_failed = present.any(axis=-1) & ~((present & (failed == PLAUSIBLE)).any(axis=-1))
     follow = np.where(all_failed, state.follow + 1, 0).astype(np.int32)
-    restart = follow >= p.follow_frames
+    restart = (follow >= p.follow_frames) | (
+        all_failed & views_agree_elsewhere(candidates, predicted, present, failed, p)
+    )
     # Hysteresis: a failing view is held (reason of this frame); a held view passing counts towards release.
     release = np.where((state.held > 0) & present & (failed == PLAUSIBLE), state.release + 1, 0).astype(np.int32)
     released = (release >= p.release_frames) | restart[:, None]
@@ -260,6 +263,20 @@ def plausibility_step(
         failed=failed,
         restart=restart,
     ), new_state
+
+
+def views_agree_elsewhere(
+    candidates: np.ndarray, predicted: np.ndarray, present: np.ndarray, failed: np.ndarray, p: PlausibilityParams
+) -> np.ndarray:
+    """(B,) two or more views, every present one, moved away from the track together (their torso offsets within
+    half the gate of their mean): the person is where they say (a track on the wrong place, a take's seam),
+    so the track follows them at once instead of after ``follow_frames``."""
+    offset = torso_offset(candidates, predicted)  # (B, S, 3)
+    moved = present & (failed == TELEPORT) & np.isfinite(offset).all(axis=-1)
+    n_moved = moved.sum(axis=-1)
+    mean = np.where(moved[..., None], offset, 0.0).sum(axis=1) / np.maximum(n_moved, 1)[:, None]
+    spread = np.where(moved, np.linalg.norm(offset - mean[:, None], axis=-1), 0.0).max(axis=-1, initial=0.0)
+    return (n_moved >= 2) & (n_moved == present.sum(axis=-1)) & (spread < 0.5 * p.gate_mm)
 
 
 def realignment_views(
