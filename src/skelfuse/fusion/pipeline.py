@@ -268,7 +268,9 @@ def fuse(
     )
     if predicted is not None and restarted is not None and held_out is not None:
         positions, conf = remove_held(positions, conf, held_out)
-        positions, conf = drop_far_joints(positions, conf, predicted, restarted, _plausibility_params(params), dt_s)
+        if params.plausibility_joint_speed_mm_s is not None:
+            plausible = _plausibility_params(params)
+            positions, conf = drop_far_joints(positions, conf, predicted, restarted, plausible, dt_s)
         reference = None  # recomputed from what is left where the merge needs one
     merged = _merge(positions, conf, reference, previous, params)
     if plausibility is not None:
@@ -353,7 +355,7 @@ def _plausibility_params(params: FusionParams) -> PlausibilityParams:
         gate_mm=float(params.plausibility_gate_mm or 0.0),
         up_cos=params.plausibility_up_cos,
         bone_ratio=params.plausibility_bone_ratio,
-        joint_speed_mm_s=params.plausibility_joint_speed_mm_s,
+        joint_speed_mm_s=float(params.plausibility_joint_speed_mm_s or math.inf),
         release_frames=params.plausibility_release_frames,
         follow_frames=params.plausibility_follow_frames,
     )

@@ -16,8 +16,8 @@ track already knows, and holds out the views that fail:
   body's, learned while the views are plausible) is off by more than ``plausibility_bone_ratio`` (the
   tracker scales every bone together by 2-5 % per frame and by up to 11 % in a deep squat; a body of another
   size is not this person);
-* a single joint (not the view): a candidate farther from its own prediction than
-  ``plausibility_joint_speed_mm_s * dt`` plus the gate is dropped alone (the view stays in;
+* optionally (``plausibility_joint_speed_mm_s``, off by default), a single joint: a candidate farther from its
+  own prediction than that speed times dt plus the gate is dropped alone (the view stays in;
   :func:`drop_far_joints`, run after the left/right realignment).
 
 The view checks are mirror-invariant (torso mean, pelvis-to-neck direction, median bone ratio), so they run
