@@ -201,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
                     "--use-angle=swiftshader",
                     "--enable-unsafe-swiftshader",
                     "--ignore-gpu-blocklist",
+                    "--force-dark-mode",  # the viewer's dark theme, as the native viewer shows it
                     f"--window-size={args.size}",
                     f"--remote-debugging-port={devtools}",
                     f"--user-data-dir={workdir}/c",

@@ -3,7 +3,7 @@
 
 The figures in docs/export.md come from this script. For each of the simulator's six gestures the paper's
 4-sensor rig is simulated (packaged Azure Kinect profile), fused with our preset, and the fused take is fitted
-with :func:`skelfuse.export.armature.fit_motion`; the real 3-view andyj1 take (if ``--data`` has it) is fused
+with :func:`skelfuse.retarget.armature.fit_motion`; the real 3-view andyj1 take (if ``--data`` has it) is fused
 the same way (``eval.real.fuse_views``, preset "skelfuse") and fitted. Prints median and p90 per joint group
 (mm), over every joint-frame the fused data held (filled gaps excluded).
 
@@ -24,10 +24,10 @@ import numpy as np
 
 from skelfuse.eval.paper import N_CAPTURE, FusionRun, _world_skeletons, fuse_take
 from skelfuse.eval.real import fuse_views, load_take
-from skelfuse.export.armature import fit_motion, retargeting_error
 from skelfuse.export.blender import run_blender
 from skelfuse.export.bvh import UNIT_MM, write_bvh_motion
 from skelfuse.export.fbx import write_fbx_motion
+from skelfuse.retarget.armature import fit_motion, retargeting_error
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_NAMES
 from skelfuse.sim.gestures import GESTURES, make_gesture

@@ -46,8 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import decode_fused_frame, decode_status, encode_sensor_frame

@@ -1,3 +1,66 @@
-"""skelfuse: fuse the skeletons of several Azure Kinect body trackers into one accurate, smooth skeleton."""
+"""skelfuse: fuse the skeletons of several Azure Kinect body trackers into one accurate, smooth skeleton.
 
-__version__ = "0.1.0"
+The public Python API is what this module exports (``__all__``); docs/python-api.md shows it at work::
+
+    import skelfuse
+
+    with skelfuse.subscribe("lab", connect=["tcp/192.168.1.10:7447"]) as fused:
+        for frame in fused:                     # skelfuse.FusedFrame: numpy arrays, mm, world frame
+            print(frame.time_us, frame.track_ids, frame.positions[:, skelfuse.joint_index("PELVIS")])
+
+Everything else (``skelfuse.fusion``, ``skelfuse.wire``, ...) is internal: it may change in any 0.x release.
+The recording functions load on first use (PEP 562), so that an app that only subscribes imports numpy and
+zenoh, not the recording container or the fusion pipeline's SciPy.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from skelfuse.api.live import FusedSubscriber, subscribe
+from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
+from skelfuse.schema.frames import FusedFrame, SensorFrame
+from skelfuse.schema.skeleton import BONES, JOINT_NAMES, MIRROR, N_JOINTS, PARENTS, Confidence, joint_index
+from skelfuse.version import __version__
+
+if TYPE_CHECKING:
+    from skelfuse.api.recordings import fuse_recording, read_fused_frames, read_sensor_frames
+
+__all__ = [
+    "BONES",
+    "JOINT_NAMES",
+    "MIRROR",
+    "N_JOINTS",
+    "PARENTS",
+    "Confidence",
+    "ConfigError",
+    "DataError",
+    "FusedFrame",
+    "FusedSubscriber",
+    "SensorFrame",
+    "ServiceError",
+    "SkelfuseError",
+    "__version__",
+    "fuse_recording",
+    "joint_index",
+    "read_fused_frames",
+    "read_sensor_frames",
+    "subscribe",
+]
+
+_LAZY_HOME = "skelfuse.api.recordings"
+"""The module of the names that load on first use (the recording readers and offline fusion)."""
+
+
+def __getattr__(name: str) -> Any:
+    """Load the recording functions on first access (then they are plain module attributes)."""
+    if name in __all__:
+        value = getattr(importlib.import_module(_LAZY_HOME), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -10,17 +10,13 @@ from export_takes import as_frames, fused_take, truth_take
 from scipy.spatial.transform import Rotation
 
 from skelfuse.eval import real
-from skelfuse.export.armature import (
-    CHILDREN,
+from skelfuse.retarget.armature import CHILDREN, fit_frames, fit_motion, person_takes, resample
+from skelfuse.retarget.rotations import (
     axis_angle_matrix,
     continuous_quaternions,
-    fit_frames,
-    fit_motion,
     kabsch,
     matrix_to_quaternion,
-    person_takes,
     quaternion_to_matrix,
-    resample,
 )
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from netns_lab import HERE, Lab
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.config import load_rig_config
 from skelfuse.config.access import rig_identities
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from process_groups import kill_group, stop_group
-from skelfuse.demo import sim_sensor_tables
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from service_helpers import RIG, Processes, start_node, worker_args
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.config import load_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.schema.skeleton import EVAL_JOINTS
 from skelfuse.service.worker import SimSource
 

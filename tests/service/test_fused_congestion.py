@@ -34,8 +34,8 @@ from typing import Any
 import pytest
 from stall_relay import StallRelay
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.config import parse_rig_config, zenoh_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import FusedPublisher, free_port
 from skelfuse.wire import keys
 

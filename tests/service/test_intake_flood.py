@@ -15,9 +15,9 @@ import tomllib
 import numpy as np
 import pytest
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import parse_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.lifecycle import Lifecycle
 from skelfuse.service.node import FusedOutput, FusionNode, NodeOptions
 from skelfuse.service.zenoh_io import free_port, loopback_config

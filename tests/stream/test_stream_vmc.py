@@ -16,7 +16,7 @@ from pythonosc.osc_server import BlockingOSCUDPServer
 from pythonosc.udp_client import SimpleUDPClient
 from scipy.spatial.transform import Rotation
 
-from skelfuse.export.armature import build_armature
+from skelfuse.retarget.armature import build_armature
 from skelfuse.schema.skeleton import N_JOINTS, J
 from skelfuse.stream.vmc import VMC_BONES, VmcPerson, vmc_bundle, vmc_messages
 

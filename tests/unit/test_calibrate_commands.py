@@ -16,6 +16,7 @@ from skelfuse.calibration.render import Scene, Sphere, aruco_plate, render, room
 from skelfuse.calibration.rgbd_folder import load_rgbd_folder, save_rgbd_folder
 from skelfuse.calibration.rigid import rotation_angle_deg
 from skelfuse.calibration.sphere import PAPER_RADIUS_MM
+from skelfuse.cli import main
 from skelfuse.cli.calibrate import add_parser as add_calibrate_parser
 from skelfuse.cli.common import EXIT_ATTENTION
 from skelfuse.config import load_calibration
@@ -405,6 +406,19 @@ def test_takes_from_per_sensor_json_files(tmp_path: Path, walk) -> None:
     assert _run(["skeleton", *takes, "-o", str(out), "-q"]) == 0
     for sensor_id, (angle, offset) in _relative_errors(load_calibration(out), obs).items():
         assert angle < 1.5 and offset < 30.0, sensor_id  # a 10 s walk
+
+    # the second command: fuse the same files with that calibration; its world is the master camera's, which
+    # the skeletons level (z up, floor at 0), so the fused walk stands where the simulator's truth does
+    from skelfuse.export.csv import read_fused_table
+    from skelfuse.schema.skeleton import J
+
+    fused = tmp_path / "fused.csv"
+    inputs = [t for t in takes if t != "--take"]
+    assert main(["fuse", "--input", *inputs, "--calibration", str(out), "-o", str(fused)]) == 0
+    p = np.stack([f.positions[0] for f in read_fused_table(fused) if len(f.track_ids)])
+    truth = obs.truth[:300]
+    assert abs(np.nanmedian(p[:, J["PELVIS"], 2]) - np.median(truth[:, J["PELVIS"], 2])) < 60.0
+    assert abs(np.nanmedian(p[:, [J["FOOT_LEFT"], J["FOOT_RIGHT"]], 2])) < 60.0
 
 
 # ------------------------------------------------------------------------------------------ live capture

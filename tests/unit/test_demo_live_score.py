@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfuse import demo
+from skelfuse.apps import demo
 from skelfuse.config import load_rig_config
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.transform import apply_transform

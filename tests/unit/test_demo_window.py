@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.demo import CONVERGE_S, format_summary, run_demo_offline, scoring_window
+from skelfuse.apps.demo import CONVERGE_S, format_summary, run_demo_offline, scoring_window
 
 
 def test_scoring_window_by_hand() -> None:

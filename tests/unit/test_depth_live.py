@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.config import load_rig_config, parse_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.fusion.depth.pipeline import fuse_person_depth
 from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import EVAL_JOINTS, Confidence

@@ -26,7 +26,7 @@ from skelfuse.sim.depth import render_rig
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import facing_deg
 from skelfuse.sim.rig import paper_rig
-from skelfuse.sources import k4abt
+from skelfuse.sources import k4a_abi, k4abt
 from skelfuse.sources.depth_tracker import FRAME_PERIOD_US, VirtualCameraTracker
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings, load_k4a, virtual_calibration
 
@@ -106,7 +106,7 @@ def test_a_virtual_image_goes_through_the_tracker_and_its_skeleton_comes_back_to
         found = tracker.collect(timeout_ms=50)
         # popped and released: the capture and its images are gone, the buffers unpinned
         assert fake_k4a.captures_alive() == captures_before
-        assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4abt._PINNED
+        assert fake_k4a.lib.fake_k4a_images_alive() == 0 and not k4a_abi._PINNED  # the pinned-buffer registry
     assert found is not None and found.device_time_us == FRAME_PERIOD_US and found.body_id == 1
     # What the fake computed from the image, recomputed here from the same image.
     depth = to_k4a_depth(view.image.depth_mm)
@@ -160,8 +160,8 @@ def test_the_nodes_depth_stage_runs_the_sdk_adapter_one_tracker_per_person(echo,
     node finds the SDK: SKELFUSE_K4A_LIBRARY / SKELFUSE_K4ABT_LIBRARY), says so, creates one tracker per track
     id, and outputs what the tracker found mapped back to the world (the echo body's joint 0: the centroid of
     the virtual depth image, on the person); everything is released when the stage closes."""
+    from skelfuse.apps.demo import sim_sensor_tables
     from skelfuse.config import load_rig_config
-    from skelfuse.demo import sim_sensor_tables
     from skelfuse.service.depth_stage import depth_stage_for
     from skelfuse.service.node import FusionCore
     from skelfuse.service.worker import SimSource

@@ -264,3 +264,20 @@ def test_bad_inputs_get_clear_errors(tmp_path: Path, fused_csv: Path, capsys, ar
     args = [a.format(csv=fused_csv, bad=bad, tmp=tmp_path, empty=empty) for a in args]
     assert main(["export", *args]) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("rate_hz", "span_s", "expected"),
+    [
+        (30.0003, 20.0, 30.0),  # a device clock's 33333/33334 us steps over a 20 s take: drift 0.006 frames
+        (30.0003, 3600.0, 30.0003),  # over an hour the same difference drifts a whole frame: kept as measured
+        (29.97, 10.0, 29.97),  # NTSC's rate is not 30
+        (14.9995, 60.0, 15.0),
+    ],
+)
+def test_a_measured_rate_snaps_to_the_nominal_one_only_where_it_cannot_drift(
+    rate_hz: float, span_s: float, expected: float
+) -> None:
+    from skelfuse.export.tracks import nominal_rate_hz
+
+    assert nominal_rate_hz(rate_hz, span_s) == expected

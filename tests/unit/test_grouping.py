@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from skelfuse.rig import grouping
+from skelfuse.rig import clocks
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper, SensorClock
 from skelfuse.schema.frames import SensorFrame
 
@@ -510,7 +510,7 @@ def test_a_sensor_clocks_offset_is_the_median_of_its_recent_residuals() -> None:
         assert clock.offset_us == expected
     for n in range(1, 12):  # the host-mode phases are floats
         phases = list(rng.normal(0.0, 1e4, n))
-        assert grouping._median(phases) == float(np.median(phases))
+        assert clocks.median_of(phases) == float(np.median(phases))
 
 
 # -- a forged clock that speaks first --------------------------------------------------------------------------

@@ -375,10 +375,35 @@ def test_malformed_extractor_files_name_file_and_line(sim_walk, tmp_path: Path) 
     cells = ori[1].split(";")
     cells[1] = "77"
     orientations.write_text("\n".join([ori[0], ";".join(cells), *ori[2:]]) + "\n")
-    with pytest.raises(
-        DataError, match=r"orientations_3d\.csv:2: orientation of body 77 .* has no row in positions_3d\.csv"
-    ):
-        open_inputs([str(folder)])
+    # one orientation row without its position row is left out and reported (it used to refuse the take)
+    notes = open_inputs([str(folder)]).recordings[0].notes
+    assert any(n.startswith("1 rows of orientations_3d.csv have no row in positions_3d.csv") for n in notes), notes
+    other = [";".join([c[0], "77", *c[2:]]) for c in (line.split(";") for line in ori[1:])]
+    orientations.write_text("\n".join([ori[0], *other]) + "\n")
+    with pytest.raises(DataError, match=r"orientations_3d\.csv: none of its \d+ rows has a row in positions_3d\.csv"):
+        open_inputs([str(folder)])  # nothing joins: two files of different exports
+
+
+def test_an_extractor_take_whose_orientations_begin_56_frames_early_is_read(sim_walk, tmp_path: Path) -> None:
+    """Made like the real case: the tool's orientations_3d.csv begins 56 body frames before positions_3d.csv."""
+    rec = _recordings(sim_walk)[0]
+    folder = tmp_path / "cam"
+    write_extractor_csv(rec, folder)
+    positions = folder / "positions_3d.csv"
+    lines = positions.read_text().splitlines()
+    body_frames = np.flatnonzero(rec.body_ids[:, 0] >= 0)
+    early = {int(t) for t in rec.device_time_us[body_frames[:56]]}
+    first_kept = int(body_frames[56])
+    kept = [line for line in lines[1:] if int(line.split(";")[0]) >= rec.device_time_us[first_kept]]
+    positions.write_text("\n".join([lines[0], *kept]) + "\n")
+
+    got = open_inputs([str(folder)]).recordings[0]
+    note = next(n for n in got.notes if "have no row in positions_3d.csv" in n)
+    assert note.startswith("56 rows of orientations_3d.csv") and f"{min(early)}-{max(early)} us" in note
+    assert got.device_time_us[0] == rec.device_time_us[first_kept]
+    np.testing.assert_allclose(got.positions, rec.positions[first_kept:], atol=5e-7 * 4096, equal_nan=True)
+    np.testing.assert_allclose(got.orientations, rec.orientations[first_kept:], atol=1e-6, equal_nan=True)
+    assert np.isfinite(got.orientations).any()  # the orientations that join are there
 
 
 def test_specs_offsets_and_duplicates(tmp_path: Path, sim_walk) -> None:

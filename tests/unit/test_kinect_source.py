@@ -22,7 +22,6 @@ from skelfuse.schema.frames import SensorFrame
 from skelfuse.sources import devices, kinect
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings
 from skelfuse.sources.kinect import (
-    Backoff,
     DeviceSettings,
     EndOfStream,
     KinectSource,
@@ -32,11 +31,10 @@ from skelfuse.sources.kinect import (
     SensorDisconnected,
     SensorNotFound,
     SkeletonSource,
-    WorkerFrameSource,
     kinect_start_order,
-    run_with_reconnect,
     start_rig,
 )
+from skelfuse.sources.reconnect import Backoff, WorkerFrameSource, run_with_reconnect
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "config" / "rig-example-kinect-4.toml"

@@ -8,12 +8,12 @@ from collections import Counter
 
 import numpy as np
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import parse_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.fusion.plausibility import TELEPORT, UPSIDE_DOWN
 from skelfuse.schema.skeleton import J
-from skelfuse.service.node import FusionCore, count_held_out
+from skelfuse.service.fusion_core import FusionCore, count_held_out
 from skelfuse.wire.codec import encode_sensor_frame
 
 PERIOD_NS = 33_333_333

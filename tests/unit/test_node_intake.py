@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from fake_zenoh import FakeSample
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import IntakeConfig, RigConfig, load_rig_config, parse_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.fusion.tracks import MAX_TRACKS, TrackParams
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.service.node import (

@@ -325,7 +325,7 @@ _KINECT_RIG = {
 
 @pytest.fixture
 def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    from skelfuse.service import worker
+    from skelfuse.service import capture_sources
     from skelfuse.sources import kinect
 
     events: list[str] = []
@@ -339,7 +339,7 @@ def kinect_events(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         events.append(f"wait {rig} {','.join(ids)} {timeout_s:g}")
         return ["s2"]
 
-    monkeypatch.setattr(worker, "wait_for_subordinates", fake_wait)
+    monkeypatch.setattr(capture_sources, "wait_for_subordinates", fake_wait)  # where the kinect source calls it
     return events
 
 

@@ -98,3 +98,10 @@ def test_smoothing_removes_jitter_without_lag():
     shifts = range(-3, 4)
     errors = [rms(np.roll(smoothed, s, axis=0)) for s in shifts]
     assert shifts[int(np.argmin(errors))] == 0
+
+
+def test_the_command_line_offers_the_smoothers_there_are():
+    from skelfuse.cli.common import OFFLINE_SMOOTHERS
+    from skelfuse.fusion.smoother import SMOOTHERS
+
+    assert tuple(OFFLINE_SMOOTHERS) == tuple(SMOOTHERS)

@@ -8,9 +8,9 @@ import tomllib
 
 import numpy as np
 
+from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import parse_rig_config
-from skelfuse.demo import sim_sensor_tables
 from skelfuse.service.node import FusionCore
 from skelfuse.service.status import format_status
 from skelfuse.wire.codec import NodeStatus, encode_sensor_frame

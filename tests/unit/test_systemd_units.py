@@ -58,3 +58,14 @@ def test_units_pass_systemd_analyze_verify(tmp_path: Path) -> None:
     )
     ours = [line for line in (result.stdout + result.stderr).splitlines() if "skelfuse" in line]
     assert result.returncode == 0 and not ours, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("unit", UNITS, ids=lambda u: u.name)
+def test_a_crashed_daemon_restarts_within_half_a_second(unit: Path) -> None:
+    settings = dict(line.split("=", 1) for line in unit.read_text().splitlines() if "=" in line and line[0] != "#")
+    assert settings["Restart"] == "on-failure"
+    delay = settings["RestartSec"]
+    seconds = float(delay.removesuffix("ms")) / 1000 if delay.endswith("ms") else float(delay.removesuffix("s"))
+    assert seconds <= 0.5, f"{unit.name}: RestartSec={delay}"
+    assert settings.get("StartLimitIntervalSec") == "0", "a fast restart must not hit systemd's start limit"
+    assert "2" in settings.get("RestartPreventExitStatus", "").split(), "a config error is not retried"

@@ -17,6 +17,7 @@ not measured on a real sensor.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -57,7 +58,7 @@ def _people(n_people: int, n_frames: int, seed: int) -> np.ndarray:
     return np.stack(takes, axis=1)
 
 
-def _stats(values: list[float]) -> dict[str, float]:
+def _stats(values: Sequence[float]) -> dict[str, float]:
     v = np.asarray(values, dtype=np.float64)
     return {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)), "max": float(v.max())}
 
@@ -89,70 +90,102 @@ def run_depth_bench(
     bar = Progress(len(people_counts) * n_frames, "bench depth", enabled=None if progress else False)
     for n_people in people_counts:
         truth = _people(n_people, n_frames, seed)
-        sensor_bytes, frame_bytes, capture_ms = [], [], []
-        fuse_ms: dict[str, list[float]] = {name: [] for name in variants}
-        fuse_cpu_ms: dict[str, list[float]] = {name: [] for name in variants}
-        points_per_person, facing_error = [], []
+        tally = _DepthTally(variants)
         for t in range(n_frames):
             frames = render_rig(sensors, truth[t], noise=DepthNoise(), seed=seed * 100_000 + t)
-            payloads = []
-            for index, frame in enumerate(frames):
-                start = time.perf_counter_ns()
-                clouds = person_clouds(frame.depth, frame.body_index, intrinsics, voxel_mm=voxel_mm)
-                payload = encode_person_clouds(
-                    PersonCloudsFrame(
-                        frame.sensor_id,
-                        t,
-                        int(t * 1e6 / FPS),
-                        0,
-                        voxel_mm,
-                        np.array([c.body_index for c in clouds], dtype=np.uint32),
-                        tuple(c.points for c in clouds),
-                    )
-                )
-                capture_ms.append((time.perf_counter_ns() - start) / 1e6)
-                sensor_bytes.append(len(payload))
-                payloads.append((index, payload))
-            frame_bytes.append(sum(len(p) for _, p in payloads))
+            payloads = _capture(frames, t, intrinsics, voxel_mm, tally)
             facings = body_facing(truth[t])
             true_facing = np.degrees(np.arctan2(facings[:, 1], facings[:, 0]))
-            for name, params in variants.items():
-                for person in range(n_people):
-                    start, start_cpu = time.perf_counter_ns(), time.thread_time_ns()
-                    per_sensor = []
-                    for _, payload in payloads:
-                        decoded = decode_person_clouds(payload)
-                        found = np.nonzero(decoded.body_ids == person)[0]
-                        per_sensor.append(decoded.clouds[found[0]] if found.size else np.zeros((0, 3)))
-                    view = fuse_person_depth(
-                        per_sensor, poses, intrinsics, skeleton_facing_deg=float(true_facing[person]), params=params
-                    )
-                    fuse_ms[name].append((time.perf_counter_ns() - start) / 1e6)
-                    fuse_cpu_ms[name].append((time.thread_time_ns() - start_cpu) / 1e6)
-                    if name == "no_icp":
-                        points_per_person.append(len(view.merged))
-                        gap = (view.frontal.facing_deg - true_facing[person] + 180.0) % 360.0 - 180.0
-                        facing_error.append(abs(float(gap)))
+            _fuse_people(payloads, n_people, poses, intrinsics, true_facing, variants, tally)
             bar.update()
-        per_frame = np.asarray(frame_bytes, dtype=np.float64)
-        cases.append(
-            {
-                "n_people": n_people,
-                "n_sensors": n_sensors,
-                "n_frames": n_frames,
-                "bytes_per_sensor_frame": _stats(sensor_bytes),
-                "bytes_per_frame": _stats(frame_bytes),
-                "megabits_per_second_mean": float(per_frame.mean() * FPS * 8 / 1e6),
-                "megabits_per_second_p99_frame": float(np.percentile(per_frame, 99) * FPS * 8 / 1e6),
-                "capture_ms_per_sensor_frame": _stats(capture_ms),
-                "fuse_ms_per_person_frame": {name: _stats(values) for name, values in fuse_ms.items()},
-                "fuse_cpu_ms_per_person_frame": {name: _stats(values) for name, values in fuse_cpu_ms.items()},
-                "merged_points_per_person": _stats(points_per_person),
-                "facing_error_deg": _stats(facing_error),
-            }
-        )
+        cases.append(tally.case(n_people, n_sensors, n_frames))
     bar.close()
     return {"voxel_mm": voxel_mm, "fps": FPS, "frame_budget_ms": FRAME_BUDGET_MS, "cases": cases}
+
+
+class _DepthTally:
+    """The measurements of one people count, gathered frame by frame."""
+
+    def __init__(self, variants: dict[str, DepthFusionParams]) -> None:
+        self.sensor_bytes: list[int] = []
+        self.frame_bytes: list[int] = []
+        self.capture_ms: list[float] = []
+        self.fuse_ms: dict[str, list[float]] = {name: [] for name in variants}
+        self.fuse_cpu_ms: dict[str, list[float]] = {name: [] for name in variants}
+        self.points_per_person: list[int] = []
+        self.facing_error: list[float] = []
+
+    def case(self, n_people: int, n_sensors: int, n_frames: int) -> dict[str, Any]:
+        per_frame = np.asarray(self.frame_bytes, dtype=np.float64)
+        return {
+            "n_people": n_people,
+            "n_sensors": n_sensors,
+            "n_frames": n_frames,
+            "bytes_per_sensor_frame": _stats(self.sensor_bytes),
+            "bytes_per_frame": _stats(self.frame_bytes),
+            "megabits_per_second_mean": float(per_frame.mean() * FPS * 8 / 1e6),
+            "megabits_per_second_p99_frame": float(np.percentile(per_frame, 99) * FPS * 8 / 1e6),
+            "capture_ms_per_sensor_frame": _stats(self.capture_ms),
+            "fuse_ms_per_person_frame": {name: _stats(values) for name, values in self.fuse_ms.items()},
+            "fuse_cpu_ms_per_person_frame": {name: _stats(values) for name, values in self.fuse_cpu_ms.items()},
+            "merged_points_per_person": _stats(self.points_per_person),
+            "facing_error_deg": _stats(self.facing_error),
+        }
+
+
+def _capture(
+    frames: Sequence[Any], t: int, intrinsics: Intrinsics, voxel_mm: float, tally: _DepthTally
+) -> list[tuple[int, bytes]]:
+    """The capture side of one instant: each sensor's person clouds, encoded (timed per sensor-frame)."""
+    payloads = []
+    for index, frame in enumerate(frames):
+        start = time.perf_counter_ns()
+        clouds = person_clouds(frame.depth, frame.body_index, intrinsics, voxel_mm=voxel_mm)
+        payload = encode_person_clouds(
+            PersonCloudsFrame(
+                frame.sensor_id,
+                t,
+                int(t * 1e6 / FPS),
+                0,
+                voxel_mm,
+                np.array([c.body_index for c in clouds], dtype=np.uint32),
+                tuple(c.points for c in clouds),
+            )
+        )
+        tally.capture_ms.append((time.perf_counter_ns() - start) / 1e6)
+        tally.sensor_bytes.append(len(payload))
+        payloads.append((index, payload))
+    tally.frame_bytes.append(sum(len(p) for _, p in payloads))
+    return payloads
+
+
+def _fuse_people(
+    payloads: list[tuple[int, bytes]],
+    n_people: int,
+    poses: np.ndarray,
+    intrinsics: Intrinsics,
+    true_facing: np.ndarray,
+    variants: dict[str, DepthFusionParams],
+    tally: _DepthTally,
+) -> None:
+    """The node side of one instant: decode and fuse each person, per variant (timed per person-frame)."""
+    for name, params in variants.items():
+        for person in range(n_people):
+            start, start_cpu = time.perf_counter_ns(), time.thread_time_ns()
+            per_sensor = []
+            for _, payload in payloads:
+                decoded = decode_person_clouds(payload)
+                found = np.nonzero(decoded.body_ids == person)[0]
+                per_sensor.append(decoded.clouds[found[0]] if found.size else np.zeros((0, 3)))
+            view = fuse_person_depth(
+                per_sensor, poses, intrinsics, skeleton_facing_deg=float(true_facing[person]), params=params
+            )
+            tally.fuse_ms[name].append((time.perf_counter_ns() - start) / 1e6)
+            tally.fuse_cpu_ms[name].append((time.thread_time_ns() - start_cpu) / 1e6)
+            if name == "no_icp":
+                tally.points_per_person.append(len(view.merged))
+                gap = (view.frontal.facing_deg - true_facing[person] + 180.0) % 360.0 - 180.0
+                tally.facing_error.append(abs(float(gap)))
 
 
 def format_depth_bench(result: dict[str, Any]) -> str:

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
-from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import N_JOINTS, PARENTS, Confidence
 
 OUTPUT_TOLERANCE_MM = 1e-6
@@ -139,14 +139,7 @@ def bench_case(
         if frame < checked:
             fast_positions.append(fused.positions)
 
-    try:  # the reference needs scikit-learn and filterpy: the dev extra, optional for a rig
-        from skelfuse.bench.reference import ReferenceFuser
-    except ImportError as exc:
-        raise ConfigError(
-            f"skelfuse bench fusion times against a scikit-learn + filterpy reference: {exc}; "
-            f'install them with `pip install -e ".[dev]"`'
-        ) from None
-    reference = ReferenceFuser(params, n_bodies=n_bodies)
+    reference = ReferenceFuser(params, n_bodies=n_bodies)  # loads scikit-learn and filterpy (the dev extra)
     reference_ns: list[int] = []
     max_diff = 0.0
     for frame in range(checked):

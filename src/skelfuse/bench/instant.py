@@ -264,7 +264,10 @@ def _worker_main(argv: Sequence[str]) -> int:
     parser.add_argument("--positions-only", action="store_true")
     parser.add_argument("numbers", type=int, nargs=3)
     args = parser.parse_args(argv)
-    print(json.dumps(time_instants(*args.numbers, paced=args.paced, positions_only=args.positions_only)))
+    n_sensors, n_people, n_frames = args.numbers
+    print(
+        json.dumps(time_instants(n_sensors, n_people, n_frames, paced=args.paced, positions_only=args.positions_only))
+    )
     return 0
 
 

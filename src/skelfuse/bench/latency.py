@@ -189,9 +189,45 @@ def measure(
     import zenoh
 
     load_before = os.getloadavg()  # the machine's load (1, 5, 15 min), recorded with every case
-    config = _rig_toml(workdir, n_sensors)
     port = free_port()
-    node = subprocess.Popen(
+    node = _start_node(_rig_toml(workdir, n_sensors), port, workdir / f"node-{n_sensors}.log", node_src)
+    n_instants = int((WARMUP_S + duration_s) * FPS)
+    frames = synthetic_frames(n_sensors, min(n_instants, 300), n_people=n_people)
+    collector = _Collector()
+    try:
+        session = zenoh.open(loopback_config(connect_ports=[port]))
+        try:
+            session.declare_subscriber(keys.fused_skeletons("bench"), collector.on_fused)
+            session.declare_subscriber(keys.status("bench", "fusion"), collector.on_status)
+            if not collector.ready.wait(60.0):
+                log = (workdir / f"node-{n_sensors}.log").read_text(errors="replace")[-2000:]
+                raise RuntimeError(f"the fusion node did not come up within 60 s:\n{log}")
+            published, measure_from, measured_until = _publish_instants(session, frames, n_instants)
+            time.sleep(0.6)  # one more status window
+            _stop_node(node, workdir / f"node-{n_sensors}.log")
+        finally:
+            close_session(session, what="bench latency")
+    finally:
+        if node.poll() is None:
+            os.killpg(node.pid, signal.SIGKILL)
+            node.wait(5.0)
+    with collector.lock:
+        e2e = [(collector.received[t] - p) / 1e6 for t, p in published.items() if t in collector.received]
+        n_complete = sum(1 for t in published if t in collector.complete)
+        # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up, over
+        # every instant of those windows (_merge_windows).
+        windows = [
+            st.info
+            for t, st in collector.statuses
+            if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"
+        ]
+    sent = len(published)
+    return _case(n_sensors, sent, e2e, n_complete, windows, load_before, n_people, node_src)
+
+
+def _start_node(config: Path, port: int, log_path: Path, node_src: Path | None) -> subprocess.Popen[bytes]:
+    """The fusion node under test, in a process group of its own, its log in ``log_path``."""
+    return subprocess.Popen(
         [
             sys.executable,
             "-m",
@@ -206,103 +242,109 @@ def measure(
         ],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
-        stderr=open(workdir / f"node-{n_sensors}.log", "wb"),
+        stderr=open(log_path, "wb"),
         start_new_session=True,
         env=None if node_src is None else dict(os.environ, PYTHONPATH=str(node_src)),
     )
-    period_ns = int(1e9 / FPS)
-    n_instants = int((WARMUP_S + duration_s) * FPS)
-    frames = synthetic_frames(n_sensors, min(n_instants, 300), n_people=n_people)
-    received: dict[int, int] = {}
-    statuses: list[Any] = []
-    lock = threading.Lock()
-    ready = threading.Event()
 
-    def on_fused(sample: Any) -> None:
+
+def _stop_node(node: subprocess.Popen[bytes], log_path: Path) -> None:
+    """SIGTERM to the node's group; say so on stderr when it has not stopped 15 s later (it is killed then)."""
+    os.killpg(node.pid, signal.SIGTERM)
+    try:
+        node.wait(15.0)
+    except subprocess.TimeoutExpired:
+        print(
+            f"bench latency: the node did not stop within 15 s of SIGTERM; killing it (log: {log_path})",
+            file=sys.stderr,
+        )
+
+
+class _Collector:
+    """What the harness's zenoh callbacks receive: the monotonic arrival time of each fused instant, which
+    instants fused every sensor, and the node's statuses."""
+
+    def __init__(self) -> None:
+        self.received: dict[int, int] = {}
+        self.complete: set[int] = set()
+        self.statuses: list[Any] = []
+        self.lock = threading.Lock()
+        self.ready = threading.Event()  # the node's first status: it is up and subscribed
+
+    def on_fused(self, sample: Any) -> None:
         now = time.monotonic_ns()
         try:
             frame = decode_fused_frame(sample.payload.to_bytes())
         except DecodeError:
             return
-        with lock:
-            received[int(frame.time_us)] = now
+        with self.lock:
+            self.received[int(frame.time_us)] = now
             if frame.contributors.size and frame.contributors[0].all():
-                complete.add(int(frame.time_us))
+                self.complete.add(int(frame.time_us))
 
-    def on_status(sample: Any) -> None:
+    def on_status(self, sample: Any) -> None:
         try:
             status = decode_status(sample.payload.to_bytes())
         except DecodeError:
             return
-        with lock:
-            statuses.append((time.monotonic_ns(), status))
-        ready.set()
+        with self.lock:
+            self.statuses.append((time.monotonic_ns(), status))
+        self.ready.set()
 
-    complete: set[int] = set()
+
+def _publish_instants(
+    session: Any, frames: list[list[SensorFrame]], n_instants: int
+) -> tuple[dict[int, int], int, int]:
+    """Publish ``n_instants`` instants at FPS, every sensor's frame stamped now.
+
+    Returns the monotonic time each measured instant's last frame went out (by device time, after the
+    warm-up), when the first whole status window after the warm-up starts, and when publishing ended.
+    """
+    period_ns = int(1e9 / FPS)
     published: dict[int, int] = {}
-    measure_from = measured_until = 0
-    try:
-        session = zenoh.open(loopback_config(connect_ports=[port]))
-        try:
-            session.declare_subscriber(keys.fused_skeletons("bench"), on_fused)
-            session.declare_subscriber(keys.status("bench", "fusion"), on_status)
-            if not ready.wait(60.0):
-                log = (workdir / f"node-{n_sensors}.log").read_text(errors="replace")[-2000:]
-                raise RuntimeError(f"the fusion node did not come up within 60 s:\n{log}")
-            publishers = [
-                session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True) for f in frames[0]
-            ]
-            time.sleep(0.3)  # let the node's subscriber see the publishers
-            start = time.monotonic_ns() + period_ns
-            base_us = time.time_ns() // 1000
-            for k in range(n_instants):
-                due = start + k * period_ns
-                delay = due - time.monotonic_ns()
-                if delay > 0:
-                    time.sleep(delay / 1e9)
-                device_us = base_us + round(k * 1e6 / FPS)
-                batch = [
-                    encode_sensor_frame(
-                        dataclasses.replace(f, sequence=k, device_time_us=device_us, host_time_ns=time.time_ns())
-                    )
-                    for f in frames[k % len(frames)]
-                ]
-                for publisher, payload in zip(publishers[:-1], batch[:-1], strict=True):
-                    publisher.put(payload)
-                last = time.monotonic_ns()
-                publishers[-1].put(batch[-1])
-                if k >= WARMUP_S * FPS:
-                    if not published:
-                        measure_from = time.monotonic_ns() + 500_000_000  # first whole status window
-                    published[device_us] = last
-            measured_until = time.monotonic_ns()
-            time.sleep(0.6)  # one more status window
-            os.killpg(node.pid, signal.SIGTERM)
-            try:
-                node.wait(15.0)
-            except subprocess.TimeoutExpired:
-                print(
-                    f"bench latency: the node did not stop within 15 s of SIGTERM; killing it (log: "
-                    f"{workdir / f'node-{n_sensors}.log'})",
-                    file=sys.stderr,
-                )
-        finally:
-            close_session(session, what="bench latency")
-    finally:
-        if node.poll() is None:
-            os.killpg(node.pid, signal.SIGKILL)
-            node.wait(5.0)
-    with lock:
-        e2e = [(received[t] - p) / 1e6 for t, p in published.items() if t in received]
-        n_complete = sum(1 for t in published if t in complete)
-        # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up, over
-        # every instant of those windows (_merge_windows).
-        windows = [
-            st.info for t, st in statuses if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"
+    measure_from = 0
+    publishers = [
+        session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True) for f in frames[0]
+    ]
+    time.sleep(0.3)  # let the node's subscriber see the publishers
+    start = time.monotonic_ns() + period_ns
+    base_us = time.time_ns() // 1000
+    for k in range(n_instants):
+        due = start + k * period_ns
+        delay = due - time.monotonic_ns()
+        if delay > 0:
+            time.sleep(delay / 1e9)
+        device_us = base_us + round(k * 1e6 / FPS)
+        batch = [
+            encode_sensor_frame(
+                dataclasses.replace(f, sequence=k, device_time_us=device_us, host_time_ns=time.time_ns())
+            )
+            for f in frames[k % len(frames)]
         ]
+        for publisher, payload in zip(publishers[:-1], batch[:-1], strict=True):
+            publisher.put(payload)
+        last = time.monotonic_ns()
+        publishers[-1].put(batch[-1])
+        if k >= WARMUP_S * FPS:
+            if not published:
+                measure_from = time.monotonic_ns() + 500_000_000  # first whole status window
+            published[device_us] = last
+    return published, measure_from, time.monotonic_ns()
+
+
+def _case(
+    n_sensors: int,
+    sent: int,
+    e2e: list[float],
+    n_complete: int,
+    windows: list[Any],
+    load_before: tuple[float, float, float],
+    n_people: int,
+    node_src: Path | None,
+) -> LatencyCase:
+    """The figures of one sensor count from what was sent and received."""
     added = _merge_windows(windows, "node_added_ms")
     fusion = _merge_windows(windows, "fusion_ms")
-    sent = len(published)
     complete_fraction = n_complete / sent if sent else 0.0
     p99 = _percentile(e2e, 99)
     sustained = bool(

@@ -7,31 +7,66 @@ prediction as trick 2's candidate): plain Python loops over bodies, sensors and 
 ``DBSCAN(min_samples=1)``
 per joint, and one filterpy ``KalmanFilter`` per joint. It is slow on purpose (about 100x), clear rather
 than fast; "both give the same output" is what the benchmark and the pipeline tests check.
+
+scikit-learn and filterpy (the dev extra) load when a :class:`ReferenceFuser` is built, so that importing this
+module, and the benchmarks beside it, needs neither (:func:`reference_libraries`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-import sklearn
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
-from sklearn.cluster import DBSCAN
 
 from skelfuse.fusion.pipeline import FusionResult
 from skelfuse.fusion.presets import FusionParams
+from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import MIRROR_PAIRS, N_JOINTS, PAPER_REALIGN_PAIRS, J
 
 MEDIUM = 2
 
 
+@dataclass(frozen=True)
+class ReferenceLibraries:
+    """The reference's oracles: scikit-learn's DBSCAN (and its config context), filterpy's Kalman filter."""
+
+    sklearn_config_context: Any
+    DBSCAN: Any
+    KalmanFilter: Any
+    Q_discrete_white_noise: Any
+
+
+def reference_libraries() -> ReferenceLibraries:
+    """scikit-learn and filterpy, loaded now.
+
+    Raises
+    ------
+    ConfigError
+        One of them is not installed (they come with the dev extra).
+    """
+    try:
+        import sklearn
+        from filterpy.common import Q_discrete_white_noise
+        from filterpy.kalman import KalmanFilter
+        from sklearn.cluster import DBSCAN
+    except ImportError as exc:
+        raise ConfigError(
+            f"the scikit-learn + filterpy reference fusion needs both: {exc}; "
+            f'install them with `pip install -e ".[dev]"`'
+        ) from None
+    return ReferenceLibraries(sklearn.config_context, DBSCAN, KalmanFilter, Q_discrete_white_noise)
+
+
 class _Track:
     """Filter of one joint: a filterpy KalmanFilter, or the alpha-beta position and velocity."""
 
-    def __init__(self, params: FusionParams, z: np.ndarray) -> None:
+    def __init__(self, params: FusionParams, z: np.ndarray, libraries: ReferenceLibraries) -> None:
         self.coast = 0
         self.kind = params.filter
+        self.libraries = libraries
+        KalmanFilter = libraries.KalmanFilter
         if self.kind == "paper_kalman":
             kf = KalmanFilter(dim_x=3, dim_z=3)
             kf.F = np.eye(3)
@@ -63,7 +98,9 @@ class _Track:
             return out
         if self.kind == "cv_kalman":
             self.kf.F = np.kron(np.eye(3), np.array([[1.0, dt_s], [0.0, 1.0]]))
-            self.kf.Q = Q_discrete_white_noise(dim=2, dt=dt_s, var=params.cv_accel_sigma_mm_s2**2, block_size=3)
+            self.kf.Q = self.libraries.Q_discrete_white_noise(
+                dim=2, dt=dt_s, var=params.cv_accel_sigma_mm_s2**2, block_size=3
+            )
             self.kf.predict()
             if z is not None:
                 r = params.cv_meas_sigma_mm**2
@@ -88,6 +125,7 @@ class ReferenceFuser:
         self.params = params
         self.n_bodies = n_bodies
         self.sensor_positions = sensor_positions
+        self.libraries = reference_libraries()
         self.reset()
 
     def reset(self) -> None:
@@ -97,7 +135,7 @@ class ReferenceFuser:
 
     def step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float = 1.0 / 30.0) -> FusionResult:
         # Inputs are checked here; scikit-learn's own per-call validation would dominate the run time.
-        with sklearn.config_context(assume_finite=True, skip_parameter_validation=True):
+        with self.libraries.sklearn_config_context(assume_finite=True, skip_parameter_validation=True):
             return self._step(np.asarray(candidates), np.asarray(confidence), dt_s)
 
     def _step(self, candidates: np.ndarray, confidence: np.ndarray, dt_s: float) -> FusionResult:
@@ -174,7 +212,11 @@ class ReferenceFuser:
             kinds.append("prev")
             weights.append(self.params.previous_weight)
         # Nc = 1 and every weight counted by hand (sample_weight below 1 would make a point non-core).
-        labels = DBSCAN(eps=self.params.eps_mm, min_samples=1, algorithm="brute").fit(np.array(points)).labels_
+        labels = (
+            self.libraries.DBSCAN(eps=self.params.eps_mm, min_samples=1, algorithm="brute")
+            .fit(np.array(points))
+            .labels_
+        )
         best_key = None
         best = None
         for label in sorted(set(labels.tolist())):
@@ -186,7 +228,7 @@ class ReferenceFuser:
             for i in idx:
                 score += weights[i]
             centroid = np.mean([pos[s][j] for s in cluster_sensors], axis=0)
-            rounded = np.round(centroid, 6)
+            rounded: np.ndarray = np.round(np.asarray(centroid), 6)
             key = (
                 score,
                 any(kinds[i] == "prev" for i in idx),
@@ -200,6 +242,7 @@ class ReferenceFuser:
             )
             if best_key is None or key > best_key:
                 best_key, best = key, (centroid, cluster_sensors)
+        assert best is not None  # the loop above always has a cluster with a sensor: the candidates include them
         centroid, members = best
         return centroid, members, max(conf[s][j] for s in members)
 
@@ -210,7 +253,7 @@ class ReferenceFuser:
         if track is None:
             if z is None:
                 return np.full(3, np.nan)
-            self.tracks[b][j] = _Track(self.params, z)
+            self.tracks[b][j] = _Track(self.params, z, self.libraries)
             return z
         out = track.step(self.params, z, n_agree, dt_s)
         if z is not None:
@@ -292,7 +335,7 @@ def _teleported(pos: list[list], previous: list[np.ndarray | None], max_jump_mm:
     centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
     if any(previous[j] is None for j in centre):
         return False
-    then = np.mean([previous[j] for j in centre], axis=0)
+    then = np.mean([p for j in centre if (p := previous[j]) is not None], axis=0)  # all four: checked above
     views = [np.mean([row[j] for j in centre], axis=0) for row in pos if all(row[j] is not None for j in centre)]
     if not views:
         return False

@@ -89,7 +89,7 @@ def _diagonal_crossing(corners: np.ndarray) -> np.ndarray:
 def _marker_center_from_depth(
     corners: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics, method: str, erode_px: int
 ) -> tuple[np.ndarray, int]:
-    mask = np.zeros(depth.shape, np.uint8)
+    mask: np.ndarray = np.zeros(depth.shape, np.uint8)
     cv2.fillConvexPoly(mask, np.rint(corners).astype(np.int32), 1)
     if erode_px > 0:
         mask = cv2.erode(mask, np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8))
@@ -226,7 +226,7 @@ def world_from_marker_centres(
     m0, m1, m2 = (np.asarray(centres[i], dtype=np.float64) for i in ids[:3])
     x = m1 - m2
     y = m1 - m0
-    nx, ny = np.linalg.norm(x), np.linalg.norm(y)
+    nx, ny = float(np.linalg.norm(x)), float(np.linalg.norm(y))
     z = np.cross(x / max(nx, 1e-12), y / max(ny, 1e-12))
     if nx < 1.0 or ny < 1.0 or np.linalg.norm(z) < 0.1:
         raise CalibrationError(

@@ -52,9 +52,9 @@ class Quad:
     checker_mm : a grey checkerboard of this square size (plus a fine noise), optional (floors, walls).
     """
 
-    center_mm: Sequence[float]
-    u_axis: Sequence[float]
-    v_axis: Sequence[float]
+    center_mm: Sequence[float] | np.ndarray
+    u_axis: Sequence[float] | np.ndarray
+    v_axis: Sequence[float] | np.ndarray
     half_u_mm: float
     half_v_mm: float
     color_bgr: Sequence[int] = (128, 128, 128)

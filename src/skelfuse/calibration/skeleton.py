@@ -71,7 +71,8 @@ Cycle
    sensor whose pair fits far better with its frames shifted in time (residual below 0.75 x, as many
    inlier frames; the shift proposed by the person's motion) gets ``bad`` with the shift and the
    ``--time-offset`` that fixes it. Simulated 2-sensor walks: fraction 1.0 when paired right, 0.76-0.92
-   two frames off, 0.13-0.24 fifty-seven frames off (the real take of issue 9: 201 of 862 frames, 0.23).
+   two frames off, 0.13-0.24 fifty-seven frames off (a real take whose files were paired off in time: 201 of
+   862 frames, 0.23).
 
    The master's pose is fixed, so its half-take agreement is 0 by definition; its verdict rests on its
    residual and point count.
@@ -84,315 +85,65 @@ apply (rotation deg, translation at the subject mm), and a "moved" warning past 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.calibration.rigid import fit_rigid, fit_rigid_ransac, refine_rigid_trimmed, rotation_angle_deg
+from skelfuse.calibration.skeleton_fit import (
+    PairEdge,
+    calibrate_relative,
+    fit_floor,
+    fit_pair,
+    floor_world_from_master,
+    half_mask,
+    pair_residuals,
+    pose_difference,
+    refine_joint,
+    sensor_points,
+)
+from skelfuse.calibration.skeleton_records import (
+    FOOT_JOINTS,
+    MIDLINE_JOINTS,
+    NOMINAL_PELVIS_HEIGHT_MM,
+    SIDE_PAIRS,
+    CalibrationCheck,
+    FloorFit,
+    PairFit,
+    SensorCheck,
+    SensorQuality,
+    SkeletonCalibration,
+    SkeletonCalibrationOptions,
+    VerdictThresholds,
+)
 from skelfuse.config.calibration_file import CalibrationResult, SensorCalibration, now_iso
-from skelfuse.fusion.mirror import pair_costs
-from skelfuse.fusion.transform import invert_transform, make_transform, transform_points
+from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.progress import Progress
 from skelfuse.rig.motion_sync import band_pass, estimate_lag, motion_features
 from skelfuse.schema.errors import CalibrationError
-from skelfuse.schema.skeleton import N_JOINTS, Confidence, J
+from skelfuse.schema.skeleton import N_JOINTS
 
-MIDLINE_JOINTS = np.array([J[n] for n in ("PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "HEAD")], dtype=np.int64)
-"""Torso joints on the body's mid-line: a left/right flip leaves them in place."""
-
-SIDE_PAIRS = np.array(
-    [
-        [J["CLAVICLE_LEFT"], J["CLAVICLE_RIGHT"]],
-        [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"]],
-        [J["HIP_LEFT"], J["HIP_RIGHT"]],
-    ],
-    dtype=np.int64,
-)
-"""(left, right) torso joints used where both views' labels agree."""
-
-FOOT_JOINTS = np.array([J[n] for n in ("ANKLE_LEFT", "ANKLE_RIGHT", "FOOT_LEFT", "FOOT_RIGHT")], dtype=np.int64)
-"""Joints whose lowest one per frame is taken as a floor contact."""
-
-NOMINAL_PELVIS_HEIGHT_MM = 950.0
-"""Floor height below the mean pelvis when no foot is seen (an adult standing; a guess, reported as such)."""
-
-_SIGMA_FLOOR_MM = 30.0
-_SIGMA_SPINE_RAD = np.radians(2.0)
-
-
-@dataclass(frozen=True)
-class VerdictThresholds:
-    """Limits of the per-sensor verdict (see the module docstring). ``good`` needs every ``good_*``."""
-
-    good_half_rotation_deg: float = 2.0
-    good_half_translation_mm: float = 75.0
-    good_residual_mm: float = 70.0
-    good_min_points: int = 500
-    check_half_rotation_deg: float = 5.0
-    check_half_translation_mm: float = 150.0
-    check_residual_mm: float = 120.0
-    check_min_points: int = 100
-    good_inlier_frame_fraction: float = 0.7
-    check_inlier_frame_fraction: float = 0.4
-    repaired_residual_ratio: float = 0.75
-    max_pairing_shift_frames: int = 150
-
-
-@dataclass(frozen=True)
-class SkeletonCalibrationOptions:
-    """Parameters of :func:`calibrate_from_skeletons` and :func:`check_calibration`.
-
-    Attributes
-    ----------
-    min_confidence : joints below this confidence are left out (default MEDIUM: LOW and NONE out).
-    ransac_threshold_mm : RANSAC inlier distance on the mid-line points, mm.
-    ransac_iterations : RANSAC samples per pair.
-    final_threshold_mm : inlier distance of the trimmed refinement, mm (about 3x a good residual).
-    trim_fraction : share of the worst inliers dropped at each refinement step.
-    side_margin : side joints of a frame are used when ``keep < side_margin * swap`` (see the module doc).
-    min_pair_points : fewest mid-line correspondences for a pair to be fitted at all.
-    min_half_points : fewest correspondences a sensor needs in each half for the half-take agreement.
-    foot_joint_height_mm : height of the lowest foot joint above the floor when standing, mm.
-    refine_sweeps : most sweeps of the joint (all-pairs) refinement.
-    seed : seeds RANSAC, so a calibration is reproducible.
-    verdict : thresholds of the per-sensor verdict.
-    """
-
-    min_confidence: Confidence = Confidence.MEDIUM
-    ransac_threshold_mm: float = 120.0
-    ransac_iterations: int = 400
-    final_threshold_mm: float = 80.0
-    trim_fraction: float = 0.1
-    side_margin: float = 0.6
-    min_pair_points: int = 50
-    min_half_points: int = 50
-    foot_joint_height_mm: float = 30.0
-    refine_sweeps: int = 100
-    seed: int = 0
-    verdict: VerdictThresholds = field(default_factory=VerdictThresholds)
-
-
-@dataclass(frozen=True)
-class PairFit:
-    """One pair of sensors that saw the person together.
-
-    Attributes
-    ----------
-    sensor_a, sensor_b : sensor ids; the fit maps b's frame to a's (``a_from_b``).
-    a_from_b : (4, 4) pairwise robust fit, mm.
-    n_points : correspondences the final pairwise fit used (inliers).
-    n_frames : frames contributing at least one inlier.
-    rms_mm : residual RMS of the pairwise fit, mm.
-    rms_joint_mm : residual RMS of the same correspondences under the final joint (all-pairs) poses, mm.
-    side_frames : frames whose side joints (clavicles, shoulders, hips) were used (labels agreed).
-    mirrored_frames : frames whose side joints were left out because the views' labels disagreed.
-    """
-
-    sensor_a: str
-    sensor_b: str
-    a_from_b: np.ndarray
-    n_points: int
-    n_frames: int
-    rms_mm: float
-    rms_joint_mm: float
-    side_frames: int
-    mirrored_frames: int
-
-
-@dataclass(frozen=True)
-class SensorQuality:
-    """How far to trust one sensor's pose.
-
-    Attributes
-    ----------
-    sensor_id : str
-    residual_mm : RMS distance between this sensor's joints and its partners' same joints under the final
-        poses, mm (NaN when the sensor had no correspondences).
-    n_points : correspondences over all its pairs.
-    half_rotation_deg, half_translation_mm : disagreement of the fits on the first and second half of the
-        take (translation at the subject); None where a half had too few points.
-    verdict : "good", "check" or "bad".
-    reasons : why the verdict is not "good" (empty when it is).
-    inlier_frame_fraction : of the frames in which this sensor and its best partner both saw the torso, the
-        share that hold an inlier of their pairwise fit (about 1 for a well paired take; frames paired in
-        time wrongly drop it: 0.13-0.24 in simulated walks shifted by 57 frames).
-    better_shift_frames, better_shift_rms_mm : where pairing this sensor's frames a few frames off fits much
-        better (see :func:`pairing_check`): the shift (frames of this sensor to move later) and the pairwise
-        residual there; None when the pairing as given is the best one tried.
-    """
-
-    sensor_id: str
-    residual_mm: float
-    n_points: int
-    half_rotation_deg: float | None
-    half_translation_mm: float | None
-    verdict: str
-    reasons: tuple[str, ...] = ()
-    inlier_frame_fraction: float | None = None
-    better_shift_frames: int | None = None
-    better_shift_rms_mm: float | None = None
-
-
-@dataclass(frozen=True)
-class FloorFit:
-    """The floor found from the feet, in the master's frame.
-
-    Attributes
-    ----------
-    normal : (3,) unit normal pointing up (toward the head), master frame.
-    point_mm : (3,) a point on the floor (under the mean pelvis), master frame, mm.
-    n_points : floor contacts used after trimming.
-    rms_mm : RMS distance of the contacts from their plane, mm.
-    spine_tilt_deg : angle between the floor normal and the mean spine direction, deg.
-    plate_tilt_deg : angle between the given world's z and the floor normal (ArUco plate given), else None.
-    """
-
-    normal: np.ndarray
-    point_mm: np.ndarray
-    n_points: int
-    rms_mm: float
-    spine_tilt_deg: float
-    plate_tilt_deg: float | None = None
-
-
-@dataclass(frozen=True)
-class SkeletonCalibration:
-    """Result of :func:`calibrate_from_skeletons`.
-
-    Attributes
-    ----------
-    sensor_ids : tuple of ids in input order.
-    master : id of the sensor whose frame anchors the fit.
-    world_from_sensor : dict id → (4, 4), mm, world z up.
-    master_from_sensor : dict id → (4, 4), the relative poses (the master's is the identity).
-    quality : dict id → :class:`SensorQuality`.
-    pairs : the pairwise fits (:class:`PairFit`).
-    floor : :class:`FloorFit`.
-    world_source : "floor" or "plate" (``master_world_from_sensor`` given).
-    n_frames : frames in the take.
-    """
-
-    sensor_ids: tuple[str, ...]
-    master: str
-    world_from_sensor: dict[str, np.ndarray]
-    master_from_sensor: dict[str, np.ndarray]
-    quality: dict[str, SensorQuality]
-    pairs: tuple[PairFit, ...]
-    floor: FloorFit
-    world_source: str
-    n_frames: int
-
-    def world_from_sensor_array(self, order: Sequence[str] | None = None) -> np.ndarray:
-        """(S, 4, 4) poses in ``order`` (default: input order), for :func:`apply_transform`."""
-        return np.stack([self.world_from_sensor[s] for s in (order or self.sensor_ids)])
-
-    def residuals_mm(self) -> dict[str, float]:
-        """Per-sensor residual, mm: store it with the calibration for :func:`check_calibration`."""
-        return {s: q.residual_mm for s, q in self.quality.items()}
-
-    def report(self) -> str:
-        """Human-readable summary: one line per sensor, the pairs, the floor."""
-        lines = [
-            f"Skeleton calibration: {len(self.sensor_ids)} sensors, master {self.master}, {self.n_frames} frames, "
-            f"world from the {'ArUco plate' if self.world_source == 'plate' else 'floor (feet) and master view'}",
-            f"{'sensor':<20} {'verdict':<7} {'residual':>9} {'points':>7} {'half-take':>18}",
-        ]
-        for sensor_id in self.sensor_ids:
-            q = self.quality[sensor_id]
-            if sensor_id == self.master:
-                half = "(master)"
-            elif q.half_rotation_deg is None:
-                half = "n/a"
-            else:
-                half = f"{q.half_rotation_deg:.2f}° {q.half_translation_mm:.0f} mm"
-            lines.append(
-                f"{sensor_id:<20} {q.verdict:<7} {q.residual_mm:>6.1f} mm {q.n_points:>7d} {half:>18}"
-                + (f"  ({'; '.join(q.reasons)})" if q.reasons else "")
-            )
-        lines.append("pairs (b → a): inliers, frames, pairwise / joint RMS, frames with side joints / mirrored:")
-        for p in self.pairs:
-            lines.append(
-                f"  {p.sensor_b} → {p.sensor_a}: {p.n_points} pts, {p.n_frames} frames, "
-                f"{p.rms_mm:.1f} / {p.rms_joint_mm:.1f} mm, side {p.side_frames} / mirrored {p.mirrored_frames}"
-            )
-        f = self.floor
-        if f.n_points == 0:
-            floor = (
-                "floor: no foot contacts (feet not seen at MEDIUM confidence): z is the mean spine direction and the "
-                f"floor a nominal {NOMINAL_PELVIS_HEIGHT_MM:.0f} mm below the mean pelvis; "
-                "record the feet or use a plate"
-            )
-        else:
-            floor = (
-                f"floor: {f.n_points} foot contacts, plane RMS {f.rms_mm:.0f} mm, "
-                f"{f.spine_tilt_deg:.1f}° from the mean spine direction"
-            )
-        if f.plate_tilt_deg is not None:
-            floor += f", {f.plate_tilt_deg:.1f}° from the plate's z"
-        lines.append(floor)
-        lines.append(
-            "verdicts: good = half-take fits agree within 2° / 75 mm and residual ≤ 70 mm; check = within 5° / "
-            "150 mm (record a longer walk through every shared view); bad = do not use"
-        )
-        return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class SensorCheck:
-    """One sensor in :func:`check_calibration`.
-
-    Attributes
-    ----------
-    sensor_id : str
-    residual_mm : residual RMS under the stored calibration on the new take, mm (NaN: no correspondences).
-    refit_residual_mm : residual RMS after a fresh fit on the new take, mm.
-    reference_residual_mm : the residual stored at calibration time, or None.
-    correction_rotation_deg, correction_translation_mm : what the fresh fit changes relative to the stored
-        calibration (translation at the subject), NaN where the sensor could not be fitted.
-    n_points : correspondences on the new take.
-    moved : the sensor exceeds a threshold (see ``warnings``).
-    """
-
-    sensor_id: str
-    residual_mm: float
-    refit_residual_mm: float
-    reference_residual_mm: float | None
-    correction_rotation_deg: float
-    correction_translation_mm: float
-    n_points: int
-    moved: bool
-
-
-@dataclass(frozen=True)
-class CalibrationCheck:
-    """Result of :func:`check_calibration`: per sensor, and the warnings to show."""
-
-    master: str
-    sensors: dict[str, SensorCheck]
-    warnings: tuple[str, ...]
-
-    @property
-    def moved(self) -> tuple[str, ...]:
-        """Ids of the sensors that look moved."""
-        return tuple(s for s, c in self.sensors.items() if c.moved)
-
-    def report(self) -> str:
-        lines = [
-            f"Calibration check against a new take (master {self.master} held fixed):",
-            f"{'sensor':<20} {'residual':>9} {'stored':>9} {'refit':>9} {'correction':>18} {'points':>7}",
-        ]
-        for c in self.sensors.values():
-            stored = "-" if c.reference_residual_mm is None else f"{c.reference_residual_mm:.1f}"
-            corr = f"{c.correction_rotation_deg:.2f}° {c.correction_translation_mm:.0f} mm"
-            lines.append(
-                f"{c.sensor_id:<20} {c.residual_mm:>9.1f} {stored:>9} {c.refit_residual_mm:>9.1f} {corr:>18} "
-                f"{c.n_points:>7d}" + ("  MOVED" if c.moved else "")
-            )
-        lines.extend(f"warning: {w}" for w in self.warnings)
-        if not self.warnings:
-            lines.append("no sensor moved beyond the thresholds")
-        return "\n".join(lines)
+# The records and the fits live in skeleton_records.py and skeleton_fit.py; the records are re-exported here.
+__all__ = [
+    "FOOT_JOINTS",
+    "MIDLINE_JOINTS",
+    "NOMINAL_PELVIS_HEIGHT_MM",
+    "SIDE_PAIRS",
+    "CalibrationCheck",
+    "FloorFit",
+    "PairFit",
+    "PairingCheck",
+    "SensorCheck",
+    "SensorQuality",
+    "SkeletonCalibration",
+    "SkeletonCalibrationOptions",
+    "VerdictThresholds",
+    "calibrate_from_skeletons",
+    "check_calibration",
+    "pairing_check",
+    "skeleton_calibration_result",
+    "stack_sensor_takes",
+]
 
 
 # ---------------------------------------------------------------------------------------------------- input
@@ -442,342 +193,6 @@ def _validate(
     if master not in ids:
         raise ValueError(f"master {master!r} is not one of the sensor ids {ids}")
     return pos, conf, ids, ids.index(master)
-
-
-# ------------------------------------------------------------------------------------------ correspondences
-
-
-@dataclass
-class _Edge:
-    a: int
-    b: int
-    src: np.ndarray  # (N, 3) b's points, b's frame
-    dst: np.ndarray  # (N, 3) a's points, a's frame
-    frames: np.ndarray  # (N,) frame index
-    fit_rms: float
-    a_from_b: np.ndarray
-    side_frames: int
-    mirrored_frames: int
-
-
-def _midline_pairs(pos: np.ndarray, ok: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    both = ok[:, a, MIDLINE_JOINTS] & ok[:, b, MIDLINE_JOINTS]
-    frames, k = np.nonzero(both)
-    joints = MIDLINE_JOINTS[k]
-    return pos[frames, b, joints], pos[frames, a, joints], frames
-
-
-def _side_pairs(
-    pos: np.ndarray, ok: np.ndarray, a: int, b: int, a_from_b: np.ndarray, margin: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """Side-joint correspondences of the frames where both views' left/right labels agree."""
-    left, right = SIDE_PAIRS[:, 0], SIDE_PAIRS[:, 1]
-    decidable = ok[:, a][:, left] & ok[:, a][:, right] & ok[:, b][:, left] & ok[:, b][:, right]  # (T, P)
-    with np.errstate(invalid="ignore"):
-        bl, br = transform_points(a_from_b, pos[:, b][:, left]), transform_points(a_from_b, pos[:, b][:, right])
-        al, ar = pos[:, a][:, left], pos[:, a][:, right]
-        keep, swap = pair_costs(al, ar, bl, br)
-    keep_sum = np.where(decidable, keep, 0.0).sum(axis=1)
-    swap_sum = np.where(decidable, swap, 0.0).sum(axis=1)
-    any_dec = decidable.any(axis=1)
-    agree = any_dec & (keep_sum < margin * swap_sum)
-    mirrored = any_dec & (swap_sum < margin * keep_sum)
-    side = SIDE_PAIRS.reshape(-1)
-    use = agree[:, None] & ok[:, a][:, side] & ok[:, b][:, side]
-    frames, k = np.nonzero(use)
-    joints = side[k]
-    return pos[frames, b, joints], pos[frames, a, joints], frames, int(agree.sum()), int(mirrored.sum())
-
-
-def _fit_pair(
-    pos: np.ndarray, ok: np.ndarray, a: int, b: int, opts: SkeletonCalibrationOptions, rng: np.random.Generator
-) -> _Edge | None:
-    src_m, dst_m, fr_m = _midline_pairs(pos, ok, a, b)
-    if len(src_m) < opts.min_pair_points:
-        return None
-    try:
-        fit = fit_rigid_ransac(
-            src_m,
-            dst_m,
-            threshold_mm=opts.ransac_threshold_mm,
-            iterations=opts.ransac_iterations,
-            min_inliers=opts.min_pair_points // 2,
-            rng=rng,
-            trim_fraction=opts.trim_fraction,
-        )
-    except CalibrationError:
-        return None
-    a_from_b = fit.matrix
-    side_n = mirrored_n = 0
-    src, dst, frames = src_m, dst_m, fr_m
-    for _ in range(2):
-        src_s, dst_s, fr_s, side_n, mirrored_n = _side_pairs(pos, ok, a, b, a_from_b, opts.side_margin)
-        src, dst = np.concatenate([src_m, src_s]), np.concatenate([dst_m, dst_s])
-        frames = np.concatenate([fr_m, fr_s])
-        try:
-            fit = refine_rigid_trimmed(
-                src,
-                dst,
-                a_from_b[:3, :3],
-                a_from_b[:3, 3],
-                threshold_mm=opts.final_threshold_mm,
-                trim_fraction=opts.trim_fraction,
-                min_inliers=opts.min_pair_points // 2,
-            )
-        except CalibrationError:
-            return None
-        a_from_b = fit.matrix
-    # Correspondences kept for the joint refinement: inliers of the final pairwise fit, untrimmed.
-    resid = np.linalg.norm(transform_points(a_from_b, src) - dst, axis=1)
-    keep = resid < opts.final_threshold_mm
-    return _Edge(a, b, src[keep], dst[keep], frames[keep], fit.rms_mm, a_from_b, side_n, mirrored_n)
-
-
-def _spanning_poses(edges: list[_Edge], n_sensors: int, master: int, ids: tuple[str, ...]) -> np.ndarray:
-    """Initial master_from_sensor (S, 4, 4) by composition along a maximum spanning tree (Prim, from master)."""
-    poses = np.full((n_sensors, 4, 4), np.nan)
-    poses[master] = np.eye(4)
-    reached = {master}
-    while len(reached) < n_sensors:
-        best = None
-        for e in edges:
-            if (e.a in reached) != (e.b in reached) and (best is None or len(e.src) > len(best.src)):
-                best = e
-        if best is None:
-            missing = [ids[s] for s in range(n_sensors) if s not in reached]
-            raise CalibrationError(
-                f"could not link sensors {', '.join(missing)} to master {ids[master]}: no chain of sensor pairs "
-                "saw the person together in enough frames (MEDIUM torso joints). Record a walk that passes "
-                "through each sensor's view together with another sensor's, and check that the frames are "
-                "synchronized"
-            )
-        if best.a in reached:  # master_from_b = master_from_a @ a_from_b
-            poses[best.b] = poses[best.a] @ best.a_from_b
-            reached.add(best.b)
-        else:
-            poses[best.a] = poses[best.b] @ invert_transform(best.a_from_b)
-            reached.add(best.a)
-    return poses
-
-
-def _refine_joint(
-    edges: list[_Edge],
-    poses: np.ndarray,
-    master: int,
-    sweeps: int,
-    frame_mask: Callable[[_Edge], np.ndarray] | None = None,
-    min_points: int = 3,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Alternating least squares over all pairs; returns (poses, fitted (S,) bool)."""
-    poses = poses.copy()
-    n_sensors = len(poses)
-    sel = [np.ones(len(e.src), bool) if frame_mask is None else frame_mask(e) for e in edges]
-    counts = np.zeros(n_sensors, dtype=np.int64)
-    for e, m in zip(edges, sel, strict=True):
-        counts[e.a] += m.sum()
-        counts[e.b] += m.sum()
-    fitted = counts >= min_points
-    fitted[master] = True
-    for _ in range(sweeps):
-        change = 0.0
-        for s in range(n_sensors):
-            if s == master or not fitted[s]:
-                continue
-            src, dst = [], []
-            for e, m in zip(edges, sel, strict=True):
-                if not m.any():
-                    continue
-                if e.b == s and fitted[e.a]:
-                    src.append(e.src[m])
-                    dst.append(transform_points(poses[e.a], e.dst[m]))
-                elif e.a == s and fitted[e.b]:
-                    src.append(e.dst[m])
-                    dst.append(transform_points(poses[e.b], e.src[m]))
-            if sum(len(x) for x in src) < min_points:
-                fitted[s] = False
-                continue
-            try:
-                fit = fit_rigid(np.concatenate(src), np.concatenate(dst))
-            except CalibrationError:
-                fitted[s] = False
-                continue
-            new = fit.matrix
-            old = poses[s]
-            change = max(
-                change,
-                rotation_angle_deg(new[:3, :3] @ old[:3, :3].T) / 1e-3,
-                float(np.linalg.norm(new[:3, 3] - old[:3, 3])) / 1e-2,
-            )
-            poses[s] = new
-        if change < 1.0:  # every pose moved by less than 1e-3 deg and 0.01 mm in this sweep
-            break
-    return poses, fitted
-
-
-def _half_mask(first: bool) -> Callable[[_Edge], np.ndarray]:
-    def mask(edge: _Edge) -> np.ndarray:
-        if not len(edge.frames):
-            return np.zeros(0, bool)
-        split = np.median(edge.frames)
-        below = edge.frames < split
-        if not below.any():  # every correspondence in one frame: no halves
-            return np.zeros(len(edge.frames), bool) if first else np.ones(len(edge.frames), bool)
-        return below if first else ~below
-
-    return mask
-
-
-def _sensor_points(edges: list[_Edge], s: int) -> np.ndarray:
-    pts = [e.src for e in edges if e.b == s] + [e.dst for e in edges if e.a == s]
-    return np.concatenate(pts) if pts else np.zeros((0, 3))
-
-
-def _pose_difference(T1: np.ndarray, T2: np.ndarray, points: np.ndarray) -> tuple[float, float]:
-    """(rotation deg, translation at the subject mm): how far the sensor's mean observed point moves."""
-    centre = points.mean(axis=0) if len(points) else np.zeros(3)
-    return (
-        rotation_angle_deg(T1[:3, :3] @ T2[:3, :3].T),
-        float(np.linalg.norm(transform_points(T1, centre) - transform_points(T2, centre))),
-    )
-
-
-def _residuals(edges: list[_Edge], poses: np.ndarray, n_sensors: int) -> tuple[np.ndarray, np.ndarray, list[float]]:
-    sq = np.zeros(n_sensors)
-    count = np.zeros(n_sensors, dtype=np.int64)
-    per_edge = []
-    for e in edges:
-        d2 = np.sum((transform_points(poses[e.b], e.src) - transform_points(poses[e.a], e.dst)) ** 2, axis=1)
-        per_edge.append(float(np.sqrt(d2.mean())) if len(d2) else float("nan"))
-        for s in (e.a, e.b):
-            sq[s] += d2.sum()
-            count[s] += len(d2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(sq / count)
-    return rms, count, per_edge
-
-
-def _calibrate_relative(
-    pos: np.ndarray,
-    conf: np.ndarray,
-    ids: tuple[str, ...],
-    master: int,
-    opts: SkeletonCalibrationOptions,
-    progress: Progress,
-) -> tuple[np.ndarray, list[_Edge]]:
-    """Steps 1-3: master_from_sensor (S, 4, 4) and the pairwise edges with their correspondences."""
-    ok = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
-    rng = np.random.default_rng(opts.seed)
-    n_sensors = len(ids)
-    edges = []
-    for a in range(n_sensors):
-        for b in range(a + 1, n_sensors):
-            edge = _fit_pair(pos, ok, a, b, opts, rng)
-            if edge is not None:
-                edges.append(edge)
-            progress.update(note=f"{ids[b]} → {ids[a]}")
-    poses = _spanning_poses(edges, n_sensors, master, ids)
-    poses, _ = _refine_joint(edges, poses, master, opts.refine_sweeps)
-    progress.update(note="joint refinement")
-    return poses, edges
-
-
-# ------------------------------------------------------------------------------------------------ the floor
-
-
-def _fit_floor(
-    pos: np.ndarray, ok: np.ndarray, master_from_sensor: np.ndarray, opts: SkeletonCalibrationOptions
-) -> FloorFit:
-    n_sensors = pos.shape[1]
-    spines, pelvises, feet = [], [], []
-    for s in range(n_sensors):
-        T = master_from_sensor[s]
-        both = ok[:, s, J["PELVIS"]] & ok[:, s, J["NECK"]]
-        pelvis = transform_points(T, pos[both, s, J["PELVIS"]])
-        neck = transform_points(T, pos[both, s, J["NECK"]])
-        spines.append(neck - pelvis)
-        pelvises.append(pelvis)
-        feet.append((transform_points(T, pos[:, s][:, FOOT_JOINTS]), ok[:, s][:, FOOT_JOINTS]))
-    spine = np.concatenate(spines)
-    if len(spine):
-        unit = spine / np.linalg.norm(spine, axis=1, keepdims=True)
-        up = unit.mean(axis=0)
-        up /= np.linalg.norm(up)
-    else:  # no spine seen: the master's -y (Azure Kinect y points down in the image)
-        up = np.array([0.0, -1.0, 0.0])
-    # Floor contacts: per frame and sensor the lowest foot joint along the spine's up. Grouped by (sensor,
-    # joint): each group gets its own height (the ankle sits ~70 mm up, the toe joint ~25 mm, and each view
-    # has its own constant offset of the feet, DESIGN "Real noise"), only the normal is shared.
-    groups = []
-    for points, valid in feet:
-        height = np.where(valid, points @ up, np.inf)  # (T, 4)
-        lowest = np.argmin(height, axis=1)
-        has = np.isfinite(height).any(axis=1)
-        for j in range(len(FOOT_JOINTS)):
-            sel = has & (lowest == j)
-            if sel.sum() >= 3:
-                groups.append(points[sel, j])
-    pelvis_mean = np.concatenate(pelvises).mean(axis=0) if sum(len(p) for p in pelvises) else np.zeros(3)
-    n_contacts = sum(len(g) for g in groups)
-    if n_contacts < 30:
-        if not len(spine):
-            raise CalibrationError(
-                f"found only {n_contacts} floor contacts (MEDIUM ankle/foot joints) and no pelvis + neck: the "
-                "world's z axis is undetermined; record a walk with the whole body in view, or give the ArUco "
-                "plate's master pose"
-            )
-        # No feet: z from the spine alone, the floor a nominal pelvis height below the mean pelvis.
-        return FloorFit(
-            normal=up,
-            point_mm=pelvis_mean - NOMINAL_PELVIS_HEIGHT_MM * up,
-            n_points=0,
-            rms_mm=float("nan"),
-            spine_tilt_deg=0.0,
-        )
-    # Contacts of one step (~0.5 s) seen by every sensor are one foot placement, not independent samples:
-    # the floor's information is scaled down to one contact per step and view, so that the spine prior keeps
-    # its say across a narrow walking line (where the floor has a ~200 mm baseline only).
-    n_eff = max(n_contacts / (15.0 * n_sensors), 3.0)
-    prior = (np.eye(3) - np.outer(up, up)) / _SIGMA_SPINE_RAD**2
-    keep = [np.ones(len(g), bool) for g in groups]
-    normal = up
-    for _ in range(3):
-        scatter = np.zeros((3, 3))
-        for g, k in zip(groups, keep, strict=True):
-            if k.sum() >= 2:
-                d = g[k] - g[k].mean(axis=0)
-                scatter += d.T @ d
-        _, vecs = np.linalg.eigh(scatter * (n_eff / n_contacts) / _SIGMA_FLOOR_MM**2 + prior)
-        normal = vecs[:, 0] * np.sign(vecs[:, 0] @ up)
-        resid = [
-            (g - g[k].mean(axis=0)) @ normal if k.any() else np.zeros(len(g)) for g, k in zip(groups, keep, strict=True)
-        ]
-        flat = np.concatenate([r[k] for r, k in zip(resid, keep, strict=True)])
-        sigma = max(1.4826 * np.median(np.abs(flat)), 5.0)
-        keep = [np.abs(r) <= 3.0 * sigma for r in resid]
-    flat = np.concatenate([r[k] for r, k in zip(resid, keep, strict=True)])
-    # Floor height: the median height of all kept contacts, less the lowest foot joint's height above it.
-    heights = np.concatenate([g[k] @ normal for g, k in zip(groups, keep, strict=True)])
-    floor_height = np.median(heights) - opts.foot_joint_height_mm
-    point = pelvis_mean - (pelvis_mean @ normal - floor_height) * normal
-    return FloorFit(
-        normal=normal,
-        point_mm=point,
-        n_points=len(heights),
-        rms_mm=float(np.sqrt(np.mean(flat**2))),
-        spine_tilt_deg=float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1)))),
-    )
-
-
-def _world_from_master(floor: FloorFit) -> np.ndarray:
-    z = floor.normal
-    forward = np.array([0.0, 0.0, 1.0])  # master's viewing direction, master frame
-    x = forward - (forward @ z) * z
-    if np.linalg.norm(x) < 1e-3:  # master looks straight down: use its image x axis instead
-        x = np.array([1.0, 0.0, 0.0]) - z[0] * z
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])  # rows: world axes in master coordinates → p_world = R (p_master - origin)
-    return make_transform(R, -R @ floor.point_mm)
 
 
 # ------------------------------------------------------------------------------------------------ public API
@@ -877,7 +292,7 @@ def _shifted(array: np.ndarray, column: int, shift: int, fill: float | int) -> n
 def pairing_check(
     pos: np.ndarray,
     ok: np.ndarray,
-    edges: Sequence[_Edge],
+    edges: Sequence[PairEdge],
     sensor: int,
     ids: Sequence[str],
     opts: SkeletonCalibrationOptions,
@@ -924,7 +339,7 @@ def pairing_check(
     def refit(shift: int) -> tuple[int, float] | None:
         # frame k of a is paired with frame k + shift of b
         if shift not in tried:
-            trial = _fit_pair(_shifted(pos, b, shift, np.nan), _shifted(ok, b, shift, False), a, b, opts, rng)
+            trial = fit_pair(_shifted(pos, b, shift, np.nan), _shifted(ok, b, shift, False), a, b, opts, rng)
             tried[shift] = None if trial is None else (len(np.unique(trial.frames)), trial.fit_rms)
         return tried[shift]
 
@@ -937,8 +352,8 @@ def pairing_check(
     good = [c for c in dict.fromkeys(near_best + candidates) if better(c)]
     best: tuple[int, float] | None = None
     if good:
-        pick = min(good, key=lambda c: tried[c][1])  # type: ignore[index]
-        best = (pick, tried[pick][1])  # type: ignore[index]
+        pick = min(good, key=lambda c: tried[c][1])  # type: ignore[index]  # better(c) holds: tried[c] is a fit, not None
+        best = (pick, tried[pick][1])  # type: ignore[index]  # as above
     candidates = sorted(tried)
     if best is None:
         return PairingCheck(ids[partner], fraction, edge.fit_rms, tried=tuple(candidates))
@@ -993,50 +408,86 @@ def calibrate_from_skeletons(
     n_pairs = n_sensors * (n_sensors - 1) // 2
     bar = _make_progress(progress, n_pairs + 3, "skeleton calibration")
     try:
-        poses, edges = _calibrate_relative(pos, conf, ids, m, opts, bar)
-        residual, counts, per_edge = _residuals(edges, poses, n_sensors)
+        poses, edges = calibrate_relative(pos, conf, ids, m, opts, bar)
+        residual, counts, per_edge = pair_residuals(edges, poses, n_sensors)
 
         # Half-take agreement: the joint refinement on each half of the correspondences.
         # Each pair is split at its own median frame, so a pair seen only late in the take still has halves.
         halves = [
-            _refine_joint(
-                edges, poses, m, opts.refine_sweeps, frame_mask=_half_mask(first), min_points=opts.min_half_points
+            refine_joint(
+                edges, poses, m, opts.refine_sweeps, frame_mask=half_mask(first), min_points=opts.min_half_points
             )
             for first in (True, False)
         ]
         bar.update(note="half-take agreement")
 
-        ok = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
-        plate = None
-        if master_world_from_sensor is not None:
-            plate = np.asarray(master_world_from_sensor, dtype=np.float64)
-            make_transform(plate[:3, :3], plate[:3, 3])  # validates a proper rigid transform
-        try:
-            floor = _fit_floor(pos, ok, poses, opts)
-        except CalibrationError:
-            if plate is None:
-                raise
-            floor = FloorFit(np.full(3, np.nan), np.full(3, np.nan), 0, float("nan"), float("nan"))
-        if plate is None:
-            world_from_master = _world_from_master(floor)
-            source = "floor"
-        else:
-            world_from_master = plate
-            source = "plate"
-            plate_up = plate[2, :3]  # world z expressed in the master frame (row 3 of R)
-            tilt = float(np.degrees(np.arccos(np.clip(plate_up @ floor.normal, -1, 1))))
-            floor = FloorFit(floor.normal, floor.point_mm, floor.n_points, floor.rms_mm, floor.spine_tilt_deg, tilt)
+        world_from_master, floor, source = _world_frame(pos, conf, poses, opts, master_world_from_sensor)
         bar.update(note="world frame")
     finally:
         bar.close()
 
+    quality = _sensor_qualities(pos, conf, ids, m, edges, residual, counts, halves, opts)
+    pairs = _pair_fits(edges, per_edge, ids)
+    return SkeletonCalibration(
+        sensor_ids=ids,
+        master=ids[m],
+        world_from_sensor={sensor_id: world_from_master @ poses[s] for s, sensor_id in enumerate(ids)},
+        master_from_sensor={sensor_id: poses[s] for s, sensor_id in enumerate(ids)},
+        quality=quality,
+        pairs=pairs,
+        floor=floor,
+        world_source=source,
+        n_frames=n_frames,
+    )
+
+
+def _world_frame(
+    pos: np.ndarray,
+    conf: np.ndarray,
+    poses: np.ndarray,
+    opts: SkeletonCalibrationOptions,
+    master_world_from_sensor: np.ndarray | None,
+) -> tuple[np.ndarray, FloorFit, str]:
+    """world_from_master from the plate when given (the floor fit then only reports its tilt), else from the
+    floor; with the floor fit and which of the two set the world ("plate" or "floor")."""
+    ok = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
+    plate = None
+    if master_world_from_sensor is not None:
+        plate = np.asarray(master_world_from_sensor, dtype=np.float64)
+        make_transform(plate[:3, :3], plate[:3, 3])  # validates a proper rigid transform
+    try:
+        floor = fit_floor(pos, ok, poses, opts)
+    except CalibrationError:
+        if plate is None:
+            raise
+        floor = FloorFit(np.full(3, np.nan), np.full(3, np.nan), 0, float("nan"), float("nan"))
+    if plate is None:
+        return floor_world_from_master(floor), floor, "floor"
+    plate_up = plate[2, :3]  # world z expressed in the master frame (row 3 of R)
+    tilt = float(np.degrees(np.arccos(np.clip(plate_up @ floor.normal, -1, 1))))
+    floor = FloorFit(floor.normal, floor.point_mm, floor.n_points, floor.rms_mm, floor.spine_tilt_deg, tilt)
+    return plate, floor, "plate"
+
+
+def _sensor_qualities(
+    pos: np.ndarray,
+    conf: np.ndarray,
+    ids: tuple[str, ...],
+    m: int,
+    edges: list[PairEdge],
+    residual: np.ndarray,
+    counts: np.ndarray,
+    halves: list[tuple[np.ndarray, np.ndarray]],
+    opts: SkeletonCalibrationOptions,
+) -> dict[str, SensorQuality]:
+    """Per sensor: residual, half-take agreement, pairing check and the verdict they give."""
     quality = {}
     ok_all = np.isfinite(pos).all(axis=-1) & (conf >= int(opts.min_confidence))
     for s, sensor_id in enumerate(ids):
         (p1, f1), (p2, f2) = halves
         half = None
         if s != m and f1[s] and f2[s]:
-            half = _pose_difference(p1[s], p2[s], _sensor_points(edges, s))
+            half = pose_difference(p1[s], p2[s], sensor_points(edges, s))
         pairing = None if s == m else pairing_check(pos, ok_all, edges, s, ids, opts)
         verdict, reasons = _verdict(float(residual[s]), int(counts[s]), half, s == m, opts.verdict, pairing)
         quality[sensor_id] = SensorQuality(
@@ -1051,7 +502,12 @@ def calibrate_from_skeletons(
             better_shift_frames=None if pairing is None else pairing.better_shift_frames,
             better_shift_rms_mm=None if pairing is None else pairing.better_shift_rms_mm,
         )
-    pairs = tuple(
+    return quality
+
+
+def _pair_fits(edges: list[PairEdge], per_edge: list[float], ids: tuple[str, ...]) -> tuple[PairFit, ...]:
+    """The report's record of each fitted sensor pair."""
+    return tuple(
         PairFit(
             sensor_a=ids[e.a],
             sensor_b=ids[e.b],
@@ -1064,17 +520,6 @@ def calibrate_from_skeletons(
             mirrored_frames=e.mirrored_frames,
         )
         for e, r in zip(edges, per_edge, strict=True)
-    )
-    return SkeletonCalibration(
-        sensor_ids=ids,
-        master=ids[m],
-        world_from_sensor={sensor_id: world_from_master @ poses[s] for s, sensor_id in enumerate(ids)},
-        master_from_sensor={sensor_id: poses[s] for s, sensor_id in enumerate(ids)},
-        quality=quality,
-        pairs=pairs,
-        floor=floor,
-        world_source=source,
-        n_frames=n_frames,
     )
 
 
@@ -1136,48 +581,72 @@ def check_calibration(
     stored = invert_transform(stored_world[m]) @ stored_world  # master_from_sensor
     bar = _make_progress(progress, n_sensors * (n_sensors - 1) // 2 + 1, "calibration check")
     try:
-        fresh, edges = _calibrate_relative(pos, conf, ids, m, opts, bar)
+        fresh, edges = calibrate_relative(pos, conf, ids, m, opts, bar)
     finally:
         bar.close()
-    residual_stored, counts, _ = _residuals(edges, stored, n_sensors)
-    residual_fresh, _, _ = _residuals(edges, fresh, n_sensors)
+    residual_stored, counts, _ = pair_residuals(edges, stored, n_sensors)
+    residual_fresh, _, _ = pair_residuals(edges, fresh, n_sensors)
     sensors, warnings = {}, []
     for s, sensor_id in enumerate(ids):
-        if counts[s]:
-            rot, trans = _pose_difference(fresh[s], stored[s], _sensor_points(edges, s))
-        else:
-            rot = trans = float("nan")
         ref = None if reference_residual_mm is None else reference_residual_mm.get(sensor_id)
-        reasons = []
-        if s != m and rot > max_rotation_deg:
-            reasons.append(f"rotated {rot:.1f}° (> {max_rotation_deg:g}°)")
-        if s != m and trans > max_translation_mm:
-            reasons.append(f"shifted {trans:.0f} mm at the subject (> {max_translation_mm:g} mm)")
-        if reasons:
-            warnings.append(f"sensor {sensor_id} looks moved: {'; '.join(reasons)}; recalibrate it")
-        if ref is not None and residual_stored[s] - ref > max_residual_growth_mm:
-            # Not by itself "moved": a residual is shared by both sensors of every pair, so one moved sensor
-            # raises its partners' residuals too. The correction says which one moved.
-            warnings.append(
-                f"sensor {sensor_id}: residual {residual_stored[s]:.0f} mm vs {ref:.0f} mm at calibration "
-                f"(+{max_residual_growth_mm:g} allowed): the rig or the tracking changed since"
-            )
-        if not counts[s]:
-            warnings.append(f"sensor {sensor_id}: no corresponding points in this take; it could not be checked")
-        sensors[sensor_id] = SensorCheck(
-            sensor_id=sensor_id,
-            residual_mm=float(residual_stored[s]),
-            refit_residual_mm=float(residual_fresh[s]),
-            reference_residual_mm=None if ref is None else float(ref),
-            correction_rotation_deg=float(rot),
-            correction_translation_mm=float(trans),
-            n_points=int(counts[s]),
-            moved=bool(reasons),
+        limits = (max_rotation_deg, max_translation_mm, max_residual_growth_mm)
+        sensors[sensor_id], notes = _check_sensor(
+            s, sensor_id, s == m, fresh, stored, edges, residual_stored, residual_fresh, counts, ref, limits
         )
+        warnings += notes
     flagged = [s for s in ids if sensors[s].moved and s != ids[m]]
     if n_sensors > 2 and len(flagged) == n_sensors - 1:
         warnings.append(f"every sensor moved relative to master {ids[m]}: the master itself has probably moved")
     return CalibrationCheck(master=ids[m], sensors=sensors, warnings=tuple(warnings))
+
+
+def _check_sensor(
+    s: int,
+    sensor_id: str,
+    is_master: bool,
+    fresh: np.ndarray,
+    stored: np.ndarray,
+    edges: list[PairEdge],
+    residual_stored: np.ndarray,
+    residual_fresh: np.ndarray,
+    counts: np.ndarray,
+    ref: float | None,
+    limits: tuple[float, float, float],
+) -> tuple[SensorCheck, list[str]]:
+    """One sensor's check against its stored pose: the correction a refit would make, and the warnings."""
+    max_rotation_deg, max_translation_mm, max_residual_growth_mm = limits
+    warnings = []
+    if counts[s]:
+        rot, trans = pose_difference(fresh[s], stored[s], sensor_points(edges, s))
+    else:
+        rot = trans = float("nan")
+    reasons = []
+    if not is_master and rot > max_rotation_deg:
+        reasons.append(f"rotated {rot:.1f}° (> {max_rotation_deg:g}°)")
+    if not is_master and trans > max_translation_mm:
+        reasons.append(f"shifted {trans:.0f} mm at the subject (> {max_translation_mm:g} mm)")
+    if reasons:
+        warnings.append(f"sensor {sensor_id} looks moved: {'; '.join(reasons)}; recalibrate it")
+    if ref is not None and residual_stored[s] - ref > max_residual_growth_mm:
+        # Not by itself "moved": a residual is shared by both sensors of every pair, so one moved sensor
+        # raises its partners' residuals too. The correction says which one moved.
+        warnings.append(
+            f"sensor {sensor_id}: residual {residual_stored[s]:.0f} mm vs {ref:.0f} mm at calibration "
+            f"(+{max_residual_growth_mm:g} allowed): the rig or the tracking changed since"
+        )
+    if not counts[s]:
+        warnings.append(f"sensor {sensor_id}: no corresponding points in this take; it could not be checked")
+    check = SensorCheck(
+        sensor_id=sensor_id,
+        residual_mm=float(residual_stored[s]),
+        refit_residual_mm=float(residual_fresh[s]),
+        reference_residual_mm=None if ref is None else float(ref),
+        correction_rotation_deg=float(rot),
+        correction_translation_mm=float(trans),
+        n_points=int(counts[s]),
+        moved=bool(reasons),
+    )
+    return check, warnings
 
 
 def _finite_or_none(value: float | None) -> float | None:

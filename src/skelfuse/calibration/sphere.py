@@ -29,6 +29,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -101,7 +102,7 @@ def sphere_mask(color_bgr: np.ndarray, hist: np.ndarray, *, threshold: int = 60,
     """
     hsv = cv2.cvtColor(np.ascontiguousarray(color_bgr, dtype=np.uint8), cv2.COLOR_BGR2HSV)
     back = cv2.calcBackProject([hsv], [0, 1], hist, _HIST_RANGES, 1)
-    binary = (back > threshold).astype(np.uint8)
+    binary: np.ndarray = (back > threshold).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
     binary = cv2.morphologyEx(binary, cv2.MORPH_OPEN, kernel)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
@@ -291,7 +292,7 @@ def sphere_trajectories(
     hist: np.ndarray,
     *,
     progress: bool = True,
-    **detect_options: object,
+    **detect_options: Any,
 ) -> dict[str, np.ndarray]:
     """The ball's centre in every frame of every sensor.
 
@@ -321,7 +322,7 @@ def sphere_trajectories(
         for i, (color, depth) in enumerate(frames):
             found = detect_sphere_center(
                 color, depth, intrinsics_by_sensor[sensor_id], radius_mm, hist, **detect_options
-            )  # type: ignore[arg-type]
+            )
             if found is not None:
                 centres[i] = found[0]
             done += 1
@@ -369,7 +370,7 @@ def calibrate_from_trajectories(
         )
     ids = list(centres_by_sensor)
     stacked = np.stack([np.asarray(centres_by_sensor[sid], dtype=np.float64) for sid in ids])  # (S, F, 3)
-    seen = np.isfinite(stacked).all(axis=2)  # (S, F)
+    seen = np.asarray(np.isfinite(stacked).all(axis=2))  # (S, F)
     common = seen.all(axis=0)
     if common.sum() < min_points:
         per_sensor = ", ".join(f"{sid}: {int(seen[i].sum())}" for i, sid in enumerate(ids))

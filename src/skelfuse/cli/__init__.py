@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import faulthandler
+import importlib
 import logging
 import os
 import signal
@@ -18,22 +19,21 @@ import threading
 import time
 from collections.abc import Sequence
 
-from skelfuse import __version__
-from skelfuse.cli import bench, calibrate, convert, demo, devices, evaluate, export, network, service, sim, stream
+from skelfuse.cli.commands import COMMANDS
 from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
 from skelfuse.service.zenoh_io import sessions_left_behind
+from skelfuse.version import __version__
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_USAGE", "build_parser", "entrypoint", "main"]
 
 log = logging.getLogger("skelfuse")
 
-#: Command groups in the order ``skelfuse --help`` lists them.
-COMMAND_GROUPS = (demo, evaluate, sim, bench, service, network, convert, devices, calibrate, export, stream)
 
-
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with ``only``, just those commands' modules are imported and built, the others
+    stand as their one-line help (what ``skelfuse --help`` shows), so that each command starts at once."""
     parser = argparse.ArgumentParser(
         prog="skelfuse",
         description="Fuse the skeletons of several Azure Kinect body trackers into one accurate, smooth skeleton.",
@@ -47,15 +47,42 @@ def build_parser() -> argparse.ArgumentParser:
         help="logs on stderr as text lines or as one JSON object per line (default: %(default)s)",
     )
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    wanted = set(COMMANDS) if only is None else set(only)
+    for module in dict.fromkeys(module for name, (module, _) in COMMANDS.items() if name in wanted):
+        importlib.import_module(module).add_parser(commands)
+    for name, (_, help_text) in COMMANDS.items():
+        if name not in commands.choices:
+            commands.add_parser(name, help=help_text, add_help=False)  # stands for the command in the listing
+    return _in_listed_order(parser, commands)
 
-    for group in COMMAND_GROUPS:
-        group.add_parser(commands)
+
+def _in_listed_order(
+    parser: argparse.ArgumentParser,
+    commands: argparse._SubParsersAction,
+) -> argparse.ArgumentParser:
+    """Commands listed in :data:`COMMANDS`' order whichever were built first."""
+    order = list(COMMANDS)
+    commands._choices_actions.sort(key=lambda action: order.index(action.dest))
     return parser
+
+
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The command named in ``argv`` (after the global options), if any."""
+    scout = argparse.ArgumentParser(add_help=False)
+    scout.add_argument("-v", "--verbose", action="store_true")
+    scout.add_argument("--log-format")
+    scout.add_argument("--version", action="store_true")
+    scout.add_argument("-h", "--help", action="store_true")
+    scout.add_argument("command", nargs="?")
+    known, _ = scout.parse_known_args(argv)
+    return known.command if known.command in COMMANDS else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the process exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _command_in(argv)
+    parser = build_parser([command] if command is not None else [])
     args = parser.parse_args(argv)
     configure_logging(verbose=args.verbose, fmt=args.log_format)
     try:

@@ -5,15 +5,22 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skelfuse.bench import fusion as bench_fusion
-from skelfuse.bench import latency
-from skelfuse.bench.depth import format_depth_bench, run_depth_bench
-from skelfuse.bench.instant import format_instant_bench, run_instant_bench
-from skelfuse.bench.people import bench_people, format_people_bench
-from skelfuse.cli.common import COUNT, EXIT_ERROR, EXIT_OK, POSITIVE, SEED, preset_name, print_json
+from skelfuse.cli.commands import COMMAND_HELP
+from skelfuse.cli.common import (
+    COUNT,
+    EXIT_ERROR,
+    EXIT_OK,
+    POSITIVE,
+    add_json_option,
+    add_seed_option,
+    preset_name,
+    print_json,
+)
 
 
 def _cmd_bench_fusion(args: argparse.Namespace) -> int:
+    from skelfuse.bench import fusion as bench_fusion  # each command imports what it runs (start-up)
+
     result = bench_fusion.run_fusion_bench(
         sensor_counts=args.sensors,
         body_counts=args.bodies,
@@ -30,6 +37,8 @@ def _cmd_bench_fusion(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_people(args: argparse.Namespace) -> int:
+    from skelfuse.bench.people import bench_people, format_people_bench
+
     result = bench_people(args.sensors, args.people, args.frames, preset_name=args.preset)
     if args.json:
         print_json(result)
@@ -39,6 +48,8 @@ def _cmd_bench_people(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_instant(args: argparse.Namespace) -> int:
+    from skelfuse.bench.instant import format_instant_bench, run_instant_bench
+
     result = run_instant_bench(
         args.cases,
         n_frames=args.frames,
@@ -56,6 +67,8 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_latency(args: argparse.Namespace) -> int:
+    from skelfuse.bench import latency
+
     result = latency.run_latency_bench(
         sensor_counts=args.sensors,
         duration_s=args.duration,
@@ -72,6 +85,8 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_depth(args: argparse.Namespace) -> int:
+    from skelfuse.bench.depth import format_depth_bench, run_depth_bench
+
     result = run_depth_bench(
         tuple(args.people),
         n_sensors=args.sensors,
@@ -88,9 +103,9 @@ def _cmd_bench_depth(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``bench`` with its sub-commands."""
-    bench = commands.add_parser("bench", help="measure speed")
+    bench = commands.add_parser("bench", help=COMMAND_HELP["bench"])
     bench_commands = bench.add_subparsers(dest="bench_command", metavar="WHAT", required=True)
     _add_fusion(bench_commands)
     _add_people(bench_commands)
@@ -99,7 +114,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_depth(bench_commands)
 
 
-def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:
     fusion = bench_commands.add_parser(
         "fusion",
         help="time per fused frame against a scikit-learn + filterpy reference on the same inputs",
@@ -118,12 +133,12 @@ def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     fusion.add_argument("--preset", type=preset_name, default="A5", help="fusion preset to time (default: %(default)s)")
     fusion.add_argument("--frames", type=COUNT, default=300, help="timed frames per case (default: %(default)s)")
     fusion.add_argument("--quick", action="store_true", help="fewer frames and a few cases, for CI")
-    fusion.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(fusion)
     fusion.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     fusion.set_defaults(func=_cmd_bench_fusion)
 
 
-def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_people(bench_commands: argparse._SubParsersAction) -> None:
     people = bench_commands.add_parser(
         "people",
         help="time per frame of multi-person fusion (association + tracks + fusion) on a simulated crowd",
@@ -132,11 +147,11 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:  # type: ig
     people.add_argument("--people", type=COUNT, default=6, help="people in the crowd (default: %(default)s)")
     people.add_argument("--frames", type=COUNT, default=300, help="timed frames (default: %(default)s)")
     people.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
-    people.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(people)
     people.set_defaults(func=_cmd_bench_people)
 
 
-def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_instant(bench_commands: argparse._SubParsersAction) -> None:
     instant = bench_commands.add_parser(
         "instant",
         help="time per instant of the whole per-instant path (group, associate, tracks, fuse, encode), "
@@ -172,7 +187,7 @@ def _add_instant(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         help="the preset's orientation and uncertainty stages off, as in a rig with [fusion.params] orientations = "
         "false, position_std = false (the fused positions are the same)",
     )
-    instant.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(instant)
     instant.set_defaults(func=_cmd_bench_instant)
 
 
@@ -184,7 +199,7 @@ def _sensors_by_people(text: str) -> tuple[int, int]:
     return int(parts[0]), int(parts[1])
 
 
-def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_latency(bench_commands: argparse._SubParsersAction) -> None:
     latency = bench_commands.add_parser(
         "latency",
         help="publish -> fused-receive latency over zenoh on loopback, the node's own latency, max sensors",
@@ -219,11 +234,11 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:  # type: i
         "to compare the two in the same session",
     )
     latency.add_argument("--no-sweep", action="store_true", help="skip the search for the largest sensor count")
-    latency.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(latency)
     latency.set_defaults(func=_cmd_bench_latency)
 
 
-def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_depth(bench_commands: argparse._SubParsersAction) -> None:
     depth = bench_commands.add_parser(
         "depth",
         help="depth-level fusion: person-cloud bytes on the wire, capture and fusion time per person (simulated)",
@@ -240,6 +255,6 @@ def _add_depth(bench_commands: argparse._SubParsersAction) -> None:  # type: ign
     depth.add_argument("--frames", type=COUNT, default=30, help="frames per people count (default: %(default)s)")
     depth.add_argument("--voxel", type=POSITIVE, default=15.0, help="voxel edge, mm (default: %(default)s)")
     depth.add_argument("--no-icp", action="store_true", help="skip the variant with ICP refinement (the slow one)")
-    depth.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
-    depth.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_seed_option(depth, default=0)
+    add_json_option(depth)
     depth.set_defaults(func=_cmd_bench_depth)

@@ -34,13 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.calibration.marker import calibrate_world_from_marker
-from skelfuse.calibration.refine import refine, refine_report, simulated_walk, walk_frames
 from skelfuse.calibration.rgbd_folder import INTRINSICS_FILE, load_rgbd_folder, save_rgbd_frame, write_intrinsics
 from skelfuse.calibration.skeleton import calibrate_from_skeletons, check_calibration, skeleton_calibration_result
-from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
 from skelfuse.calibration.takes import load_recording_take, take_arrays
-from skelfuse.calibration.view import log_calibration
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     COUNT,
     EXISTING_DIR,
@@ -52,6 +49,7 @@ from skelfuse.cli.common import (
     POSITIVE,
     SEED,
     Number,
+    add_output_option,
 )
 from skelfuse.cli.inputs import add_input_options, open_take, single_recorded_mcap
 from skelfuse.config import load_rig_config
@@ -63,7 +61,7 @@ from skelfuse.config.calibration_file import (
 )
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.progress import note
-from skelfuse.recording import RecordingReader
+from skelfuse.recording.mcap_io import RecordingReader
 from skelfuse.schema.errors import CalibrationError, ConfigError, DataError
 from skelfuse.sources.kinect import DeviceSettings, _open_by_serial, import_pyk4a, kinect_start_order
 
@@ -158,6 +156,8 @@ def _print_result(result: CalibrationResult, path: Path) -> None:
 def _save_rrd(path: Path, result: CalibrationResult) -> None:
     import rerun as rr
 
+    from skelfuse.calibration.view import log_calibration  # rerun: imported by the command that uses it
+
     recording = rr.RecordingStream("skelfuse_calibration")
     recording.save(path)
     log_calibration(recording, result)
@@ -172,7 +172,6 @@ def _save_rrd(path: Path, result: CalibrationResult) -> None:
 
 
 def _cmd_capture(args: argparse.Namespace) -> int:
-
     cfg = _rig(args)
     kinects = kinect_start_order(cfg.sensors)
     if args.sensors:
@@ -274,6 +273,7 @@ def _capture_frames(pyk4a: Any, devices: Sequence[tuple[str, Any]], out: Path, a
 
 
 def _cmd_sphere(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.sphere import calibrate_from_sphere, red_histogram, sphere_histogram
 
     cfg = _rig(args)
     frames, intrinsics = load_rgbd_folder(args.folder)
@@ -321,6 +321,7 @@ def _cmd_sphere(args: argparse.Namespace) -> int:
 
 
 def _cmd_marker(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.marker import calibrate_world_from_marker
 
     cfg = _rig(args)
     output = _output_path(args, cfg)
@@ -515,6 +516,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_refine(args: argparse.Namespace) -> int:
+    from skelfuse.calibration.refine import refine, refine_report, simulated_walk, walk_frames
+
     if args.sim:
         note(
             f"refine: simulated walk, {args.frames} instants, every sensor but the reference off by "
@@ -570,8 +573,8 @@ def _cmd_refine(args: argparse.Namespace) -> int:
         sid: SensorCalibration(
             result.after[s],
             "refine",
-            residual_mm=None if result.results[s] is None else float(result.results[s].rmse_after_mm),
-            n_points=None if result.results[s] is None else int(result.results[s].n_pairs),
+            residual_mm=None if (icp := result.results[s]) is None else float(icp.rmse_after_mm),
+            n_points=None if icp is None else int(icp.n_pairs),
             notes=f"ICP on {result.n_frames} instants of person clouds from {Path(args.recording).name}",
         )
         for s, sid in enumerate(ids)
@@ -595,11 +598,8 @@ def _add_output(parser: argparse.ArgumentParser) -> None:
         help="the rig config: its sensors are checked, its sync master is the default master and "
         "its [calibration] file the default output",
     )
-    parser.add_argument(
-        "--output",
-        "-o",
-        type=OUTPUT_FILE,
-        default=None,
+    add_output_option(
+        parser,
         metavar="FILE",
         help=f"calibration TOML to write (default: the rig config's [calibration] file, else {DEFAULT_OUTPUT})",
     )
@@ -641,11 +641,11 @@ def _add_take(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``calibrate`` with its sub-commands (capture, sphere, marker, skeleton, check) to ``commands``."""
     calibrate = commands.add_parser(
         "calibrate",
-        help="measure where each sensor stands (sphere, marker plate, or skeletons) and write the calibration file",
+        help=COMMAND_HELP["calibrate"],
         description="Calibrate the rig: sensor to sensor from a red ball (sphere) or from a person walking "
         "(skeleton), then sensor to world from an ArUco plate on the floor (marker); check a stored "
         "calibration against a new walk (check). Procedure: docs/calibration.md. Exit code 3: the calibration "
@@ -661,7 +661,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_refine(sub)
 
 
-def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_capture(sub: argparse._SubParsersAction) -> None:
     capture = sub.add_parser(
         "capture",
         help="grab colour (registered to depth) + depth frames from the rig's Azure Kinects into an RGB-D folder",
@@ -671,7 +671,9 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
         "the ball through the space while it runs, or show the marker plate to the master.",
     )
     capture.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
-    capture.add_argument("--out", type=Path, required=True, metavar="DIR", help="RGB-D folder to write")
+    add_output_option(
+        capture, type=Path, required=True, dest="out", aliases=("--out",), metavar="DIR", help="RGB-D folder to write"
+    )
     capture.add_argument(
         "--frames",
         type=COUNT,
@@ -724,7 +726,7 @@ def _add_capture(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-
     capture.set_defaults(func=_cmd_capture)
 
 
-def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_sphere(sub: argparse._SubParsersAction) -> None:
     sphere = sub.add_parser(
         "sphere",
         help="sensor-to-sensor calibration from a coloured ball carried through the space (paper 2.1.1)",
@@ -792,7 +794,7 @@ def _add_sphere(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     sphere.set_defaults(func=_cmd_sphere)
 
 
-def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_marker(sub: argparse._SubParsersAction) -> None:
     marker = sub.add_parser(
         "marker",
         help="sensor-to-world calibration from a plate of 4 ArUco markers on the floor, seen by the master "
@@ -866,7 +868,7 @@ def _add_marker(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     marker.set_defaults(func=_cmd_marker)
 
 
-def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_skeleton(sub: argparse._SubParsersAction) -> None:
     skeleton = sub.add_parser(
         "skeleton",
         help="sensor-to-sensor (and floor) calibration from one person walking ~30 s through the shared space",
@@ -888,7 +890,7 @@ def _add_skeleton(sub: argparse._SubParsersAction) -> None:  # type: ignore[type
     skeleton.set_defaults(func=_cmd_skeleton)
 
 
-def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_check(sub: argparse._SubParsersAction) -> None:
     check = sub.add_parser(
         "check",
         help="has a sensor moved since calibration? compare the stored calibration with a new walk",
@@ -935,7 +937,7 @@ def _add_check(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     check.set_defaults(func=_cmd_check)
 
 
-def _add_refine(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_refine(sub: argparse._SubParsersAction) -> None:
     refine_parser = sub.add_parser(
         "refine",
         help="refine every sensor's pose by ICP on the person clouds of one person walking through (depth mode)",

@@ -104,10 +104,46 @@ class PathArg:
         return f"PathArg({self.must})"
 
 
+OFFLINE_SMOOTHERS = ("rts", "none")
+"""``--smoother`` choices: the names of :data:`skelfuse.fusion.smoother.SMOOTHERS` (tests/unit/test_smoother.py checks
+they agree), here so that parsing imports no fusion code."""
+
 EXISTING_FILE = PathArg("file")
 EXISTING_DIR = PathArg("dir")
 OUTPUT_FILE = PathArg("output")
 """A file to write: its folder must exist (it is never created behind the user's back)."""
+
+
+def add_output_option(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    *,
+    metavar: str,
+    help: str,
+    type: Any = OUTPUT_FILE,
+    default: Any = None,
+    required: bool = False,
+    dest: str = "output",
+    aliases: tuple[str, ...] = (),
+) -> None:
+    """``-o/--output`` (and any older spelling in ``aliases``): the one spelling of "where this command
+    writes", as in git, ffmpeg and Blender's command line."""
+    parser.add_argument(
+        "-o", "--output", *aliases, dest=dest, type=type, default=default, required=required, metavar=metavar, help=help
+    )
+
+
+def add_json_option(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "the results", note: str = ""
+) -> None:
+    """``--json``: ``what`` as JSON on stdout instead of text (progress and logs stay on stderr)."""
+    parser.add_argument(
+        "--json", action="store_true", help=f"print {what} as JSON on stdout" + (f" ({note})" if note else "")
+    )
+
+
+def add_seed_option(parser: argparse.ArgumentParser, *, default: int = 0, what: str = "simulation seed") -> None:
+    """``--seed``: the seed everything random in a simulated run derives from."""
+    parser.add_argument("--seed", type=SEED, default=default, help=f"{what} (default: %(default)s)")
 
 
 def preset_name(text: str) -> str:
@@ -133,7 +169,9 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"cannot serialize {type(value).__name__} to JSON")
 
 
-def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
+def add_run_limits(parser: argparse.ArgumentParser, what: str | None) -> None:
+    """``--duration``, and ``--max-frames`` (``--max-messages``) counting ``what``; None: a command that
+    counts nothing (the router) gets ``--duration`` only."""
     parser.add_argument(
         "--duration",
         type=POSITIVE,
@@ -142,6 +180,8 @@ def add_run_limits(parser: argparse.ArgumentParser, what: str) -> None:
         help="stop cleanly after this many seconds of work; a zenoh session that cannot open is given up after as "
         "long (default: run until SIGINT/SIGTERM)",
     )
+    if what is None:
+        return
     flags = ("--max-messages", "--max-frames") if what.endswith("messages") else ("--max-frames",)
     parser.add_argument(
         *flags,

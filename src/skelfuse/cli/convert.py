@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from skelfuse.cli.common import EXIT_OK, print_json
+from skelfuse.cli.commands import COMMAND_HELP
+from skelfuse.cli.common import EXIT_OK, OUTPUT_FILE, add_json_option, add_output_option, print_json
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.recording.inputs import write_mcap
 from skelfuse.schema.errors import ConfigError
@@ -40,11 +40,11 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``convert``."""
     convert = commands.add_parser(
         "convert",
-        help="convert recordings of any supported format into one time-matched skelfuse MCAP",
+        help=COMMAND_HELP["convert"],
         description="Read one or more recordings (offline_processor JSON, azure-kinect-mkv-extractor CSV, "
         "andyj1 CSV, long CSV, .mkv through the SDK, or MCAP), match their frames in time (device clock, "
         "estimated offsets, or index where files hold no timestamps: the output says which) and write every "
@@ -52,10 +52,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "the matching and the assumed confidence.",
     )
     convert.add_argument("inputs", nargs="+", metavar="[ID=]PATH", help=INPUT_HELP)
-    convert.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.mcap", help="the MCAP to write")
+    add_output_option(convert, type=OUTPUT_FILE, required=True, metavar="OUT.mcap", help="the MCAP to write")
     convert.add_argument(
         "--rig", default="converted", metavar="NAME", help="rig name of the channel topics (default: %(default)s)"
     )
     add_input_options(convert, by=False)
-    convert.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_json_option(convert, "a summary")
     convert.set_defaults(func=_cmd_convert)

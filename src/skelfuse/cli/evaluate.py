@@ -9,20 +9,32 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.cli.common import COUNT, EXISTING_DIR, EXISTING_FILE, EXIT_OK, POSITIVE, SEED, preset_name, print_json
+from skelfuse.cli.commands import COMMAND_HELP
+from skelfuse.cli.common import (
+    COUNT,
+    EXISTING_DIR,
+    EXISTING_FILE,
+    EXIT_OK,
+    POSITIVE,
+    SEED,
+    add_json_option,
+    add_output_option,
+    add_seed_option,
+    preset_name,
+    print_json,
+)
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
 from skelfuse.cli.robustness import add_robustness_parser
 from skelfuse.config import load_calibration, load_rig_config
-from skelfuse.eval import depth, paper, real, report, rig
-from skelfuse.eval.rig import DEFAULT_PRESETS
-from skelfuse.eval.tracking import run_tracking_eval
+from skelfuse.fusion.presets import COMPARED_PRESETS
 from skelfuse.progress import note
 from skelfuse.schema.errors import ConfigError
-from skelfuse.service.depth_stage import K4abtDepthTracker
 from skelfuse.sources.k4abt import TrackerSettings
 
 
 def _cmd_eval_paper(args: argparse.Namespace) -> int:
+    from skelfuse.eval import paper, report  # each command imports what it runs (start-up)
+
     result = paper.run_paper_eval(
         quick=args.quick,
         seed=args.seed,
@@ -43,6 +55,8 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_real(args: argparse.Namespace) -> int:
+    from skelfuse.eval import real, rig
+
     specs = list(args.inputs)
     if not specs:  # the andyj1 3-sensor take: one input among others, its subordinates already registered
         specs = [f"{name}={args.data / file}" for name, file in real.VIEW_FILES.items()]
@@ -74,6 +88,8 @@ def _cmd_eval_real(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_tracking(args: argparse.Namespace) -> int:
+    from skelfuse.eval.tracking import run_tracking_eval
+
     result = run_tracking_eval(quick=args.quick, seed=args.seed, preset_name=args.preset)
     if args.json:
         print_json(result.to_dict())
@@ -83,6 +99,11 @@ def _cmd_eval_tracking(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_depth(args: argparse.Namespace) -> int:
+    from skelfuse.eval import depth
+    from skelfuse.service.depth_stage import K4abtDepthTracker
+
+    if args.sim_take not in depth.SIM_TAKES:
+        raise ConfigError(f"--sim-take {args.sim_take}: expected one of {', '.join(sorted(depth.SIM_TAKES))}")
     if args.sim:
         note(f"eval depth: simulated {args.sim_take} take, {args.duration:g} s, seed {args.seed} (stand-in tracker)")
         instants, obs = depth.simulated_instants(args.sim_take, args.duration, args.seed)
@@ -120,9 +141,9 @@ def _default_data_dir() -> Path:
     return Path.cwd().parent / "shared" / "data" / "azure-kinect-andyj1" / "saved_data_2_3dev"
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``eval`` with its sub-commands."""
-    evaluate = commands.add_parser("eval", help="reproduce the paper's experiments / evaluate on real data")
+    evaluate = commands.add_parser("eval", help=COMMAND_HELP["eval"])
     eval_commands = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
 
     _add_paper(eval_commands)
@@ -132,7 +153,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     add_robustness_parser(eval_commands)
 
 
-def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_paper(eval_commands: argparse._SubParsersAction) -> None:
     paper = eval_commands.add_parser(
         "paper",
         help="the paper's three experiments on simulated data with exact ground truth",
@@ -141,10 +162,18 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
         "best-view reference. Writes markdown, CSV and PNG charts to --out.",
     )
     paper.add_argument("--quick", action="store_true", help="a small subset that runs in well under a minute")
-    paper.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    paper.add_argument("--out", type=Path, default=Path("eval_out/paper"), help="output folder (default: %(default)s)")
+    add_json_option(paper)
+    add_output_option(
+        paper,
+        type=Path,
+        default=Path("eval_out/paper"),
+        dest="out",
+        aliases=("--out",),
+        metavar="DIR",
+        help="output folder (default: %(default)s)",
+    )
     paper.add_argument("--no-files", action="store_true", help="write no output folder, only print")
-    paper.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    add_seed_option(paper, default=0)
     paper.add_argument(
         "--duration",
         type=POSITIVE,
@@ -163,7 +192,7 @@ def _add_paper(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     paper.set_defaults(func=_cmd_eval_paper)
 
 
-def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_real(eval_commands: argparse._SubParsersAction) -> None:
     real = eval_commands.add_parser(
         "real",
         help="report on any real recording of 2+ sensors: jitter, lag, agreement, gross errors, leave-one-out",
@@ -190,18 +219,20 @@ def _add_real(eval_commands: argparse._SubParsersAction) -> None:  # type: ignor
         "--preset",
         action="append",
         default=[],
-        help=f"fusion preset to evaluate; repeatable (default: {', '.join(DEFAULT_PRESETS)})",
+        help=f"fusion preset to evaluate; repeatable (default: {', '.join(COMPARED_PRESETS)})",
     )
     real.add_argument(
         "--eps", type=POSITIVE, default=None, help="DBSCAN radius in mm for every preset (default: each preset's own)"
     )
-    real.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
-    real.add_argument("--out", type=Path, default=None, help="write report.md and the plots into this folder")
+    add_json_option(real)
+    add_output_option(
+        real, type=Path, dest="out", aliases=("--out",), metavar="DIR", help="write report.md and the plots into DIR"
+    )
     add_input_options(real)
     real.set_defaults(func=_cmd_eval_real)
 
 
-def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:
     tracking = eval_commands.add_parser(
         "tracking",
         help="several people: association, stable ids and per-person accuracy on simulated crowds",
@@ -210,13 +241,13 @@ def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:  # type: i
         "fragmentation) and per-person accuracy against ground truth.",
     )
     tracking.add_argument("--quick", action="store_true", help="shorter takes, for CI")
-    tracking.add_argument("--seed", type=SEED, default=0, help="simulation seed (default: %(default)s)")
+    add_seed_option(tracking, default=0)
     tracking.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
-    tracking.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    add_json_option(tracking)
     tracking.set_defaults(func=_cmd_eval_tracking)
 
 
-def _add_depth(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_depth(eval_commands: argparse._SubParsersAction) -> None:
     parser = eval_commands.add_parser(
         "depth",
         help="the depth-level fusion on recorded .mkv takes (needs the Body Tracking SDK): agreement with "
@@ -239,7 +270,7 @@ def _add_depth(eval_commands: argparse._SubParsersAction) -> None:  # type: igno
     )
     parser.add_argument("--sim", action="store_true", help="a simulated take and the stand-in tracker instead")
     parser.add_argument(
-        "--sim-take", choices=sorted(depth.SIM_TAKES), default="crossing", help="--sim: the take (crossing)"
+        "--sim-take", default="crossing", metavar="NAME", help="--sim: the take, crossing or bystander (crossing)"
     )
     parser.add_argument("--duration", type=POSITIVE, default=4.0, metavar="S", help="--sim: seconds (4)")
     parser.add_argument("--seed", type=SEED, default=3, help="--sim: seed (3)")

@@ -14,7 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from skelfuse.cli.common import COUNT, EXIT_OK, INDEX, POSITIVE, print_json, rig_config
+from skelfuse.cli.commands import COMMAND_HELP
+from skelfuse.cli.common import (
+    COUNT,
+    EXIT_OK,
+    INDEX,
+    OFFLINE_SMOOTHERS,
+    POSITIVE,
+    add_json_option,
+    add_output_option,
+    print_json,
+    rig_config,
+)
 from skelfuse.config import DEFAULT_PRESET
 from skelfuse.export.bvh import write_bvh_arrays
 from skelfuse.export.c3d import write_c3d
@@ -23,7 +34,6 @@ from skelfuse.export.fbx import write_fbx_arrays
 from skelfuse.export.source import INPUT_FORMATS, FusedSource, open_fused
 from skelfuse.export.tracks import PersonTrack, TakeTracks, take_tracks
 from skelfuse.export.trc import write_trc
-from skelfuse.fusion.smoother import SMOOTHERS
 from skelfuse.progress import Progress, note
 from skelfuse.schema.errors import ConfigError, DataError
 from skelfuse.schema.frames import FusedFrame
@@ -110,9 +120,8 @@ def _select(frames: Iterator[FusedFrame], person: int | None, bar: Progress | No
 def _output(args: argparse.Namespace, suffix: str) -> Path:
     out = args.output if args.output is not None else args.input.with_suffix(suffix)
     if out.resolve() == args.input.resolve():
-        raise ConfigError(f"the output {out} is the input file; pass --output OTHER{suffix}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    return out
+        raise ConfigError(f"the output {out} is the input file; pass -o OTHER{suffix}")
+    return out  # --output's folder was checked when parsed; the default's is the input's
 
 
 def _person_path(out: Path, track_id: int, several: bool) -> Path:
@@ -219,26 +228,27 @@ def _export_per_person(args: argparse.Namespace, frames: Iterator[FusedFrame]) -
     }
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``export``."""
     export = commands.add_parser(
         "export",
-        help="write fused skeletons as CSV/Parquet, C3D, OpenSim TRC, BVH or FBX (one file per person)",
+        help=COMMAND_HELP["export"],
         description="Read fused skeletons from a fused table (.csv/.parquet), a recording's fused stream, or a "
         "recording of sensor frames (fused on the way, with --config's poses and [fusion] or the recording's "
         "calibration), and write them for other tools: csv = the fused table (docs/export.md); c3d = one C3D "
         "per person (joints as points, mm, gaps as invalid residuals); trc = one OpenSim marker file per "
-        "person (joints as markers, mm, OpenSim's y-up axes, gaps blank). Per-person files are named "
-        "OUT_track<ID>.<ext> when several people are written.",
+        "person (joints as markers, mm, OpenSim's y-up axes, gaps blank); bvh = one BVH per person (an armature "
+        "fitted to the joints, its rotations per frame, y up as Blender and MotionBuilder import it); fbx = the "
+        "same armature as a binary FBX, written by Blender's own exporter (install it once with `skelfuse setup "
+        "blender`). Per-person files are named OUT_track<ID>.<ext> when several people are written "
+        "(docs/export.md, docs/animation.md).",
     )
     export.add_argument(
         "input", type=Path, metavar="FUSED", help=f"the input: {', '.join(INPUT_FORMATS)} (see the description)"
     )
     export.add_argument("--format", required=True, choices=FORMATS, help="what to write")
-    export.add_argument(
-        "--output",
-        type=Path,
-        default=None,
+    add_output_option(
+        export,
         metavar="OUT",
         help="output file (default: the input's name with the format's extension; csv: .csv or .parquet)",
     )
@@ -274,7 +284,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     export.add_argument(
         "--smoother",
-        choices=SMOOTHERS,
+        choices=OFFLINE_SMOOTHERS,
         default=None,
         help="recording of sensor frames: zero-lag smoothing of the fused take (rts) or the live filter's output "
         "(none); default rts with the skelfuse preset",
@@ -282,5 +292,5 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     export.add_argument(
         "--fuse", action="store_true", help="recording: fuse its sensor frames even if it holds a fused stream"
     )
-    export.add_argument("--json", action="store_true", help="print a JSON summary on stdout (no progress output)")
+    add_json_option(export, "a summary", "no progress output")
     export.set_defaults(func=_cmd_export)

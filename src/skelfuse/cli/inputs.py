@@ -10,9 +10,18 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+import numpy as np
+
 from skelfuse.config import RigConfig
+from skelfuse.config.calibration_file import read_calibration
 from skelfuse.recording.inputs import CLOCK_MODES, InputTake, open_inputs, parse_time_offsets
-from skelfuse.sources.formats import FORMATS, InputSpec, detect_format
+from skelfuse.recording.inputs import (
+    single_recorded_mcap as single_recorded_mcap,  # its home; the commands import it here
+)
+from skelfuse.recording.level import level_take
+from skelfuse.rig.level import parse_axis
+from skelfuse.schema.errors import ConfigError
+from skelfuse.sources.formats import FORMATS
 from skelfuse.sources.recorded import ASSUME_CONFIDENCE
 
 INPUT_HELP = (
@@ -65,14 +74,6 @@ def add_input_options(parser: argparse.ArgumentParser, *, by: bool = True) -> No
         )
 
 
-def single_recorded_mcap(specs: Sequence[str]) -> bool:
-    """True when ``specs`` is one plain path to a skelfuse MCAP (no ``ID=``)."""
-    if len(specs) != 1:
-        return False
-    spec = InputSpec.parse(specs[0])
-    return spec.sensor_id is None and spec.path.is_file() and detect_format(spec.path) == "mcap"
-
-
 def open_take(
     args: argparse.Namespace, specs: Sequence[str], cfg: RigConfig | None = None, *, quiet: bool = False
 ) -> InputTake:
@@ -91,3 +92,53 @@ def open_take(
     if not quiet:
         print(take.describe(), file=sys.stderr)
     return take
+
+
+def add_level_options(parser: argparse.ArgumentParser) -> None:
+    """``--up AXIS`` and ``--no-level``: the world levelled from the skeletons (:func:`world_poses`)."""
+    group = parser.add_argument_group("levelling the world (where no calibration defines it)")
+    group.add_argument(
+        "--up",
+        default=None,
+        metavar="AXIS",
+        help="the axis of the shared frame (the master camera's: x right, y down, z forward) that points up, "
+        "e.g. -y; the floor is still found from the feet (default: found from the skeletons)",
+    )
+    group.add_argument(
+        "--no-level",
+        action="store_true",
+        help="keep the shared frame as it is (a camera's: y down) instead of levelling it",
+    )
+
+
+def world_poses(args: argparse.Namespace, take: InputTake, cfg: RigConfig | None) -> dict[str, np.ndarray] | None:
+    """The poses to fuse ``take`` with: ``--calibration``'s, else those of the inputs' shared frame; levelled
+    from the skeletons (z up, floor at z = 0, reported on stderr) where no calibration defines the world:
+    registered or single-view inputs, or a sensor-to-sensor calibration. None: the config's or recording's."""
+    poses: dict[str, np.ndarray] | None = None
+    world_defined = True
+    if args.calibration is not None:
+        calibration = read_calibration(args.calibration)
+        missing = [sid for sid in take.sensor_ids if sid not in calibration.sensors]
+        if missing:
+            raise ConfigError(
+                f"--calibration {args.calibration}: no pose for {', '.join(missing)} (it holds "
+                f"{', '.join(calibration.sensors)}); name the inputs ID=PATH with the calibration's sensor ids"
+            )
+        poses = calibration.world_from_sensor
+        world_defined = "marker" in {calibration.method, *(s.method for s in calibration.sensors.values())}
+    elif take.registered:
+        poses, world_defined = dict(take.poses), False
+    elif len(take.sensor_ids) == 1 and cfg is None and not take.poses:
+        poses, world_defined = {take.sensor_ids[0]: np.eye(4)}, False  # one view: its camera's frame
+    if poses is None or world_defined or args.no_level:
+        if args.up is not None:
+            raise ConfigError("--up applies where the world is levelled from the skeletons; this take's is defined")
+        return poses
+    try:
+        up = parse_axis(args.up) if args.up is not None else None
+    except ValueError as exc:
+        raise ConfigError(f"--up: {exc}") from None
+    levelled, levelling = level_take(take, poses, up=up)
+    print(f"note: {levelling.describe()}", file=sys.stderr)
+    return levelled

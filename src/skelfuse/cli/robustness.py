@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from skelfuse.cli.common import COUNT, EXIT_ATTENTION, EXIT_OK, POSITIVE, print_json
-from skelfuse.eval import robustness
 from skelfuse.progress import note
 
-QUICK = {"sensors": [3], "seeds": 2, "duration": 3.0}
+QUICK: dict[str, Any] = {"sensors": [3], "seeds": 2, "duration": 3.0}
 
 
 def _cmd_eval_robustness(args: argparse.Namespace) -> int:
+    from skelfuse.eval import robustness  # each command imports what it runs (start-up)
+
     sensors = args.sensors or (QUICK["sensors"] if args.quick else [2, 3, 4])
     seeds = args.seeds or (QUICK["seeds"] if args.quick else 6)
     duration = args.duration or (QUICK["duration"] if args.quick else 10.0)
@@ -48,7 +50,7 @@ def _cmd_eval_robustness(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:
     """Add ``eval robustness``."""
     parser = eval_commands.add_parser(
         "robustness",

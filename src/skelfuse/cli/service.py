@@ -7,16 +7,21 @@ import dataclasses
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
     NON_NEGATIVE,
+    OFFLINE_SMOOTHERS,
     OUTPUT_FILE,
     PORT,
     POSITIVE,
     SEED,
     Number,
+    add_json_option,
+    add_output_option,
     add_run_limits,
     add_zenoh_arguments,
     preset_name,
@@ -25,13 +30,18 @@ from skelfuse.cli.common import (
     run_limits,
     zenoh_conf,
 )
-from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take, single_recorded_mcap
+from skelfuse.cli.inputs import (
+    INPUT_HELP,
+    add_input_options,
+    add_level_options,
+    open_take,
+    single_recorded_mcap,
+    world_poses,
+)
 from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.config.access import FUSION, capture_identity
 from skelfuse.export.csv import write_fused
-from skelfuse.fusion.smoother import SMOOTHERS
-from skelfuse.recording import fuse_recording
-from skelfuse.recording.inputs import InputTake
+from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service import worker
 from skelfuse.service.lifecycle import Lifecycle
@@ -41,6 +51,8 @@ from skelfuse.service.status import watch_status
 from skelfuse.service.viewer import ViewOptions
 from skelfuse.wire.keys import validate_name
 
+if TYPE_CHECKING:
+    from skelfuse.recording.inputs import InputTake
 log = logging.getLogger("skelfuse.cli")
 
 
@@ -130,8 +142,14 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if single_recorded_mcap(args.input) and not (args.time_offset or args.registered or args.by):
         # a skelfuse recording as it is: grouped on its recorded host arrival times, exactly as live
         source = Path(args.input[0])
+    poses = world_poses(args, take, cfg)
     frames = fuse_recording(
-        source, rig_config=cfg, preset_name=args.preset, progress=not args.json, smoother=args.smoother
+        source,
+        rig_config=cfg,
+        world_from_sensor=poses,
+        preset_name=args.preset,
+        progress=not args.json,
+        smoother=args.smoother,
     )
     try:
         rows = write_fused(frames, args.output)
@@ -140,12 +158,11 @@ def _fuse_offline(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"input": [str(i) for i in args.input], "output": args.output, "rows": rows, "notes": take.notes})
     else:
-        print(f"Fused {args.input} -> {args.output} ({rows} rows)", file=sys.stderr)
+        print(f"Fused {', '.join(args.input)} -> {args.output} ({rows} rows)", file=sys.stderr)
     return EXIT_OK
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-
     cfg = rig_config(args)
     report = run_recorder(
         cfg, zenoh_conf(args, cfg), output=args.output, limits=run_limits(args), lifecycle=Lifecycle("recorder")
@@ -168,7 +185,6 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-
     if args.rig is not None:
         try:
             validate_name(args.rig, "rig")
@@ -194,7 +210,6 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
-
     cfg = rig_config(args)
     watch_status(
         cfg,
@@ -207,7 +222,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``capture``, ``fuse``, ``record``, ``replay`` and ``status``."""
     _add_capture(commands)
     _add_fuse(commands)
@@ -216,10 +231,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     _add_status(commands)
 
 
-def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_capture(commands: argparse._SubParsersAction) -> None:
     capture = commands.add_parser(
         "capture",
-        help="capture worker: publish one sensor's frames on skelfuse/<rig>/sensors/<id>/skeletons",
+        help=COMMAND_HELP["capture"],
         description="Run the capture worker of one sensor of the rig: read its frames from its source (sim, "
         "replay or kinect, as its [[sensors]] source says; docs/service.md, docs/kinect.md) and publish them over "
         "zenoh. Retries with backoff when the zenoh session cannot open or the source fails; a kinect source "
@@ -281,16 +296,16 @@ def _add_capture(commands: argparse._SubParsersAction) -> None:  # type: ignore[
         help="watchdog before the first answer: restart a source that has not opened (device open, tracker create, "
         "a master's wait for its subordinates) within this long (default: [capture] open_timeout_s, 120)",
     )
-    capture.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(capture, "a summary at exit")
     add_run_limits(capture, "publishing N frames")
     add_zenoh_arguments(capture)
     capture.set_defaults(func=_cmd_capture)
 
 
-def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_fuse(commands: argparse._SubParsersAction) -> None:
     fuse = commands.add_parser(
         "fuse",
-        help="fusion node (live, over zenoh) or offline fusion of a recording (--input FILE --output OUT)",
+        help=COMMAND_HELP["fuse"],
         description="Live: subscribe to every sensor of the rig, group the frames of one instant (device or "
         "host time, [sync]), fuse them as soon as all sensors arrived or the deadline passed, and publish on "
         "skelfuse/<rig>/fused/skeletons; status every [node] status_period_s on skelfuse/<rig>/status/<node>; "
@@ -307,16 +322,19 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
     fuse.add_argument(
         "--input", nargs="+", default=None, metavar="[ID=]PATH", help=f"offline: the recording(s). {INPUT_HELP}"
     )
+    add_output_option(fuse, metavar="OUT", help="offline: fused frames to OUT.csv or OUT.parquet")
     fuse.add_argument(
-        "--output",
-        type=OUTPUT_FILE,
+        "--calibration",
+        type=EXISTING_FILE,
         default=None,
-        metavar="OUT",
-        help="offline: fused frames to OUT.csv or OUT.parquet",
+        metavar="FILE",
+        help="offline: the sensors' poses from this calibration file (what `skelfuse calibrate skeleton` "
+        "writes); overrides the config's and the recording's",
     )
+    add_level_options(fuse)
     fuse.add_argument(
         "--smoother",
-        choices=SMOOTHERS,
+        choices=OFFLINE_SMOOTHERS,
         default=None,
         help="offline: zero-lag smoothing of the whole take (rts) or the live filter's output, frame by frame (none); "
         "default rts with the skelfuse preset",
@@ -374,40 +392,38 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:  # type: ignore[typ
         help="with --serve: also serve the web viewer on this port",
     )
     view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
-    fuse.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(fuse, "a summary at exit")
     add_input_options(fuse)
     add_run_limits(fuse, "publishing N fused frames")
     add_zenoh_arguments(fuse)
     fuse.set_defaults(func=_cmd_fuse)
 
 
-def _add_record(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_record(commands: argparse._SubParsersAction) -> None:
     record = commands.add_parser(
         "record",
-        help="record every raw sensor frame of the rig (and its fused stream) to an MCAP file",
+        help=COMMAND_HELP["record"],
         description="Subscribe to skelfuse/<rig>/sensors/*/skeletons (and, with [record] fused = true, the "
         "default, to skelfuse/<rig>/fused/skeletons) and write every payload with its timestamps to an MCAP "
         "file (docs/recording.md). Flushed every [record] flush_period_s: a killed "
         "recorder leaves a file readable up to its last flush; SIGINT/SIGTERM close it with its index.",
     )
     record.add_argument("--config", type=EXISTING_FILE, required=True, metavar="RIG.toml", help="the rig config")
-    record.add_argument(
-        "--output",
-        type=OUTPUT_FILE,
-        default=None,
+    add_output_option(
+        record,
         metavar="FILE",
         help="the .mcap file (default: <[record] directory or .>/<rig>-<UTC time>.mcap)",
     )
-    record.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(record, "a summary at exit")
     add_run_limits(record, "writing N frames")
     add_zenoh_arguments(record)
     record.set_defaults(func=_cmd_record)
 
 
-def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_replay(commands: argparse._SubParsersAction) -> None:
     replay = commands.add_parser(
         "replay",
-        help="republish a recording's sensor frames over zenoh (original or maximum speed)",
+        help=COMMAND_HELP["replay"],
         description="Publish the sensor frames of an MCAP recording on their recorded keys, byte for byte, "
         "paced by their recorded host time, so a session can be fused again live with other settings. Other "
         "formats (one file per sensor, or a long CSV) are matched in time and published on "
@@ -426,17 +442,17 @@ def _add_replay(commands: argparse._SubParsersAction) -> None:  # type: ignore[t
         metavar="RIG.toml",
         help="take the zenoh settings from this rig config (default: zenoh defaults + flags)",
     )
-    replay.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(replay, "a summary at exit")
     add_input_options(replay)
     add_run_limits(replay, "publishing N frames")
     add_zenoh_arguments(replay)
     replay.set_defaults(func=_cmd_replay)
 
 
-def _add_status(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def _add_status(commands: argparse._SubParsersAction) -> None:
     status = commands.add_parser(
         "status",
-        help="print the status messages of the rig's nodes",
+        help=COMMAND_HELP["status"],
         description="Subscribe to skelfuse/<rig>/status/* and print one line per status message (rates, "
         "counts, latency), or the documents as JSON lines with --json.",
     )

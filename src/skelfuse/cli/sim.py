@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import COUNT, EXIT_OK, POSITIVE, SEED, print_json
-from skelfuse.eval import realism
-from skelfuse.sim.observe import load_profile
 
 
 def _default_data_dir() -> Path:
@@ -16,6 +15,9 @@ def _default_data_dir() -> Path:
 
 
 def _cmd_sim_check(args: argparse.Namespace) -> int:
+    from skelfuse.eval import realism  # each command imports what it runs (start-up)
+    from skelfuse.sim.observe import load_profile
+
     profile = load_profile(args.profile)
     data_dir = None
     if not args.no_real:
@@ -38,9 +40,9 @@ def _cmd_sim_check(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``sim`` with its sub-commands."""
-    sim = commands.add_parser("sim", help="the simulator: how close it is to real recordings")
+    sim = commands.add_parser("sim", help=COMMAND_HELP["sim"])
     sim_commands = sim.add_subparsers(dest="sim_command", metavar="WHAT", required=True)
     check = sim_commands.add_parser(
         "check",

@@ -6,11 +6,13 @@ import argparse
 import sys
 from collections.abc import Callable
 
+from skelfuse.cli.commands import COMMAND_HELP
 from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
     INDEX,
     PORT,
+    add_json_option,
     add_run_limits,
     add_zenoh_arguments,
     print_json,
@@ -99,11 +101,11 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``stream``."""
     stream = commands.add_parser(
         "stream",
-        help="stream daemon: re-send the fused skeletons live as OSC, VMC (UDP) or a Lab Streaming Layer stream",
+        help=COMMAND_HELP["stream"],
         description="Subscribe to skelfuse/<rig>/fused/skeletons and re-send every fused frame: osc = one OSC "
         "bundle per frame to [stream] host:osc_port (address scheme in docs/streaming.md); vmc = one VMC bundle per "
         "frame (one person's root and "
@@ -131,7 +133,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:  # type: ignore[ty
     stream.add_argument(
         "--node", default=None, metavar="NAME", help="node name for the liveliness key (default: stream-<protocol>)"
     )
-    stream.add_argument("--json", action="store_true", help="print a JSON summary on stdout at exit")
+    add_json_option(stream, "a summary at exit")
     add_run_limits(stream, "sending N fused frames")
     add_zenoh_arguments(stream)
     stream.set_defaults(func=_cmd_stream)

@@ -23,6 +23,9 @@ mean" for a misspelt key.
 Modules: ``model`` (the dataclasses), ``parse`` (TOML -> model, section by section), ``checks`` (the
 validation primitives), ``calibration_file`` (the rig's versioned calibration file, read and written),
 ``zenoh_session`` (the zenoh session config of a node).
+
+The names below are the package's re-exports, listed once: the import statements are the list (ruff's
+F401 is off for this file, in pyproject.toml).
 """
 
 from skelfuse.config.calibration_file import load_calibration
@@ -54,34 +57,3 @@ from skelfuse.config.model import (
 )
 from skelfuse.config.parse import load_rig_config, parse_rig_config
 from skelfuse.config.zenoh_session import zenoh_config
-
-__all__ = [
-    "CONGESTION_CONTROLS",
-    "DEFAULT_PRESET",
-    "FUSION_PRESETS",
-    "MIN_DELAY_SPACING_US",
-    "SOURCE_KINDS",
-    "ZENOH_MODES",
-    "CalibrationConfig",
-    "CaptureConfig",
-    "DepthConfig",
-    "FusionConfig",
-    "IntakeConfig",
-    "KinectConfig",
-    "NodeConfig",
-    "RecordConfig",
-    "ReplayConfig",
-    "RerunConfig",
-    "RigConfig",
-    "SensorConfig",
-    "SensorSyncConfig",
-    "SimConfig",
-    "StreamConfig",
-    "SyncConfig",
-    "TrackerConfig",
-    "ZenohSection",
-    "load_calibration",
-    "load_rig_config",
-    "parse_rig_config",
-    "zenoh_config",
-]

@@ -60,8 +60,44 @@ def fusion_node_name(cfg: RigConfig) -> str:
 def access_control(cfg: RigConfig) -> dict[str, Any]:
     """zenoh's ``access_control`` block for the rig's router (see the module docstring)."""
     rig = cfg.name
-    everything = f"skelfuse/{rig}/**"
-    rules: list[dict[str, Any]] = [
+    rules = _shared_rules(f"skelfuse/{rig}/**")
+    # No condition: every instance that connected at all, i.e. (mutual TLS) holds a certificate of the rig's CA.
+    subjects: list[dict[str, Any]] = [{"id": "rig"}]
+    policies: list[dict[str, Any]] = [{"rules": ["everyone-receives", "router-delivers"], "subjects": ["rig"]}]
+
+    def allow(identity: str, publish: list[str], tokens: list[str], queryables: tuple[str, ...] = ()) -> None:
+        subjects.append({"id": identity, "cert_common_names": [common_name(rig, identity)]})
+        own = _identity_rules(identity, publish, tokens, queryables)
+        rules.extend(own)
+        policies.append({"rules": [rule["id"] for rule in own], "subjects": [identity]})
+
+    node = fusion_node_name(cfg)
+    allow(
+        FUSION,
+        [keys.fused_skeletons(rig), keys.status(rig, node)],
+        [keys.alive(rig, node)],
+        (keys.calibration(rig),),
+    )
+    for host, sensor_ids in capture_hosts(cfg).items():
+        allow(
+            capture_identity(host),
+            [keys.sensor_skeletons(rig, sid) for sid in sensor_ids]
+            + [keys.status(rig, f"capture-{sid}") for sid in sensor_ids],
+            [keys.alive(rig, f"capture-{sid}") for sid in sensor_ids]
+            + [keys.alive(rig, f"camera-{sid}") for sid in sensor_ids],
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def _shared_rules(everything: str) -> list[dict[str, Any]]:
+    """The rules of every member of the rig: subscribe and query anything of the rig; the router delivers."""
+    return [
         {
             "id": "everyone-receives",
             "permission": "allow",
@@ -89,64 +125,39 @@ def access_control(cfg: RigConfig) -> dict[str, Any]:
             "key_exprs": [everything],
         },
     ]
-    # No condition: every instance that connected at all, i.e. (mutual TLS) holds a certificate of the rig's CA.
-    subjects: list[dict[str, Any]] = [{"id": "rig"}]
-    policies: list[dict[str, Any]] = [{"rules": ["everyone-receives", "router-delivers"], "subjects": ["rig"]}]
 
-    def allow(identity: str, publish: list[str], tokens: list[str], queryables: tuple[str, ...] = ()) -> None:
-        cn = common_name(rig, identity)
-        subjects.append({"id": identity, "cert_common_names": [cn]})
-        own = [
+
+def _identity_rules(
+    identity: str, publish: list[str], tokens: list[str], queryables: tuple[str, ...]
+) -> list[dict[str, Any]]:
+    """What one identity may do beyond receiving: publish its keys, hold its tokens, answer its queryables."""
+    own = [
+        {
+            "id": f"{identity}-publishes",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["put"],
+            "key_exprs": publish,
+        },
+        {
+            "id": f"{identity}-tokens",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["liveliness_token"],
+            "key_exprs": tokens,
+        },
+    ]
+    if queryables:
+        own.append(
             {
-                "id": f"{identity}-publishes",
+                "id": f"{identity}-answers",
                 "permission": "allow",
                 "flows": ["ingress"],
-                "messages": ["put"],
-                "key_exprs": publish,
-            },
-            {
-                "id": f"{identity}-tokens",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["liveliness_token"],
-                "key_exprs": tokens,
-            },
-        ]
-        if queryables:
-            own.append(
-                {
-                    "id": f"{identity}-answers",
-                    "permission": "allow",
-                    "flows": ["ingress"],
-                    "messages": ["declare_queryable", "reply"],
-                    "key_exprs": list(queryables),
-                }
-            )
-        rules.extend(own)
-        policies.append({"rules": [rule["id"] for rule in own], "subjects": [identity]})
-
-    node = fusion_node_name(cfg)
-    allow(
-        FUSION,
-        [keys.fused_skeletons(rig), keys.status(rig, node)],
-        [keys.alive(rig, node)],
-        (keys.calibration(rig),),
-    )
-    for host, sensor_ids in capture_hosts(cfg).items():
-        allow(
-            capture_identity(host),
-            [keys.sensor_skeletons(rig, sid) for sid in sensor_ids]
-            + [keys.status(rig, f"capture-{sid}") for sid in sensor_ids],
-            [keys.alive(rig, f"capture-{sid}") for sid in sensor_ids]
-            + [keys.alive(rig, f"camera-{sid}") for sid in sensor_ids],
+                "messages": ["declare_queryable", "reply"],
+                "key_exprs": list(queryables),
+            }
         )
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        "subjects": subjects,
-        "policies": policies,
-    }
+    return own
 
 
 def rig_identities(cfg: RigConfig, apps: tuple[str, ...] = ()) -> list[str]:

@@ -48,15 +48,32 @@ def zenoh_config(
     import zenoh
 
     conf = zenoh.Config()
+    _apply_file(conf, cfg, mode, identity)
+    _apply_flags(conf, mode, connect, listen, multicast_scouting)
+    for item in overrides:
+        key, sep, value = str(item).partition(":")
+        if not sep or not key.strip() or not value.strip():
+            raise ConfigError(f"--zenoh-cfg: expected KEY:VALUE (e.g. 'transport/unicast/max_links:2'), found {item!r}")
+        _insert(conf, key.strip(), value.strip(), f"--zenoh-cfg {item!r}")
+    return conf
+
+
+def _insert(conf: zenoh.Config, key: str, value_json5: str, origin: str) -> None:
+    """``conf.insert_json5``, a refusal raised as a ConfigError that names where the value came from."""
+    try:
+        conf.insert_json5(key, value_json5)
+    except Exception as exc:  # zenoh raises its own ZError
+        raise ConfigError(
+            f"{origin}: zenoh rejected {key} = {value_json5}: {exc}; check the key path and "
+            f"value type against zenoh's DEFAULT_CONFIG.json5"
+        ) from None
+
+
+def _apply_file(conf: zenoh.Config, cfg: RigConfig, mode: str | None, identity: str | None) -> None:
+    """The rig file's ``[zenoh.config]`` raw keys, then its ``[zenoh]`` settings (TLS and access control too)."""
 
     def insert(key: str, value_json5: str, origin: str) -> None:
-        try:
-            conf.insert_json5(key, value_json5)
-        except Exception as exc:  # zenoh raises its own ZError
-            raise ConfigError(
-                f"{origin}: zenoh rejected {key} = {value_json5}: {exc}; check the key path and "
-                f"value type against zenoh's DEFAULT_CONFIG.json5"
-            ) from None
+        _insert(conf, key, value_json5, origin)
 
     for key, value in cfg.zenoh.config:
         insert(key, json.dumps(value), f'{cfg.source}: zenoh.config."{key}"')
@@ -84,23 +101,25 @@ def zenoh_config(
     if z.access_control and effective_mode == "router":
         insert("access_control", json.dumps(access_control(cfg)), f"{cfg.source}: zenoh.access_control")
 
+
+def _apply_flags(
+    conf: zenoh.Config,
+    mode: str | None,
+    connect: Sequence[str] | None,
+    listen: Sequence[str] | None,
+    multicast_scouting: bool | None,
+) -> None:
+    """The command line's zenoh flags (None: not given)."""
     if mode is not None:
         if mode not in ZENOH_MODES:
             raise ConfigError(f"--zenoh-mode: expected one of {', '.join(ZENOH_MODES)}, found {mode!r}")
-        insert("mode", json.dumps(mode), "--zenoh-mode")
+        _insert(conf, "mode", json.dumps(mode), "--zenoh-mode")
     if connect is not None:
-        insert("connect/endpoints", json.dumps(list(connect)), "--zenoh-connect")
+        _insert(conf, "connect/endpoints", json.dumps(list(connect)), "--zenoh-connect")
     if listen is not None:
-        insert("listen/endpoints", json.dumps(list(listen)), "--zenoh-listen")
+        _insert(conf, "listen/endpoints", json.dumps(list(listen)), "--zenoh-listen")
     if multicast_scouting is not None:
-        insert("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)), "--no-multicast-scouting")
-
-    for item in overrides:
-        key, sep, value = str(item).partition(":")
-        if not sep or not key.strip() or not value.strip():
-            raise ConfigError(f"--zenoh-cfg: expected KEY:VALUE (e.g. 'transport/unicast/max_links:2'), found {item!r}")
-        insert(key.strip(), value.strip(), f"--zenoh-cfg {item!r}")
-    return conf
+        _insert(conf, "scouting/multicast/enabled", json.dumps(bool(multicast_scouting)), "--no-multicast-scouting")
 
 
 def tls_files(tls: ZenohTls, identity: str | None) -> dict[str, str]:

@@ -206,7 +206,7 @@ class _TimedTracker:
         self.inner, self.times_ms = inner, times_ms
         self.name, self.description = inner.name, inner.description
 
-    def track(self, person, view, prior_world):  # type: ignore[no-untyped-def]
+    def track(self, person, view, prior_world):
         tick = time.perf_counter_ns()
         try:
             return self.inner.track(person, view, prior_world)

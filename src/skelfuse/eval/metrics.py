@@ -133,8 +133,11 @@ class ErrorAccumulator:
     @classmethod
     def zeros(cls, n_joints: int) -> ErrorAccumulator:
         """An empty accumulator for ``n_joints`` joints."""
-        counts = [np.zeros(n_joints, dtype=np.int64) for _ in range(3)]
-        return cls(*counts, np.zeros(n_joints), np.zeros(n_joints))
+
+        def count() -> np.ndarray:
+            return np.zeros(n_joints, dtype=np.int64)
+
+        return cls(count(), count(), count(), np.zeros(n_joints), np.zeros(n_joints))
 
     @property
     def n_joints(self) -> int:

@@ -782,12 +782,12 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
     jitter_pooled: dict[str, dict[str, tuple[float, int]]] = {}
     orientation_pooled: dict[str, dict[str, list[np.ndarray]]] = {}
     for take in takes:
-        for key, by_group in take.orientation.items():
-            for group, values in by_group.items():
+        for key, orientation_by_group in take.orientation.items():
+            for group, values in orientation_by_group.items():
                 orientation_pooled.setdefault(key, {}).setdefault(group, []).append(values)
-        for key, by_group in take.jitter.items():
+        for key, jitter_by_group in take.jitter.items():
             slot_j = jitter_pooled.setdefault(key, {})
-            for group, (sq, n) in by_group.items():
+            for group, (sq, n) in jitter_by_group.items():
                 old = slot_j.get(group, (0.0, 0))
                 slot_j[group] = (old[0] + sq, old[1] + n)
         for key, (n_swapped, n_valid) in take.swaps.items():
@@ -796,18 +796,18 @@ def collect(takes: Sequence[TakeResult], settings: dict[str, Any], elapsed_s: fl
             for protocol, acc in by_protocol.items():
                 slot = pooled.setdefault(key, {}).setdefault(protocol, {})
                 slot[take.gesture] = slot[take.gesture] + acc if take.gesture in slot else acc
-        for key, by_group in take.lag.items():
-            for group, (s, c) in by_group.items():
-                slot = lag_sums.setdefault(key, {})
-                slot[group] = (slot[group][0] + s, slot[group][1] + c) if group in slot else (s, c)
+        for key, lag_by_group in take.lag.items():
+            for group, (s, c) in lag_by_group.items():
+                lag_slot = lag_sums.setdefault(key, {})
+                lag_slot[group] = (lag_slot[group][0] + s, lag_slot[group][1] + c) if group in lag_slot else (s, c)
     stats = {
         key: {p: {g: pooled[key][p][g].stats() for g in gestures if g in pooled[key][p]} for p in pooled[key]}
         for key in pooled
     }
     lag: dict[str, dict[str, dict[str, float]]] = {}
-    for key, by_group in lag_sums.items():
+    for key, sums_by_group in lag_sums.items():
         lag[key] = {}
-        for group, (s, c) in by_group.items():
+        for group, (s, c) in sums_by_group.items():
             frames, err = best_lag(s, c, LAG_SHIFTS)
             lag[key][group] = {"lag_frames": frames, "error_mm": err}
     infos = sorted((t.info for t in takes), key=lambda i: (gestures.index(i["gesture"]), i["facing_deg"]))

@@ -26,7 +26,7 @@ What the numbers mean (checked against the Appendix tables):
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Any, Final
 
 GROUPS: Final = ("torso", "upper_limb", "lower_limb")
 
@@ -117,7 +117,8 @@ def reference_value(experiment: str, key: str | int | float, metric: str, group:
     metric : "ae_mm" | "std_mm"
     group : "torso" | "upper_limb" | "lower_limb"
     """
-    table: dict = {"algorithms": ALGORITHMS, "eps_sweep": EPS_SWEEP, "n_sensors": N_SENSORS}.get(experiment, {})
+    tables: dict[str, dict[Any, Any]] = {"algorithms": ALGORITHMS, "eps_sweep": EPS_SWEEP, "n_sensors": N_SENSORS}
+    table = tables.get(experiment, {})
     entry = table.get(key)
     if entry is None and isinstance(key, int | float) and not isinstance(key, bool):
         entry = table.get(float(key)) or table.get(int(key))

@@ -25,13 +25,10 @@ Rows of the paper's algorithm (A1-A5) and of ours (``skelfuse``) are marked in e
 
 from __future__ import annotations
 
-import csv
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
-
-import numpy as np
 
 from skelfuse.eval import paper_reference
 from skelfuse.eval.paper import (
@@ -43,51 +40,19 @@ from skelfuse.eval.paper import (
     PaperEvalSuite,
     is_ours,
 )
+from skelfuse.eval.report_files import (
+    EXPERIMENT_TITLES,
+    GROUP_LABELS,
+    PROTOCOL_TITLES,
+    by_label,
+    fmt,
+    pct,
+    plot_experiment,
+    plot_suite,
+    row_cell,
+    write_csvs,
+)
 from skelfuse.schema.skeleton import EVAL_JOINT_NAMES
-
-GROUP_LABELS = {"torso": "torso", "upper_limb": "upper limb", "lower_limb": "lower limb"}
-EXPERIMENT_TITLES = {
-    "algorithms": "Experiment 1 — algorithms (4 sensors; A3-A5 = mean over eps, as the paper's Figure 9)",
-    "eps_sweep": "Experiment 2 — DBSCAN radius eps (4 sensors; paper Figure 10 has A5 only)",
-    "n_sensors": "Experiment 3 — number of sensors (A5, eps 100 mm; 1 = raw; mean over all combinations)",
-}
-PROTOCOL_TITLES = {"truth": "exact ground truth", "best_view": "best-view sensor (the paper's protocol)"}
-
-
-def _f(value: float | None, digits: int = 1) -> str:
-    if value is None or not math.isfinite(value):
-        return "—"
-    return f"{value:.{digits}f}"
-
-
-def _by(experiment: str, config: str) -> str:
-    """Who the row's algorithm is: the paper's, ours, or raw sensor data."""
-    if experiment == "n_sensors" and config == "1":
-        return "raw"
-    return "**ours**" if is_ours(config) else "paper"
-
-
-def _row_label(experiment: str, config: str) -> str:
-    if experiment == "n_sensors":
-        algorithm, _, n = config.rpartition("_")
-        plural = "s" if n != "1" else ""
-        if n == "1":
-            return "1 sensor (raw)"
-        return f"{n} sensor{plural}, " + (f"{algorithm} (ours)" if algorithm else "A5")
-    if experiment == "eps_sweep":
-        name, eps = config.split("_")
-        return f"{name} eps {eps} mm"
-    return f"{config} (ours)" if is_ours(config) else config
-
-
-def _row_cell(experiment: str, config: str) -> str:
-    """Row label for markdown: our rows in bold."""
-    label = _row_label(experiment, config)
-    return f"**{label}**" if is_ours(config) else label
-
-
-def _pct(frac: float | None) -> str:
-    return "—" if frac is None or not math.isfinite(frac) else f"{100 * frac:.1f}%"
 
 
 def _dynamics_table(result: PaperEvalResult) -> list[str]:
@@ -105,14 +70,14 @@ def _dynamics_table(result: PaperEvalResult) -> list[str]:
         "|" + "---|" * len(header),
     ]
     for config in result.experiment_configs("algorithms"):
-        cells = [_row_cell("algorithms", config), _by("algorithms", config)]
-        cells.append(_pct(result.row_swapped("algorithms", config)))
-        cells += [_f(result.row_lag("algorithms", config, g), 2) for g in GROUP_NAMES]
-        cells += [_f(result.row_jitter("algorithms", config, g), 2) for g in GROUP_NAMES]
+        cells = [row_cell("algorithms", config), by_label("algorithms", config)]
+        cells.append(pct(result.row_swapped("algorithms", config)))
+        cells += [fmt(result.row_lag("algorithms", config, g), 2) for g in GROUP_NAMES]
+        cells += [fmt(result.row_jitter("algorithms", config, g), 2) for g in GROUP_NAMES]
         lines.append("| " + " | ".join(cells) + " |")
     if "exact_truth" in result.jitter:
         cells = ["exact truth", "—", "—"] + ["—"] * len(GROUP_NAMES)
-        cells += [_f(result.jitter["exact_truth"].get(g), 2) for g in GROUP_NAMES]
+        cells += [fmt(result.jitter["exact_truth"].get(g), 2) for g in GROUP_NAMES]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -161,7 +126,9 @@ def _intro_lines(result: PaperEvalResult) -> list[str]:
     if best is not None:
         lines += [
             "How good is the paper's reference? The best-view skeleton against exact truth, RMSE ± STD: "
-            + ", ".join(f"{GROUP_LABELS[g]} {_f(best[g]['rmse_mm'])} ± {_f(best[g]['std_mm'])} mm" for g in GROUP_NAMES)
+            + ", ".join(
+                f"{GROUP_LABELS[g]} {fmt(best[g]['rmse_mm'])} ± {fmt(best[g]['std_mm'])} mm" for g in GROUP_NAMES
+            )
             + ".",
             "",
         ]
@@ -186,16 +153,16 @@ def _experiment_lines(result: PaperEvalResult, exp: str) -> list[str]:
     for config in configs:
         t = result.group_stats(exp, config, "truth")
         b = result.group_stats(exp, config, "best_view")
-        cells = [_row_cell(exp, config), _by(exp, config)]
+        cells = [row_cell(exp, config), by_label(exp, config)]
         for g in GROUP_NAMES:
             pa, ps = (
                 result.paper_value(exp, config, "ae_mm", g),
                 result.paper_value(exp, config, "std_mm", g),
             )
             cells += [
-                f"{_f(t[g]['rmse_mm'])} ± {_f(t[g]['std_mm'])}",
-                f"{_f(b[g]['rmse_mm'])} ± {_f(b[g]['std_mm'])}",
-                "—" if pa is None else f"{_f(pa)} ± {_f(ps)}",
+                f"{fmt(t[g]['rmse_mm'])} ± {fmt(t[g]['std_mm'])}",
+                f"{fmt(b[g]['rmse_mm'])} ± {fmt(b[g]['std_mm'])}",
+                "—" if pa is None else f"{fmt(pa)} ± {fmt(ps)}",
             ]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
@@ -210,9 +177,9 @@ def _experiment_lines(result: PaperEvalResult, exp: str) -> list[str]:
         ]
         for config in configs:
             gs = result.group_stats(exp, config, protocol)
-            cells = [_row_cell(exp, config), _by(exp, config)]
+            cells = [row_cell(exp, config), by_label(exp, config)]
             for g in GROUP_NAMES:
-                cells += [_f(gs[g]["ae_mm"]), _f(gs[g]["rmse_mm"]), _f(gs[g]["std_mm"])]
+                cells += [fmt(gs[g]["ae_mm"]), fmt(gs[g]["rmse_mm"]), fmt(gs[g]["std_mm"])]
             missing = sum(gs[g]["n_missing"] for g in GROUP_NAMES)
             total = missing + sum(gs[g]["n_frames"] for g in GROUP_NAMES)
             cells.append(f"{missing} / {total}")
@@ -230,12 +197,12 @@ def _per_joint_lines(result: PaperEvalResult) -> list[str]:
     lines += [
         "## Per joint — experiment 1, RMSE (mm) against exact truth",
         "",
-        "| joint | " + " | ".join(_row_cell("algorithms", c) for c in configs) + " |",
+        "| joint | " + " | ".join(row_cell("algorithms", c) for c in configs) + " |",
         "|---|" + "---|" * len(configs),
     ]
     per_config = {c: result.joint_stats("algorithms", c, "truth") for c in configs}
     for k, name in enumerate(EVAL_JOINT_NAMES):
-        lines.append(f"| {name} | " + " | ".join(_f(float(per_config[c].rmse_mm[k])) for c in configs) + " |")
+        lines.append(f"| {name} | " + " | ".join(fmt(float(per_config[c].rmse_mm[k])) for c in configs) + " |")
     lines.append("")
     return lines
 
@@ -273,19 +240,19 @@ def _dynamics_lines(result: PaperEvalResult) -> list[str]:
     ]
     for key in lag_keys:
         frac = result.swapped.get(key)
-        cells = [f"**{key} (ours)**" if is_ours(key) else key, _pct(frac)]
+        cells = [f"**{key} (ours)**" if is_ours(key) else key, pct(frac)]
         for g in GROUP_NAMES:
             entry = result.lag[key].get(g, {})
             cells += [
-                _f(entry.get("lag_frames"), 2),
-                _f(entry.get("error_mm")),
-                _f(result.jitter.get(key, {}).get(g), 2),
+                fmt(entry.get("lag_frames"), 2),
+                fmt(entry.get("error_mm")),
+                fmt(result.jitter.get(key, {}).get(g), 2),
             ]
         lines.append("| " + " | ".join(cells) + " |")
     if "exact_truth" in result.jitter:
         cells = ["exact truth", "—"]
         for g in GROUP_NAMES:
-            cells += ["—", "—", _f(result.jitter["exact_truth"].get(g), 2)]
+            cells += ["—", "—", fmt(result.jitter["exact_truth"].get(g), 2)]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     return lines
@@ -314,7 +281,7 @@ def _orientation_lines(result: PaperEvalResult) -> list[str]:
         cells = [f"**{key} (ours)**" if is_ours(key) else key]
         for g in GROUP_NAMES:
             entry = by_group.get(g, {})
-            cells.append(f"{_f(entry.get('median_deg'))} / {_f(entry.get('p90_deg'))}")
+            cells.append(f"{fmt(entry.get('median_deg'))} / {fmt(entry.get('p90_deg'))}")
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     return lines
@@ -341,209 +308,18 @@ def _simulated_data_lines(result: PaperEvalResult) -> list[str]:
     return lines
 
 
-# ----------------------------------------------------------------------------------------------------
-# Files.
-
-
-def _write_csvs(result: PaperEvalResult, out_dir: Path) -> list[Path]:
-
-    paths: list[Path] = []
-    gestures = ["all", *result.gestures]
-    for exp in EXPERIMENTS:
-        for protocol in PROTOCOLS:
-            jpath = out_dir / f"{exp}_{protocol}_joints.csv"
-            gpath = out_dir / f"{exp}_{protocol}_groups.csv"
-            with jpath.open("w", newline="") as jf, gpath.open("w", newline="") as gf:
-                jw, gw = csv.writer(jf), csv.writer(gf)
-                jw.writerow(
-                    [
-                        "config",
-                        "gesture",
-                        "joint",
-                        "ae_mm",
-                        "rmse_mm",
-                        "std_mm",
-                        "n_frames",
-                        "n_missing",
-                        "n_ref_missing",
-                        "algorithm",
-                    ]
-                )
-                gw.writerow(
-                    [
-                        "config",
-                        "gesture",
-                        "group",
-                        "ae_mm",
-                        "rmse_mm",
-                        "std_mm",
-                        "n_frames",
-                        "n_missing",
-                        "paper_ae_mm",
-                        "paper_std_mm",
-                        "algorithm",
-                    ]
-                )
-                for config in result.experiment_configs(exp):
-                    by = _by(exp, config).strip("*")
-                    for gesture in gestures:
-                        s = result.joint_stats(exp, config, protocol, gesture)
-                        for k, name in enumerate(EVAL_JOINT_NAMES):
-                            jw.writerow(
-                                [
-                                    config,
-                                    gesture,
-                                    name,
-                                    _c(s.ae_mm[k]),
-                                    _c(s.rmse_mm[k]),
-                                    _c(s.std_mm[k]),
-                                    int(s.n_frames[k]),
-                                    int(s.n_missing[k]),
-                                    int(s.n_ref_missing[k]),
-                                    by,
-                                ]
-                            )
-                        gs = result.group_stats(exp, config, protocol, gesture)
-                        for g in GROUP_NAMES:
-                            paper = [
-                                result.paper_value(exp, config, m, g) if gesture == "all" else None
-                                for m in ("ae_mm", "std_mm")
-                            ]
-                            gw.writerow(
-                                [
-                                    config,
-                                    gesture,
-                                    g,
-                                    _c(gs[g]["ae_mm"]),
-                                    _c(gs[g]["rmse_mm"]),
-                                    _c(gs[g]["std_mm"]),
-                                    gs[g]["n_frames"],
-                                    gs[g]["n_missing"],
-                                    *("" if p is None else p for p in paper),
-                                    by,
-                                ]
-                            )
-            paths += [jpath, gpath]
-    lag_path = out_dir / "lag.csv"
-    with lag_path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["output", "group", "lag_frames", "error_mm", "jitter_mm_per_frame2", "algorithm"])
-        for key, by_group in result.lag.items():
-            by = "ours" if is_ours(key) else ("raw" if "raw" in key else "paper")
-            for g, entry in by_group.items():
-                jitter = result.jitter.get(key, {}).get(g, float("nan"))
-                w.writerow([key, g, _c(entry["lag_frames"], 3), _c(entry["error_mm"]), _c(jitter, 3), by])
-        for g, jitter in result.jitter.get("exact_truth", {}).items():
-            w.writerow(["exact_truth", g, "", "", _c(jitter, 3), "truth"])
-    paths.append(lag_path)
-    return paths
-
-
-def _c(value: float, digits: int = 2) -> str:
-    value = float(value)
-    return f"{value:.{digits}f}" if math.isfinite(value) else "nan"
-
-
-def _plot_axes(axes: Any, result: PaperEvalResult, experiment: str, *, legend: bool = True) -> None:
-    """Grouped bars of one experiment into one axis per joint group; our rows on a shaded background."""
-    configs = result.experiment_configs(experiment)
-    if experiment == "eps_sweep":
-        configs = [c for c in configs if c.startswith(paper_reference.EPS_SWEEP_PRESET + "_")]
-    series = [
-        ("vs exact truth", "truth", "#1f77b4", None),
-        ("vs best view", "best_view", "#ff7f0e", None),
-        ("paper's figure (vs best view)", "paper", "#ffffff", "///"),
-    ]
-    x = np.arange(len(configs))
-    width = 0.8 / len(series)
-    for ax, group in zip(axes, GROUP_NAMES, strict=True):
-        for k, config in enumerate(configs):
-            if is_ours(config):
-                ax.axvspan(k - 0.5, k + 0.5, color="#2ca02c", alpha=0.12, linewidth=0)
-        for i, (label, source, color, hatch) in enumerate(series):
-            if source == "paper":
-                vals = [result.paper_value(experiment, c, "ae_mm", group) for c in configs]
-                errs = [result.paper_value(experiment, c, "std_mm", group) for c in configs]
-            else:
-                gs = [result.group_stats(experiment, c, source)[group] for c in configs]
-                vals = [g["rmse_mm"] for g in gs]
-                errs = [g["std_mm"] for g in gs]
-            vals_arr = np.array([np.nan if v is None else v for v in vals], dtype=float)
-            errs_arr = np.array([np.nan if v is None else v for v in errs], dtype=float)
-            ax.bar(
-                x + (i - (len(series) - 1) / 2) * width,
-                np.nan_to_num(vals_arr),
-                width,
-                yerr=np.where(np.isfinite(vals_arr), np.nan_to_num(errs_arr), 0.0),
-                capsize=2,
-                label=label,
-                color=color,
-                edgecolor="black",
-                hatch=hatch,
-                linewidth=0.6,
-            )
-        labels = [_row_label(experiment, c).replace(" (ours)", "\n(ours)") for c in configs]
-        ax.set_xticks(
-            x, labels, rotation=30 if len(configs) > 5 else 0, fontsize=7, ha="right" if len(configs) > 5 else "center"
-        )
-        for tick, config in zip(ax.get_xticklabels(), configs, strict=True):
-            if is_ours(config):
-                tick.set_fontweight("bold")
-                tick.set_color("#1a6b1a")
-        ax.set_title(GROUP_LABELS[group])
-        ax.set_ylabel("RMSE ± STD (mm)")
-        ax.grid(axis="y", alpha=0.3)
-    if legend:
-        axes[0].legend(fontsize=7)
-
-
-def _plot(result: PaperEvalResult, experiment: str, path: Path, title: str) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(GROUP_NAMES), figsize=(4.6 * len(GROUP_NAMES), 4.4), sharey=False)
-    _plot_axes(axes, result, experiment)
-    fig.suptitle(title + _OURS_NOTE, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-_OURS_NOTE = "\nA1-A5: the paper's algorithm; shaded, bold: ours (skelfuse)"
-
-
-def _plot_suite(suite: PaperEvalSuite, experiment: str, path: Path, title: str) -> Path:
-    """One row of panels per scenario."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = len(suite.scenarios)
-    fig, axes = plt.subplots(n, len(GROUP_NAMES), figsize=(4.6 * len(GROUP_NAMES), 4.2 * n), squeeze=False)
-    for row, (name, result) in enumerate(suite.scenarios.items()):
-        _plot_axes(axes[row], result, experiment, legend=row == 0)
-        axes[row][0].set_ylabel(f'scenario "{name}"\nRMSE ± STD (mm)')
-    fig.suptitle(title + _OURS_NOTE, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
 def write_report(result: PaperEvalResult, out_dir: Path) -> list[Path]:
     """Write report.md, the CSV tables, the figures and result.json into ``out_dir``; returns the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = _write_csvs(result, out_dir)
+    paths = write_csvs(result, out_dir)
     paths.append(
-        _plot(result, "algorithms", out_dir / "fig09_algorithms.png", "Algorithms, 4 sensors (paper Figure 9)")
+        plot_experiment(
+            result, "algorithms", out_dir / "fig09_algorithms.png", "Algorithms, 4 sensors (paper Figure 9)"
+        )
     )
     paths.append(
-        _plot(
+        plot_experiment(
             result,
             "eps_sweep",
             out_dir / "fig10_eps.png",
@@ -551,7 +327,7 @@ def write_report(result: PaperEvalResult, out_dir: Path) -> list[Path]:
         )
     )
     paths.append(
-        _plot(
+        plot_experiment(
             result,
             "n_sensors",
             out_dir / "fig11_n_sensors.png",
@@ -577,22 +353,50 @@ def _triple(result: PaperEvalResult, experiment: str, config: str, protocol: str
     if config not in result.experiment_configs(experiment):
         return "—"
     gs = result.group_stats(experiment, config, protocol)
-    return " / ".join(_f(gs[g]["rmse_mm"], 0) for g in GROUP_NAMES)
+    return " / ".join(fmt(gs[g]["rmse_mm"], 0) for g in GROUP_NAMES)
 
 
 def _paper_triple(result: PaperEvalResult, experiment: str, config: str) -> str:
 
     values = [result.paper_value(experiment, config, "ae_mm", g) for g in GROUP_NAMES]
-    return "—" if all(v is None for v in values) else " / ".join(_f(v, 0) for v in values)
+    return "—" if all(v is None for v in values) else " / ".join(fmt(v, 0) for v in values)
 
 
 def format_summary(suite: PaperEvalSuite) -> str:
     """The combined summary of every scenario as markdown (the text of ``out_dir/report.md``)."""
+    results = suite.scenarios
+    first = results[next(iter(results))]
+    lines = _summary_intro(suite)
+    lines += _experiment_table(
+        results,
+        "algorithms",
+        first.experiment_configs("algorithms"),
+        "Experiment 1 — algorithms, 4 sensors (A3-A5: mean over eps 50-200 mm; paper Figure 9)",
+    )
+    lines += _experiment_table(
+        results,
+        "eps_sweep",
+        [c for c in first.experiment_configs("eps_sweep") if c.startswith(paper_reference.EPS_SWEEP_PRESET + "_")],
+        f"Experiment 2 — DBSCAN radius, {paper_reference.EPS_SWEEP_PRESET} (paper Figure 10)",
+    )
+    lines += _experiment_table(
+        results,
+        "n_sensors",
+        first.experiment_configs("n_sensors"),
+        "Experiment 3 — number of sensors (A5 eps 100 mm and ours; mean over all combinations; paper Figure 11)",
+    )
+    lines += _lag_jitter_swaps(results)
+    lines += _reference_quality(results)
+    lines += _orientation_table(results)
+    lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
+    return "\n".join(lines)
 
+
+def _summary_intro(suite: PaperEvalSuite) -> list[str]:
+    """The run's settings, the scenarios with their mirrored share, and how to read the tables."""
     s = suite.settings
     results = suite.scenarios
     names = list(results)
-    first = results[names[0]]
     lines = [
         "# skelfuse eval paper — Lee et al. 2022 re-run on simulated data: summary",
         "",
@@ -614,7 +418,7 @@ def format_summary(suite: PaperEvalSuite) -> str:
         )
         lines.append(
             f"- **{name}**: {SCENARIO_DESCRIPTIONS.get(name, '')}. Capture views mirrored: "
-            f"{_pct(mirrored)} of frames. Details: [{name}/report.md]({name}/report.md)."
+            f"{pct(mirrored)} of frames. Details: [{name}/report.md]({name}/report.md)."
         )
     lines += [
         "",
@@ -626,39 +430,37 @@ def format_summary(suite: PaperEvalSuite) -> str:
         "",
     ]
 
-    def table(experiment: str, configs: list[str], title: str) -> list[str]:
-        header = ["config", "by"]
+    return lines
+
+
+def _experiment_table(
+    results: Mapping[str, PaperEvalResult], experiment: str, configs: list[str], title: str
+) -> list[str]:
+    """One experiment's RMSE table: per config, each scenario against truth and best view, and the paper's."""
+    names = list(results)
+    first = results[names[0]]
+    header = ["config", "by"]
+    for name in names:
+        header += [f"{name}: vs truth", f"{name}: vs best view"]
+    header.append("paper's figure")
+    out = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for config in configs:
+        cells = [row_cell(experiment, config), by_label(experiment, config)]
         for name in names:
-            header += [f"{name}: vs truth", f"{name}: vs best view"]
-        header.append("paper's figure")
-        out = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        for config in configs:
-            cells = [_row_cell(experiment, config), _by(experiment, config)]
-            for name in names:
-                cells += [
-                    _triple(results[name], experiment, config, "truth"),
-                    _triple(results[name], experiment, config, "best_view"),
-                ]
-            cells.append(_paper_triple(first, experiment, config))
-            out.append("| " + " | ".join(cells) + " |")
-        return [*out, ""]
+            cells += [
+                _triple(results[name], experiment, config, "truth"),
+                _triple(results[name], experiment, config, "best_view"),
+            ]
+        cells.append(_paper_triple(first, experiment, config))
+        out.append("| " + " | ".join(cells) + " |")
+    return [*out, ""]
 
-    lines += table(
-        "algorithms",
-        first.experiment_configs("algorithms"),
-        "Experiment 1 — algorithms, 4 sensors (A3-A5: mean over eps 50-200 mm; paper Figure 9)",
-    )
-    lines += table(
-        "eps_sweep",
-        [c for c in first.experiment_configs("eps_sweep") if c.startswith(paper_reference.EPS_SWEEP_PRESET + "_")],
-        f"Experiment 2 — DBSCAN radius, {paper_reference.EPS_SWEEP_PRESET} (paper Figure 10)",
-    )
-    lines += table(
-        "n_sensors",
-        first.experiment_configs("n_sensors"),
-        "Experiment 3 — number of sensors (A5 eps 100 mm and ours; mean over all combinations; paper Figure 11)",
-    )
 
+def _lag_jitter_swaps(results: Mapping[str, PaperEvalResult]) -> list[str]:
+    """Experiment 1's lag, jitter and left/right swaps per config, then the raw views and the truth."""
+    names = list(results)
+    first = results[names[0]]
+    lines: list[str] = []
     lines += [
         "## Lag, jitter and left/right swaps — experiment 1, 4 sensors, against exact truth",
         "",
@@ -673,16 +475,16 @@ def format_summary(suite: PaperEvalSuite) -> str:
         header += [f"{name}: swapped", f"{name}: lag", f"{name}: jitter"]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for config in first.experiment_configs("algorithms"):
-        cells = [_row_cell("algorithms", config), _by("algorithms", config)]
+        cells = [row_cell("algorithms", config), by_label("algorithms", config)]
         for name in names:
             r = results[name]
             if config not in r.experiment_configs("algorithms"):
                 cells += ["—"] * 3
                 continue
             cells += [
-                _pct(r.row_swapped("algorithms", config)),
-                " / ".join(_f(r.row_lag("algorithms", config, g), 1) for g in GROUP_NAMES),
-                " / ".join(_f(r.row_jitter("algorithms", config, g), 1) for g in GROUP_NAMES),
+                pct(r.row_swapped("algorithms", config)),
+                " / ".join(fmt(r.row_lag("algorithms", config, g), 1) for g in GROUP_NAMES),
+                " / ".join(fmt(r.row_jitter("algorithms", config, g), 1) for g in GROUP_NAMES),
             ]
         lines.append("| " + " | ".join(cells) + " |")
     for label, key in (("1 sensor (raw, mean)", "raw"), ("exact truth", "exact_truth")):
@@ -693,17 +495,24 @@ def format_summary(suite: PaperEvalSuite) -> str:
                 raw = [f"raw[{i}]" for i in range(len(r.takes[0]["tracked_fraction"]) - 1)] if r.takes else []
                 swapped = [r.swapped[k] for k in raw if k in r.swapped]
                 cells += [
-                    _pct(sum(swapped) / len(swapped) if swapped else None),
+                    pct(sum(swapped) / len(swapped) if swapped else None),
                     " / ".join(
-                        _f(_mean([r.lag[k][g]["lag_frames"] for k in raw if k in r.lag]), 1) for g in GROUP_NAMES
+                        fmt(_mean([r.lag[k][g]["lag_frames"] for k in raw if k in r.lag]), 1) for g in GROUP_NAMES
                     ),
-                    " / ".join(_f(_mean([r.jitter[k][g] for k in raw if k in r.jitter]), 1) for g in GROUP_NAMES),
+                    " / ".join(fmt(_mean([r.jitter[k][g] for k in raw if k in r.jitter]), 1) for g in GROUP_NAMES),
                 ]
             else:
-                cells += ["—", "—", " / ".join(_f(r.jitter.get(key, {}).get(g), 1) for g in GROUP_NAMES)]
+                cells += ["—", "—", " / ".join(fmt(r.jitter.get(key, {}).get(g), 1) for g in GROUP_NAMES)]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
 
+    return lines
+
+
+def _reference_quality(results: Mapping[str, PaperEvalResult]) -> list[str]:
+    """How far the paper's reference (the best view) is from the exact truth, per scenario."""
+    names = list(results)
+    lines: list[str] = []
     lines += ["## How good is the paper's reference?", ""]
     for name in names:
         r = results[name]
@@ -711,10 +520,17 @@ def format_summary(suite: PaperEvalSuite) -> str:
             best = r.group_stats_key("best_view_raw", "truth")
             lines.append(
                 f"- {name}: the best-view skeleton against exact truth, RMSE "
-                + " / ".join(_f(best[g]["rmse_mm"], 0) for g in GROUP_NAMES)
+                + " / ".join(fmt(best[g]["rmse_mm"], 0) for g in GROUP_NAMES)
                 + " mm (torso / upper / lower)."
             )
     lines += [""]
+    return lines
+
+
+def _orientation_table(results: Mapping[str, PaperEvalResult]) -> list[str]:
+    """Fused orientations against the truth beside the best raw view (where a scenario has orientations)."""
+    names = list(results)
+    lines: list[str] = []
     oriented = [(name, key) for name in names for key in results[name].ours if key in results[name].orientation]
     if oriented:
         lines += [
@@ -730,20 +546,21 @@ def format_summary(suite: PaperEvalSuite) -> str:
         for name, key in oriented:
             r = results[name]
             raw = [k for k in (f"raw[{i}]" for i in range(4)) if k in r.orientation]
-            best = min(raw, key=lambda k: _mean([r.orientation[k][g]["median_deg"] for g in GROUP_NAMES]), default=None)
+            best_view = min(
+                raw, key=lambda k: _mean([r.orientation[k][g]["median_deg"] for g in GROUP_NAMES]), default=None
+            )
 
             fused_cell = _orientation_cell(r, key)
-            best_cell = f"{_orientation_cell(r, best)} [{best}]" if best else "—"
+            best_cell = f"{_orientation_cell(r, best_view)} [{best_view}]" if best_view else "—"
             lines.append(f"| {name} | {key} | {fused_cell} | {best_cell} |")
         lines += [""]
-    lines += ["## Notes on the paper's figures", ""] + [f"- {o}" for o in paper_reference.ODDITIES] + [""]
-    return "\n".join(lines)
+    return lines
 
 
 def _orientation_cell(result: PaperEvalResult, key: str) -> str:
     """ "median (p90)" of each group of one output's angular errors, degrees."""
     entry = result.orientation[key]
-    return " / ".join(f"{_f(entry[g]['median_deg'])} ({_f(entry[g]['p90_deg'])})" for g in GROUP_NAMES)
+    return " / ".join(f"{fmt(entry[g]['median_deg'])} ({fmt(entry[g]['p90_deg'])})" for g in GROUP_NAMES)
 
 
 def _mean(values: list[float]) -> float:
@@ -768,10 +585,10 @@ def write_suite(suite: PaperEvalSuite, out_dir: Path) -> list[Path]:
     for name, result in suite.scenarios.items():
         paths += write_report(result, out_dir / name)
     paths.append(
-        _plot_suite(suite, "algorithms", out_dir / "summary_algorithms.png", "Algorithms, 4 sensors (paper Figure 9)")
+        plot_suite(suite, "algorithms", out_dir / "summary_algorithms.png", "Algorithms, 4 sensors (paper Figure 9)")
     )
     paths.append(
-        _plot_suite(
+        plot_suite(
             suite, "n_sensors", out_dir / "summary_n_sensors.png", "Number of sensors, A5 and ours (paper Figure 11)"
         )
     )

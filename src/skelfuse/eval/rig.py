@@ -61,6 +61,7 @@ from skelfuse.calibration.takes import take_arrays
 from skelfuse.eval.continuity import continuity
 from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
+from skelfuse.fusion import presets
 from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform
@@ -81,7 +82,7 @@ REPORT_GROUPS: dict[str, np.ndarray] = {
 }
 """The report's joint groups, unions of the body regions (schema): every joint in exactly one."""
 
-DEFAULT_PRESETS = ("skelfuse", "A5", "A1")
+DEFAULT_PRESETS = presets.COMPARED_PRESETS
 GROSS_MM = 100.0
 MAX_LAG_FRAMES = 10
 TRACE_JOINT = "WRIST_RIGHT"
@@ -365,7 +366,7 @@ def run_rig_eval(
         for label, smoothing in smoothing_variants(name).items():
             fused_all, quats_all, n_ids = _fused_person(take, poses, name, world, eps_mm, smoothing)
             fused_by_preset[label] = fused_all[evaluated]
-            if quats_all is not None and label == name:  # the smoothers leave the orientations as they are
+            if quats_all is not None and label == name:  # orientation agreement: the live output's
                 quats_by_preset[label] = quats_all[evaluated]
             result.track_ids[label] = n_ids
             result.continuity[label] = continuity(fused_all[evaluated], views, times_s[evaluated])
@@ -379,6 +380,28 @@ def run_rig_eval(
                 quats, fused_by_preset[name], view_quats, views, ids
             )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
+    result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated], seen_views))
+    for label, seq in candidates.items():
+        others = [i for i, s in enumerate(ids) if label != f"view {s}"]
+        flags, _ = mirrored_frames(seq, views_s[others])
+        result.mirrored[label] = int(flags.sum())
+    if len(ids) >= 3:
+        result.leave_one_out.update(_leave_one_out(world, views, confidence, medium, evaluated, ids, presets, eps_mm))
+    if out_dir is not None:
+        result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
+    return result
+
+
+def _agreement_groups(
+    candidates: dict[str, np.ndarray],
+    ids: Sequence[str],
+    views: np.ndarray,
+    medium_evaluated: np.ndarray,
+    seen_views: np.ndarray,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per report group and candidate (each preset's fused person, each view): jitter, agreement with the other
+    views, lag, gross errors and dropouts (against ``seen_views``: the views without their NONE joints)."""
+    groups: dict[str, dict[str, dict[str, Any]]] = {}
     for group, joints in REPORT_GROUPS.items():
         rows: dict[str, dict[str, Any]] = {}
         for label, seq in candidates.items():
@@ -387,33 +410,41 @@ def run_rig_eval(
             rows[label] = {
                 "jitter": median_jitter(seq, joints),
                 "agreement": {
-                    ids[i]: median_distance(seq, views[:, i], joints, medium[evaluated][:, i]) for i in others
+                    ids[i]: median_distance(seq, views[:, i], joints, medium_evaluated[:, i]) for i in others
                 },
                 "lag": {ids[i]: velocity_lag(seq, views[:, i], joints) for i in others} if not is_view else {},
                 "gross": gross_share(seq, views[:, others], joints),
                 "dropouts": dropout_share(seq, seen_views, joints) if not is_view else math.nan,
             }
-        result.groups[group] = rows
-    for label, seq in candidates.items():
-        others = [i for i, s in enumerate(ids) if label != f"view {s}"]
-        flags, _ = mirrored_frames(seq, views_s[others])
-        result.mirrored[label] = int(flags.sum())
-    if len(ids) >= 3:
-        conf_s = np.moveaxis(confidence, 1, 0)
-        for name in presets:
-            per_held: dict[str, dict[str, float]] = {}
-            for h, held in enumerate(ids):
-                rest = [i for i in range(len(ids)) if i != h]
-                fused = fuse_views(np.moveaxis(world[:, rest], 1, 0), conf_s[rest], name, eps_mm)[evaluated]
-                mask = medium[evaluated][:, h]
-                row = {"fused": median_distance(fused, views[:, h], np.arange(N_JOINTS), mask)}
-                for i in rest:
-                    row[f"view {ids[i]}"] = median_distance(views[:, i], views[:, h], np.arange(N_JOINTS), mask)
-                per_held[held] = row
-            result.leave_one_out[name] = per_held
-    if out_dir is not None:
-        result.plots = write_plots(result, fused_by_preset, views, ids, out_dir)
-    return result
+        groups[group] = rows
+    return groups
+
+
+def _leave_one_out(
+    world: np.ndarray,
+    views: np.ndarray,
+    confidence: np.ndarray,
+    medium: np.ndarray,
+    evaluated: Any,
+    ids: Sequence[str],
+    presets: Sequence[str],
+    eps_mm: float | None,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Per preset and held-out view: the fusion of the other views, and each other view, against the held one."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    conf_s = np.moveaxis(confidence, 1, 0)
+    for name in presets:
+        per_held: dict[str, dict[str, float]] = {}
+        for h, held in enumerate(ids):
+            rest = [i for i in range(len(ids)) if i != h]
+            fused = fuse_views(np.moveaxis(world[:, rest], 1, 0), conf_s[rest], name, eps_mm)[evaluated]
+            mask = medium[evaluated][:, h]
+            row = {"fused": median_distance(fused, views[:, h], np.arange(N_JOINTS), mask)}
+            for i in rest:
+                row[f"view {ids[i]}"] = median_distance(views[:, i], views[:, h], np.arange(N_JOINTS), mask)
+            per_held[held] = row
+        out[name] = per_held
+    return out
 
 
 def _orientation_agreement(

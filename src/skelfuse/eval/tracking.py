@@ -122,60 +122,97 @@ def clear_mot(
     all_ids = np.unique(hyp_ids[hyp_ok])
     id_col = {int(i): c for c, i in enumerate(all_ids)}
     cooccur = np.zeros((P, all_ids.size))
-    matched_frames = np.zeros(P, dtype=np.int64)
-    present_frames = truth_present.sum(axis=0)
-    last_id = np.full(P, -1, dtype=np.int64)  # last track id each truth was matched to (ever)
-    prev_match = np.full(P, -1, dtype=np.int64)  # track id matched in the previous frame
-    ever, in_gap = np.zeros(P, dtype=bool), np.zeros(P, dtype=bool)
-    sq_err = {name: np.zeros(P) for name in JOINT_GROUPS}
-    n_err = {name: np.zeros(P) for name in JOINT_GROUPS}
-    matches = idsw = frag = 0
-    dist_sum = 0.0
+    tally = _Tally(P)
     for t in range(T):  # the CLEAR-MOT recursion is sequential over frames; each frame is a handful of people
         d = dist[t]
         ok = d <= threshold_mm
         g_idx, h_idx = np.nonzero(ok)
-        for g, h in zip(g_idx, h_idx, strict=True):
-            cooccur[g, id_col[int(hyp_ids[t, h])]] += 1
-        pair: dict[int, int] = {}
-        for g in range(P):  # keep last frame's correspondences that still hold
-            if prev_match[g] >= 0:
-                cols = np.nonzero((hyp_ids[t] == prev_match[g]) & ok[g])[0]
-                if cols.size and cols[0] not in pair.values():
-                    pair[g] = int(cols[0])
-        free_g = [g for g in range(P) if g not in pair and ok[g].any()]
-        free_h = [h for h in range(hyp_ids.shape[1]) if h not in pair.values() and ok[:, h].any()]
-        if free_g and free_h:
-            sub = d[np.ix_(free_g, free_h)]
-            r, c = linear_sum_assignment(np.where(np.isfinite(sub) & (sub <= threshold_mm), sub, 1e12))
-            for i, j in zip(r, c, strict=True):
-                if sub[i, j] <= threshold_mm:
-                    pair[free_g[i]] = free_h[j]
-        prev_match[:] = -1
-        for g in range(P):
-            if not truth_present[t, g]:
+        for g_hit, h_hit in zip(g_idx, h_idx, strict=True):
+            cooccur[g_hit, id_col[int(hyp_ids[t, h_hit])]] += 1
+        pair = _frame_pairs(d, ok, hyp_ids[t], tally.prev_match, threshold_mm)
+        tally.update(pair, truth_present[t], hyp_ids[t], d, hyp_positions[t], truth[t])
+    return _metrics(tally, truth_present, hyp_ok, cooccur, all_ids)
+
+
+def _frame_pairs(
+    d: np.ndarray, ok: np.ndarray, ids: np.ndarray, prev_match: np.ndarray, threshold_mm: float
+) -> dict[int, int]:
+    """One frame's matches, truth person -> output slot: last frame's correspondences that still hold first,
+    then a Hungarian assignment of the others within ``threshold_mm``. ``d``, ``ok``: (P, H)."""
+    pair: dict[int, int] = {}
+    for g in range(d.shape[0]):  # keep last frame's correspondences that still hold
+        if prev_match[g] >= 0:
+            cols = np.nonzero((ids == prev_match[g]) & ok[g])[0]
+            if cols.size and cols[0] not in pair.values():
+                pair[g] = int(cols[0])
+    free_g = [g for g in range(d.shape[0]) if g not in pair and ok[g].any()]
+    free_h = [h for h in range(ids.shape[0]) if h not in pair.values() and ok[:, h].any()]
+    if free_g and free_h:
+        sub = d[np.ix_(free_g, free_h)]
+        r, c = linear_sum_assignment(np.where(np.isfinite(sub) & (sub <= threshold_mm), sub, 1e12))
+        for i, j in zip(r, c, strict=True):
+            if sub[i, j] <= threshold_mm:
+                pair[free_g[i]] = free_h[j]
+    return pair
+
+
+class _Tally:
+    """The CLEAR-MOT counts, accumulated frame by frame, per truth person where they are per person."""
+
+    def __init__(self, n_truth: int) -> None:
+        self.matched_frames = np.zeros(n_truth, dtype=np.int64)
+        self.last_id = np.full(n_truth, -1, dtype=np.int64)  # last track id each truth was matched to (ever)
+        self.prev_match = np.full(n_truth, -1, dtype=np.int64)  # track id matched in the previous frame
+        self.ever, self.in_gap = np.zeros(n_truth, dtype=bool), np.zeros(n_truth, dtype=bool)
+        self.sq_err = {name: np.zeros(n_truth) for name in JOINT_GROUPS}
+        self.n_err = {name: np.zeros(n_truth) for name in JOINT_GROUPS}
+        self.matches = self.idsw = self.frag = 0
+        self.dist_sum = 0.0
+
+    def update(
+        self,
+        pair: dict[int, int],
+        present: np.ndarray,
+        ids: np.ndarray,
+        d: np.ndarray,
+        hyp_positions: np.ndarray,
+        truth: np.ndarray,
+    ) -> None:
+        """Count one frame's matches, switches, fragmentations and joint errors (arrays of that frame)."""
+        self.prev_match[:] = -1
+        for g in range(present.shape[0]):
+            if not present[g]:
                 continue
             if g in pair:
                 h = pair[g]
-                tid = int(hyp_ids[t, h])
-                matches += 1
-                matched_frames[g] += 1
-                dist_sum += float(d[g, h])
-                if last_id[g] >= 0 and last_id[g] != tid:
-                    idsw += 1
-                if in_gap[g]:
-                    frag += 1
-                last_id[g] = tid
-                prev_match[g] = tid
-                ever[g], in_gap[g] = True, False
-                err = np.sum((hyp_positions[t, h] - truth[t, g]) ** 2, axis=-1)  # (J,)
+                tid = int(ids[h])
+                self.matches += 1
+                self.matched_frames[g] += 1
+                self.dist_sum += float(d[g, h])
+                if self.last_id[g] >= 0 and self.last_id[g] != tid:
+                    self.idsw += 1
+                if self.in_gap[g]:
+                    self.frag += 1
+                self.last_id[g] = tid
+                self.prev_match[g] = tid
+                self.ever[g], self.in_gap[g] = True, False
+                err = np.sum((hyp_positions[h] - truth[g]) ** 2, axis=-1)  # (J,)
                 for name, joints in JOINT_GROUPS.items():
                     e = err[joints]
                     e = e[np.isfinite(e)]
-                    sq_err[name][g] += e.sum()
-                    n_err[name][g] += e.size
-            elif ever[g]:
-                in_gap[g] = True
+                    self.sq_err[name][g] += e.sum()
+                    self.n_err[name][g] += e.size
+            elif self.ever[g]:
+                self.in_gap[g] = True
+
+
+def _metrics(
+    tally: _Tally, truth_present: np.ndarray, hyp_ok: np.ndarray, cooccur: np.ndarray, all_ids: np.ndarray
+) -> TrackingMetrics:
+    """The summary figures of a finished tally (IDF1 from the best one-to-one truth / track id assignment)."""
+    T, P = truth_present.shape
+    present_frames = truth_present.sum(axis=0)
+    matches, idsw, frag = tally.matches, tally.idsw, tally.frag
     gt = int(truth_present.sum())
     hyps = int(hyp_ok.sum())
     fn, fp = gt - matches, hyps - matches
@@ -184,7 +221,8 @@ def clear_mot(
         r, c = linear_sum_assignment(-cooccur)
         idtp = int(cooccur[r, c].sum())
     counted = present_frames > 0
-    share = matched_frames / np.maximum(present_frames, 1)
+    share = tally.matched_frames / np.maximum(present_frames, 1)
+    sq_err, n_err = tally.sq_err, tally.n_err
     per_person = [
         {
             name: float(np.sqrt(sq_err[name][g] / n_err[name][g])) if n_err[name][g] else float("nan")
@@ -202,7 +240,7 @@ def clear_mot(
         id_switches=idsw,
         fragmentations=frag,
         mota=1.0 - (fn + fp + idsw) / gt if gt else float("nan"),
-        motp_mm=dist_sum / matches if matches else float("nan"),
+        motp_mm=tally.dist_sum / matches if matches else float("nan"),
         idtp=idtp,
         idf1=2.0 * idtp / (gt + hyps) if gt + hyps else float("nan"),
         mostly_tracked=int(((share >= 0.8) & counted).sum()),

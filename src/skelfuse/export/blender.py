@@ -4,9 +4,10 @@ bpy 4.5 needs Python 3.11 and pins numpy < 2, while our environment needs numpy 
 the two cannot share one environment. This module finds (or builds, on request, and caches) a separate
 environment with bpy, and runs :mod:`skelfuse.export.blender_driver` there as a script, exchanging JSON.
 
-Where the environment lives: ``$SKELFUSE_BPY_VENV`` if set, else ``~/.cache/skelfuse/bpy-venv``. Building
-it: ``python3.11 -m venv DIR && DIR/bin/pip install "bpy==4.5.*"`` (:func:`ensure_bpy`, about a minute and
-~400 MB here; ``.ci/run`` builds it before the tests).
+Where the environment lives: ``$SKELFUSE_BPY_VENV`` if set, else ``~/.cache/skelfuse/bpy-venv``. It is
+built only when a person asks: ``skelfuse setup blender`` (:func:`install_bpy`: ``python3.11 -m venv DIR``
++ ``pip install "bpy==4.5.*"``, pip's own progress shown, about 950 MB on disk); every other use refuses
+with a :class:`BlenderError` naming that command (no silent gigabyte).
 """
 
 from __future__ import annotations
@@ -17,13 +18,17 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from skelfuse.schema.errors import SkelfuseError
 
 BPY_REQUIREMENT = "bpy==4.5.*"
 BPY_PYTHON = "python3.11"
+BPY_SIZE_MB = 950
+"""What the environment takes on disk once built (947 MB measured with bpy 4.5.15 on Linux x86-64)."""
+SETUP_COMMAND = "skelfuse setup blender"
 DRIVER = Path(__file__).with_name("blender_driver.py")
 
 
@@ -58,23 +63,41 @@ def bpy_python() -> Path | None:
     return python
 
 
-def ensure_bpy(*, install: bool = True) -> Path:
-    """The bpy interpreter, building the cached environment first if it is missing and ``install`` is set.
+def ensure_bpy() -> Path:
+    """The bpy interpreter; refuses, naming ``skelfuse setup blender``, where there is none.
+
+    Raises
+    ------
+    BlenderError
+        No working bpy environment at :func:`bpy_venv_dir`.
+    """
+    python = bpy_python()
+    if python is not None:
+        return python
+    venv = bpy_venv_dir()
+    state = "does not import bpy" if _python_in(venv).exists() else "does not exist"
+    raise BlenderError(
+        f"FBX is written by Blender's own exporter, which needs Blender's bpy; the environment at {venv} {state}. "
+        f"Install it once with `{SETUP_COMMAND}` ({BPY_REQUIREMENT} for {BPY_PYTHON}, about {BPY_SIZE_MB} MB on "
+        "disk; $SKELFUSE_BPY_VENV chooses where)"
+    )
+
+
+def folder_size_bytes(path: Path) -> int:
+    """Bytes of the files under ``path`` (what ``du`` would count, without following links)."""
+    return sum(f.lstat().st_size for f in path.rglob("*") if f.is_file() and not f.is_symlink())
+
+
+def install_bpy(*, log: Callable[[str], None], stream: IO[str] | None = None) -> Path:
+    """Build the bpy environment at :func:`bpy_venv_dir` (``skelfuse setup blender``); pip's own output,
+    with its download progress, goes to ``stream``. The environment appears complete or not at all.
 
     Raises
     ------
     BlenderError
         No Python 3.11 to build it with, or pip could not install bpy (the message carries pip's last lines).
     """
-    python = bpy_python()
-    if python is not None:
-        return python
     venv = bpy_venv_dir()
-    if not install:
-        raise BlenderError(
-            f"no bpy environment at {venv}; build it with: {BPY_PYTHON} -m venv {venv} && "
-            f"{venv}/bin/pip install '{BPY_REQUIREMENT}'"
-        )
     base = shutil.which(BPY_PYTHON)
     if base is None:
         raise BlenderError(
@@ -84,17 +107,23 @@ def ensure_bpy(*, install: bool = True) -> Path:
     venv.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix="bpy-venv-", dir=venv.parent))
     try:
+        log(f"creating a {BPY_PYTHON} environment ({base})")
         subprocess.run([base, "-m", "venv", str(staging)], check=True, capture_output=True, timeout=600)
+        log(f"pip install {BPY_REQUIREMENT} (the download is about 400 MB)")
         pip = subprocess.run(
-            [str(_python_in(staging)), "-m", "pip", "install", "--quiet", BPY_REQUIREMENT],
-            capture_output=True,
+            [str(_python_in(staging)), "-m", "pip", "install", "--progress-bar", "on", BPY_REQUIREMENT],
+            stdout=stream,
+            stderr=subprocess.STDOUT if stream is not None else subprocess.PIPE,
             text=True,
             timeout=1800,
             check=False,
         )
         if pip.returncode != 0:
-            tail = "\n".join((pip.stderr or pip.stdout).strip().splitlines()[-5:])
-            raise BlenderError(f"pip could not install {BPY_REQUIREMENT} (no wheel for this platform?):\n{tail}")
+            tail = "\n".join((pip.stderr or "").strip().splitlines()[-5:])
+            raise BlenderError(
+                f"pip could not install {BPY_REQUIREMENT} (exit {pip.returncode}; no wheel for this platform, "
+                f"or no network?){': ' + tail if tail else ''}"
+            )
         shutil.rmtree(venv, ignore_errors=True)
         staging.rename(venv)  # complete or absent: a half-built environment is never found at `venv`
     except subprocess.SubprocessError as exc:
@@ -107,7 +136,19 @@ def ensure_bpy(*, install: bool = True) -> Path:
     return python
 
 
-def run_blender(request: dict[str, Any], *, install: bool = True, timeout_s: float = 900.0) -> dict[str, Any]:
+def bpy_version(python: Path) -> str:
+    """bpy's version string in the environment of ``python``."""
+    done = subprocess.run(
+        [str(python), "-c", "import bpy; print(bpy.app.version_string)"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    return done.stdout.strip().splitlines()[-1] if done.returncode == 0 and done.stdout.strip() else "unknown"
+
+
+def run_blender(request: dict[str, Any], *, timeout_s: float = 900.0) -> dict[str, Any]:
     """Run one driver command in Blender and return its JSON result.
 
     Raises
@@ -115,7 +156,7 @@ def run_blender(request: dict[str, Any], *, install: bool = True, timeout_s: flo
     BlenderError
         bpy unavailable, or the driver failed (its stderr's last lines in the message).
     """
-    python = ensure_bpy(install=install)
+    python = ensure_bpy()
     with tempfile.TemporaryDirectory(prefix="skelfuse-blender-") as work:
         request_path = Path(work) / "request.json"
         result_path = Path(work) / "result.json"

@@ -15,6 +15,7 @@ Commands (``request["command"]``):
 
 import json
 import sys
+from typing import Any
 
 import bpy
 
@@ -58,12 +59,24 @@ def _keyed_range(obj) -> tuple:
     return tuple(obj.animation_data.action.frame_range)
 
 
+def _keys_from_frame_zero(obj) -> None:
+    """Move the keys so the first is on frame 0: the FBX exporter writes frame F at time F / fps, and importers
+    put time 0 on their first frame (Blender's on frame 1, where it puts a BVH's first frame); left on frame 1
+    (where the BVH importer puts it, whatever frame_start says) every FBX reader starts one frame late."""
+    first = obj.animation_data.action.frame_range[0]
+    for curve in obj.animation_data.action.fcurves:
+        for key in curve.keyframe_points:
+            key.co.x -= first
+            key.handle_left.x -= first
+            key.handle_right.x -= first
+
+
 def _sample(frames: list) -> dict:
     obj = _armature()
     scene = bpy.context.scene
     keyed = _keyed_range(obj)
     first = round(keyed[0])  # the FBX importer offsets the keys (anim_offset); the file's frame 0 is the first key
-    heads = {bone.name: [] for bone in obj.pose.bones}
+    heads: dict[str, list[Any]] = {bone.name: [] for bone in obj.pose.bones}
     for index in frames:
         scene.frame_set(first + int(index))
         for bone in obj.pose.bones:
@@ -92,6 +105,7 @@ def main() -> None:
         result = _sample(request["frames"])
     elif command == "bvh_to_fbx":
         _import_bvh(request["bvh"], request["scale"])
+        _keys_from_frame_zero(_armature())
         scene = bpy.context.scene
         start, end = _keyed_range(_armature())
         scene.frame_start, scene.frame_end = round(start), round(end)  # the importer never shortens the scene

@@ -1,7 +1,7 @@
 """BVH (Biovision hierarchy) export of fused people, through the fixed-length armature.
 
 One file per person: the k4abt hierarchy (joint names as in :data:`skelfuse.schema.skeleton.JOINT_NAMES`)
-with that person's rest offsets (:mod:`skelfuse.export.armature`, T-pose), the root (PELVIS) with six
+with that person's rest offsets (:mod:`skelfuse.retarget.armature`, T-pose), the root (PELVIS) with six
 channels ``Xposition Yposition Zposition Zrotation Xrotation Yrotation``, every other joint with three
 ``Zrotation Xrotation Yrotation``, leaf joints closed by an ``End Site`` (their bone tail, for tools that
 draw bones). Frame Time is the take's uniform step (gaps and irregular frames are resampled and filled by
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.export.armature import CHILDREN, LEAVES, FittedMotion, fit_frames, fit_motion
+from skelfuse.retarget.armature import CHILDREN, LEAVES, FittedMotion, fit_frames, fit_motion
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import JOINT_NAMES

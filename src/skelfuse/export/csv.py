@@ -220,7 +220,7 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
     else:
         with open(path, newline="", encoding="utf-8") as f:
             reader = csv.reader(f)
-            header = next(reader, None) or []
+            header = next(reader, [])
             cells = list(reader)
         bad = [i + 2 for i, row in enumerate(cells) if len(row) != len(header)]
         if bad:
@@ -245,7 +245,7 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
                 else:
                     out[name] = np.asarray([np.nan if v in ("", None) else float(v) for v in values], np.float64)
             else:
-                out[name] = np.asarray([int(v) for v in values], np.int64)
+                out[name] = np.asarray([int(v) for v in values], np.int64)  # type: ignore[union-attr]  # None: the TypeError below names the missing column
     except (TypeError, ValueError) as exc:
         raise DataError(f"{path}: a cell of the fused table is not a number: {exc}") from None
     return out

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.export.armature import FittedMotion, fit_frames, fit_motion
 from skelfuse.export.blender import run_blender
 from skelfuse.export.bvh import UNIT_MM, write_bvh_motion
+from skelfuse.retarget.armature import FittedMotion, fit_frames, fit_motion
 from skelfuse.schema.frames import FusedFrame
 
 _BVH_UNIT = "cm"
@@ -40,27 +40,24 @@ class FbxExport:
         return self.motion.retargeting_error()
 
 
-def write_fbx_motion(path: str | Path, motion: FittedMotion, *, install_blender: bool = True) -> FbxExport:
+def write_fbx_motion(path: str | Path, motion: FittedMotion) -> FbxExport:
     """Write one fitted motion as FBX through Blender (see the module docstring).
 
     Raises
     ------
     BlenderError
-        bpy unavailable (and ``install_blender`` unset or the install failed), or Blender failed on the file.
+        bpy unavailable (``skelfuse setup blender`` installs it), or Blender failed on the file.
     """
     path = Path(path).resolve()
     with tempfile.TemporaryDirectory(prefix="skelfuse-fbx-") as work:
         bvh = write_bvh_motion(Path(work) / "take.bvh", motion, unit=_BVH_UNIT)
         result = run_blender(
             {"command": "bvh_to_fbx", "bvh": str(bvh.path), "scale": UNIT_MM[_BVH_UNIT] / 1000.0, "fbx": str(path)},
-            install=install_blender,
         )
     return FbxExport(path, motion.track_id, motion, str(result["blender"]))
 
 
-def write_fbx(
-    frames: Sequence[FusedFrame], path: str | Path, *, fps: float | None = None, install_blender: bool = True
-) -> list[FbxExport]:
+def write_fbx(frames: Sequence[FusedFrame], path: str | Path, *, fps: float | None = None) -> list[FbxExport]:
     """Write every person of a sequence of fused frames as FBX: the entry point for ``skelfuse export``.
 
     One file per person; with several people named ``<stem>_person<id><suffix>``. ``fps``: output rate,
@@ -73,7 +70,6 @@ def write_fbx(
         write_fbx_motion(
             path.with_name(f"{path.stem}_person{m.track_id}{path.suffix}") if several else path,
             m,
-            install_blender=install_blender,
         )
         for m in motions
     ]
@@ -87,8 +83,7 @@ def write_fbx_arrays(
     orientations: np.ndarray | None = None,
     fps: float | None = None,
     track_id: int = 0,
-    install_blender: bool = True,
 ) -> FbxExport:
     """Write one person's arrays (``times_s`` (F,) s, ``positions`` (F, 32, 3) mm world) as FBX."""
     motion = fit_motion(times_s, positions, orientations=orientations, fps=fps, track_id=track_id)
-    return write_fbx_motion(path, motion, install_blender=install_blender)
+    return write_fbx_motion(path, motion)

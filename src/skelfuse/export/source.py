@@ -18,7 +18,8 @@ from pathlib import Path
 
 from skelfuse.config import RigConfig
 from skelfuse.export.csv import FUSED_FORMATS, read_fused_table
-from skelfuse.recording import RecordingReader, fuse_recording
+from skelfuse.recording.mcap_io import RecordingReader
+from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 

@@ -102,6 +102,20 @@ def estimate_rate_hz(times_us: np.ndarray) -> float:
     return 1e6 / float(np.median(steps))
 
 
+NOMINAL_RATES_HZ = (5.0, 10.0, 15.0, 24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 90.0, 100.0, 120.0, 240.0)
+"""Frame rates of cameras and motion-capture systems a measured rate is snapped to (Azure Kinect: 5, 15, 30)."""
+
+
+def nominal_rate_hz(rate_hz: float, span_s: float) -> float:
+    """``rate_hz``, or the nominal rate it measures where the difference drifts less than a tenth of a frame
+    over ``span_s`` (a device clock's 33333/33334 µs steps read as 30.0003 Hz; files then say 30)."""
+    for nominal in NOMINAL_RATES_HZ:
+        drift_frames = abs(span_s * (rate_hz - nominal))
+        if drift_frames < 0.1:
+            return nominal
+    return rate_hz
+
+
 def take_tracks(frames: Iterable[FusedFrame], *, rate_hz: float | None = None) -> TakeTracks:
     """Regroup fused frames per person on a uniform grid (see the module docstring).
 
@@ -129,7 +143,7 @@ def take_tracks(frames: Iterable[FusedFrame], *, rate_hz: float | None = None) -
         steps = int(np.rint((times.max() - start) / period_us))
         if steps > 0:
             period_us = (times.max() - start) / steps
-        rate_hz = 1e6 / period_us
+        rate_hz = nominal_rate_hz(1e6 / period_us, (times.max() - start) / 1e6)
     elif not (np.isfinite(rate_hz) and rate_hz > 0):
         raise DataError(f"frame rate must be a positive number of Hz, got {rate_hz!r}")
     period_us = 1e6 / rate_hz
@@ -180,11 +194,11 @@ def _person(track_id: int, rows: list[tuple[int, FusedFrame, int]]) -> PersonTra
     if any(getattr(f, "orientations", None) is not None for _, f, _ in rows):
         orientations = np.full((t, N_JOINTS, 4), np.nan)
         for i, (_, f, p) in zip(at, rows, strict=True):
-            if getattr(f, "orientations", None) is not None:
-                orientations[i] = f.orientations[p]
+            if (quats := getattr(f, "orientations", None)) is not None:
+                orientations[i] = quats[p]
     if any(getattr(f, "position_std", None) is not None for _, f, _ in rows):
         position_std = np.full((t, N_JOINTS), np.nan)
         for i, (_, f, p) in zip(at, rows, strict=True):
-            if getattr(f, "position_std", None) is not None:
-                position_std[i] = f.position_std[p]
+            if (std := getattr(f, "position_std", None)) is not None:
+                position_std[i] = std[p]
     return PersonTrack(track_id, first, positions, n_agree, orientations, position_std)

@@ -47,7 +47,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from skelfuse.schema.skeleton import N_JOINTS, J
 
@@ -266,7 +265,7 @@ def associate(
             rows = np.nonzero(usable[s] & (person[s] < 0))[0]
             ok = allowed[s][rows[:, None], cols]
             matrix = np.where(ok, cost[s][rows[:, None], cols], _BIG)
-            r, c = linear_sum_assignment(matrix)
+            r, c = _linear_sum_assignment(matrix)
             keep = ok[r, c]
             person[s, rows[r[keep]]] = cols[c[keep]]
             assigned_cost[s, rows[r[keep]]] = matrix[r[keep], c[keep]]
@@ -366,3 +365,11 @@ def _cluster_leftovers(
         idx = np.asarray(members[root])
         person[s_idx[idx], b_idx[idx]] = first_row + offset
     return len(roots)
+
+
+def _linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """scipy's Hungarian solver, imported on first use: ``scipy.optimize`` takes a large share of a daemon's
+    start-up to import, and a sensor with one body never needs it."""
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment(matrix)

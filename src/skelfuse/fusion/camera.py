@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 NFOV_UNBINNED_SIZE = (640, 576)
 """(width, height) of the Azure Kinect NFOV unbinned depth image, pixels."""
@@ -103,7 +104,7 @@ def lift_mask(depth_mm: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics) ->
     return intrinsics.lift(cols, rows, depth[rows, cols])
 
 
-def look_at_pose(position_mm: np.ndarray, target_mm: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+def look_at_pose(position_mm: np.ndarray, target_mm: np.ndarray, up: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     """(4, 4) ``world_from_camera`` of a camera at ``position_mm`` whose optical axis (+z) points at
     ``target_mm``, with no roll: its x axis is horizontal (right in the image), y points down in the image.
 

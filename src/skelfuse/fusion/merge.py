@@ -187,9 +187,9 @@ def merge_dbscan(
     use_ref = reference_weight is not None and reference is not None
     use_prev = previous_weight is not None and previous is not None
     span = S + 1
-    if use_ref:
+    if use_ref and reference is not None:
         parts.append(np.transpose(reference, (2, 0, 1)).reshape(3, N, 1))
-    if use_prev:
+    if use_prev and previous is not None:
         parts.append(np.transpose(previous, (2, 0, 1)).reshape(3, N, 1))
     axes = np.concatenate(parts, axis=2) if len(parts) > 1 else sensor_axes
     same = _same_cluster(axes, eps_mm)  # (N, n, n)

@@ -304,7 +304,7 @@ def fuse(
         positions=fused,
         n_agree=merged.n_agree,
         confidence=merged.confidence,
-        contributors=merged.members.any(axis=1),
+        contributors=np.asarray(merged.members.any(axis=1)),
         orientations=orientation_out,
         position_std=std,
         held_out=held_out,
@@ -396,9 +396,10 @@ def _orientations(
         usable = np.transpose(merged.members, (0, 2, 1)).copy()  # (B, S, J): the view's position was merged
         if flipped is not None:
             usable &= ~flipped[:, :, None]
-    quats_prev, omega_prev = init_orientation_state(B) if state.orientation is None else (state.orientation, None)
-    if state.angular_velocity is not None:
-        omega_prev = state.angular_velocity
+    quats_prev, omega_init = init_orientation_state(B) if state.orientation is None else (state.orientation, None)
+    omega_prev = state.angular_velocity if state.angular_velocity is not None else omega_init
+    if omega_prev is None:  # FusionState reads a missing angular velocity as 0
+        omega_prev = np.zeros((*quats_prev.shape[:2], 3))
     orientation_params = _orientation_params(
         params.orientation_agree_deg, params.orientation_alpha, params.orientation_beta
     )
@@ -458,7 +459,7 @@ def _realign(
     reference = reference_positions(positions, conf)
     if params.realign == "paper":
         out_positions, out_conf, swapped = realign_paper(positions, conf, reference=reference)
-        flipped = swapped.any(axis=-1)  # any pair swapped: the view's frames are not trusted
+        flipped = np.asarray(swapped.any(axis=-1))  # any pair swapped: the view's frames are not trusted
     else:
         out_positions, out_conf, flipped = realign_body(positions, conf, params.realign_passes, reference=reference)
     # Nothing swapped (the usual case): the reference of the realigned candidates is the one just computed.

@@ -46,6 +46,8 @@ MERGE_MODES: tuple[str, ...] = ("dbscan", "average")
 FILTER_KINDS: tuple[str, ...] = ("paper_kalman", "cv_kalman", "alpha_beta")
 PAPER_PRESETS: tuple[str, ...] = ("A1", "A2", "A3", "A4", "A5")
 ALL_PRESETS: tuple[str, ...] = (*PAPER_PRESETS, "skelfuse")
+COMPARED_PRESETS: tuple[str, ...] = ("skelfuse", "A5", "A1")
+"""What a report on a real take compares unless told otherwise (``skelfuse eval real``)."""
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -295,7 +296,7 @@ class TrackTable:
         measured = measured[idx]
         dt = time_s - self.last_seen_s[idx]  # (H,)
         step = measured - self.descriptor[idx]  # (H, D, 3)
-        ok = np.isfinite(step).all(axis=-1)  # (H, D)
+        ok = np.asarray(np.isfinite(step).all(axis=-1))  # (H, D)
         count = ok.sum(axis=-1)
         moved = (dt > 0) & (count > 0)
         if moved.any():
@@ -366,12 +367,11 @@ _ROW_FIELDS = (
 
 def take_state(state: FusionState, rows: np.ndarray | slice) -> FusionState:
     """The rows ``rows`` of a FusionState (an index array: new arrays, in that order; a slice: views)."""
-    return FusionState(
-        **{
-            f.name: None if getattr(state, f.name) is None else getattr(state, f.name)[rows]
-            for f in dataclasses.fields(FusionState)
-        }
-    )
+    values: dict[str, Any] = {
+        f.name: None if getattr(state, f.name) is None else getattr(state, f.name)[rows]
+        for f in dataclasses.fields(FusionState)
+    }
+    return FusionState(**values)
 
 
 def put_state(state: FusionState, rows: np.ndarray, values: FusionState) -> None:
@@ -390,7 +390,7 @@ def stack_states(states: list[FusionState]) -> FusionState:
     """
     if not states:
         raise ValueError("stack_states needs at least one state")
-    values = {}
+    values: dict[str, Any] = {}
     for f in dataclasses.fields(FusionState):
         parts = [getattr(s, f.name) for s in states]
         present = [v for v in parts if v is not None]
@@ -410,7 +410,7 @@ def split_state(state: FusionState) -> list[FusionState]:
     """The rows of a FusionState as 1-row states (copies), the inverse of :func:`stack_states`."""
     out = []
     for row in range(state.n_bodies):
-        values = {}
+        values: dict[str, Any] = {}
         for f in dataclasses.fields(FusionState):
             value = getattr(state, f.name)
             values[f.name] = None if value is None else value[row : row + 1].copy()

@@ -314,6 +314,15 @@ def parse_time_offsets(items: Iterable[str]) -> dict[str, float]:
     return out
 
 
+def single_recorded_mcap(specs: Sequence[str]) -> bool:
+    """True when ``specs`` is one plain path to a skelfuse MCAP (no ``ID=``): such a recording is fused on its
+    recorded host arrival times, exactly as live, rather than opened as a take."""
+    if len(specs) != 1:
+        return False
+    spec = InputSpec.parse(specs[0])
+    return spec.sensor_id is None and spec.path.is_file() and detect_format(spec.path) == "mcap"
+
+
 def open_inputs(
     specs: Sequence[str | InputSpec],
     *,

@@ -90,7 +90,7 @@ def resolve_poses(
     if take is not None and take.poses:
         what = "--registered identity poses" if take.registered else "calibration metadata of the recording"
         sources.append((what, take.poses))
-    tried = []
+    tried: list[str] = []
     for name, poses in sources:
         missing = [s for s in sensor_ids if s not in poses]
         if not missing:
@@ -187,15 +187,10 @@ def fuse_recording(
     progress : bool
         Draw a progress bar on stderr (only when it is a terminal).
     smoother : {"rts", "none"} or None
-        "rts": the positions are smoothed by the fixed-interval Rauch-Tung-Striebel smoother over the live
-        filter's motion model (:mod:`skelfuse.fusion.smoother`: zero lag; joints inside a short gap are
-        filled and keep ``n_agree`` 0); the whole take is fused before the first frame is yielded. "none":
-        the live filter's output, frame by frame, exactly as the live node publishes it. None (default):
-        "rts" where the fusion's filter is "cv_kalman", else "none" (the paper's presets have no velocity
-        model to smooth over); the choice is logged.
+        "rts": the zero-lag RTS smoother over the whole take (:mod:`skelfuse.fusion.smoother`); "none": the
+        live output, frame by frame. None: "rts" with the "cv_kalman" filter, else "none" (logged).
     smoother_lag : int, optional
-        With "rts": the fixed-lag form instead, each instant estimated from the frames up to this many instants
-        later (what the live fixed-lag option would give; ``eval real`` reports it beside the others).
+        With "rts": the fixed-lag form, each instant from the instants up to this many later.
 
     Returns
     -------
@@ -219,8 +214,17 @@ def fuse_recording(
         poses = resolve_poses(take.sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, take=take)
         grouper = take.grouper(sync, tolerance_us=tolerance_us, deadline_us=deadline_us)
         return _smoothed(_fuse_take(take, poses, params, grouper, progress), params, smooth, smoother_lag)
-    reader = RecordingReader(recording_path)
+    reader = _open_recording(recording_path)
     sensor_ids = reader.require_sensors("nothing to fuse")
+    poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
+    grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
+    instants = _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+    return _smoothed(instants, params, smooth, smoother_lag)
+
+
+def _open_recording(path: str | os.PathLike[str]) -> RecordingReader:
+    """The MCAP recording, with a warning where it ends early or has unreadable chunks."""
+    reader = RecordingReader(path)
     if reader.truncated or reader.bad_chunks:
         log.warning(
             "recording %s %s; fusing what it holds up to there%s",
@@ -230,10 +234,7 @@ def fuse_recording(
             else f"has {reader.bad_chunks} unreadable chunk(s)",
             f" ({'; '.join(reader.problems[:3])})" if reader.problems else "",
         )
-    poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
-    grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
-    instants = _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
-    return _smoothed(instants, params, smooth, smoother_lag)
+    return reader
 
 
 def _smoother(name: str | None, params: FusionParams) -> bool:
@@ -350,7 +351,7 @@ def replay_frames(
     *,
     speed: float | None = 1.0,
     clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
+    sleep: Callable[[float], object] = time.sleep,
 ) -> Iterator[tuple[float, RecordedFrame]]:
     """Yield recorded frames when they are due, paced by their log time (host clock).
 

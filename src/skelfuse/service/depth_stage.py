@@ -55,7 +55,6 @@ from skelfuse.rig.instant import FusedInstant, GroupFuser, bodies_to_world, fuse
 from skelfuse.schema.errors import ConfigError, SkelfuseError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
-from skelfuse.sim.depth_tracker import SimulatedDepthTracker
 from skelfuse.sources.depth_tracker import VirtualCameraTracker
 from skelfuse.sources.k4abt import K4ABTError, K4abtLibrary, TrackerCreateError, TrackerSettings, load_k4a
 from skelfuse.sources.tracker_pool import TrackerPool, WorkerSpec
@@ -267,6 +266,8 @@ def open_tracker(cfg: RigConfig) -> DepthTracker:
     if depth.tracker == "simulated":
         if any(s.source != "sim" for s in cfg.sensors):  # the parser refuses it too; never run it on real data
             raise ConfigError(f'{cfg.source}: [depth] tracker = "simulated" runs on simulated rigs only')
+        from skelfuse.sim.depth_tracker import SimulatedDepthTracker  # the simulator: on simulated rigs only
+
         return SimulatedDepthTracker()
     kinect = next((s.kinect for s in cfg.sensors if s.kinect is not None), None)
     settings = TrackerSettings.from_config(kinect.tracker) if kinect is not None else TrackerSettings()

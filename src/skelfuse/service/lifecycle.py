@@ -212,7 +212,7 @@ def configure_logging(*, verbose: bool = False, fmt: str = "text") -> None:
     root = logging.getLogger()
     for old in [h for h in root.handlers if getattr(h, "_skelfuse", False)]:
         root.removeHandler(old)
-    handler._skelfuse = True  # type: ignore[attr-defined]
+    handler._skelfuse = True  # type: ignore[attr-defined]  # a mark on our own handler, so a second setup replaces it
     if not root.handlers:
         root.addHandler(handler)
     root.setLevel(logging.DEBUG if verbose else logging.INFO)

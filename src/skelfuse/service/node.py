@@ -36,19 +36,29 @@ import logging
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from skelfuse.config import RigConfig
-from skelfuse.fusion.plausibility import HOLD_REASONS
-from skelfuse.fusion.presets import FusionParams
-from skelfuse.rig.grouping import FrameGroup, FrameGrouper
-from skelfuse.rig.instant import GroupFuser
-from skelfuse.schema.frames import FusedFrame
-from skelfuse.service.depth_stage import DepthStage, depth_stage_for
+from skelfuse.service.fusion_core import (
+    BAD_KEY,
+    FUSION_ERROR,
+    IDLE_WAIT_S,
+    KEY_MISMATCH,
+    LATENCY_WINDOW,
+    OUT_OF_VOLUME,
+    OVERSIZED,
+    TOO_MANY_BODIES,
+    TRACK_ID_EPOCH_S,
+    UNKNOWN_SENSOR,
+    FusedOutput,
+    FusionCore,
+    calibration_document,
+    time_based_first_track_id,
+)
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
 from skelfuse.service.pose_fit import FitChange, PoseFitMonitor
 from skelfuse.service.viewer import RerunView, ViewOptions, open_recording, stop_server
@@ -62,323 +72,36 @@ from skelfuse.service.zenoh_io import (
     open_session,
 )
 from skelfuse.wire import keys
-from skelfuse.wire.codec import DecodeError, NodeStatus, decode_sensor_frame, encode_fused_frame, encode_status
+from skelfuse.wire.codec import NodeStatus, encode_status
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import zenoh
 
+    from skelfuse.service.depth_stage import DepthStage
+
 log = logging.getLogger("skelfuse.service.node")
 
-KEY_MISMATCH = "key_mismatch"
-"""Node-level reject reason: the payload's sensor id differs from the sensor id of the key it came on."""
-BAD_KEY = "bad_key"
-"""Node-level reject reason: a sample on the sensor wildcard whose key is not a valid sensor key."""
-UNKNOWN_SENSOR = "?"
-"""Sensor name under which rejects of unparseable keys are counted."""
-LATENCY_WINDOW = 10_000
-"""Latency samples kept for the "since start" percentiles (the most recent ones)."""
-OVERSIZED = "oversized"
-"""Node-level reject reason: a payload larger than ``[intake] max_payload_bytes`` (dropped unread)."""
-TOO_MANY_BODIES = "too_many_bodies"
-"""Node-level reject reason: more bodies than ``[intake] max_bodies_per_sensor``."""
-OUT_OF_VOLUME = "out_of_volume"
-"""Node-level reject reason: a joint farther than ``[intake] max_range_mm`` from its sensor."""
-IDLE_WAIT_S = 0.02
-"""The longest the node loop sleeps while no instant is open (no deadline can pass then); it wakes on arrival."""
-FUSION_ERROR = "fusion_error"
-"""Node-level reject reason: an instant the core could not fuse or encode (logged; the node goes on)."""
-
-
-TRACK_ID_EPOCH_S = 1_767_225_600
-"""2026-01-01T00:00:00Z: the live node's track ids count seconds from here (see time_based_first_track_id)."""
-
-
-def time_based_first_track_id(unix_time_ns: int) -> int:
-    """The first track id of a node started at ``unix_time_ns``: whole seconds since 2026-01-01 UTC.
-
-    Track ids are never reused, across restarts too: a restarted node starts above every id the previous run
-    could have given, unless that run started more tracks than seconds went by before the restart (a person
-    walking in starts one track) or the clock stepped back. No state file is needed (a replaced PC continues the
-    sequence). The ids stay below 2**31 until 2094, so every consumer can hold them in a 32-bit signed integer
-    (OSC's ``i``, C3D parameters, LSL, most game engines).
-    """
-    return max(int(unix_time_ns) // 1_000_000_000 - TRACK_ID_EPOCH_S, 1)
-
-
-def calibration_document(cfg: RigConfig, poses: np.ndarray) -> dict[str, Any]:
-    """What the calibration queryable answers (JSON; see docs/service.md)."""
-    return {
-        "rig": cfg.name,
-        "units": "mm",
-        "convention": "world_from_sensor: p_world = R @ p_sensor + t; row-major 4x4; sensor frame x right, "
-        "y down, z forward; world right-handed, z up",
-        "sensor_ids": list(cfg.sensor_ids),
-        "world_from_sensor": {sid: poses[i].tolist() for i, sid in enumerate(cfg.sensor_ids)},
-    }
-
-
-@dataclass(frozen=True)
-class FusedOutput:
-    """One fused instant, ready to publish.
-
-    Attributes
-    ----------
-    frame : FusedFrame
-    payload : bytes
-        ``encode_fused_frame(frame)``.
-    sensors_world : (S, B, 32, 3) float64
-        Every body of every sensor in the world frame, mm, NaN-padded (NaN: no frame / no body in the slot).
-    fusion_ns : int
-        Time of the fusion step plus encoding, ns.
-    trigger_arrival_ns : int or None
-        Arrival (monotonic ns) of the frame that completed the group; None when a deadline or the final
-        flush emitted it.
-    complete : bool
-        Every sensor of the rig delivered a frame for this instant.
-    """
-
-    frame: FusedFrame
-    payload: bytes
-    sensors_world: np.ndarray
-    fusion_ns: int
-    trigger_arrival_ns: int | None
-    complete: bool
-    clouds: tuple[Any, ...] = ()
-    """Depth / hybrid mode: (track id, MergedCloud) of each person's fused cloud, for the view."""
-
-
-@dataclass
-class _SensorWindow:
-    received: int = 0
-    last_seen_ns: int | None = None
-    rejects: Counter[str] = field(default_factory=Counter)
-    window_received: int = 0
-
-
-class FusionCore:
-    """Decode -> group -> fuse -> encode, single-threaded, no I/O: the clock is passed in.
-
-    Parameters
-    ----------
-    cfg : RigConfig
-        The rig: its sensors, ``[sync]`` (grouping), ``[fusion]`` and poses.
-    params : FusionParams, optional
-        Overrides ``cfg.fusion.fusion_params()``.
-    poses : (S, 4, 4), optional
-        Overrides ``cfg.poses()`` (rows in ``cfg.sensor_ids`` order).
-    first_track_id : int
-        The first track id (the live node passes :func:`time_based_first_track_id`).
-    depth : DepthStage, optional
-        ``[fusion] mode`` depth / hybrid: fuses each instant instead of the plain GroupFuser step.
-
-    Attributes
-    ----------
-    grouper : FrameGrouper
-    fuser : GroupFuser
-        The per-instant adapter shared with offline fusion (its ``people`` holds the tracks).
-    frames_in, frames_out : int
-        Payloads received, fused frames produced.
-    rejects : dict[str, Counter]
-        Per sensor (from the key), rejects per reason (codec reasons, plus "key_mismatch", "bad_key").
-    """
-
-    def __init__(
-        self,
-        cfg: RigConfig,
-        *,
-        params: FusionParams | None = None,
-        poses: np.ndarray | None = None,
-        first_track_id: int = 1,
-        depth: DepthStage | None = None,
-    ) -> None:
-        self.cfg = cfg
-        self.sensor_ids = cfg.sensor_ids
-        self.column = {sid: i for i, sid in enumerate(self.sensor_ids)}
-        self._sensor_of_key = {keys.sensor_skeletons(cfg.name, sid): sid for sid in self.sensor_ids}
-        if poses is None:
-            by_id = cfg.poses()
-            poses = np.stack([by_id[sid] for sid in self.sensor_ids])
-        self.poses = np.asarray(poses, dtype=np.float64)
-        self.params = params if params is not None else cfg.fusion.fusion_params()
-        self.grouper = FrameGrouper.for_rig(cfg)
-        self.intake = cfg.intake
-        self.depth = depth
-        fused_ids, fused_poses = (self.sensor_ids, self.poses) if depth is None else depth.fuser_sensors(self.poses)
-        self.fuser = GroupFuser(
-            fused_ids,
-            fused_poses,
-            self.params,
-            max_persons=self.intake.max_persons,
-            first_track_id=first_track_id,
-        )
-        self.frames_in = 0
-        self.frames_out = 0
-        self.groups_complete = 0
-        self.groups_partial = 0
-        self.deadline_emits = 0
-        self.rejects: dict[str, Counter[str]] = {}
-        self.held_out: dict[str, Counter[str]] = {}  # views the plausibility stage held out, per sensor and reason
-        self._sensors = {sid: _SensorWindow() for sid in self.sensor_ids}
-        self._logged_rejects: Counter[tuple[str, str]] = Counter()
-
-    # -- input --------------------------------------------------------------------------------------------
-
-    def receive(self, key: str, payload: bytes, arrival_ns: int) -> list[FusedOutput]:
-        """One sample from the sensor wildcard; returns the fused instants that became due."""
-        self.frames_in += 1
-        key_sensor = self._sensor_of_key.get(key) if isinstance(key, str) else None  # the rig's keys, parsed once
-        if key_sensor is None:
-            try:
-                key_sensor = keys.parse_sensor_key(key, self.cfg.name)
-            except ValueError as exc:
-                self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
-                return self.poll(arrival_ns)
-        intake = self.intake
-        if len(payload) > intake.max_payload_bytes:
-            self._reject(key_sensor, OVERSIZED, f"{len(payload)} bytes, at most {intake.max_payload_bytes} ([intake])")
-            return self.poll(arrival_ns)
-        try:
-            frame = decode_sensor_frame(payload)
-        except DecodeError as exc:
-            self._reject(key_sensor, exc.reason, str(exc))
-            return self.poll(arrival_ns)
-        if frame.n_bodies > intake.max_bodies_per_sensor:
-            self._reject(
-                key_sensor,
-                TOO_MANY_BODIES,
-                f"{frame.n_bodies} bodies, at most {intake.max_bodies_per_sensor} ([intake] max_bodies_per_sensor)",
-            )
-            return self.poll(arrival_ns)
-        if frame.n_bodies:
-            reach = float(np.abs(frame.positions).max())  # finite: the codec rejects NaN and Inf
-            if reach > intake.max_range_mm:
-                self._reject(
-                    key_sensor,
-                    OUT_OF_VOLUME,
-                    f"a joint {reach:.4g} mm from the sensor on one axis, at most {intake.max_range_mm:g} mm "
-                    f"([intake] max_range_mm)",
-                )
-                return self.poll(arrival_ns)
-        if frame.sensor_id != key_sensor:
-            self._reject(
-                key_sensor,
-                KEY_MISMATCH,
-                f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}",
-            )
-            return self.poll(arrival_ns)
-        window = self._sensors.get(key_sensor)
-        if window is not None:
-            window.received += 1
-            window.window_received += 1
-            window.last_seen_ns = arrival_ns
-        groups = self.grouper.push(frame, arrival_ns)
-        return self._fuse_groups(groups, trigger_arrival_ns=arrival_ns)
-
-    def poll(self, now_ns: int) -> list[FusedOutput]:
-        """Instants whose deadline passed by ``now_ns``."""
-        groups = self.grouper.poll(now_ns)
-        self.deadline_emits += sum(1 for g in groups if not g.complete)
-        return self._fuse_groups(groups, trigger_arrival_ns=None)
-
-    def flush(self) -> list[FusedOutput]:
-        """Every open instant (shutdown)."""
-        return self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None)
-
-    def _reject(self, sensor_id: str, reason: str, message: str) -> None:
-        self.rejects.setdefault(sensor_id, Counter())[reason] += 1
-        if sensor_id in self._sensors:
-            self._sensors[sensor_id].rejects[reason] += 1
-        seen = self._logged_rejects[(sensor_id, reason)]
-        self._logged_rejects[(sensor_id, reason)] += 1
-        if seen == 0 or (seen + 1) % 1000 == 0:  # first of a kind, then every 1000th: no log floods
-            log.warning(
-                "rejected a payload of sensor %s (%s, %d so far): %s",
-                sensor_id,
-                reason,
-                seen + 1,
-                message,
-                extra={"sensor": sensor_id, "reason": reason},
-            )
-
-    # -- fusion -------------------------------------------------------------------------------------------
-
-    def _fuse_groups(self, groups: list[FrameGroup], trigger_arrival_ns: int | None) -> list[FusedOutput]:
-        out = []
-        for index, group in enumerate(groups):
-            # Only the newest group of a push was completed by the pushed frame; older ones were pushed out.
-            trigger = trigger_arrival_ns if index == len(groups) - 1 and group.complete else None
-            try:
-                out.append(self._fuse(group, trigger))
-            except Exception as exc:  # never expected (caps keep frames encodable): a daemon must not die of it
-                self.fuser.reset()  # the tracks start afresh; the next instant is fused as usual
-                if not isinstance(exc, ValueError):  # a bug in the core: its trace once per kind, for the report
-                    first = not any(FUSION_ERROR in counter for counter in self.rejects.values())
-                    log.error("the fusion step raised %s: a bug, please report it", type(exc).__name__, exc_info=first)
-                self._reject(
-                    UNKNOWN_SENSOR,
-                    FUSION_ERROR,
-                    f"instant at {group.time_us} µs not fused: {type(exc).__name__}: {exc}",
-                )
-        return out
-
-    def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
-        tick = time.perf_counter_ns()
-        depth = self.depth
-        instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
-        fused = instant.frame
-        if instant.people.held_out is not None:
-            count_held_out(self.held_out, instant.people.held_out, fused.sensor_ids)
-        payload = encode_fused_frame(fused)
-        self.frames_out += 1
-        if group.complete:
-            self.groups_complete += 1
-        else:
-            self.groups_partial += 1
-        return FusedOutput(
-            fused,
-            payload,
-            instant.sensors_world,
-            time.perf_counter_ns() - tick,
-            trigger_arrival_ns,
-            group.complete,
-            () if depth is None else depth.last_clouds,
-        )
-
-    # -- status -------------------------------------------------------------------------------------------
-
-    def sensor_report(self, now_ns: int, window_s: float) -> dict[str, dict[str, Any]]:
-        """Per sensor: rate over the last window, last seen, grouper counters, rejects. Resets the window."""
-        stats = self.grouper.stats
-        clocks = self.grouper.clock_estimates()
-        report = {}
-        for sid, window in self._sensors.items():
-            counters = stats.sensors[sid]
-            report[sid] = {
-                "rate_hz": round(window.window_received / window_s, 3) if window_s > 0 else None,
-                "last_seen_s": None if window.last_seen_ns is None else round((now_ns - window.last_seen_ns) / 1e9, 4),
-                "received": counters.received,
-                "grouped": counters.grouped,
-                "late": counters.late,
-                "dropped": counters.dropped,
-                "duplicate": counters.duplicate,
-                "out_of_window": counters.out_of_window,
-                "off_clock": counters.off_clock,
-                "invalid": sum(window.rejects.values()),
-                "rejects": dict(window.rejects),
-                "held_out": dict(self.held_out.get(sid, {})),
-                "clock": clocks[sid].to_dict(),
-            }
-            window.window_received = 0
-        return report
-
-
-def count_held_out(counts: dict[str, Counter[str]], held_out: np.ndarray, sensor_ids: Sequence[str]) -> None:
-    """Add one instant's held-out views ((P, S) reason codes, columns in ``sensor_ids`` order) to ``counts``,
-    per sensor and reason name (:data:`skelfuse.fusion.plausibility.HOLD_REASONS`)."""
-    persons, sensors = np.nonzero(held_out)
-    for person, sensor in zip(persons.tolist(), sensors.tolist(), strict=True):
-        reason = HOLD_REASONS[int(held_out[person, sensor]) - 1]
-        counts.setdefault(sensor_ids[sensor], Counter())[reason] += 1
+# The core lives in skelfuse.service.fusion_core; its names are re-exported here for the node's users.
+__all__ = [
+    "BAD_KEY",
+    "FUSION_ERROR",
+    "IDLE_WAIT_S",
+    "KEY_MISMATCH",
+    "LATENCY_WINDOW",
+    "OUT_OF_VOLUME",
+    "OVERSIZED",
+    "TOO_MANY_BODIES",
+    "TRACK_ID_EPOCH_S",
+    "UNKNOWN_SENSOR",
+    "FusedOutput",
+    "FusionCore",
+    "FusionNode",
+    "NodeOptions",
+    "NodeReport",
+    "calibration_document",
+    "run_fusion_node",
+    "time_based_first_track_id",
+]
 
 
 def _percentiles(values: Any) -> dict[str, float | int | None]:
@@ -443,6 +166,18 @@ class NodeReport:
     status: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class _Declared:
+    """The zenoh entities a running fusion node holds (undeclared at its stop)."""
+
+    publisher: FusedPublisher
+    status_pub: Any
+    queryable: Any
+    token: Any
+    subscriber: Any
+    clouds: Any  # the person-cloud subscriber (depth / hybrid mode), else None
+
+
 class FusionNode:
     """The fusion node's zenoh shell around :class:`FusionCore` (see the module docstring).
 
@@ -477,7 +212,7 @@ class FusionNode:
         self.options = options or NodeOptions()
         self.name = keys.validate_name(self.options.node_name or cfg.node.name or "fusion", "node")
         self.lifecycle = lifecycle or Lifecycle(self.name)
-        self.depth = depth_stage_for(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
+        self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
@@ -521,85 +256,15 @@ class FusionNode:
         view, server = self._open_view()
         self.view = view
         budget: StopBudget | None = None  # from the stop's start
-        rig = self.cfg.name
-        intake = self.cfg.intake
-        samples = self._samples = SampleQueue(
-            max_items=intake.max_queue,
-            max_payload_bytes=intake.max_payload_bytes,
-            max_items_per_key=intake.max_queue_per_key,
-            max_bytes=intake.max_queue_bytes,
-            labels={keys.sensor_skeletons(rig, sid): sid for sid in self.cfg.sensor_ids},  # fair per sensor
-        )
+        samples = self._samples = self._sample_queue()
         try:
-            z = self.cfg.zenoh
-            publisher = self._fused_publisher = FusedPublisher(
-                session,
-                keys.fused_skeletons(rig),
-                congestion_control=z.fused_congestion_control,
-                bound_ms=z.wait_before_drop_ms if z.fused_congestion_control == "drop" else z.wait_before_close_ms,
-            )
-            status_pub = session.declare_publisher(keys.status(rig, self.name))
-            calibration = json.dumps(calibration_document(self.cfg, self.core.poses)).encode()
-            calibration_key = keys.calibration(rig)
-            queryable = session.declare_queryable(
-                calibration_key, lambda query: query.reply(calibration_key, calibration)
-            )
-            token = session.liveliness().declare_token(keys.alive(rig, self.name))
-            subscriber = session.declare_subscriber(keys.all_sensor_skeletons(rig), samples)
-            clouds = (
-                None
-                if self.depth is None
-                else session.declare_subscriber(keys.all_sensor_clouds(rig), self.depth.clouds)
-            )
-            log.info(
-                "fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
-                "%.1f ms, preset %s; publishing on %s",
-                self.name,
-                rig,
-                len(self.cfg.sensors),
-                ", ".join(self.cfg.sensor_ids),
-                self.cfg.sync.by,
-                self.cfg.sync.tolerance_ms,
-                self.cfg.sync.deadline_ms,
-                self.cfg.fusion.preset,
-                keys.fused_skeletons(rig),
-            )
-            log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
-            if self.depth is not None:
-                log.info("fusion node %s: depth-level fusion, %s", self.name, self.depth.describe())
+            declared = self._declare(session, samples)
+            self._log_start()
             self.ready.set()
-            self._loop(samples, publisher, status_pub, view)
+            self._loop(samples, declared.publisher, declared.status_pub, view)
             self.lifecycle.request_exit()  # the stop begins (arms the stop watchdog after a run limit too)
-            # Shutdown, all within the drain timeout: stop taking input, fuse what is queued until the budget
-            # leaves only the close's share, flush open instants, say "stopped", close with what is left.
             budget = StopBudget.start(self.options.drain_timeout_s)
-            subscriber.undeclare()
-            if clouds is not None:
-                clouds.undeclare()
-            drained = 0
-            while not self.lifecycle.force_exit and time.monotonic() < budget.drain_until:
-                item = samples.get_nowait()
-                if item is None:
-                    break
-                self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
-                drained += 1
-            drained_s = time.monotonic() - budget.began
-            self._publish(self.core.flush(), publisher, view)
-            self._publish_status(status_pub, "stopped", time.monotonic_ns())
-            token.undeclare()
-            queryable.undeclare()
-            publisher.undeclare()
-            status_pub.undeclare()
-            log.info(
-                "fusion node %s: stopping: %d queued samples fused in %.3f s (%d left), flushed and said "
-                "stopped at %.3f s of its %.1f s drain timeout",
-                self.name,
-                drained,
-                drained_s,
-                samples.qsize(),
-                time.monotonic() - budget.began,
-                self.options.drain_timeout_s,
-            )
+            self._drain_and_undeclare(budget, samples, declared, view)
         finally:
             self.lifecycle.request_exit()
             self.ready.set()
@@ -623,6 +288,90 @@ class FusionNode:
             self.core.frames_out,
         )
         return self.report
+
+    def _sample_queue(self) -> SampleQueue:
+        """The intake queue of sensor payloads, bounded by ``[intake]``, fair per sensor."""
+        rig, intake = self.cfg.name, self.cfg.intake
+        return SampleQueue(
+            max_items=intake.max_queue,
+            max_payload_bytes=intake.max_payload_bytes,
+            max_items_per_key=intake.max_queue_per_key,
+            max_bytes=intake.max_queue_bytes,
+            labels={keys.sensor_skeletons(rig, sid): sid for sid in self.cfg.sensor_ids},  # fair per sensor
+        )
+
+    def _declare(self, session: Any, samples: SampleQueue) -> _Declared:
+        """The node's zenoh entities: fused publisher, status, calibration queryable, liveliness, subscribers."""
+        rig, z = self.cfg.name, self.cfg.zenoh
+        publisher = self._fused_publisher = FusedPublisher(
+            session,
+            keys.fused_skeletons(rig),
+            congestion_control=z.fused_congestion_control,
+            bound_ms=z.wait_before_drop_ms if z.fused_congestion_control == "drop" else z.wait_before_close_ms,
+        )
+        status_pub = session.declare_publisher(keys.status(rig, self.name))
+        calibration = json.dumps(calibration_document(self.cfg, self.core.poses)).encode()
+        calibration_key = keys.calibration(rig)
+        queryable = session.declare_queryable(calibration_key, lambda query: query.reply(calibration_key, calibration))
+        token = session.liveliness().declare_token(keys.alive(rig, self.name))
+        subscriber = session.declare_subscriber(keys.all_sensor_skeletons(rig), samples)
+        clouds = (
+            None if self.depth is None else session.declare_subscriber(keys.all_sensor_clouds(rig), self.depth.clouds)
+        )
+        return _Declared(publisher, status_pub, queryable, token, subscriber, clouds)
+
+    def _log_start(self) -> None:
+        rig = self.cfg.name
+        log.info(
+            "fusion node %s: rig %s, %d sensors (%s), grouping by %s time, tolerance %.1f ms, deadline "
+            "%.1f ms, preset %s; publishing on %s",
+            self.name,
+            rig,
+            len(self.cfg.sensors),
+            ", ".join(self.cfg.sensor_ids),
+            self.cfg.sync.by,
+            self.cfg.sync.tolerance_ms,
+            self.cfg.sync.deadline_ms,
+            self.cfg.fusion.preset,
+            keys.fused_skeletons(rig),
+        )
+        log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
+        if self.depth is not None:
+            log.info("fusion node %s: depth-level fusion, %s", self.name, self.depth.describe())
+
+    def _drain_and_undeclare(
+        self, budget: StopBudget, samples: SampleQueue, declared: _Declared, view: RerunView | None
+    ) -> None:
+        """The stop, within the drain timeout: stop taking input, fuse what is queued until the budget leaves
+        only the close's share, flush open instants, say "stopped", undeclare."""
+        publisher, status_pub = declared.publisher, declared.status_pub
+        declared.subscriber.undeclare()
+        if declared.clouds is not None:
+            declared.clouds.undeclare()
+        drained = 0
+        while not self.lifecycle.force_exit and time.monotonic() < budget.drain_until:
+            item = samples.get_nowait()
+            if item is None:
+                break
+            self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+            drained += 1
+        drained_s = time.monotonic() - budget.began
+        self._publish(self.core.flush(), publisher, view)
+        self._publish_status(status_pub, "stopped", time.monotonic_ns())
+        declared.token.undeclare()
+        declared.queryable.undeclare()
+        publisher.undeclare()
+        status_pub.undeclare()
+        log.info(
+            "fusion node %s: stopping: %d queued samples fused in %.3f s (%d left), flushed and said "
+            "stopped at %.3f s of its %.1f s drain timeout",
+            self.name,
+            drained,
+            drained_s,
+            samples.qsize(),
+            time.monotonic() - budget.began,
+            self.options.drain_timeout_s,
+        )
 
     def _open_view(self) -> tuple[RerunView | None, Any]:
         view_options = self.options.view
@@ -656,7 +405,7 @@ class FusionNode:
                 # are looked at only once the queue is empty (a queued frame arrived in time, whatever the time
                 # now), but a stop is seen between any two samples (a starved node's backlog never hides it),
                 # and so is an overdue status: a node a little behind for long (its queue never quite empty)
-                # published none for over 10 s (session 22).
+                # published none for over 10 s.
                 self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
                 if self.lifecycle.should_exit:
                     break
@@ -812,6 +561,16 @@ class FusionNode:
             status_pub.put(encode_status(status))
         except ValueError:
             log.exception("fusion node %s: status could not be encoded", self.name)
+
+
+def _depth_stage(cfg: RigConfig) -> DepthStage | None:
+    """The depth stage of a depth or hybrid rig; its module (scipy's spatial and ndimage) is imported only
+    there, so a skeleton rig's node opens its session sooner."""
+    if cfg.fusion.mode == "skeleton":
+        return None
+    from skelfuse.service.depth_stage import depth_stage_for
+
+    return depth_stage_for(cfg)
 
 
 def run_fusion_node(

@@ -17,13 +17,14 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from skelfuse.config import RigConfig
-from skelfuse.recording import RecordingReader, RecordingWriter, replay_frames
+from skelfuse.recording import RecordedFrame, RecordingReader, RecordingWriter, replay_frames
 from skelfuse.recording.inputs import InputTake
 from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
@@ -89,56 +90,11 @@ def run_recorder(
             raise _write_failed(path, exc, None) from None
         failure: OSError | None = None
         try:
-            # [record] sensors: the raw sensor frames (what `fuse --input` and `replay` read back)
-            subscriber = (
-                session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples) if cfg.record.sensors else None
-            )
-            # [record] fused: the fused stream's payloads as received, on the fused key's channel
-            fused_key = keys.fused_skeletons(cfg.name)
-            fused_subscriber = session.declare_subscriber(fused_key, samples) if cfg.record.fused else None
-            # depth / hybrid mode: the workers' person clouds too (what `skelfuse calibrate refine` reads)
-            clouds_subscriber = (
-                session.declare_subscriber(keys.all_sensor_clouds(cfg.name), samples)
-                if cfg.fusion.mode != "skeleton"
-                else None
-            )
-            token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
-            streams = ["sensor frames" if cfg.record.sensors else "no sensor frames ([record] sensors = false)"]
-            if cfg.record.fused:
-                streams.append("fused frames")
-            if clouds_subscriber is not None:
-                streams.append(f"person clouds ([fusion] mode = {cfg.fusion.mode!r})")
-            log.info(
-                "recorder: writing rig %s's %s to %s (flush every %.1f s)", cfg.name, ", ".join(streams), path, flush_s
-            )
-            next_flush = start + flush_s
-            while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
-                item = samples.get(timeout=0.05)
-                while item is not None:
-                    try:
-                        if item.key == fused_key:
-                            writer.write_fused_payload(item.payload, log_time_ns=_wall_time_ns(item.arrival_ns))
-                        elif item.key.endswith("/clouds"):
-                            writer.write_clouds_payload(item.payload)
-                        else:
-                            writer.write_payload(item.payload)
-                    except DecodeError as exc:
-                        report.rejects[exc.reason] += 1
-                        if report.rejects[exc.reason] == 1:
-                            log.warning("recorder: rejected a payload on %s (%s): %s", item.key, exc.reason, exc)
-                    if limits.max_frames is not None and writer.frames_written >= limits.max_frames:
-                        break
-                    item = samples.get_nowait()
-                if time.monotonic() >= next_flush:
-                    writer.flush()
-                    next_flush = time.monotonic() + flush_s
+            subscribers, token = _subscribe(session, cfg, samples, path)
+            _record(writer, samples, report, lifecycle, limits, start, flush_s, keys.fused_skeletons(cfg.name))
             lifecycle.request_exit()  # the stop begins (bounded by the stop watchdog)
-            if subscriber is not None:
+            for subscriber in subscribers:
                 subscriber.undeclare()
-            if fused_subscriber is not None:
-                fused_subscriber.undeclare()
-            if clouds_subscriber is not None:
-                clouds_subscriber.undeclare()
             token.undeclare()
         except OSError as exc:  # the file cannot take more: stop, keep what was flushed
             failure = exc
@@ -162,6 +118,69 @@ def run_recorder(
         sum(report.rejects.values()),
     )
     return report
+
+
+def _subscribe(session: Any, cfg: RigConfig, samples: SampleQueue, path: Path) -> tuple[list[Any], Any]:
+    """The recorder's subscribers (per ``[record]`` and the fusion mode) and its liveliness token."""
+    subscribers = []
+    # [record] sensors: the raw sensor frames (what `fuse --input` and `replay` read back)
+    if cfg.record.sensors:
+        subscribers.append(session.declare_subscriber(keys.all_sensor_skeletons(cfg.name), samples))
+    # [record] fused: the fused stream's payloads as received, on the fused key's channel
+    if cfg.record.fused:
+        subscribers.append(session.declare_subscriber(keys.fused_skeletons(cfg.name), samples))
+    # depth / hybrid mode: the workers' person clouds too (what `skelfuse calibrate refine` reads)
+    clouds = cfg.fusion.mode != "skeleton"
+    if clouds:
+        subscribers.append(session.declare_subscriber(keys.all_sensor_clouds(cfg.name), samples))
+    token = session.liveliness().declare_token(keys.alive(cfg.name, "recorder"))
+    streams = ["sensor frames" if cfg.record.sensors else "no sensor frames ([record] sensors = false)"]
+    if cfg.record.fused:
+        streams.append("fused frames")
+    if clouds:
+        streams.append(f"person clouds ([fusion] mode = {cfg.fusion.mode!r})")
+    log.info(
+        "recorder: writing rig %s's %s to %s (flush every %.1f s)",
+        cfg.name,
+        ", ".join(streams),
+        path,
+        cfg.record.flush_period_s,
+    )
+    return subscribers, token
+
+
+def _record(
+    writer: RecordingWriter,
+    samples: SampleQueue,
+    report: RecordReport,
+    lifecycle: Lifecycle,
+    limits: RunLimits,
+    start: float,
+    flush_s: float,
+    fused_key: str,
+) -> None:
+    """Write what arrives until a signal or the run limits, flushing every ``flush_s``; bad payloads counted."""
+    next_flush = start + flush_s
+    while not lifecycle.should_exit and not limits.reached(writer.frames_written, start):
+        item = samples.get(timeout=0.05)
+        while item is not None:
+            try:
+                if item.key == fused_key:
+                    writer.write_fused_payload(item.payload, log_time_ns=_wall_time_ns(item.arrival_ns))
+                elif item.key.endswith("/clouds"):
+                    writer.write_clouds_payload(item.payload)
+                else:
+                    writer.write_payload(item.payload)
+            except DecodeError as exc:
+                report.rejects[exc.reason] += 1
+                if report.rejects[exc.reason] == 1:
+                    log.warning("recorder: rejected a payload on %s (%s): %s", item.key, exc.reason, exc)
+            if limits.max_frames is not None and writer.frames_written >= limits.max_frames:
+                break
+            item = samples.get_nowait()
+        if time.monotonic() >= next_flush:
+            writer.flush()
+            next_flush = time.monotonic() + flush_s
 
 
 def _write_failed(path: Path, exc: OSError, report: RecordReport | None) -> ServiceError:
@@ -207,20 +226,21 @@ def run_replay(
 
     if isinstance(path, InputTake):
         take = path
-        reader = take.records(rig or "replay")
+        reader: RecordingReader | Iterable[RecordedFrame] = take.records(rig or "replay")
         sensors = ", ".join(take.sensor_ids)
         rig = None  # the records' topics already name the rig
         path = Path(take.recordings[0].source)
     else:
-        reader = RecordingReader(path)
-        sensors = ", ".join(reader.sensors)
+        recording = RecordingReader(path)
+        sensors = ", ".join(recording.sensors)
+        reader = recording
     report = ReplayReport()
     with lifecycle.capture_signals():
         start = time.monotonic()
         session = open_session(zenoh_conf, lifecycle=lifecycle, what="replay", deadline=limits.deadline(start))
         if session is None:
             return report
-        publishers: dict[str, object] = {}
+        publishers: dict[str, zenoh.Publisher] = {}
         try:
             log.info(
                 "replay: %s (%s) at %s",
@@ -235,7 +255,7 @@ def run_replay(
                 publisher = publishers.get(topic)
                 if publisher is None:
                     publisher = publishers[topic] = session.declare_publisher(topic, express=True)
-                publisher.put(record.payload)  # type: ignore[attr-defined]
+                publisher.put(record.payload)
                 report.frames_out += 1
                 report.topics.add(topic)
         finally:

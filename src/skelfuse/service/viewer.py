@@ -29,6 +29,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,6 @@ import numpy as np
 
 from skelfuse.schema.errors import ServiceError
 from skelfuse.service.zenoh_io import wait_for_port
-from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 
 log = logging.getLogger("skelfuse.service")
 
@@ -155,6 +155,8 @@ def release_recording(recording: Any, timeout_s: float = FLUSH_TIMEOUT_S) -> boo
 
 def _save(recording: Any, file: Path) -> None:
     """Send the view to ``file`` (.rrd); a file that cannot be written is a ServiceError saying what to do."""
+    from skelfuse.sinks.rerun_sink import default_blueprint  # Rerun: only where a view is on (start-up)
+
     try:
         recording.save(file, default_blueprint=default_blueprint())
     except (OSError, RuntimeError) as exc:  # rerun reports a failed write as RuntimeError
@@ -171,6 +173,8 @@ def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] |
     (logged once, as a warning that says what to do instead).
     """
     import rerun as rr
+
+    from skelfuse.sinks.rerun_sink import default_blueprint
 
     recording = rr.RecordingStream(options.application_id)
     server: subprocess.Popen[bytes] | None = None
@@ -210,9 +214,15 @@ def open_recording(options: ViewOptions) -> tuple[Any, subprocess.Popen[bytes] |
             )
         url = f"rerun+http://{host}:{options.grpc_port}/proxy"
         recording.connect_grpc(url, default_blueprint=default_blueprint())
-        web = f", web viewer http://{host}:{options.web_port}" if options.web_port else ""
-        log.info("rerun: serving on %s%s; open it with:  rerun %s", url, web, url)
+        web = f"; in a browser: {web_viewer_url(host, options.web_port, url)}" if options.web_port else ""
+        log.info("rerun: serving on %s; open it with:  rerun %s%s", url, url, web)
     return recording, server
+
+
+def web_viewer_url(host: str, web_port: int, grpc_url: str) -> str:
+    """The web viewer's address with the ``?url=`` it needs to connect to the stream (without it the page
+    opens on an empty viewer)."""
+    return f"http://{host}:{web_port}/?url={urllib.parse.quote(grpc_url, safe='')}"
 
 
 def stop_server(server: subprocess.Popen[bytes] | None, timeout_s: float = 5.0) -> None:
@@ -253,6 +263,7 @@ class RerunView:
         log_sensors: bool = True,
         max_pending: int = 64,
     ) -> None:
+        from skelfuse.sinks.rerun_sink import RerunSink, default_blueprint
 
         self.recording = recording
         self.sink = RerunSink(recording, sensor_ids)

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, TORSO_TRACKING_JOINTS, Confidence, J
@@ -268,7 +269,7 @@ def simulate_people(
         world_from_sensor_calibrated=observed[0].world_from_sensor_calibrated,
         truth=truth,
         present=present,
-        visible=tracked.any(axis=1),
+        visible=np.asarray(tracked.any(axis=1)),
         times_s=times,
         device_time_us=observed[0].device_time_us[:T],
     )
@@ -298,7 +299,7 @@ def _body_ids(tracked: np.ndarray, per_person_ids: np.ndarray, rng: np.random.Ge
 # Scenarios
 
 
-def place_on_path(motion: Motion, path_xy: np.ndarray, heading_deg: np.ndarray) -> Motion:
+def place_on_path(motion: Motion, path_xy: ArrayLike, heading_deg: ArrayLike) -> Motion:
     """Move a motion's body along a path: per frame, pelvis over ``path_xy`` (mm), facing ``heading_deg``.
 
     The body's own horizontal pelvis travel and facing are removed first, so any gesture (walking in
@@ -334,7 +335,7 @@ def _heading_of(path_xy: np.ndarray, fps: float, window_s: float = 0.8, default_
         return np.full(n, float(default_deg))
     out = heading.copy()
     edges = np.diff(np.concatenate([[1], clear.astype(np.int8), [1]]))
-    for start, stop in zip(np.nonzero(edges == -1)[0], np.nonzero(edges == 1)[0], strict=True):  # unclear runs
+    for start, stop in zip(np.nonzero(edges == -1)[0].tolist(), np.nonzero(edges == 1)[0].tolist(), strict=True):
         if start == 0 or stop == n:  # before the first / after the last clear heading: hold it
             out[start:stop] = heading[stop] if start == 0 else heading[start - 1]
             continue

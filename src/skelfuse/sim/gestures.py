@@ -17,6 +17,7 @@ movement in a standing pose (waving arms, leaning, crossing the arms in front of
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -63,8 +64,8 @@ def rest_offsets(height_mm: float = 1750.0) -> np.ndarray:
     return offsets * (height_mm / 1750.0)
 
 
-class _Angles(dict[str, np.ndarray]):
-    """Joint-angle tracks in degrees, (T,) each; missing names are zero."""
+class _Angles(dict[str, Any]):
+    """Joint-angle tracks in degrees, (T,) each or one constant; missing names are zero."""
 
     def __init__(self, n_frames: int) -> None:
         super().__init__()

@@ -402,7 +402,7 @@ def load_profile(path: str | Path | None = None) -> SimProfile:
 
 
 def _coerce(key: str, value: Any, f: dataclasses.Field, path: Path) -> Any:
-    default = f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[misc]
+    default = f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[operator]  # a field without a default has a default_factory here (every profile field has one of them), which the stubs cannot tie together
 
     def number(v: Any, name: str) -> float:
         if isinstance(v, bool) or not isinstance(v, int | float):

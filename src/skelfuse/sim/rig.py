@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from skelfuse.fusion.camera import look_at_pose
 from skelfuse.fusion.transform import invert_transform, transform_points
@@ -85,7 +86,7 @@ def look_at(
     position_mm: np.ndarray,
     target_mm: np.ndarray,
     *,
-    up: np.ndarray = (0.0, 0.0, 1.0),
+    up: ArrayLike = (0.0, 0.0, 1.0),
     **fov: object,
 ) -> VirtualSensor:
     """A sensor at ``position_mm`` whose optical axis (+z) points at ``target_mm``, with no roll.
@@ -97,7 +98,7 @@ def look_at(
         pose = look_at_pose(position_mm, target_mm, up)
     except ValueError as error:
         raise ValueError(f"look_at {sensor_id!r}: {error}") from None
-    return VirtualSensor(sensor_id, pose, **fov)  # type: ignore[arg-type]
+    return VirtualSensor(sensor_id, pose, **fov)  # type: ignore[arg-type]  # the field-of-view keywords, passed through
 
 
 def paper_rig(

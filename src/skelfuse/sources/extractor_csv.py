@@ -10,7 +10,8 @@ The tool writes, per camera, a ``skeleton`` folder holding (among others) two ``
   (quaternion w x y z per joint); rows only for frames with bodies (no error line).
 
 Rows of the two files are joined by (timestamp, body_idx), never by row number, since the orientation
-file skips the body-less frames. A body without an orientation row gets NaN orientations (reported).
+file skips the body-less frames. A body without an orientation row gets NaN orientations; an orientation
+row without a position row (a take whose orientation file begins earlier) is left out; both are reported.
 Numbers are written with C++ ``std::to_string`` (6 decimals), so positions are exact to 1e-6 mm.
 """
 
@@ -115,7 +116,8 @@ def load_extractor_csv(path: str | Path, *, sensor_id: str | None = None) -> Rec
     DataError
         Missing file, wrong header, wrong column count, non-numeric value, confidence outside 0-3, a body
         repeated within a frame, timestamps going backwards (each naming the file and line), or an
-        orientation row without a position row.
+        orientation file none of whose rows joins a position row. Orientation rows without a position row
+        are left out and reported in the recording's notes.
     """
     positions_path, orientations_path = extractor_files(path)
     width = 2 + 4 * N_JOINTS
@@ -157,25 +159,15 @@ def load_extractor_csv(path: str | Path, *, sensor_id: str | None = None) -> Rec
         quat = np.full((N_JOINTS, 4), np.nan, dtype=np.float32)
         bodies.append((body, per_joint[:, 1:].astype(np.float32), quat, levels.astype(np.uint8)))
 
-    missing_orientations = 0
+    notes: list[str] = []
     if orientations_path is not None:
-        index = {(t, b[0]): b for t, bodies in frames.items() for b in bodies}
-        for line_no, row in _read_rows(orientations_path, "wxyz"):
-            if not row or all(not cell.strip() for cell in row):
-                continue
-            values = _numbers(orientations_path, line_no, row, width)
-            key = (int(values[0]), int(values[1]))
-            if key[1] == NO_BODY:
-                continue
-            target = index.get(key)
-            if target is None:
-                raise DataError(
-                    f"{orientations_path}:{line_no}: orientation of body {key[1]} at timestamp {key[0]} has no "
-                    f"row in {positions_path.name}; are the two files from the same export?"
-                )
-            target[2][:] = np.asarray(values[2:], dtype=np.float32).reshape(N_JOINTS, 4)
-    for bodies in frames.values():
-        missing_orientations += sum(int(np.isnan(b[2]).all()) for b in bodies)
+        notes += _join_orientations(orientations_path, positions_path, frames, width)
+    unoriented = [t for t, bodies in frames.items() for b in bodies if np.isnan(b[2]).all()]
+    if unoriented:
+        notes.append(
+            f"{len(unoriented)} bodies without an orientation row (timestamps {min(unoriented)}-{max(unoriented)} "
+            "us): NaN orientations"
+        )
 
     times = sorted(frames)
     positions, orientations, confidence, body_ids = _pad_bodies([frames[t] for t in times])
@@ -188,12 +180,48 @@ def load_extractor_csv(path: str | Path, *, sensor_id: str | None = None) -> Rec
         device_time_us=np.asarray(times, dtype=np.int64),
         source=str(positions_path),
         file_format="extractor",
-        notes=(
-            (f"{missing_orientations} bodies without an orientation row (NaN orientations)",)
-            if missing_orientations
-            else ()
-        ),
+        notes=tuple(notes),
     )
+
+
+def _join_orientations(
+    orientations_path: Path,
+    positions_path: Path,
+    frames: dict[int, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]],
+    width: int,
+) -> list[str]:
+    """Fill the bodies' orientations from ``orientations_3d.csv``, joined on (timestamp, body_idx).
+
+    Rows with no position row (the tool's orientation file may begin frames before its position file) are
+    left out and reported: how many and over which times. Refuses only when no row joins at all (two files
+    of different exports)."""
+    index = {(t, b[0]): b for t, bodies in frames.items() for b in bodies}
+    joined, orphans = 0, []
+    for line_no, row in _read_rows(orientations_path, "wxyz"):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        values = _numbers(orientations_path, line_no, row, width)
+        key = (int(values[0]), int(values[1]))
+        if key[1] == NO_BODY:
+            continue
+        target = index.get(key)
+        if target is None:
+            orphans.append(key[0])
+            continue
+        target[2][:] = np.asarray(values[2:], dtype=np.float32).reshape(N_JOINTS, 4)
+        joined += 1
+    if not orphans:
+        return []
+    if joined == 0:
+        raise DataError(
+            f"{orientations_path}: none of its {len(orphans)} rows has a row in {positions_path.name} (same "
+            "timestamp and body_idx); are the two files from the same export?"
+        )
+    first, last = min(orphans), max(orphans)
+    return [
+        f"{len(orphans)} rows of {orientations_path.name} have no row in {positions_path.name} (timestamps "
+        f"{first}-{last} us, {(last - first) / 1e6:.2f} s): left out"
+    ]
 
 
 def write_extractor_csv(recording: Recording, folder: str | Path) -> Path:
@@ -216,7 +244,8 @@ def write_extractor_csv(recording: Recording, folder: str | Path) -> Path:
                 continue
             for b in present:
                 head = [str(int(times[t])), str(int(recording.body_ids[t, b]))]
-                pos_cells, ori_cells = [], []
+                pos_cells: list[str] = []
+                ori_cells: list[str] = []
                 for j in range(N_JOINTS):
                     pos_cells.append(str(int(recording.confidence[t, b, j])))
                     pos_cells.extend(f"{v:.6f}" for v in recording.positions[t, b, j])

@@ -24,11 +24,12 @@ import csv
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS
+from skelfuse.schema.skeleton import JOINT_NAMES, N_JOINTS, Confidence
 from skelfuse.sources.recorded import (
     Recording,
     _joint_name_key,
@@ -117,39 +118,7 @@ def load_long_csv(
     for line_no, row in lines[1:]:
         if len(row) != len(names):
             raise DataError(f"{path}:{line_no}: expected {len(names)} columns as the header says, got {len(row)}")
-        sensor = row[col["sensor"]].strip()
-        if not sensor:
-            raise DataError(f"{path}:{line_no}: empty sensor id")
-        try:
-            timestamp = int(row[col["timestamp_us"]])
-            body_id = int(row[col["body_id"]])
-            xyz = [float(row[col[c]]) for c in ("x", "y", "z")]
-            quat = [float(row[col[c]]) for c in ORIENTATION_COLUMNS] if has_quat else [math.nan] * 4
-        except ValueError as exc:
-            raise DataError(
-                f"{path}:{line_no}: non-numeric value ({exc}); timestamp_us and body_id are integers, x y z "
-                "(and qw..qz) numbers"
-            ) from None
-        if body_id < 0:
-            raise DataError(f"{path}:{line_no}: body_id {body_id} is negative; leave frames without a body out")
-        if not all(math.isfinite(v) for v in xyz + (quat if has_quat else [])):
-            raise DataError(f"{path}:{line_no}: non-finite position or orientation; leave the joint's body out")
-        joint = _joint_of(row[col["joint"]])
-        if joint is None:
-            raise DataError(
-                f"{path}:{line_no}: unknown joint {row[col['joint']]!r}; expected a k4abt joint name "
-                "(PELVIS, SPINE_NAVEL, ...) or an index 0-31"
-            )
-        if has_conf:
-            parsed = parse_confidence(row[col[CONFIDENCE_COLUMN]])
-            if parsed is None:
-                raise DataError(
-                    f"{path}:{line_no}: unknown confidence {row[col[CONFIDENCE_COLUMN]]!r}; expected 0-3 or "
-                    "NONE / LOW / MEDIUM / HIGH"
-                )
-            conf = int(parsed)
-        else:
-            conf = int(level)
+        sensor, timestamp, body_id, joint, xyz, quat, conf = _parse_row(path, line_no, row, col, has_quat, level)
         key = (sensor, timestamp, body_id)
         entry = bodies.get(key)
         if entry is None:
@@ -168,19 +137,23 @@ def load_long_csv(
                 f"{timestamp} µs given twice; one row per joint"
             )
         entry[0][joint], entry[1][joint], entry[2][joint], entry[3][joint] = xyz, quat, conf, True
-    for (sensor, timestamp, body_id), entry in bodies.items():
-        if not entry[3].all():
-            absent = [JOINT_NAMES[j] for j in np.nonzero(~entry[3])[0]]
-            raise DataError(
-                f"{path}:{entry[4]}: body {body_id} of sensor {sensor!r} at {timestamp} µs lacks "
-                f"{len(absent)} joint(s) ({', '.join(absent[:4])}{'...' if len(absent) > 4 else ''}); every "
-                "body needs all 32 joints"
-            )
+    _check_complete(path, bodies)
     if sensor_id is not None and len(sensor_order) > 1:
         raise DataError(
             f"{path}: holds sensors {', '.join(sensor_order)}; an ID=PATH spec renames a one-sensor file only "
             "(give the path alone: the file names its sensors)"
         )
+    return _recordings(path, bodies, sensor_order, sensor_id, None if has_conf else assume_confidence)
+
+
+def _recordings(
+    path: Path,
+    bodies: dict[tuple[str, int, int], list[Any]],
+    sensor_order: list[str],
+    sensor_id: str | None,
+    confidence_assumed: str | None,
+) -> list[Recording]:
+    """One :class:`Recording` per sensor, in the file's order, its frames in time order."""
     recordings = []
     for sensor in sensor_order:
         keys = sorted(k for k in bodies if k[0] == sensor)
@@ -196,11 +169,71 @@ def load_long_csv(
                 body_ids=body_ids,
                 device_time_us=np.asarray(times, dtype=np.int64),
                 source=str(path),
-                confidence_assumed=None if has_conf else assume_confidence,
+                confidence_assumed=confidence_assumed,
                 file_format="long",
             )
         )
     return recordings
+
+
+def _parse_row(
+    path: Path, line_no: int, row: list[str], col: dict[str, int], has_quat: bool, level: Confidence
+) -> tuple[str, int, int, int, list[float], list[float], int]:
+    """One joint row: sensor, time (µs), body id, joint index, position, quaternion (NaN without), confidence.
+
+    Raises
+    ------
+    DataError
+        Naming the file and line: an empty sensor, a non-numeric or non-finite value, a negative body id, an
+        unknown joint or confidence.
+    """
+    has_conf = CONFIDENCE_COLUMN in col
+    sensor = row[col["sensor"]].strip()
+    if not sensor:
+        raise DataError(f"{path}:{line_no}: empty sensor id")
+    try:
+        timestamp = int(row[col["timestamp_us"]])
+        body_id = int(row[col["body_id"]])
+        xyz = [float(row[col[c]]) for c in ("x", "y", "z")]
+        quat = [float(row[col[c]]) for c in ORIENTATION_COLUMNS] if has_quat else [math.nan] * 4
+    except ValueError as exc:
+        raise DataError(
+            f"{path}:{line_no}: non-numeric value ({exc}); timestamp_us and body_id are integers, x y z "
+            "(and qw..qz) numbers"
+        ) from None
+    if body_id < 0:
+        raise DataError(f"{path}:{line_no}: body_id {body_id} is negative; leave frames without a body out")
+    if not all(math.isfinite(v) for v in xyz + (quat if has_quat else [])):
+        raise DataError(f"{path}:{line_no}: non-finite position or orientation; leave the joint's body out")
+    joint = _joint_of(row[col["joint"]])
+    if joint is None:
+        raise DataError(
+            f"{path}:{line_no}: unknown joint {row[col['joint']]!r}; expected a k4abt joint name "
+            "(PELVIS, SPINE_NAVEL, ...) or an index 0-31"
+        )
+    if has_conf:
+        parsed = parse_confidence(row[col[CONFIDENCE_COLUMN]])
+        if parsed is None:
+            raise DataError(
+                f"{path}:{line_no}: unknown confidence {row[col[CONFIDENCE_COLUMN]]!r}; expected 0-3 or "
+                "NONE / LOW / MEDIUM / HIGH"
+            )
+        conf = int(parsed)
+    else:
+        conf = int(level)
+    return sensor, timestamp, body_id, joint, xyz, quat, conf
+
+
+def _check_complete(path: Path, bodies: dict[tuple[str, int, int], list[Any]]) -> None:
+    """Every body of every sensor and time has all 32 joints (DataError naming its first line otherwise)."""
+    for (sensor, timestamp, body_id), entry in bodies.items():
+        if not entry[3].all():
+            absent = [JOINT_NAMES[j] for j in np.nonzero(~entry[3])[0]]
+            raise DataError(
+                f"{path}:{entry[4]}: body {body_id} of sensor {sensor!r} at {timestamp} µs lacks "
+                f"{len(absent)} joint(s) ({', '.join(absent[:4])}{'...' if len(absent) > 4 else ''}); every "
+                "body needs all 32 joints"
+            )
 
 
 def write_long_csv(recordings: Sequence[Recording], path: str | Path, *, orientations: bool = True) -> int:

@@ -300,64 +300,7 @@ def load_andyj1_csv(
             f"{path}:2: expected the column header 'Body ID,Joint #,x,y,z,x,y,z,w', got {','.join(header)!r}"
         )
 
-    blocks: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
-    block_lines: list[int] = []
-    pos = np.empty((N_JOINTS, 3), dtype=np.float32)
-    quat = np.empty((N_JOINTS, 4), dtype=np.float32)
-    conf = np.empty(N_JOINTS, dtype=np.uint8)
-    body_id = -1
-    expected_joint = 0
-    for line_no, row in rows[_CSV_HEADER_ROWS:]:
-        if not row or all(not cell.strip() for cell in row):
-            continue
-        if len(row) == _CSV_MIN_COLUMNS + 1 and not row[-1].strip():
-            row = row[:-1]
-        if len(row) != _CSV_MIN_COLUMNS:
-            raise DataError(
-                f"{path}:{line_no}: expected {_CSV_MIN_COLUMNS} columns (body id, joint, x, y, z, "
-                f"qx, qy, qz, qw, confidence), got {len(row)}"
-            )
-        try:
-            row_body = int(row[0])
-            joint = int(row[1])
-            values = [float(cell) for cell in row[2:9]]
-        except ValueError as exc:
-            raise DataError(f"{path}:{line_no}: non-numeric value: {exc}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise DataError(f"{path}:{line_no}: non-finite position or orientation {row[2:9]}")
-        if joint != expected_joint:
-            raise DataError(
-                f"{path}:{line_no}: joint index {joint} out of order, expected {expected_joint} "
-                f"(32 rows per body in SDK joint order 0-31)"
-            )
-        level = parse_confidence(row[9])
-        if level is None:
-            raise DataError(
-                f"{path}:{line_no}: unknown confidence sentence {row[9]!r}; known: 'Medium confidence in "
-                "joint pose', 'The joint is not observed(likely due to occlusion) - predicted joint pose', "
-                "'The joint is out of range (too far from depth camera)', 'High confidence in joint pose'"
-            )
-        if joint == 0:
-            body_id = row_body
-            block_lines.append(line_no)
-        elif row_body != body_id:
-            raise DataError(
-                f"{path}:{line_no}: body id {row_body} inside the 32-row block of body {body_id} "
-                f"that starts at line {block_lines[-1]}"
-            )
-        pos[joint] = values[0:3]
-        quat[joint] = values[3:7]  # w x y z, whatever the header says (see the docstring)
-        conf[joint] = int(level)
-        expected_joint += 1
-        if expected_joint == N_JOINTS:
-            blocks.append((body_id, pos.copy(), quat.copy(), conf.copy()))
-            expected_joint = 0
-    if expected_joint != 0:
-        raise DataError(
-            f"{path}: last body block (from line {block_lines[-1]}) is truncated: {expected_joint} of "
-            f"{N_JOINTS} joint rows"
-        )
-
+    blocks = _andyj1_blocks(path, rows)
     blocks, dropped = _drop_written_twice(path, blocks, duplicates)
 
     frames: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = []
@@ -378,6 +321,85 @@ def load_andyj1_csv(
         duplicates_dropped=dropped,
         file_format="andyj1",
     )
+
+
+def _andyj1_blocks(
+    path: Path, rows: list[tuple[int, list[str]]]
+) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """The 32-row body blocks of an andyj1 CSV after its header: (body id, positions, quaternions, confidence)."""
+    blocks: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+    block_lines: list[int] = []
+    pos = np.empty((N_JOINTS, 3), dtype=np.float32)
+    quat = np.empty((N_JOINTS, 4), dtype=np.float32)
+    conf = np.empty(N_JOINTS, dtype=np.uint8)
+    body_id = -1
+    expected_joint = 0
+    for line_no, row in rows[_CSV_HEADER_ROWS:]:
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        row_body, joint, values, level = _andyj1_row(path, line_no, row, expected_joint)
+        if joint == 0:
+            body_id = row_body
+            block_lines.append(line_no)
+        elif row_body != body_id:
+            raise DataError(
+                f"{path}:{line_no}: body id {row_body} inside the 32-row block of body {body_id} "
+                f"that starts at line {block_lines[-1]}"
+            )
+        pos[joint] = values[0:3]
+        quat[joint] = values[3:7]  # w x y z, whatever the header says (see the docstring)
+        conf[joint] = int(level)
+        expected_joint += 1
+        if expected_joint == N_JOINTS:
+            blocks.append((body_id, pos.copy(), quat.copy(), conf.copy()))
+            expected_joint = 0
+    if expected_joint != 0:
+        raise DataError(
+            f"{path}: last body block (from line {block_lines[-1]}) is truncated: {expected_joint} of "
+            f"{N_JOINTS} joint rows"
+        )
+    return blocks
+
+
+def _andyj1_row(
+    path: Path, line_no: int, row: list[str], expected_joint: int
+) -> tuple[int, int, list[float], Confidence]:
+    """One joint row of an andyj1 CSV: body id, joint index, x y z and the quaternion, confidence.
+
+    Raises
+    ------
+    DataError
+        Naming the file and line: a wrong column count, a non-numeric or non-finite value, a joint out of
+        order, an unknown confidence sentence.
+    """
+    if len(row) == _CSV_MIN_COLUMNS + 1 and not row[-1].strip():
+        row = row[:-1]
+    if len(row) != _CSV_MIN_COLUMNS:
+        raise DataError(
+            f"{path}:{line_no}: expected {_CSV_MIN_COLUMNS} columns (body id, joint, x, y, z, "
+            f"qx, qy, qz, qw, confidence), got {len(row)}"
+        )
+    try:
+        row_body = int(row[0])
+        joint = int(row[1])
+        values = [float(cell) for cell in row[2:9]]
+    except ValueError as exc:
+        raise DataError(f"{path}:{line_no}: non-numeric value: {exc}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise DataError(f"{path}:{line_no}: non-finite position or orientation {row[2:9]}")
+    if joint != expected_joint:
+        raise DataError(
+            f"{path}:{line_no}: joint index {joint} out of order, expected {expected_joint} "
+            f"(32 rows per body in SDK joint order 0-31)"
+        )
+    level = parse_confidence(row[9])
+    if level is None:
+        raise DataError(
+            f"{path}:{line_no}: unknown confidence sentence {row[9]!r}; known: 'Medium confidence in "
+            "joint pose', 'The joint is not observed(likely due to occlusion) - predicted joint pose', "
+            "'The joint is out of range (too far from depth camera)', 'High confidence in joint pose'"
+        )
+    return row_body, joint, values, level
 
 
 def _blocks_equal(
@@ -503,29 +525,7 @@ def load_offline_processor_json(
     path = Path(path)
     if assume_confidence is not None:
         confidence = assumed_confidence_level(assume_confidence)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file; expected an offline_processor JSON") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read as UTF-8 text: {exc}") from exc
-    try:
-        root = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-
-    _require_keys(str(path), root, _JSON_ROOT_KEYS, "the root")
-    names = root["joint_names"]
-    if not isinstance(names, list) or len(names) != N_JOINTS:
-        count = len(names) if isinstance(names, list) else type(names).__name__
-        raise DataError(f"{path}: joint_names holds {count} entries, expected the {N_JOINTS} k4abt joints")
-    for index, name in enumerate(names):
-        if not isinstance(name, str) or _joint_name_key(name) != JOINT_NAMES[index]:
-            raise DataError(
-                f"{path}: joint_names[{index}] is {name!r}, expected {JOINT_NAMES[index]!r} (k4abt SDK joint order)"
-            )
-    if not isinstance(root["frames"], list):
-        raise DataError(f"{path}: 'frames' must be a list, got {type(root['frames']).__name__}")
+    root = _read_offline_processor_json(path)
 
     frames: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = []
     times: list[int] = []
@@ -533,15 +533,7 @@ def load_offline_processor_json(
     decided = False
     for frame_index, frame in enumerate(root["frames"]):
         where = f"{path}: frames[{frame_index}]"
-        _require_keys(where, frame, _JSON_FRAME_KEYS, "the frame")
-        bodies = frame["bodies"]
-        if not isinstance(bodies, list):
-            raise DataError(f"{where}: 'bodies' must be a list, got {type(bodies).__name__}")
-        if frame["num_bodies"] != len(bodies):
-            raise DataError(f"{where}: num_bodies is {frame['num_bodies']} but 'bodies' holds {len(bodies)}")
-        timestamp = frame["timestamp_usec"]
-        if not isinstance(timestamp, int | float) or not math.isfinite(timestamp):
-            raise DataError(f"{where}: timestamp_usec is {timestamp!r}, expected a number of microseconds")
+        bodies, timestamp = _json_frame(where, frame)
         times.append(int(timestamp))
         parsed = []
         for body_index, body in enumerate(bodies):
@@ -578,3 +570,45 @@ def load_offline_processor_json(
         confidence_assumed=None if confidence_key is not None else (assume_confidence or confidence.name.lower()),
         file_format="offline_processor",
     )
+
+
+def _read_offline_processor_json(path: Path) -> dict[str, Any]:
+    """The parsed root of an offline_processor JSON, its keys, joint names and frame list checked."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file; expected an offline_processor JSON") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read as UTF-8 text: {exc}") from exc
+    try:
+        root = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+
+    _require_keys(str(path), root, _JSON_ROOT_KEYS, "the root")
+    names = root["joint_names"]
+    if not isinstance(names, list) or len(names) != N_JOINTS:
+        count = len(names) if isinstance(names, list) else type(names).__name__
+        raise DataError(f"{path}: joint_names holds {count} entries, expected the {N_JOINTS} k4abt joints")
+    for index, name in enumerate(names):
+        if not isinstance(name, str) or _joint_name_key(name) != JOINT_NAMES[index]:
+            raise DataError(
+                f"{path}: joint_names[{index}] is {name!r}, expected {JOINT_NAMES[index]!r} (k4abt SDK joint order)"
+            )
+    if not isinstance(root["frames"], list):
+        raise DataError(f"{path}: 'frames' must be a list, got {type(root['frames']).__name__}")
+    return root
+
+
+def _json_frame(where: str, frame: Any) -> tuple[list[Any], int | float]:
+    """One frame's bodies and timestamp (µs), its keys and counts checked."""
+    _require_keys(where, frame, _JSON_FRAME_KEYS, "the frame")
+    bodies = frame["bodies"]
+    if not isinstance(bodies, list):
+        raise DataError(f"{where}: 'bodies' must be a list, got {type(bodies).__name__}")
+    if frame["num_bodies"] != len(bodies):
+        raise DataError(f"{where}: num_bodies is {frame['num_bodies']} but 'bodies' holds {len(bodies)}")
+    timestamp = frame["timestamp_usec"]
+    if not isinstance(timestamp, int | float) or not math.isfinite(timestamp):
+        raise DataError(f"{where}: timestamp_usec is {timestamp!r}, expected a number of microseconds")
+    return bodies, timestamp

@@ -69,7 +69,7 @@ def _worker_main(connection: Any, spec: WorkerSpec, block_name: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node handles Ctrl-C and stops its workers
     block = shared_memory.SharedMemory(name=block_name)
     # The node owns the block and unlinks it; without this, this process's exit would unlink it too.
-    resource_tracker.unregister(block._name, "shared_memory")  # type: ignore[attr-defined]
+    resource_tracker.unregister(block._name, "shared_memory")  # type: ignore[attr-defined]  # the private name the tracker registered (with its leading "/")
     try:
         _serve(connection, spec, block)
     finally:
@@ -107,11 +107,19 @@ def _image_bytes(intrinsics: Intrinsics) -> int:
     return intrinsics.width * intrinsics.height * 2
 
 
+def _buffer(block: shared_memory.SharedMemory) -> memoryview:
+    """The block's memory (None only after ``close()``, which the pool does last)."""
+    if block.buf is None:
+        raise ValueError(f"shared memory block {block.name} is closed")
+    return block.buf
+
+
 def _images(block: shared_memory.SharedMemory, intrinsics: Intrinsics, has_ir: bool) -> tuple[np.ndarray, Any]:
     """Copies of the DEPTH16 (and IR16) image the node wrote into the block."""
     shape, n = (intrinsics.height, intrinsics.width), _image_bytes(intrinsics)
-    depth = np.frombuffer(block.buf, dtype=np.uint16, count=n // 2).reshape(shape).copy()
-    ir = np.frombuffer(block.buf, dtype=np.uint16, count=n // 2, offset=n).reshape(shape).copy() if has_ir else None
+    buffer = _buffer(block)
+    depth = np.frombuffer(buffer, dtype=np.uint16, count=n // 2).reshape(shape).copy()
+    ir = np.frombuffer(buffer, dtype=np.uint16, count=n // 2, offset=n).reshape(shape).copy() if has_ir else None
     return depth, ir
 
 
@@ -211,9 +219,10 @@ class TrackerPool:
                 results[index] = ValueError(f"a virtual image of {depth.shape} for a {self.spec.intrinsics} camera")
                 continue
             n = _image_bytes(self.spec.intrinsics)
-            worker.block.buf[:n] = depth.astype("<u2").tobytes()  # the worker has copied the previous one out
+            buffer = _buffer(worker.block)
+            buffer[:n] = depth.astype("<u2").tobytes()  # the worker has copied the previous one out
             if ir is not None:
-                worker.block.buf[n : 2 * n] = ir.astype("<u2").tobytes()
+                buffer[n : 2 * n] = ir.astype("<u2").tobytes()
             self._sequence += 1
             try:
                 worker.connection.send((self._sequence, ir is not None))

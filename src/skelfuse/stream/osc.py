@@ -28,6 +28,7 @@ from __future__ import annotations
 import socket
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pythonosc.osc_bundle_builder import IMMEDIATELY
@@ -85,10 +86,13 @@ def person_messages(frame: FusedFrame, p: int, *, prefix: str = DEFAULT_PREFIX, 
     scale = UNIT_SCALE[units]
     track = int(frame.track_ids[p])
     positions = np.asarray(frame.positions[p], np.float64) * scale
-    has_position = np.isfinite(positions).all(axis=1).tolist()
+    has_position: list[bool] = np.asarray(np.isfinite(positions).all(axis=1)).tolist()
     orientations = getattr(frame, "orientations", None)
     quats = None if orientations is None else np.asarray(orientations[p], np.float64)
-    has_quat = [False] * len(JOINT_ADDRESS_NAMES) if quats is None else np.isfinite(quats).all(axis=1).tolist()
+    has_quat: list[bool] = (
+        [False] * len(JOINT_ADDRESS_NAMES) if quats is None else np.asarray(np.isfinite(quats).all(axis=1)).tolist()
+    )
+    quat_rows: list[list[float]] = [] if quats is None else quats.tolist()
     std = getattr(frame, "position_std", None)
     sigma = np.full(len(JOINT_ADDRESS_NAMES), -1.0) if std is None else np.asarray(std[p], np.float64)
     sigma = np.where(np.isfinite(sigma), sigma, -1.0).tolist()
@@ -100,7 +104,7 @@ def person_messages(frame: FusedFrame, p: int, *, prefix: str = DEFAULT_PREFIX, 
         if has_position[j]:
             out.append(_heads(prefix, track, j, "position") + _ARGS["position"].pack(*xyz[j]))
         if has_quat[j]:
-            out.append(_heads(prefix, track, j, "orientation") + _ARGS["orientation"].pack(*quats[j].tolist()))
+            out.append(_heads(prefix, track, j, "orientation") + _ARGS["orientation"].pack(*quat_rows[j]))
         out.append(
             _heads(prefix, track, j, "confidence") + _ARGS["confidence"].pack(confidence[j], n_agree[j], sigma[j])
         )
@@ -146,7 +150,8 @@ class UdpOut:
 
     def __init__(self, host: str, port: int) -> None:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)  # resolved once, here
-        family, _, _, _, self.address = infos[0]
+        family, _, _, _, sockaddr = infos[0]
+        self.address: tuple[Any, ...] = sockaddr
         self._socket = socket.socket(family, socket.SOCK_DGRAM)
         self._socket.setblocking(False)
         self.stats = SendStats()

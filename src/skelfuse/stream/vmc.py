@@ -11,7 +11,7 @@ layout; argument types as the spec lists them):
   ``localPosition`` (metres) and ``localRotation`` relative to the parent bone, Hips relative to the root;
 - ``/VMC/Ext/OK (i)1`` (a model is loaded, bones follow) and ``/VMC/Ext/T (f)time`` (sender time, s).
 
-Retargeting: the same armature fit as the file exports (:mod:`skelfuse.export.armature`), so an avatar
+Retargeting: the same armature fit as the file exports (:mod:`skelfuse.retarget.armature`), so an avatar
 driven live and a BVH of the same take move alike. Its rest pose is a T-pose with identity local rotations,
 the rest pose of VRM-normalized avatars the VMC receivers drive, so the local rotations are sent as they are.
 
@@ -36,7 +36,8 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message import OscMessage
 from pythonosc.osc_message_builder import OscMessageBuilder
 
-from skelfuse.export.armature import Armature, build_armature, matrix_to_quaternion, solve_rotations
+from skelfuse.retarget.armature import Armature, build_armature, solve_rotations
+from skelfuse.retarget.rotations import matrix_to_quaternion
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import N_JOINTS, PARENTS, J
@@ -113,7 +114,7 @@ def vmc_messages(
     ----------
     positions : (32, 3) the person's fused positions, mm, world frame (``FusedFrame.positions[row]``);
         NaN joints keep their parent's rotation
-    armature : the person's armature (:func:`skelfuse.export.armature.build_armature` over a few frames of
+    armature : the person's armature (:func:`skelfuse.retarget.armature.build_armature` over a few frames of
         that person, or the one :class:`VmcPerson` keeps)
     time_s : the sender's relative time for ``/VMC/Ext/T``, seconds
     local_rotations : (32, 3, 3) already solved rotations (skips the fit; :class:`VmcPerson` passes them)

@@ -72,7 +72,9 @@ def voxelize(
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     n_voxels = counts.shape[0]
-    centroids = np.stack([np.bincount(inverse, weights=p[:, axis], minlength=n_voxels) for axis in range(3)], 1)
+    centroids: np.ndarray = np.stack(
+        [np.bincount(inverse, weights=p[:, axis], minlength=n_voxels) for axis in range(3)], 1
+    )
     centroids /= counts[:, None]
     mean_values = None
     if values is not None:

@@ -241,7 +241,7 @@ def refine_clouds(
                 np.concatenate([current[j] for j in others]),
                 target_normals=np.concatenate([current_normals[j] for j in others]),
                 source_normals=current_normals[index],
-                **icp_options,  # type: ignore[arg-type]
+                **icp_options,  # type: ignore[arg-type]  # keyword options passed through to icp_point_to_plane as given
             )
             corrections[index] = result.transform @ corrections[index]
             results[index] = result

@@ -110,7 +110,7 @@ def render_points(
         box_ir = np.zeros(box_h * box_w, dtype=np.float32)
         winner = z == zbuffer[flat]
         box_ir[flat[winner]] = values[winner]
-        box_ir = box_ir.reshape(box_h, box_w)
+        box_ir = box_ir.reshape(box_h, box_w)  # type: ignore[assignment]  # 1-D scratch buffer, then the (H, W) image
     hit = np.zeros((height, width), dtype=bool)
     hit[v0:v1, u0:u1] = np.isfinite(box)
     if fill_radius_px > 0:

@@ -1,20 +1,6 @@
-"""``skelfuse demo``: a simulated 4-sensor rig fused frame by frame and drawn in Rerun.
+"""The demo's runs: live (:func:`run_demo`, the real service on loopback) and offline (:func:`run_demo_offline`).
 
-The first thing a new user runs. It needs no sensor and no data: the simulator plays a person walking
-through a rig of four virtual Azure Kinects (rear views mirror left and right, occluded joints are guessed,
-everything trembles), the fusion core merges the views frame by frame, and Rerun shows the raw and fused
-skeletons live. Where there is no screen the recording is saved to a .rrd file instead.
-
-Two modes:
-
-* live (default, :func:`run_demo`): the real service on loopback zenoh: four capture workers
-  (``python -m skelfuse capture`` subprocesses, one per virtual sensor, each in its own process group),
-  the fusion node in this process, and a subscriber that scores the fused stream against the simulator's
-  ground truth (the demo knows the motion) and measures latency from the workers' publish timestamps.
-  Peer mode with explicit ``tcp/127.0.0.1`` endpoints and multicast scouting off, so it runs in CI
-  sandboxes. Child processes are always stopped (SIGTERM to their group, then SIGKILL); a spawned Rerun
-  viewer is left open for the user.
-* offline (``--offline``, :func:`run_demo_offline`): the same per-frame cycle in one loop, no zenoh.
+What the demo is and its settings: :mod:`skelfuse.apps.demo`.
 """
 
 from __future__ import annotations
@@ -23,6 +9,7 @@ import contextlib
 import logging
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -30,13 +17,14 @@ import tempfile
 import threading
 import time
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from skelfuse.apps.demo import CONVERGE_S, DEFAULT_RRD, DEMO_RIG, DEMO_TAKE_S
 from skelfuse.config import DEFAULT_PRESET, load_rig_config
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
@@ -52,6 +40,7 @@ from skelfuse.service.viewer import (
     open_recording,
     release_recording,
     stop_server,
+    web_viewer_url,
 )
 from skelfuse.service.worker import simulate_rig
 from skelfuse.service.zenoh_io import close_session, free_port, loopback_args, loopback_config
@@ -63,16 +52,6 @@ from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame
 
 log = logging.getLogger(__name__)
-
-DEFAULT_RRD = Path("skelfuse-demo.rrd")
-CONVERGE_S = 1.5
-"""Accuracy is scored from this long after a fused track appears, and from this long into each pass of the
-take: a new track starts from one noisy measurement and its filter settles within about 0.7 s (hundreds of
-mm at first), and each pass of the looping take starts with the person jumping back to the take's start."""
-DEMO_TAKE_S = 10.0
-"""The demo's take: this many seconds of the gesture, played in a loop for the whole ``--duration``. Every
-pass shows the sensors exactly the same frames, so the score over whole passes is the same figure for any
-duration of at least one pass (a longer run only adds passes of the same material)."""
 
 
 @dataclass(frozen=True)
@@ -89,7 +68,7 @@ class DemoSummary:
     preset: str
     n_sensors: int
     error_fused_mm: dict[str, float]
-    error_best_single_sensor_mm: dict[str, float]
+    error_best_single_sensor_mm: dict[str, Any]  # the groups' errors (mm) and "sensor": which one
     fusion_p50_ms: float
     fusion_p99_ms: float
     recording: str | None
@@ -100,6 +79,8 @@ class DemoSummary:
     mode: str = "offline"
     frames_scored: int | None = None
     """Fused frames the errors are computed over: the scoring window of every whole pass of the take."""
+    frames_before_run: int = 0
+    """Live: frames fused while the rig came up, before the run's ``duration_s`` began (not in ``frames_fused``)."""
     converge_s: float = CONVERGE_S
     take_s: float = DEMO_TAKE_S
     """Length of the looping take; each pass is scored over take time [converge_s, take_s)."""
@@ -268,7 +249,7 @@ def run_demo_offline(
         preset=preset_name,
         n_sensors=len(sensors),
         error_fused_mm=_group_errors(fused[scored], truth[scored]),
-        error_best_single_sensor_mm=single[best_sensor] | {"sensor": best_sensor},  # type: ignore[dict-item]
+        error_best_single_sensor_mm=single[best_sensor] | {"sensor": best_sensor},
         fusion_p50_ms=float(np.percentile(fusion_ns, 50)) / 1e6,
         fusion_p99_ms=float(np.percentile(fusion_ns, 99)) / 1e6,
         recording=str(rrd_path) if rrd_path is not None else None,
@@ -284,7 +265,8 @@ def format_summary(summary: DemoSummary) -> str:
     best = summary.error_best_single_sensor_mm
     lines = [
         f"Fused {summary.frames_fused} frames ({summary.duration_s:.1f} s of '{summary.gesture}') from "
-        f"{summary.n_sensors} simulated sensors with preset {summary.preset}.",
+        f"{summary.n_sensors} simulated sensors with preset {summary.preset}"
+        + (f" ({summary.frames_before_run} more while the rig came up)." if summary.frames_before_run else "."),
         "",
     ]
     if not summary.frames_scored:
@@ -342,7 +324,6 @@ def _window_text(summary: DemoSummary) -> str:
 # ----------------------------------------------------------------------------------------------------------
 # Live demo: capture workers + fusion node over loopback zenoh
 
-DEMO_RIG = "demo"
 RESULT_GRACE_S = 0.5
 """After ``--duration``, how long the demo still collects fused frames (they arrive milliseconds late)."""
 TAKE_ORIGIN_DELAY_S = 8.0
@@ -370,11 +351,12 @@ def sim_sensor_tables(n_sensors: int, extra: Mapping[int, Sequence[str]] | None 
     return lines
 
 
-def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> Path:
+def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4, port: int | None = None) -> Path:
     """Write the demo's rig config (the paper's 4-sensor layout, wired sync emulated) into ``directory``.
 
     The sensors' inline ``world_from_sensor`` are the true poses the simulator observes from; fusion uses
-    ``calibration.toml`` beside it (the simulated calibration, with its error), written by the demo.
+    ``calibration.toml`` beside it (the simulated calibration, with its error), written by the demo. With
+    ``port``, ``[zenoh] connect`` names the demo's loopback endpoint, so any app given the file attaches.
     """
 
     lines = [
@@ -397,6 +379,7 @@ def write_demo_rig(directory: Path, *, preset_name: str, n_sensors: int = 4) -> 
         "[zenoh]",
         'mode = "peer"',
         "multicast_scouting = false",
+        *([f'connect = ["tcp/127.0.0.1:{port}"]'] if port is not None else []),
         "",
     ]
     lines += sim_sensor_tables(n_sensors)
@@ -440,8 +423,8 @@ class _Scorer:
         self.start_n = origin_n  # the pass the scored run starts with (run_demo moves it when workers come late)
         self.track_birth_us: dict[int, int] = {}
         self.single: list[list[tuple[int, np.ndarray]]] = [[] for _ in sensor_ids]
-        self.first_fused = None
-        self.on_error = None
+        self.first_fused: float | None = None
+        self.on_error: Callable[[int, float], None] | None = None
 
     def instant(self, time_us: int) -> int:
         return round(time_us / self.period_us)
@@ -459,7 +442,7 @@ class _Scorer:
             world = apply_transform(self.poses[column : column + 1], frame.positions[:1])[0]
         with self.lock:
             self.published_ns[n] = max(self.published_ns.get(n, 0), frame.host_time_ns)
-            if world is not None:
+            if world is not None and column is not None:
                 self.single[column].append((n, world))
 
     def on_fused(self, sample: Any) -> None:
@@ -526,7 +509,8 @@ class _Scorer:
             if not best_id or errors["all16"] < best["all16"]:
                 best_id, best = sensor_id, errors
         latency = [(received - published[n]) / 1e6 for n, _, received in everything if n in published]
-        return len(everything), len(fused), fused_errors, best, best_id, latency, per_pass
+        in_run = sum(self.start_n <= n < self.start_n + run_frames for n, _, _ in everything)
+        return in_run, len(everything) - in_run, len(fused), fused_errors, best, best_id, latency, per_pass
 
 
 def _stop_processes(processes: list[Any], timeout_s: float = 5.0) -> None:
@@ -554,6 +538,8 @@ def run_demo(
     rrd_path: Path | None = None,
     spawn: bool | None = None,
     serve: bool = False,
+    web_port: int | None = None,
+    grpc_port: int | None = None,
     take_duration_s: float = DEMO_TAKE_S,
     progress: bool = True,
     lifecycle: Any = None,
@@ -565,7 +551,12 @@ def run_demo(
     rrd_path : save the view here instead of spawning a viewer.
     spawn : spawn the Rerun viewer; default: when there is a display and neither ``rrd_path`` nor ``serve``.
         Without any of them the view goes to ``skelfuse-demo.rrd``.
-    serve : serve the view over gRPC on 127.0.0.1:9876 for viewers to connect.
+    serve : serve the view over gRPC on 127.0.0.1 (``grpc_port``, default 9876) for viewers to connect.
+    web_port : with ``serve``, also serve Rerun's web viewer on this port (its URL is printed).
+
+    The demo is a rig like any other: it prints its rig name, its zenoh endpoint and the command lines that
+    attach ``skelfuse status``, ``skelfuse stream`` and the example subscriber to it. Its working folder (the
+    rig config those commands read, the workers' logs) is removed when it ends.
 
     Returns None when stopped (Ctrl-C, SIGTERM) before the first fused frame.
 
@@ -584,7 +575,70 @@ def run_demo(
         rrd_path = DEFAULT_RRD
 
     workdir = Path(tempfile.mkdtemp(prefix="skelfuse-demo-"))
-    rig_path = write_demo_rig(workdir, preset_name=preset_name)
+    try:
+        return _run_live(
+            workdir,
+            duration_s=duration_s,
+            gesture=gesture,
+            preset_name=preset_name,
+            seed=seed,
+            rrd_path=rrd_path,
+            spawn=spawn,
+            view=_view_options(serve, web_port, grpc_port, spawn, rrd_path),
+            take_duration_s=take_duration_s,
+            progress=progress,
+            lifecycle=lifecycle,
+        )
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)  # the rig config and the workers' logs: no folder left behind
+
+
+def _view_options(
+    serve: bool, web_port: int | None, grpc_port: int | None, spawn: bool, rrd_path: Path | None
+) -> ViewOptions:
+    if serve:
+        return ViewOptions(
+            mode="serve",
+            web_port=web_port,
+            grpc_port=grpc_port or ViewOptions.grpc_port,
+            application_id="skelfuse_demo",
+        )
+    return ViewOptions(mode="spawn" if spawn else "save", file=rrd_path or DEFAULT_RRD, application_id="skelfuse_demo")
+
+
+def _attach_text(rig: str, port: int, rig_path: Path, view: ViewOptions) -> str:
+    """What the demo prints so that other apps attach to it."""
+    lines = [
+        f'skelfuse demo: rig "{rig}", zenoh endpoint tcp/127.0.0.1:{port} (peer mode, no multicast); attach with:',
+        f"  skelfuse status --config {rig_path}",
+        f"  skelfuse stream osc --config {rig_path}        (or vmc, lsl)",
+        f"  python scripts/example_subscriber.py --config {rig_path}",
+        f"  (or any zenoh app: connect tcp/127.0.0.1:{port}, subscribe {keys.fused_skeletons(rig)})",
+    ]
+    if view.mode == "serve":
+        grpc = f"rerun+http://127.0.0.1:{view.grpc_port}/proxy"
+        lines.append(f"skelfuse demo: live view: rerun {grpc}")
+        if view.web_port:
+            lines.append(f"skelfuse demo: web viewer: {web_viewer_url('127.0.0.1', view.web_port, grpc)}")
+    return "\n".join(lines)
+
+
+def _run_live(
+    workdir: Path,
+    *,
+    duration_s: float,
+    gesture: str,
+    preset_name: str,
+    seed: int,
+    rrd_path: Path | None,
+    spawn: bool,
+    view: ViewOptions,
+    take_duration_s: float,
+    progress: bool,
+    lifecycle: Any,
+) -> DemoSummary | None:
+    port = free_port()
+    rig_path = write_demo_rig(workdir, preset_name=preset_name, port=port)
     cfg = load_rig_config(rig_path)
     # The same simulation every worker runs: truth and the simulated calibration (what fusion uses).
     observations = simulate_rig(cfg, gesture=gesture, take_duration_s=take_duration_s, seed=seed)
@@ -601,13 +655,7 @@ def run_demo(
 
     import zenoh
 
-    port = free_port()
-    if serve:
-        recording, server = open_recording(ViewOptions(mode="serve", application_id="skelfuse_demo"))
-    else:
-        recording, server = open_recording(
-            ViewOptions(mode="spawn" if spawn else "save", file=rrd_path or DEFAULT_RRD, application_id="skelfuse_demo")
-        )
+    recording, server = open_recording(view)
     workers: list[subprocess.Popen[bytes]] = []
     logs = []
     node_lifecycle = Lifecycle("fusion")
@@ -660,17 +708,14 @@ def run_demo(
                         start_new_session=True,
                     )
                 )
+            print(_attach_text(cfg.name, port, rig_path, view), file=sys.stderr, flush=True)
             if progress:
-                print(
-                    f"skelfuse demo: starting 4 capture workers and the fusion node on tcp/127.0.0.1:{port} ...",
-                    file=sys.stderr,
-                    flush=True,
-                )
+                print("skelfuse demo: starting 4 capture workers and the fusion node ...", file=sys.stderr, flush=True)
             deadline = time.monotonic() + STARTUP_TIMEOUT_S
             while scorer.first_fused is None and not lifecycle.should_exit:
                 _check_workers(workers, workdir)
                 if time.monotonic() > deadline:
-                    raise ServiceError(f"no fused frame within {STARTUP_TIMEOUT_S:.0f} s; worker logs in {workdir}")
+                    raise ServiceError(f"no fused frame within {STARTUP_TIMEOUT_S:.0f} s{_log_tails(workdir)}")
                 lifecycle.wait(0.1)
             # The scored run starts with a pass of the take: at the take's origin, or, when the workers came up
             # after it, at the start of the next pass (each pass is the same material, so the figures are too).
@@ -718,25 +763,26 @@ def run_demo(
         stop_server(server)
     elapsed = 0.0 if started is None else min(max(0.0, (ended or time.monotonic()) - started), duration_s)
     run_frames = round(elapsed * cfg.sync.fps)
-    n_fused, n_scored, fused_errors, best, best_id, latency, per_pass = scorer.scores(run_frames)
-    if n_fused == 0:
+    n_fused, n_before, n_scored, fused_errors, best, best_id, latency, per_pass = scorer.scores(run_frames)
+    if n_fused + n_before == 0:
         if lifecycle.should_exit:  # stopped (Ctrl-C, SIGTERM) while starting: a clean stop, nothing to say
             return None
         raise ServiceError("the demo stopped before the first fused frame; nothing to summarize")
     report = node.report
 
-    def pct(values: list[float], q: float) -> float | None:
+    def pct(values: Sequence[float], q: float) -> float | None:
         return float(np.percentile(values, q)) if values else None
 
     fusion_ms = report.fusion_ms
     return DemoSummary(
         frames_fused=n_fused,
+        frames_before_run=n_before,
         duration_s=round(elapsed, 3),
         gesture=gesture,
         preset=preset_name,
         n_sensors=len(cfg.sensors),
         error_fused_mm=fused_errors,
-        error_best_single_sensor_mm=best | {"sensor": best_id},  # type: ignore[dict-item]
+        error_best_single_sensor_mm=best | {"sensor": best_id},
         fusion_p50_ms=float(np.percentile(fusion_ms, 50)),
         fusion_p99_ms=float(np.percentile(fusion_ms, 99)),
         recording=str(rrd_path) if rrd_path is not None and not spawn else None,
@@ -751,6 +797,15 @@ def run_demo(
         partial_pass=run_frames < round(take_duration_s * cfg.sync.fps),
         error_fused_per_pass_mm=per_pass,
     )
+
+
+def _log_tails(workdir: Path) -> str:
+    """The last lines of every worker's log (the folder is removed when the demo ends)."""
+    tails = []
+    for path in sorted(workdir.glob("capture-*.log")):
+        lines = path.read_text(errors="replace").strip().splitlines()[-3:]
+        tails.append(f"\n  {path.stem}: " + "\n    ".join(lines or ["(nothing logged)"]))
+    return "; the workers' last log lines:" + "".join(tails) if tails else ""
 
 
 def _check_workers(workers: list[Any], workdir: Path) -> None:

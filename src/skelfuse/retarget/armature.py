@@ -30,14 +30,15 @@ Rotations per joint:
 - several children (pelvis, chest, head, wrists): the best-fit rotation (Kabsch) of the rest offsets of all
   children onto the fused children.
 - no child (hand tips, thumbs, feet, face points): identity (nothing in the data turns them).
-- With ``orientations`` (issue 10's fused orientations, (F, 32, 4) w, x, y, z, world frame) a single-child
+- With ``orientations`` (the fused orientations, (F, 32, 4) w, x, y, z, world frame) a single-child
   joint's twist is taken from them instead: the constant rotation between our fitted segment frame and the
   given orientation is estimated per person and joint (its chordal mean over frames), and where it is
   consistent over frames (spread < 30°) the twist of the given orientation replaces ours; the bone direction
   is always ours. This needs no knowledge of the k4abt axis convention, only that the orientation of joint j
   turns with the segment from j to its child.
 
-Units: millimetres, world axes (z up). Exporters convert (see :mod:`skelfuse.export.bvh`).
+Units: millimetres, world axes (z up). Exporters convert (see :mod:`skelfuse.export.bvh`). The rotation
+algebra (axis-angle, Kabsch, quaternions) is in :mod:`skelfuse.retarget.rotations`.
 """
 
 from __future__ import annotations
@@ -48,10 +49,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.retarget.rotations import (
+    axis_angle_matrix,
+    continuous_quaternions,
+    kabsch,
+    minimal_rotation,
+    quaternion_to_matrix,
+    unit,
+)
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PARENTS, J
-from skelfuse.sim.gestures import rest_offsets as sim_rest_offsets
 
 REST_FORWARD = np.array([0.0, -1.0, 0.0])
 """The direction the rest pose faces, world axes."""
@@ -141,125 +149,6 @@ _MIN_LEAF_TAIL_MM = 20.0
 
 BODY_GROUP = "body"
 """The 16 evaluation joints of the paper (:data:`skelfuse.schema.skeleton.EVAL_JOINTS`)."""
-
-
-# ----------------------------------------------------------------------------------------------------
-# Rotation helpers, vectorized over leading axes.
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / norm
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def axis_angle_matrix(axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
-    """Rotation matrices about unit ``axis`` (..., 3) by ``angle_rad`` (...) (Rodrigues)."""
-    k = _skew(axis)
-    angle = np.asarray(angle_rad)[..., None, None]
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
-def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking unit vectors ``a`` to ``b`` (..., 3) → (..., 3, 3).
-
-    Antiparallel pairs turn by 180° about an axis perpendicular to ``a``.
-    """
-    a, b = np.broadcast_arrays(a, b)
-    v = np.cross(a, b)
-    c = np.sum(a * b, axis=-1)
-    k = _skew(v)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rot = np.eye(3) + k + (k @ k) / (1.0 + c)[..., None, None]
-    flip = c < -1.0 + 1e-9
-    if np.any(flip):
-        helper = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-        axis = _unit(np.cross(a, helper))
-        rot = np.where(flip[..., None, None], axis_angle_matrix(axis, np.pi), rot)
-    return rot
-
-
-def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Best-fit rotation R minimizing ``Σ w_k |R s_k - t_k|²`` (vectors, no translation).
-
-    source, target : (..., K, 3); weights : (..., K) (zero for a missing target). Returns (..., 3, 3).
-    """
-    cov = np.einsum("...k,...ki,...kj->...ij", weights, np.nan_to_num(target), np.nan_to_num(source))
-    u, _, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    d = np.where(d == 0, 1.0, d)
-    fix = np.ones((*d.shape, 3))
-    fix[..., 2] = d
-    return (u * fix[..., None, :]) @ vt
-
-
-def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices → (..., 4) unit quaternions (w, x, y, z), w ≥ 0."""
-    m = rot
-    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    candidates = np.stack(
-        [
-            np.stack(
-                [1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
-            ),
-            np.stack(
-                [
-                    m[..., 2, 1] - m[..., 1, 2],
-                    1 + 2 * m[..., 0, 0] - trace,
-                    m[..., 0, 1] + m[..., 1, 0],
-                    m[..., 0, 2] + m[..., 2, 0],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    m[..., 0, 2] - m[..., 2, 0],
-                    m[..., 0, 1] + m[..., 1, 0],
-                    1 + 2 * m[..., 1, 1] - trace,
-                    m[..., 1, 2] + m[..., 2, 1],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    m[..., 1, 0] - m[..., 0, 1],
-                    m[..., 0, 2] + m[..., 2, 0],
-                    m[..., 1, 2] + m[..., 2, 1],
-                    1 + 2 * m[..., 2, 2] - trace,
-                ],
-                -1,
-            ),
-        ],
-        axis=-2,
-    )  # (..., 4, 4): row i is 4·q·q_i, best conditioned where q_i is largest
-    diag = np.stack(
-        [1 + trace, 1 + 2 * m[..., 0, 0] - trace, 1 + 2 * m[..., 1, 1] - trace, 1 + 2 * m[..., 2, 2] - trace], -1
-    )
-    best = np.argmax(diag, axis=-1)
-    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    q = _unit(q)
-    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
-
-
-def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z; normalized here) → (..., 3, 3) rotation matrices."""
-    w, x, y, z = np.moveaxis(_unit(np.asarray(q, dtype=np.float64)), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -361,7 +250,7 @@ def person_takes(frames: Sequence[FusedFrame]) -> list[PersonTake]:
     """Split fused frames into one :class:`PersonTake` per track id, ordered by track id.
 
     Frames are sorted by time; each person spans its first to last appearance, NaN where it was absent.
-    ``orientations`` come from ``FusedFrame.orientations`` where frames carry them (issue 10's optional
+    ``orientations`` come from ``FusedFrame.orientations`` where frames carry them (an optional
     field, read with ``getattr``), else None.
     """
     if not frames:
@@ -451,6 +340,8 @@ def resample(
 
 def _default_offsets() -> np.ndarray:
     """Offsets of the simulator's 1750 mm body, turned into the rest axes (for bones the data never showed)."""
+    from skelfuse.sim.gestures import rest_offsets as sim_rest_offsets  # the simulator's scipy: only when used
+
     sim = sim_rest_offsets(1750.0)  # body frame: x forward, y left, z up
     return sim[:, 0:1] * REST_FORWARD + sim[:, 1:2] * REST_LEFT + sim[:, 2:3] * REST_UP
 
@@ -468,29 +359,12 @@ def _frame_from(
     primary: np.ndarray, secondary: np.ndarray, primary_axis: np.ndarray, secondary_axis: np.ndarray
 ) -> np.ndarray:
     """World-from-canonical rotations (F, 3, 3) mapping the rest axes onto the per-frame vectors."""
-    e1 = _unit(primary)
-    e2 = _unit(secondary - np.sum(secondary * e1, axis=-1, keepdims=True) * e1)
+    e1 = unit(primary)
+    e2 = unit(secondary - np.sum(secondary * e1, axis=-1, keepdims=True) * e1)
     e3 = np.cross(e1, e2)
     world = np.stack([e1, e2, e3], axis=-1)
     rest = np.stack([primary_axis, secondary_axis, np.cross(primary_axis, secondary_axis)], axis=-1)
     return world @ rest.T
-
-
-def continuous_quaternions(quaternions: np.ndarray) -> np.ndarray:
-    """(F, J, 4) quaternions with signs flipped so each joint's track stays in one hemisphere over time.
-
-    q and -q are the same rotation; interpolating across a sign flip would pass through a near-zero
-    quaternion. NaN rows (unknown) are skipped and kept.
-    """
-    out = np.array(quaternions, dtype=np.float64)
-    for joint in range(out.shape[1]):  # a running product along time: one pass per joint
-        ok = np.isfinite(out[:, joint]).all(axis=-1)
-        track = out[ok, joint]
-        if track.shape[0] < 2:
-            continue
-        flips = np.where(np.sum(track[1:] * track[:-1], axis=-1) < 0, -1.0, 1.0)
-        out[ok, joint] = track * np.concatenate([[1.0], np.cumprod(flips)])[:, None]
-    return out
 
 
 def build_armature(targets: np.ndarray) -> Armature:
@@ -528,10 +402,10 @@ def build_armature(targets: np.ndarray) -> Armature:
     for joint in range(1, N_JOINTS):
         if not np.any(offsets[joint]):
             offsets[joint] = default[joint]
-    offsets[1:] = _unit(offsets[1:]) * median_length[1:, None]
+    offsets[1:] = unit(offsets[1:]) * median_length[1:, None]
     tails = np.zeros((N_JOINTS, 3))
     tail_length = np.maximum(_LEAF_TAIL_FRACTION * median_length, _MIN_LEAF_TAIL_MM)
-    tails[LEAVES] = _unit(offsets[LEAVES]) * tail_length[LEAVES, None]
+    tails[LEAVES] = unit(offsets[LEAVES]) * tail_length[LEAVES, None]
     return Armature(offsets=offsets, leaf_tails=tails)
 
 
@@ -559,7 +433,7 @@ def _hinge_twist(rotation: np.ndarray, bone_dir: np.ndarray, bent_dir: np.ndarra
     """Roll ``rotation`` (F, 3, 3) about ``bone_dir`` so its rest bend axis lies along the bend normal."""
     normal = np.cross(bone_dir, bent_dir)
     sin_bend = np.linalg.norm(normal, axis=-1)
-    normal = _unit(normal)
+    normal = unit(normal)
     current = rotation @ rest_axis
     angle = np.arctan2(np.sum(bone_dir * np.cross(current, normal), axis=-1), np.sum(current * normal, axis=-1))
     lo, hi = np.sin(np.radians(_HINGE_MIN_DEG)), np.sin(np.radians(_HINGE_FULL_DEG))
@@ -588,7 +462,7 @@ def _orientation_twist(
     if np.median(spread) > _ORIENTATION_MAX_SPREAD_DEG:
         return rotation
     candidate = given[ok] @ mean
-    swung = minimal_rotation(_unit(candidate @ rest_dir), bone_dir[ok]) @ candidate
+    swung = minimal_rotation(unit(candidate @ rest_dir), bone_dir[ok]) @ candidate
     out = rotation.copy()
     out[ok] = swung
     return out
@@ -617,12 +491,12 @@ def solve_rotations(armature: Armature, targets: np.ndarray, *, given: np.ndarra
         aim = targets[:, list(kids)] - fk[:, joint, None]  # from where FK put this joint
         if len(kids) == 1:
             kid = kids[0]
-            rest_dir = _unit(offsets[kid])
-            bone_dir = _unit(aim[:, 0])
+            rest_dir = unit(offsets[kid])
+            bone_dir = unit(aim[:, 0])
             fitted = minimal_rotation(parent_rot @ rest_dir, bone_dir) @ parent_rot
             if joint in _HINGE_TWIST:
                 hinge, after, axis = _HINGE_TWIST[joint]
-                fitted = _hinge_twist(fitted, bone_dir, _unit(targets[:, after] - targets[:, hinge]), axis)
+                fitted = _hinge_twist(fitted, bone_dir, unit(targets[:, after] - targets[:, hinge]), axis)
             if given is not None:
                 fitted = _orientation_twist(fitted, bone_dir, rest_dir, given[:, joint])
             seen = np.isfinite(bone_dir).all(axis=-1)
@@ -652,7 +526,7 @@ def fit_motion(
     ----------
     times_s : (F,) strictly increasing seconds
     positions : (F, 32, 3) mm world (z up), NaN where unknown
-    orientations : (F, 32, 4) w, x, y, z world quaternions (issue 10's fused orientations), optional: the
+    orientations : (F, 32, 4) w, x, y, z world quaternions (the fused orientations), optional: the
         twist of single-child segments is taken from them where they are consistent (module docstring)
     fps : the output rate; default the median rate of ``times_s``
     track_id : carried into the result

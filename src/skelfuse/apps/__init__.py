@@ -1,0 +1,1 @@
+"""Applications built from the whole stack: :mod:`skelfuse.apps.demo`, a simulated rig run as a real one."""
