@@ -52,6 +52,7 @@ def open_fused(
     preset_name: str | None = None,
     refuse: bool = False,
     progress: bool = True,
+    smoother: str | None = None,
 ) -> FusedSource:
     """Open ``path`` as a source of fused frames (see the module docstring).
 
@@ -59,6 +60,8 @@ def open_fused(
     ----------
     refuse : bool
         For a recording: fuse its sensor frames even when it holds a recorded fused stream.
+    smoother : "rts", "none" or None
+        For a recording fused here: :func:`skelfuse.recording.fuse_recording`'s smoother (None: its default).
     progress : bool
         Offline fusion draws its progress bar on stderr (when it is a terminal).
 
@@ -86,5 +89,5 @@ def open_fused(
         return FusedSource(reader.fused_frames(), "recorded fused stream", reader.fused_message_count)
     if not reader.sensors:
         raise DataError(f"recording {path} holds neither a fused stream nor sensor frames: nothing to export")
-    frames = fuse_recording(path, rig_config=rig_config, preset_name=preset_name, progress=progress)
+    frames = fuse_recording(path, rig_config=rig_config, preset_name=preset_name, progress=progress, smoother=smoother)
     return FusedSource(frames, "fused from the sensor frames", reader.message_count)
