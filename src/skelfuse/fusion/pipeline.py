@@ -341,16 +341,19 @@ def _plausibility(
 ) -> tuple[PlausibilityResult, PlausibilityState]:
     """The plausibility stage's view checks, before the realignment, against the track's prediction."""
     B, S = positions.shape[:2]
-    if state.view_held is None or state.view_held.shape != (B, S):
+    held, release, follow = state.view_held, state.view_release, state.follow_streak
+    bones, bone_frames = state.bone_lengths, state.bone_frames
+    if (
+        held is None
+        or release is None
+        or follow is None
+        or bones is None
+        or bone_frames is None
+        or held.shape != (B, S)
+    ):
         previous = init_plausibility_state(B, S)
     else:
-        previous = PlausibilityState(
-            held=state.view_held,
-            release=state.view_release,
-            follow=state.follow_streak,
-            bones=state.bone_lengths,
-            bone_frames=state.bone_frames,
-        )
+        previous = PlausibilityState(held=held, release=release, follow=follow, bones=bones, bone_frames=bone_frames)
     return plausibility_step(positions, predicted, previous, _plausibility_params(params))
 
 

@@ -185,7 +185,7 @@ def smooth_tracks(
         instants = np.array([t for t, _ in where])
         z = np.stack([merged[t][row] for t, row in where])
         agree = np.stack([n_agree[t][row] for t, row in where])
-        restart = np.array([restarted[t] is not None and bool(restarted[t][row]) for t, row in where])
+        restart = np.array([_restarted_at(restarted[t], row) for t, row in where])
         dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
         if lag is None:
             smoothed, _ = rts_smooth(z, agree, dt, restart, params)
@@ -194,3 +194,8 @@ def smooth_tracks(
         for k, (t, row) in enumerate(where):
             out[t][row] = smoothed[k]
     return out
+
+
+def _restarted_at(restarted: np.ndarray | None, row: int) -> bool:
+    """Whether the follow rule restarted row ``row``'s filter at this instant (None: no plausibility stage)."""
+    return restarted is not None and bool(restarted[row])

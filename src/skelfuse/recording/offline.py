@@ -268,13 +268,19 @@ def _smoothed(
 
 
 def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams, lag: int | None) -> Iterator[FusedFrame]:
-    frames, times, ids, merged, agree, restarted = [], [], [], [], [], []
+    frames: list[FusedFrame] = []
+    times: list[float] = []
+    ids: list[np.ndarray] = []
+    merged: list[np.ndarray] = []
+    agree: list[np.ndarray] = []
+    restarted: list[np.ndarray | None] = []
     for instant in instants:
         people = instant.people
         frames.append(instant.frame)
         times.append(people.time_s)
         ids.append(people.track_ids)
-        merged.append(people.merged)
+        # the merge before the filter; a path without one gives the smoother no measurement there
+        merged.append(people.merged if people.merged is not None else np.full_like(people.positions, np.nan))
         agree.append(people.n_agree)
         restarted.append(people.restarted)
     smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params, lag)
