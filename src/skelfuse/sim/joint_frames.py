@@ -8,7 +8,7 @@ The k4abt convention (docs/orientations.md) is stated once here as the frames of
 * every other joint rides on its parent: the parent's frame times the two joints' fixed T-pose relation,
   turned by the smallest rotation that lays X on the joint's own bone (no twist of its own);
 * BVH motions (:func:`skelfuse.sim.orientation.load_bvh_with_orientations`) use the recorded segment
-  rotations instead, fixed to :data:`TPOSE_AXES` at the file's T-pose.
+  rotations instead, fixed to the frames this rule gives the file's rest pose.
 
 The product builds its frames from tracked views (fusion/orientation.py); nothing here comes from that code:
 only the schema's tables of the convention (which bone each X follows, the derived joints' offsets) are

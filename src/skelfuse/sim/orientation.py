@@ -9,8 +9,8 @@ orientation code (an import-linter contract keeps ``skelfuse.fusion.orientation`
   hand bone, a smooth random roll (a sum of two slow sines per joint, up to :data:`ARM_TWIST_DEG`), so that
   the twist cannot be guessed from the body and must come from the views. The gestures' forearm roll is
   ASSUMED; their shoulder twist angle is not carried (a limb frame has no twist of its own from its parent);
-* BVH motions (:func:`load_bvh_with_orientations`): the recorded segment rotations, fixed to the T-pose frames
-  at the file's T-pose and laid on the k4abt bones by the smallest rotation;
+* BVH motions (:func:`load_bvh_with_orientations`): the recorded segment rotations, fixed to the frames of the
+  file's rest pose (built by the same rule) and laid on the k4abt bones by the smallest rotation;
 * derived joints (hand tips, feet, face) copy their source joint with the schema's fixed offsets (the SDK
   does the same, measured).
 
@@ -38,7 +38,6 @@ from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
 from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
 from skelfuse.sim.joint_frames import (
-    TPOSE_AXES,
     bone_directions,
     matrix_to_quat,
     quat_to_matrix,
@@ -47,7 +46,7 @@ from skelfuse.sim.joint_frames import (
     true_joint_frames,
     with_derived,
 )
-from skelfuse.sim.motion import Motion, axis_rotation, facing_deg, root_facing
+from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 from skelfuse.sim.observe import Observations, ar1
 
 ARM_TWIST_DEG = 35.0
@@ -205,11 +204,11 @@ def load_bvh_with_orientations(
     """A CMU BVH take as :func:`skelfuse.sim.bvh.load_bvh` loads it, and its true joint orientations.
 
     Each k4abt joint's frame rides on one BVH segment (``_BVH_SEGMENT``): at the file's T-pose (frame 0,
-    which the CMU conversion prepends) the offset between that segment's rotation and the joint's T-pose frame
-    (:data:`~skelfuse.sim.joint_frames.TPOSE_AXES`, turned to where the T-pose's root faces and laid on its
-    bone) is fixed; in every frame the segment's rotation times that offset gives the frame, swung onto the
-    k4abt bone exactly (the k4abt points are not all on the segment's axis). Rotations are taken at the
-    nearest source frame (CMU's 120 Hz to 30 Hz is exact).
+    which the CMU conversion prepends; its arms hang) the offset between that segment's rotation and the
+    joint's frame in that pose (:func:`~skelfuse.sim.joint_frames.true_joint_frames`, the rule of the
+    procedural motions) is fixed; in every frame the segment's rotation times that offset gives the frame,
+    swung onto the k4abt bone exactly (the k4abt points are not all on the segment's axis). Rotations are
+    taken at the nearest source frame (CMU's 120 Hz to 30 Hz is exact).
 
     Returns
     -------
@@ -234,7 +233,8 @@ def load_bvh_with_orientations(
     joints = [J[name] for name in _BVH_SEGMENT]
     segments = [role[_BVH_SEGMENT[name]] for name in _BVH_SEGMENT]
     segment_frames = _BVH_TO_WORLD @ rotations[:, segments]  # (F, n, 3, 3), world axes
-    offset = np.swapaxes(segment_frames[0], -1, -2) @ _tpose_frames(world_rest[0])[joints]  # fixed per joint
+    rest = true_joint_frames(world_rest[:1])[0, joints]  # the rest pose's frames, by the gestures' own rule
+    offset = np.swapaxes(segment_frames[0], -1, -2) @ rest  # fixed per joint
     fps_in = 1.0 / bvh.frame_time_s
     if abs(fps_in - round(fps_in)) < 1e-4 * fps_in:
         fps_in = float(round(fps_in))
@@ -248,12 +248,3 @@ def load_bvh_with_orientations(
     aims = bone_directions(motion.positions)
     frames = swing_matrix(frames[..., 0], aims) @ frames
     return motion, matrix_to_quat(with_derived(frames))
-
-
-def _tpose_frames(tpose: np.ndarray) -> np.ndarray:
-    """(32, 3, 3) the k4abt frames of a (32, 3) T-pose: TPOSE_AXES turned to where its root faces, each
-    laid on its own bone by the smallest rotation."""
-    forward = root_facing(tpose)
-    body = np.stack([forward, np.cross([0.0, 0.0, 1.0], forward), [0.0, 0.0, 1.0]], axis=-1)
-    frames = body @ TPOSE_AXES
-    return swing_matrix(frames[..., 0], bone_directions(tpose)) @ frames
