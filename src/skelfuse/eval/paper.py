@@ -280,16 +280,7 @@ def evaluate_take(task: TakeTask) -> TakeResult:
     errors, lag, jitter and left/right swaps."""
 
     t0 = time.perf_counter()
-    motion = make_gesture(
-        task.gesture,
-        duration_s=task.duration_s,
-        fps=task.fps,
-        facing_deg=task.facing_deg,
-        seed=task.motion_seed,
-    )
-    sensors = [*list(paper_rig(N_CAPTURE)), best_view_sensor(task.facing_deg)]
-    profile = scenario_profile(load_profile(task.profile_path), task.scenario)
-    obs = simulate(motion, sensors, profile, seed=task.sim_seed)
+    obs = _simulate_take(task)
     t_sim = time.perf_counter() - t0
 
     world = _world_skeletons(obs)
@@ -328,10 +319,7 @@ def evaluate_take(task: TakeTask) -> TakeResult:
     orientation: dict[str, dict[str, np.ndarray]] = {}
 
     def score_orientation(key: str, quats: np.ndarray) -> None:
-        errors = angular_errors(quats, true_quats)
-        orientation[key] = {
-            g: errors[:, idx][np.isfinite(errors[:, idx])].astype(np.float32) for g, idx in JOINT_GROUPS.items()
-        }
+        orientation[key] = _orientation_errors(quats, true_quats)
 
     for sensor in range(N_CAPTURE):
         score_orientation(_raw_key(sensor), view_quats[:, sensor])
@@ -351,20 +339,47 @@ def evaluate_take(task: TakeTask) -> TakeResult:
         score(run.key, fused, with_lag=len(run.sensors) == N_CAPTURE)
     t_fuse = time.perf_counter() - t1
 
+    info = _take_info(task, obs, n_frames=int(truth.shape[0]), n_runs=len(runs), simulate_s=t_sim, fuse_s=t_fuse)
+    return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps, jitter, task.scenario, orientation)
+
+
+def _simulate_take(task: TakeTask) -> Any:
+    """The take's observations: its gesture seen by the four capture sensors and the best-view sensor."""
+    motion = make_gesture(
+        task.gesture,
+        duration_s=task.duration_s,
+        fps=task.fps,
+        facing_deg=task.facing_deg,
+        seed=task.motion_seed,
+    )
+    sensors = [*list(paper_rig(N_CAPTURE)), best_view_sensor(task.facing_deg)]
+    profile = scenario_profile(load_profile(task.profile_path), task.scenario)
+    return simulate(motion, sensors, profile, seed=task.sim_seed)
+
+
+def _orientation_errors(quats: np.ndarray, true_quats: np.ndarray) -> dict[str, np.ndarray]:
+    """Angular error of each joint group's finite orientations, degrees (float32, the result's storage)."""
+    errors = angular_errors(quats, true_quats)
+    return {g: errors[:, idx][np.isfinite(errors[:, idx])].astype(np.float32) for g, idx in JOINT_GROUPS.items()}
+
+
+def _take_info(
+    task: TakeTask, obs: Any, *, n_frames: int, n_runs: int, simulate_s: float, fuse_s: float
+) -> dict[str, Any]:
+    """What the take was and how the views tracked it (tracked and mirrored share per sensor), with its timing."""
     tracked = np.asarray(obs.tracked, dtype=bool)
     mirrored = np.asarray(obs.mirrored, dtype=bool) & tracked
-    info = {
+    return {
         "scenario": task.scenario,
         "gesture": task.gesture,
         "facing_deg": task.facing_deg,
-        "n_frames": int(truth.shape[0]),
+        "n_frames": n_frames,
         "tracked_fraction": [float(x) for x in tracked.mean(axis=0)],
         "mirrored_fraction": [float(x) for x in mirrored.mean(axis=0)],
-        "simulate_s": t_sim,
-        "fuse_s": t_fuse,
-        "n_fusion_steps": int(truth.shape[0]) * len(runs),
+        "simulate_s": simulate_s,
+        "fuse_s": fuse_s,
+        "n_fusion_steps": n_frames * n_runs,
     }
-    return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps, jitter, task.scenario, orientation)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -542,7 +557,30 @@ def run_paper_eval(
         scenarios=scenarios,
         ours=tuple(ours),
     )
-    settings = {
+    settings = _run_settings(
+        tasks, quick=quick, seed=seed, scenarios=scenarios, ours=ours, profile=profile, workers=workers
+    )
+    results = _run_takes(tasks, scenarios, workers=workers, progress=progress)
+    per_scenario = {name: collect(results[name], {**settings, **_scenario_settings(name)}) for name in scenarios}
+    suite = PaperEvalSuite(per_scenario, settings)
+    suite.elapsed_s = time.perf_counter() - t0
+    for result in per_scenario.values():
+        result.elapsed_s = suite.elapsed_s
+    return suite
+
+
+def _run_settings(
+    tasks: Sequence[TakeTask],
+    *,
+    quick: bool,
+    seed: int,
+    scenarios: Sequence[str],
+    ours: Sequence[str],
+    profile: str | None,
+    workers: int,
+) -> dict[str, Any]:
+    """The run's settings as the result records them (what was run, so a reader can rerun it)."""
+    return {
         "quick": quick,
         "seed": seed,
         "scenarios": list(scenarios),
@@ -559,6 +597,21 @@ def run_paper_eval(
         "workers": workers,
         "n_takes": len(tasks) // len(scenarios),
     }
+
+
+def _scenario_settings(name: str) -> dict[str, Any]:
+    """What a scenario adds to the run's settings: its description and its change to the profile."""
+    return {
+        "scenario": name,
+        "scenario_description": SCENARIO_DESCRIPTIONS[name],
+        "profile_change": {"flip_on_prob": 0.0} if name == "paper" else {},
+    }
+
+
+def _run_takes(
+    tasks: Sequence[TakeTask], scenarios: Sequence[str], *, workers: int, progress: bool
+) -> dict[str, list[TakeResult]]:
+    """Every take's result by scenario, in this process or spread over ``workers`` processes."""
     results: dict[str, list[TakeResult]] = {name: [] for name in scenarios}
     with Progress(len(tasks), "eval paper", enabled=None if progress else False) as bar:
         if workers == 1:
@@ -573,20 +626,4 @@ def run_paper_eval(
                     task = futures[future]
                     results[task.scenario].append(future.result())
                     bar.update(1, f"{task.scenario} {task.gesture} {task.facing_deg:.0f}°")
-    per_scenario = {
-        name: collect(
-            results[name],
-            {
-                **settings,
-                "scenario": name,
-                "scenario_description": SCENARIO_DESCRIPTIONS[name],
-                "profile_change": {"flip_on_prob": 0.0} if name == "paper" else {},
-            },
-        )
-        for name in scenarios
-    }
-    suite = PaperEvalSuite(per_scenario, settings)
-    suite.elapsed_s = time.perf_counter() - t0
-    for result in per_scenario.values():
-        result.elapsed_s = suite.elapsed_s
-    return suite
+    return results
