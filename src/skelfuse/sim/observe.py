@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import zlib
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import ndtri
@@ -197,15 +198,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     times = np.arange(n) / profile.fps
     truth = motion.at_times(times)
     n_sensors = len(sensors)
-    neighbour = _neighbour(motion, times, truth, profile)
-    seen = _common_mode(motion, times, truth, profile, np.random.default_rng([seed, 0xC033]))
-    speed_mps = np.linalg.norm(np.gradient(truth, axis=0), axis=-1) * profile.fps / 1000.0  # (T, 32)
-
-    bone_lengths = symmetric_bone_lengths(truth)
-    pelvis_z = truth[:, J["PELVIS"], 2]
-    drop_mm = np.maximum(np.percentile(pelvis_z, 90) - pelvis_z, 0.0)
-    pose_scale = 1.0 - np.minimum(profile.scale_per_100mm_drop * drop_mm / 100.0, profile.scale_max_shrink)
-    forward_world = root_facing(truth)
+    take = _take_truth(motion, times, truth, profile, seed)
 
     positions = np.full((n, n_sensors, N_JOINTS, 3), np.nan, dtype=np.float32)
     confidence = np.zeros((n, n_sensors, N_JOINTS), dtype=np.uint8)
@@ -220,63 +213,18 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     poses_calibrated = poses.copy()
 
     for index, sensor in enumerate(sensors):
-        rngs = _sensor_rngs(seed, sensor.sensor_id)
-        rotation = sensor.world_from_sensor[:3, :3]
-        physical = sensor.to_sensor(seen)  # (T, 32, 3) sensor frame (seen = truth unless a common-mode family)
-        if index == 0 and neighbour is not None:  # the first sensor confuses the subject with a close neighbour
-            physical = _confuse_with_neighbour(rngs["failures"], physical, sensor.to_sensor(neighbour), profile)
-
-        # 1. visibility and tracking
-        in_view = sensor.in_view(physical)
-        dropped = rngs["tracking"].random(n) < profile.dropped_frame_prob
-        torso_visible = in_view[:, TORSO_TRACKING_JOINTS].sum(axis=1) >= profile.min_torso_joints_in_view
-        tracked = torso_visible & ~dropped
-        # 2. self-occlusion (geometry of the true body)
-        hidden = self_occlusion(physical, profile.capsule_radius_mm, profile.occlusion_margin_mm) | ~in_view
-        # 3. mirroring and body ids
-        angle = facing_away_deg(truth, sensor.position_mm)
-        mirrored = mirror_bursts(rngs["tracking"], angle, tracked, profile)
-        prev_tracked = np.concatenate([[False], tracked[:-1]])
-        prev_mirrored = np.concatenate([[False], mirrored[:-1]])
-        new_body = tracked & (~prev_tracked | (mirrored & ~prev_mirrored))
-        loss_flipped, loss_away, loss_starts = tracker_loss_episodes(
-            rngs["loss"],
-            tracked,
-            profile.tracker_loss_prob,
-            profile.tracker_loss_flip_frames,
-            profile.tracker_loss_away_frames,
-        )
-        new_body |= loss_starts
-        body_ids[:, index] = np.where(tracked, np.cumsum(new_body), -1)
-
-        # 4-7. what the tracker reports: labels, error, body-model refit, confidence, timestamps
-        lab, hidden, in_view = _label_space(physical, hidden, in_view, mirrored, forward_world[mirrored] @ rotation)
-        swaps = limb_swap_bursts(rngs["failures"], angle, tracked & ~mirrored, profile)
-        lab, hidden, in_view = _swap_limbs(lab, hidden, in_view, swaps)
-        restarts = new_body if profile.flip_restarts_fit else new_body & ~(mirrored & prev_tracked)
-        lost = leg_low_episodes(rngs["confidence"], n, profile) & ~hidden
-        gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
-        # The tracker's prior for hidden limbs hangs them along its idea of down: the level camera's (a tilted
-        # mount does not tell the tracker it is tilted; without the tilt family the two are the same).
-        down = level_down[index] if profile.mount_tilt_deg > 0 else -rotation[2]
-        noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, down, profile, lost, gain)
-        noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
-        fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile, hidden | lost)
-        labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
-        if loss_starts.any():
-            fitted = apply_tracker_loss(
-                fitted, loss_flipped, loss_away, -rotation[2], profile.tracker_loss_offset_mm, rngs["loss"]
-            )
-
-        positions[tracked, index] = fitted[tracked].astype(np.float32)
-        confidence[tracked, index] = labels[tracked]
+        view = _observe_sensor(index, sensor, profile, take, seed=seed, level_down=level_down[index])
+        tracked = view.tracked
+        body_ids[:, index] = view.body_ids
+        positions[tracked, index] = view.positions[tracked].astype(np.float32)
+        confidence[tracked, index] = view.confidence[tracked]
         tracked_all[:, index] = tracked
-        mirrored_all[:, index] = mirrored
-        dropped_all[:, index] = dropped
-        occluded_all[:, index] = hidden & tracked[:, None]
-        device_time[:, index], host_time[:, index] = _timestamps(rngs["timing"], n, index, dropped, profile)
+        mirrored_all[:, index] = view.mirrored
+        dropped_all[:, index] = view.dropped
+        occluded_all[:, index] = view.hidden & tracked[:, None]
+        device_time[:, index], host_time[:, index] = view.device_time_us, view.host_time_ns
         if index > 0:
-            poses_calibrated[index] = sensor.world_from_sensor @ _calibration_error(rngs["calibration"], profile)
+            poses_calibrated[index] = sensor.world_from_sensor @ view.calibration_error
 
     return Observations(
         sensor_ids=tuple(ids),
@@ -293,6 +241,121 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         dropped=dropped_all,
         occluded=occluded_all,
         times_s=times,
+    )
+
+
+class _TakeTruth(NamedTuple):
+    """What every sensor of one take sees the same: the truth and what the tracker model derives from it."""
+
+    truth: np.ndarray  # (T, 32, 3) world, mm
+    seen: np.ndarray  # (T, 32, 3) what the sensors see: the truth unless a common-mode family moves it
+    neighbour: np.ndarray | None  # (T, 32, 3) a close neighbour the first sensor may confuse the subject with
+    speed_mps: np.ndarray  # (T, 32) joint speeds
+    bone_lengths: np.ndarray  # the body model's symmetric bone lengths
+    pose_scale: np.ndarray  # (T,) the body model's size factor: shrinks as the pelvis drops
+    forward_world: np.ndarray  # (T, 3) the body's facing
+
+
+def _take_truth(motion: Motion, times: np.ndarray, truth: np.ndarray, profile: SimProfile, seed: int) -> _TakeTruth:
+    """The per-take arrays every sensor shares, drawn once from the take's own stream (not the sensors')."""
+    neighbour = _neighbour(motion, times, truth, profile)
+    seen = _common_mode(motion, times, truth, profile, np.random.default_rng([seed, 0xC033]))
+    speed_mps = np.linalg.norm(np.gradient(truth, axis=0), axis=-1) * profile.fps / 1000.0  # (T, 32)
+    bone_lengths = symmetric_bone_lengths(truth)
+    pelvis_z = truth[:, J["PELVIS"], 2]
+    drop_mm = np.maximum(np.percentile(pelvis_z, 90) - pelvis_z, 0.0)
+    pose_scale = 1.0 - np.minimum(profile.scale_per_100mm_drop * drop_mm / 100.0, profile.scale_max_shrink)
+    forward_world = root_facing(truth)
+    return _TakeTruth(truth, seen, neighbour, speed_mps, bone_lengths, pose_scale, forward_world)
+
+
+class _SensorView(NamedTuple):
+    """What one sensor's tracker reported over the take, before it is written into :class:`Observations`."""
+
+    positions: np.ndarray  # (T, 32, 3) float64, the sensor frame, mm (valid where tracked)
+    confidence: np.ndarray  # (T, 32) uint8
+    body_ids: np.ndarray  # (T,) int64, -1 where not tracked
+    tracked: np.ndarray  # (T,) bool
+    mirrored: np.ndarray  # (T,) bool
+    dropped: np.ndarray  # (T,) bool
+    hidden: np.ndarray  # (T, 32) bool
+    device_time_us: np.ndarray  # (T,) int64
+    host_time_ns: np.ndarray  # (T,) int64
+    calibration_error: np.ndarray | None  # (4, 4), None for the master (exact calibration)
+
+
+def _observe_sensor(
+    index: int,
+    sensor: VirtualSensor,
+    profile: SimProfile,
+    take: _TakeTruth,
+    *,
+    seed: int,
+    level_down: np.ndarray,
+) -> _SensorView:
+    """One sensor's tracker over the whole take, from its own random streams (steps 1-7 of the module docstring)."""
+    truth, seen, neighbour, speed_mps, bone_lengths, pose_scale, forward_world = take
+    n = int(truth.shape[0])
+    rngs = _sensor_rngs(seed, sensor.sensor_id)
+    rotation = sensor.world_from_sensor[:3, :3]
+    physical = sensor.to_sensor(seen)  # (T, 32, 3) sensor frame (seen = truth unless a common-mode family)
+    if index == 0 and neighbour is not None:  # the first sensor confuses the subject with a close neighbour
+        physical = _confuse_with_neighbour(rngs["failures"], physical, sensor.to_sensor(neighbour), profile)
+
+    # 1. visibility and tracking
+    in_view = sensor.in_view(physical)
+    dropped = rngs["tracking"].random(n) < profile.dropped_frame_prob
+    torso_visible = in_view[:, TORSO_TRACKING_JOINTS].sum(axis=1) >= profile.min_torso_joints_in_view
+    tracked = torso_visible & ~dropped
+    # 2. self-occlusion (geometry of the true body)
+    hidden = self_occlusion(physical, profile.capsule_radius_mm, profile.occlusion_margin_mm) | ~in_view
+    # 3. mirroring and body ids
+    angle = facing_away_deg(truth, sensor.position_mm)
+    mirrored = mirror_bursts(rngs["tracking"], angle, tracked, profile)
+    prev_tracked = np.concatenate([[False], tracked[:-1]])
+    prev_mirrored = np.concatenate([[False], mirrored[:-1]])
+    new_body = tracked & (~prev_tracked | (mirrored & ~prev_mirrored))
+    loss_flipped, loss_away, loss_starts = tracker_loss_episodes(
+        rngs["loss"],
+        tracked,
+        profile.tracker_loss_prob,
+        profile.tracker_loss_flip_frames,
+        profile.tracker_loss_away_frames,
+    )
+    new_body |= loss_starts
+
+    # 4-7. what the tracker reports: labels, error, body-model refit, confidence, timestamps
+    lab, hidden, in_view = _label_space(physical, hidden, in_view, mirrored, forward_world[mirrored] @ rotation)
+    swaps = limb_swap_bursts(rngs["failures"], angle, tracked & ~mirrored, profile)
+    lab, hidden, in_view = _swap_limbs(lab, hidden, in_view, swaps)
+    restarts = new_body if profile.flip_restarts_fit else new_body & ~(mirrored & prev_tracked)
+    lost = leg_low_episodes(rngs["confidence"], n, profile) & ~hidden
+    gain = _noise_gain(lab, np.where(mirrored[:, None], speed_mps[:, MIRROR], speed_mps), profile)
+    # The tracker's prior for hidden limbs hangs them along its idea of down: the level camera's (a tilted
+    # mount does not tell the tracker it is tilted; without the tilt family the two are the same).
+    down = level_down if profile.mount_tilt_deg > 0 else -rotation[2]
+    noisy = _tracker_error(rngs["noise"], lab, hidden, restarts, bone_lengths, down, profile, lost, gain)
+    noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
+    fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile, hidden | lost)
+    labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
+    if loss_starts.any():
+        fitted = apply_tracker_loss(
+            fitted, loss_flipped, loss_away, -rotation[2], profile.tracker_loss_offset_mm, rngs["loss"]
+        )
+
+    device_time_us, host_time_ns = _timestamps(rngs["timing"], n, index, dropped, profile)
+    calibration_error = _calibration_error(rngs["calibration"], profile) if index > 0 else None
+    return _SensorView(
+        fitted,
+        labels,
+        np.where(tracked, np.cumsum(new_body), -1),
+        tracked,
+        mirrored,
+        dropped,
+        hidden,
+        device_time_us,
+        host_time_ns,
+        calibration_error,
     )
 
 
