@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from skelfuse.fusion.depth.frontal import body_facing
 from skelfuse.fusion.realign import facing_cosine
 from skelfuse.sim.failures import family_profile
 from skelfuse.sim.gestures import make_gesture
-from skelfuse.sim.motion import body_facing
 from skelfuse.sim.observe import facing_away_deg, load_profile, simulate
 from skelfuse.sim.rig import paper_rig
 

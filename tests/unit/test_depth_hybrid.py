@@ -62,3 +62,15 @@ def test_the_virtual_sensor_joins_the_same_tracks_and_pulls_towards_its_skeleton
     assert len(ids_hybrid) == len(ids_alone) == 2  # two people, two ids: the virtual row made no new person
     assert used > 0.95  # merged into (nearly) every fused person
     assert hybrid < 0.85 * skeleton_only  # measured: 82 -> 62 mm
+
+
+def test_fused_priors_take_the_fused_row_most_of_a_persons_bodies_joined() -> None:
+    from skelfuse.fusion.depth.hybrid import fused_priors
+
+    fused = np.stack([np.full((32, 3), 10.0), np.full((32, 3), 20.0)])
+    # person 0: bodies that joined rows 1, 1, 0 -> row 1; person 1: its only body is tentative (-1) -> no prior
+    assignment = np.array([[0, 1], [0, -1], [0, -1]])
+    fused_assignment = np.array([[1, -1], [1, -1], [0, -1]])
+    priors = fused_priors(assignment, fused_assignment, fused, 2)
+    np.testing.assert_array_equal(priors[0], fused[1])
+    assert np.isnan(priors[1]).all()

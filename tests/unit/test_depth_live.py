@@ -27,8 +27,9 @@ from skelfuse.service.depth_stage import (
     depth_stage_for,
 )
 from skelfuse.service.node import FusionCore
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.service.worker import SimSource
-from skelfuse.sim.depth import EXACT, sensor_person_clouds
+from skelfuse.sim.depth import EXACT
 from skelfuse.sim.depth_tracker import JOINT_RADIUS_MM, SimulatedDepthTracker
 from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
@@ -292,7 +293,7 @@ def test_hybrid_gives_a_person_a_virtual_skeleton_from_the_first_instant(tmp_pat
             assert key < 0
             truth = obs.truth[(n - sources[0].origin_n) % obs.n_frames]
             error = np.linalg.norm(positions[EVAL_JOINTS] - truth[EVAL_JOINTS], axis=-1)
-            # measured 33 mm (the stand-in tracker on a median-of-bodies prior); another person or place would
+            # the stand-in tracker on the realigned fused prior; another person or place would
             # be hundreds of mm off
             assert np.nanmedian(error) < 60.0
         fused = [out.frame for out in outputs if out.frame.n_persons]

@@ -12,10 +12,10 @@ import pytest
 
 from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.fusion import Fuser, preset
+from skelfuse.fusion.depth.frontal import body_facing
 from skelfuse.fusion.realign import facing_cosine, realign_temporal
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
-from skelfuse.sim.motion import body_facing
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.rig import paper_rig
 

@@ -171,7 +171,7 @@ def test_sitting_and_lying_pose_the_truth_and_keep_every_bone() -> None:
 
 
 def test_close_people_swap_or_merge_the_first_view_with_the_neighbour_only() -> None:
-    from skelfuse.sim.motion import body_facing
+    from skelfuse.fusion.depth.frontal import body_facing
     from skelfuse.sim.rig import paper_rig
 
     motion = make_gesture("hands_up_down", duration_s=10.0, seed=5)

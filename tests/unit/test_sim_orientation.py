@@ -77,10 +77,10 @@ CMU = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmu-mocap"
 def test_bvh_truth_follows_the_recorded_segment_rotations():
     """BVH truth: swing on the k4abt bones to 1e-9, the torso's frame faces where the body faces, and the
     arms' twist is the recorded one (it moves, unlike a frame built from the body alone)."""
+    from skelfuse.fusion.depth.frontal import body_facing
     from skelfuse.fusion.orientation import apply_derived, body_hint_frames
     from skelfuse.schema.skeleton import J
     from skelfuse.sim.bvh import load_bvh
-    from skelfuse.sim.motion import body_facing
     from skelfuse.sim.orientation import load_bvh_with_orientations
 
     motion, truth = load_bvh_with_orientations(CMU / "131_03.bvh", facing_deg_=30.0)

@@ -569,16 +569,18 @@ def _cmd_refine(args: argparse.Namespace) -> int:
     if bad and not args.force:
         print(f"\nnot written: sensor(s) {', '.join(bad)} are 'bad' ({output} is left as it was; --force writes it)")
         return EXIT_ATTENTION
-    sensors = {
-        sid: SensorCalibration(
+    source = f"{result.n_frames} instants of person clouds from {Path(args.recording).name}"
+    sensors = {}
+    for s, sid in enumerate(ids):
+        icp = result.results[s]
+        refined = icp is not None and bool(result.improved[s])
+        sensors[sid] = SensorCalibration(
             result.after[s],
             "refine",
-            residual_mm=None if (icp := result.results[s]) is None else float(icp.rmse_after_mm),
-            n_points=None if icp is None else int(icp.n_pairs),
-            notes=f"ICP on {result.n_frames} instants of person clouds from {Path(args.recording).name}",
+            residual_mm=float(icp.rmse_after_mm) if refined and icp is not None else None,
+            n_points=int(icp.n_pairs) if refined and icp is not None else None,
+            notes=f"ICP on {source}" if refined else f"pose kept (not refined: {verdicts[sid]}) after ICP on {source}",
         )
-        for s, sid in enumerate(ids)
-    }
     write_calibration(output, CalibrationResult(sensors, "refine", master=reference))
     print(f"\nwritten to {output}")
     return EXIT_ATTENTION if bad else EXIT_OK
@@ -944,8 +946,10 @@ def _add_refine(sub: argparse._SubParsersAction) -> None:
         description="The second paper's calibration refinement: the person clouds of a walk-through (recorded by "
         '`skelfuse record` from a rig in [fusion] mode = "depth" or "hybrid") are registered sensor to '
         "sensor by point-to-plane ICP, starting from the rig's calibration; the reference sensor stays put. "
-        "Prints the quality table (correction, ICP residual, pairs, agreement of the two halves of the walk, "
-        "verdict) and writes the refined calibration (not when a verdict is bad, unless --force; exit 3). "
+        "Prints the quality table (correction, ICP residual, pairs, the held-out gap: each fold's refined pose "
+        "scored on the other fold's instants, agreement of the two folds' poses, verdict) and writes the "
+        "calibration (not when a verdict is bad, unless --force; exit 3). A sensor whose held-out gap does not "
+        "fall is rated 'no improvement' and keeps its pose. "
         "--sim prints the table of a simulated walk with perturbed poses, scored against the truth "
         "(docs/depth-fusion.md). Progress on stderr.",
     )

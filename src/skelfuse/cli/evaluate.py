@@ -108,7 +108,12 @@ def _cmd_eval_depth(args: argparse.Namespace) -> int:
         note(f"eval depth: simulated {args.sim_take} take, {args.duration:g} s, seed {args.seed} (stand-in tracker)")
         instants, obs = depth.simulated_instants(args.sim_take, args.duration, args.seed)
         result = depth.evaluate_depth(
-            instants, obs.sensor_ids, obs.world_from_sensor_calibrated, depth.sim_tracker, progress=not args.quiet
+            instants,
+            obs.sensor_ids,
+            obs.world_from_sensor_calibrated,
+            depth.sim_tracker,
+            progress=not args.quiet,
+            control=True,
         )
         print(result.table())
         print("\n(simulated input and the simulated stand-in tracker: a check of the evaluation, not of the SDK)")

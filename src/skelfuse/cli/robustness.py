@@ -19,6 +19,8 @@ def _cmd_eval_robustness(args: argparse.Namespace) -> int:
     seeds = args.seeds or (QUICK["seeds"] if args.quick else 6)
     duration = args.duration or (QUICK["duration"] if args.quick else 10.0)
     families = args.families or list(robustness.FAMILY_NAMES)
+    if args.bases or args.mirroring_sweep:
+        return _cmd_mirroring(args, families, sensors, seeds, duration)
     if not args.quiet:
         note(
             f"eval robustness: {len(families)} families x {len(sensors)} rig sizes x {seeds} seeds, "
@@ -50,6 +52,33 @@ def _cmd_eval_robustness(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_mirroring(
+    args: argparse.Namespace, families: list[str], sensors: list[int], seeds: int, duration: float
+) -> int:
+    """``--bases`` / ``--mirroring-sweep`` (eval/mirroring.py): A1 and skelfuse only, printed in turn."""
+    from skelfuse.eval import mirroring  # each command imports what it runs (start-up)
+
+    common = {"sensors": sensors, "n_seeds": seeds, "duration_s": duration, "workers": args.workers}
+    common["progress"] = not args.quiet
+    out: dict[str, object] = {}
+    try:
+        if args.bases:
+            out["bases"] = mirroring.run_bases(families=families, **common)
+        if args.mirroring_sweep:
+            out["sweep"] = mirroring.run_sweep(**common)
+    except ValueError as exc:
+        print(f"skelfuse: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print_json(out)
+        return EXIT_OK
+    if "bases" in out:
+        print(mirroring.format_bases(out["bases"]))  # type: ignore[arg-type]
+    if "sweep" in out:
+        print(mirroring.format_sweep(out["sweep"]))  # type: ignore[arg-type]
+    return EXIT_OK
+
+
 def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:
     """Add ``eval robustness``."""
     parser = eval_commands.add_parser(
@@ -75,6 +104,18 @@ def add_robustness_parser(eval_commands: argparse._SubParsersAction) -> None:
         "--strict",
         action="store_true",
         help="exit 3 when skelfuse is significantly worse than A1, or skelfuse_live than skelfuse, in any cell",
+    )
+    parser.add_argument(
+        "--bases",
+        action="store_true",
+        help="instead of the matrix: every family on the mirroring base and on a base without rear-view "
+        "mirroring, each cell as its effect beyond its base (A1 and skelfuse; docs/simulator.md)",
+    )
+    parser.add_argument(
+        "--mirroring-sweep",
+        action="store_true",
+        help="instead of the matrix: the rear-view mirroring rate swept from 0 past the assumption, skelfuse - A1 "
+        "per point and the break-even mirrored share per group and rig size",
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     parser.set_defaults(func=_cmd_eval_robustness)

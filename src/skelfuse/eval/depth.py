@@ -11,6 +11,10 @@ takes: agreement, not accuracy), and the tracker's time per virtual image.
 
 The same evaluation runs on simulated input (:func:`simulated_instants`, the simulated stand-in tracker) with
 the truth, which is how its logic is tested here: the figures of that run are no statement about the SDK.
+Beside the stand-in it runs the control (``control``: the depth mode with
+:class:`~skelfuse.sim.depth_tracker.PriorEchoTracker`, which returns skeleton fusion's output unchanged): the
+stand-in only slides that output along the virtual camera's rays with the simulator's own body radii, so what
+depth mode adds is unmeasured until a real body tracker runs on the virtual image (the SDK on a GPU).
 """
 
 from __future__ import annotations
@@ -32,9 +36,9 @@ from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import SensorFrame
 from skelfuse.schema.skeleton import EVAL_JOINTS, N_JOINTS
 from skelfuse.service.depth_stage import CloudBuffer, DepthStage, DepthTracker
+from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.sim import crowd
-from skelfuse.sim.depth import sensor_person_clouds
-from skelfuse.sim.depth_tracker import SimulatedDepthTracker
+from skelfuse.sim.depth_tracker import PriorEchoTracker, SimulatedDepthTracker
 from skelfuse.sim.observe import load_profile
 from skelfuse.sim.rig import VirtualSensor
 from skelfuse.sources.k4abt import K4abtLibrary, TrackerSettings, load_k4a
@@ -167,6 +171,14 @@ class ModeFigures:
     error_mm: list[float] = field(default_factory=list)  # to the nearest true person (simulated input)
 
 
+CONTROL_NOTE = (
+    "\nThe stand-in tracker slides skeleton fusion's output along the virtual camera's rays onto the simulator's "
+    "own body surface; the control returns that output unchanged. Where the stand-in does not beat the control, "
+    "its figure shows the image path working, not depth helping: the benefit of depth mode is unmeasured until "
+    "a real body tracker runs on the virtual image (the Body Tracking SDK on a GPU)."
+)
+
+
 @dataclass
 class DepthEvaluation:
     instants: int
@@ -183,14 +195,17 @@ class DepthEvaluation:
             "error vs truth, mm p50 / p90 |",
             "|---|---:|---|---|",
         ]
+        names = {"control": "control: depth mode, tracker returns skeleton fusion's output unchanged"}
         for mode, f in self.figures.items():
             lines.append(
-                f"| {mode} | {f.persons / max(self.instants, 1):.2f} | "
+                f"| {names.get(mode, mode)} | {f.persons / max(self.instants, 1):.2f} | "
                 f"{'—' if mode == 'skeleton' else stat(f.agreement_mm)} | {stat(f.error_mm)} |"
             )
         ms = self.tracker_ms
         timing = f"{np.median(ms):.1f} / {np.percentile(ms, 99):.1f}" if ms else "—"
         lines.append(f"\ntracker ({self.tracker}) per virtual image, ms p50 / p99: {timing}; {self.instants} instants")
+        if "control" in self.figures:
+            lines.append(CONTROL_NOTE)
         return "\n".join(lines)
 
 
@@ -229,22 +244,26 @@ def evaluate_depth(
     preset: str = "skelfuse",
     voxel_mm: float = 15.0,
     progress: bool = True,
+    control: bool = False,
 ) -> DepthEvaluation:
-    """Skeleton fusion, the depth mode and the hybrid mode over the same instants (see the module docstring)."""
+    """Skeleton fusion, the depth mode and the hybrid mode over the same instants (see the module docstring);
+    with ``control``, also the depth mode with :class:`PriorEchoTracker` (row ``control``, untimed)."""
     eye = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
     times_ms: list[float] = []
     runs = {}
-    for mode in ("skeleton", "depth", "hybrid"):
+    for mode in ("skeleton", "depth", "hybrid", "control") if control else ("skeleton", "depth", "hybrid"):
         cfg = parse_rig_config(
             {
                 "rig": {"name": "eval"},
                 "sensors": [{"id": sid, "source": "sim", "world_from_sensor": eye} for sid in sensor_ids],
-                "fusion": {"mode": mode, "preset": preset},
+                "fusion": {"mode": "depth" if mode == "control" else mode, "preset": preset},
                 "depth": {"tracker": "simulated", "voxel_mm": voxel_mm},
             }
         )
         stage = None
-        if mode != "skeleton":
+        if mode == "control":
+            stage = DepthStage(cfg, PriorEchoTracker(), clouds=CloudBuffer("eval", cfg.sensor_ids))
+        elif mode != "skeleton":
             stage = DepthStage(
                 cfg, _TimedTracker(make_tracker(cfg), times_ms), clouds=CloudBuffer("eval", cfg.sensor_ids)
             )
@@ -265,9 +284,9 @@ def evaluate_depth(
                     for person in frame.positions:
                         figures[mode].error_mm.append(min(_eval_joints_distance(person, t) for t in instant.truth))
             skeleton = outputs["skeleton"]
-            for mode in ("depth", "hybrid"):
+            for mode in [m for m in outputs if m != "skeleton"]:
                 for track_id, person in zip(outputs[mode].track_ids, outputs[mode].positions, strict=True):
-                    if mode == "depth":  # the same tracks as skeleton fusion's: compare like for like
+                    if mode != "hybrid":  # the same tracks as skeleton fusion's: compare like for like
                         match = np.flatnonzero(skeleton.track_ids == track_id)
                         candidates = skeleton.positions[match]
                     else:  # hybrid runs its own tracks: the nearest skeleton-fusion person
@@ -280,7 +299,7 @@ def evaluate_depth(
         for stage, _ in runs.values():
             if stage is not None:
                 stage.close()
-    tracker = next(stage.tracker.name for stage, _ in runs.values() if stage is not None)
+    tracker = runs["depth"][0].tracker.name  # type: ignore[union-attr]
     return DepthEvaluation(len(instants), figures, times_ms, tracker)
 
 

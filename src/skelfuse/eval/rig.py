@@ -26,6 +26,10 @@ The metrics (all in mm unless said; docs/evaluation.md says what each can and ca
     share of joint-frames where the fused joint lies > 100 mm from every view that has the joint.
 ``mirrored``
     frames whose left/right axis points against the majority of the views (:func:`eval.real.mirrored_frames`).
+``view mirroring``
+    per view, the share of instants skelfuse's realignment found it mirrored, and (N >= 3) the share where it
+    points against the majority of the others (:mod:`skelfuse.eval.view_mirroring`): the rig's own mirroring
+    rate, to set against ``skelfuse eval robustness --mirroring-sweep``.
 ``dropouts``
     share of instants where some view has the group but the fused output has none.
 ``track_ids``
@@ -52,6 +56,7 @@ from skelfuse.calibration.skeleton import calibrate_from_skeletons
 from skelfuse.calibration.takes import take_arrays
 from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
+from skelfuse.eval.view_mirroring import view_mirroring
 from skelfuse.fusion import presets
 from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.presets import preset
@@ -166,6 +171,7 @@ class RigEvalResult:
     track_ids: dict[str, int] = field(default_factory=dict)
     leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     orientation_agreement: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    view_mirroring: dict[str, dict[str, float]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -334,6 +340,7 @@ def run_rig_eval(
         others = [i for i, s in enumerate(ids) if label != f"view {s}"]
         flags, _ = mirrored_frames(seq, views_s[others])
         result.mirrored[label] = int(flags.sum())
+    result.view_mirroring = view_mirroring(world, confidence, ids, poses[:, :3, 3], evaluated=evaluated)
     if len(ids) >= 3:
         result.leave_one_out.update(_leave_one_out(world, views, confidence, medium, evaluated, ids, presets, eps_mm))
     if out_dir is not None:
@@ -466,6 +473,7 @@ def format_markdown(result: RigEvalResult) -> str:
     lines += ["## Whole skeleton", "", "| output | mirrored frames | track ids |", "|---|---|---|"]
     for label, count in result.mirrored.items():
         lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} |")
+    lines += _view_mirroring_lines(result)
     if result.orientation_agreement:
         lines += [
             "",
@@ -487,6 +495,31 @@ def format_markdown(result: RigEvalResult) -> str:
     if result.plots:
         lines += ["", "## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in result.plots]
     return "\n".join(lines)
+
+
+def _view_mirroring_lines(result: RigEvalResult) -> list[str]:
+    """Each view's mirrored share (eval/view_mirroring.py): the rig's own rate, to set against the simulator's
+    rear-view mirroring sweep."""
+    if not result.view_mirroring:
+        return []
+    lines = [
+        "",
+        "## Mirrored share per view (this rig's mirroring rate)",
+        "",
+        "Share of the view's instants that skelfuse's realignment found left/right mirrored, and (3+ views) that "
+        "point against the majority of the other views. Set it against the simulator's assumption and the "
+        "break-even shares of `skelfuse eval robustness --mirroring-sweep` (docs/simulator.md).",
+        "",
+        "| view | instants | realigned as mirrored % | against the majority % |",
+        "|---|---|---|---|",
+    ]
+    for view, row in result.view_mirroring.items():
+        majority = row.get("against_majority")
+        lines.append(
+            f"| {view} | {int(row['instants'])} | {_f(100 * row['realigned'])} | "
+            f"{'-' if majority is None else _f(100 * majority)} |"
+        )
+    return lines
 
 
 def write_plots(

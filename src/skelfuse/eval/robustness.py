@@ -177,6 +177,7 @@ class _Task:
     seed: int
     duration_s: float
     presets: tuple[str, ...]
+    base: tuple[tuple[str, float], ...] = ()  # profile keys set before the family's (eval/mirroring.py)
 
 
 def _run_take(task: _Task) -> dict[str, Any]:
@@ -185,7 +186,8 @@ def _run_take(task: _Task) -> dict[str, Any]:
     gesture = GESTURES[task.seed % len(GESTURES)]
     facing = float(rng.uniform(0.0, 360.0))
     motion = make_gesture(gesture, duration_s=task.duration_s, fps=FPS, facing_deg=facing, seed=task.seed)
-    profile = family_profile(load_profile(), task.family)
+    overrides: dict[str, Any] = dict(task.base)
+    profile = family_profile(replace(load_profile(), **overrides), task.family)
     obs = simulate(motion, paper_rig(task.n_sensors), profile, seed=task.seed)
     world = obs.positions_world(calibrated=True)
     world = np.where(obs.tracked[..., None, None], world, np.nan)

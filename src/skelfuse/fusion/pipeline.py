@@ -62,6 +62,8 @@ class FusionResult:
         unless ``params.orientations``.
     position_std : (B, J) float64, mm, one-sigma position uncertainty per axis, NaN = no estimate; None unless
         ``params.position_std``.
+    flipped : (B, S) bool, views the realignment found left/right mirrored this instant (and swapped); None
+        without realignment. What ``skelfuse eval real`` counts per view as the rig's mirroring rate.
     """
 
     positions: np.ndarray
@@ -70,6 +72,7 @@ class FusionResult:
     contributors: np.ndarray
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
+    flipped: np.ndarray | None = None
 
 
 @dataclass
@@ -245,6 +248,7 @@ def fuse(
         contributors=np.asarray(merged.members.any(axis=1)),
         orientations=orientation_out,
         position_std=std,
+        flipped=flipped,
     )
     new_state = FusionState(
         previous=merged.positions,

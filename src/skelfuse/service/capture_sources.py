@@ -233,7 +233,7 @@ class SimSource:
         )
 
     def _render_clouds(self, f: int) -> dict[int, np.ndarray]:
-        from skelfuse.sim.depth import sensor_person_clouds
+        from skelfuse.service.sim_clouds import sensor_person_clouds
 
         if f not in self._clouds:
             rng = np.random.default_rng([self.seed, self.column, f])

@@ -22,7 +22,10 @@ The node calls this module and nothing else of the depth path (``docs/depth-fusi
   association is what the fusion is about to do. Bodies of no known person (someone's first instant) are
   grouped among themselves by the same distance (:func:`group_new_bodies`) and get a virtual skeleton at once,
   their tracker stream keyed provisionally (negative) until the fusion says which track they joined. A
-  person's prior is the per-joint median of this instant's real bodies associated with it.
+  person's prior (and the facing that places the virtual camera) is the realigned fused skeleton of the
+  real sensors alone (a second skeleton fusion without the virtual sensor,
+  :func:`~skelfuse.fusion.depth.hybrid.fused_priors`): never a median of the raw bodies, which carries
+  mirrored rear views. That fusion's tracks are born at first sight, so a new person has a prior at once.
 
 Trackers (``[depth] tracker``): :class:`K4abtDepthTracker` (the Body Tracking SDK through
 :class:`skelfuse.sources.depth_tracker.VirtualCameraTracker`; or the fake library the suite compiles) or
@@ -48,7 +51,7 @@ from skelfuse.fusion.association import descriptor_distance, nanmedian_axis, tor
 from skelfuse.fusion.camera import Intrinsics
 from skelfuse.fusion.depth.cloud import MergedCloud
 from skelfuse.fusion.depth.frontal import body_facing
-from skelfuse.fusion.depth.hybrid import VIRTUAL_SENSOR_POSE
+from skelfuse.fusion.depth.hybrid import VIRTUAL_SENSOR_POSE, fused_priors
 from skelfuse.fusion.depth.pipeline import DepthFusionParams, PersonDepthView, fuse_person_depth
 from skelfuse.rig.grouping import FrameGroup
 from skelfuse.rig.instant import FusedInstant, GroupFuser, bodies_to_world, fused_frame, group_bodies
@@ -385,11 +388,13 @@ class DepthStage:
         self._poses = np.zeros((len(self.sensor_ids), 4, 4))
         self._previous: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, N_JOINTS, 3)))
         self._next_new_key = -1
+        self._skeleton: GroupFuser | None = None
         """Hybrid: tracker stream keys of new persons count down from -1 until their track is known."""
 
     def fuser_sensors(self, world_from_sensor: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
         """The sensors (ids, poses) the node's GroupFuser fuses: the rig's, plus the virtual copies in hybrid."""
         self._poses = np.asarray(world_from_sensor, dtype=np.float64)
+        self._skeleton = None  # rebuilt on the new poses
         virtual = tuple(VIRTUAL_SENSOR_ID if k == 0 else f"{VIRTUAL_SENSOR_ID}_{k + 1}" for k in range(self.copies))
         poses = np.concatenate([self._poses, np.repeat(VIRTUAL_SENSOR_POSE[None], self.copies, axis=0)])
         return self.sensor_ids + virtual, poses
@@ -439,11 +444,8 @@ class DepthStage:
         assignment, n_new = group_new_bodies(world, valid, assignment, first=previous_keys.shape[0])
         keys = np.concatenate([previous_keys, np.arange(self._next_new_key, self._next_new_key - n_new, -1)])
         self._next_new_key -= n_new
-        priors = np.full((keys.shape[0], N_JOINTS, 3), np.nan)
-        for person in range(keys.shape[0]):
-            mine = world[assignment == person]
-            if mine.shape[0]:
-                priors[person] = nanmedian_axis(mine, axis=0)  # joints no body of the person holds stay NaN
+        skeleton = self._skeleton_fuser(fuser).step(group).people
+        priors = fused_priors(assignment, skeleton.assignment, skeleton.positions, keys.shape[0])
         virtual, confidence, _ = self._virtual_skeletons(group, assignment, priors, keys, np.arange(len(keys)))
         found = np.isfinite(virtual).all(axis=-1).any(axis=-1)
         frames = dict(group.frames)
@@ -466,6 +468,25 @@ class DepthStage:
         return dataclasses.replace(  # the node's per-sensor views (pose fit, Rerun) see the real sensors only
             instant, sensors_world=instant.sensors_world[:n_real], valid=instant.valid[:n_real]
         )
+
+    def _skeleton_fuser(self, fuser: GroupFuser) -> GroupFuser:
+        """Hybrid: the skeleton fusion of the real sensors alone (``fuser``'s parameters), whose realigned
+        skeletons are the tracker's priors. Its tracks are born at first sight (``birth_frames`` 1), so that a
+        new person has a prior at once; which tracks are output stays the main fusion's decision."""
+        if self._skeleton is None:
+            table = fuser.people.track_params
+            self._skeleton = GroupFuser(
+                self.sensor_ids,
+                self._poses,
+                fuser.params,
+                gate_mm=table.gate_mm,
+                birth_frames=1,
+                timeout_s=table.timeout_s,
+                duplicate_mm=fuser.people.duplicate_mm,
+                reset_gap_s=fuser.reset_gap_s,
+                max_persons=table.max_tracks,
+            )
+        return self._skeleton
 
     def _follow_tracks(
         self,

@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from skelfuse.fusion.camera import Intrinsics
-from skelfuse.fusion.depth.cloud import person_clouds
 from skelfuse.fusion.transform import invert_transform, transform_points
 from skelfuse.schema.skeleton import joint_index
 from skelfuse.sim.rig import VirtualSensor
@@ -277,19 +276,3 @@ def render_rig(
         render_sensor(sensor, people_world, intrinsics=intrinsics, noise=noise, rng=rng)
         for sensor, rng in zip(sensors, rngs, strict=True)
     ]
-
-
-def sensor_person_clouds(
-    sensor: VirtualSensor,
-    people_world: np.ndarray,
-    *,
-    voxel_mm: float,
-    intrinsics: Intrinsics | None = None,
-    noise: DepthNoise = DepthNoise(),
-    rng: np.random.Generator | None = None,
-) -> dict[int, np.ndarray]:
-    """What a capture worker sends in depth mode: each person's voxelized cloud in the sensor frame, by the
-    person's index in ``people_world`` (people without a visible pixel are absent)."""
-    frame = render_sensor(sensor, people_world, intrinsics=intrinsics, noise=noise, rng=rng)
-    clouds = person_clouds(frame.depth, frame.body_index, frame.intrinsics, voxel_mm=voxel_mm)
-    return {cloud.body_index: cloud.points for cloud in clouds}

@@ -19,12 +19,16 @@ along the virtual camera's viewing rays, from the image: a check of the geometry
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from skelfuse.fusion.depth.pipeline import PersonDepthView
 from skelfuse.fusion.transform import invert_transform, transform_points
 from skelfuse.schema.skeleton import N_JOINTS, Confidence, joint_index
 from skelfuse.sim.depth import _REFERENCE_SHOULDER_WIDTH_MM, BODY_CAPSULES
+
+if TYPE_CHECKING:  # the simulator never runs the product's depth fusion: it only reads the view it is given
+    from skelfuse.fusion.depth.pipeline import PersonDepthView
 
 OCCLUDED_MM = 150.0
 """A surface farther than this from the prior's depth belongs to something else (an occluder, the background
@@ -103,6 +107,35 @@ class SimulatedDepthTracker:
 
     def retire(self, active: set[int]) -> None:
         """Nothing to forget (no state per person)."""
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class PriorEchoTracker:
+    """The control beside the stand-in: a "tracker" that ignores the virtual image and returns its prior (the
+    realigned fused skeleton, i.e. skeleton fusion's output) unchanged, MEDIUM wherever finite.
+
+    Whatever the stand-in scores beyond this control is what its slide along the rays adds; where the control
+    scores better, the stand-in's figure shows the image path's plumbing, not a benefit of depth. Neither says
+    what a real body tracker would find on the virtual image."""
+
+    name = "prior-echo"
+    description = "control: returns its prior (skeleton fusion's output) unchanged, never looks at the image"
+
+    def track(
+        self, person: int, view: PersonDepthView, prior_world: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(32, 3) world joints and (32,) confidence: the prior as given; None without a prior."""
+        if prior_world is None or not np.isfinite(prior_world).any():
+            return None
+        prior = np.asarray(prior_world, dtype=np.float64).copy()
+        finite = np.isfinite(prior).all(axis=-1)
+        prior[~finite] = np.nan
+        return prior, np.where(finite, int(Confidence.MEDIUM), int(Confidence.NONE)).astype(np.uint8)
+
+    def retire(self, active: set[int]) -> None:
+        """Nothing to forget."""
 
     def close(self) -> None:
         """Nothing to release."""

@@ -13,12 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.fusion.depth.frontal import body_facing
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS, J
 
-# body_facing lives in the pure core (the depth fusion's front/back decision needs it); re-exported here.
-__all__ = ["Motion", "axis_rotation", "body_facing", "facing_deg"]
+__all__ = ["Motion", "axis_rotation", "facing_deg", "root_facing"]
 
 
 @dataclass(frozen=True)
@@ -98,9 +96,31 @@ class Motion:
         return Motion(self.name, float(fps), self.at_times(np.arange(n_new) / fps))
 
 
+def root_facing(positions: np.ndarray) -> np.ndarray:
+    """Horizontal unit vector the motion's root (pelvis segment) faces: the simulator's truth of "facing".
+
+    Both motion sources hang the hips rigidly on the root segment (the gestures' forward kinematics and a BVH
+    file's hips segment), so the true hip line is the root's lateral axis and its horizontal normal is where
+    the root faces. This is the simulator's own definition, on the truth: the product decides facing from
+    noisy views with its own rule (hips and shoulders), and the two must not share code, or an error of that
+    rule would also decide which views the simulator mirrors and go unseen.
+
+    Parameters
+    ----------
+    positions : (..., 32, 3) true world mm (z up).
+
+    Returns
+    -------
+    (..., 3) unit vectors with zero z: forward = left x up, left pointing from the right hip to the left one.
+    """
+    left = positions[..., J["HIP_LEFT"], :] - positions[..., J["HIP_RIGHT"], :]
+    forward = np.stack([left[..., 1], -left[..., 0], np.zeros_like(left[..., 0])], axis=-1)
+    return forward / np.maximum(np.linalg.norm(forward, axis=-1, keepdims=True), 1e-9)
+
+
 def facing_deg(positions: np.ndarray) -> np.ndarray:
-    """Facing angle of the body, degrees counter-clockwise from world +x (see :func:`body_facing`)."""
-    forward = body_facing(positions)
+    """Facing angle of the motion's root, degrees counter-clockwise from world +x (see :func:`root_facing`)."""
+    forward = root_facing(positions)
     return np.degrees(np.arctan2(forward[..., 1], forward[..., 0]))
 
 

@@ -45,7 +45,7 @@ from skelfuse.schema.skeleton import (
     Confidence,
     J,
 )
-from skelfuse.sim.motion import Motion, body_facing
+from skelfuse.sim.motion import Motion, root_facing
 from skelfuse.sim.rig import VirtualSensor
 
 NOISE_GROUPS: tuple[str, ...] = tuple(BODY_REGIONS)
@@ -581,7 +581,7 @@ def self_occlusion(points: np.ndarray, radii: dict[str, float], margin_mm: float
 
 def facing_away_deg(truth: np.ndarray, sensor_position: np.ndarray) -> np.ndarray:
     """(T,) angle between the body's facing and the horizontal direction to the sensor, degrees (0 = faces it)."""
-    forward = body_facing(truth)
+    forward = root_facing(truth)
     to_sensor = sensor_position[None, :] - truth[:, J["PELVIS"]]
     to_sensor[:, 2] = 0.0
     to_sensor /= np.maximum(np.linalg.norm(to_sensor, axis=1, keepdims=True), 1e-9)
@@ -818,7 +818,7 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
     pelvis_z = truth[:, J["PELVIS"], 2]
     drop_mm = np.maximum(np.percentile(pelvis_z, 90) - pelvis_z, 0.0)
     pose_scale = 1.0 - np.minimum(profile.scale_per_100mm_drop * drop_mm / 100.0, profile.scale_max_shrink)
-    forward_world = body_facing(truth)
+    forward_world = root_facing(truth)
 
     positions = np.full((n, n_sensors, N_JOINTS, 3), np.nan, dtype=np.float32)
     confidence = np.zeros((n, n_sensors, N_JOINTS), dtype=np.uint8)
@@ -1058,7 +1058,7 @@ def _posture(motion: Motion, profile: SimProfile) -> Motion:
     if not (profile.sitting or profile.lying):
         return motion
     pos = motion.positions.astype(np.float64).copy()
-    forward = body_facing(pos)  # (T, 3) horizontal
+    forward = root_facing(pos)  # (T, 3) horizontal
     if profile.sitting:
         ankle_floor = np.min(pos[:, [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]], 2])
         down = np.array([0.0, 0.0, -1.0])
@@ -1113,7 +1113,7 @@ def _neighbour(motion: Motion, times: np.ndarray, truth: np.ndarray, profile: Si
     one second behind, ``neighbour_distance_mm`` to the subject's right. None when the family is off."""
     if profile.neighbour_distance_mm <= 0 or (profile.neighbour_swap_prob <= 0 and profile.neighbour_merge_prob <= 0):
         return None
-    forward = body_facing(truth)
+    forward = root_facing(truth)
     right = np.stack([forward[:, 1], -forward[:, 0], np.zeros(len(times))], axis=1)
     behind = motion.at_times(np.maximum(times - 1.0, 0.0))
     return behind + profile.neighbour_distance_mm * right[:, None]

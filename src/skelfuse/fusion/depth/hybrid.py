@@ -5,6 +5,11 @@ The depth-level fusion's skeletons are already in the world frame (``FrontalView
 sensor's pose is the identity; it is appended as the last sensor row of one instant's arrays, in the layout
 :meth:`skelfuse.fusion.people.PeopleFuser.step` takes, and association, realignment, the DBSCAN merge and the
 filters treat it like any sensor. Its joints carry the tracker's confidence when given, else MEDIUM.
+
+The tracker's prior (and the facing that places the virtual camera) is each person's *realigned fused*
+skeleton (:func:`fused_priors`): skeleton fusion of the real sensors alone, as the depth mode uses. A per-joint
+median of the raw bodies would carry a mirrored rear view's left/right labels, turn the facing 180° and put
+the virtual camera behind the person.
 """
 
 from __future__ import annotations
@@ -56,3 +61,41 @@ def with_virtual_sensor(
         out_confidence[n_sensors, : virtual.shape[0]] = np.where(finite, virtual_confidence, 0)
     out_valid[n_sensors, : virtual.shape[0]] = finite.any(axis=-1)
     return out_positions, out_confidence, out_valid
+
+
+def fused_priors(
+    assignment: np.ndarray,
+    fused_assignment: np.ndarray,
+    fused_positions: np.ndarray,
+    n_persons: int,
+) -> np.ndarray:
+    """Each hybrid person's prior: the fused skeleton (of the real sensors alone) its bodies joined.
+
+    Parameters
+    ----------
+    assignment : (S, B) int, the hybrid mode's person of each real body (-1: none).
+    fused_assignment : (S, B') int, skeleton fusion's output row of each real body (-1: none, a tentative
+        track, padding), as :attr:`skelfuse.fusion.people.PeopleResult.assignment`.
+    fused_positions : (P', 32, 3) world mm, skeleton fusion's output (realigned, merged, filtered).
+    n_persons : number of hybrid persons.
+
+    Returns
+    -------
+    (n_persons, 32, 3) world mm: the fused row most of the person's bodies joined (ties: the lower row); NaN
+    for a person none of whose bodies reached a fused skeleton (a track not yet confirmed): no prior then,
+    never the raw bodies, which may be mirrored.
+    """
+    assignment = np.asarray(assignment)
+    fused_assignment = np.asarray(fused_assignment)
+    fused = np.asarray(fused_positions, dtype=np.float64)
+    priors = np.full((n_persons, fused.shape[1] if fused.ndim == 3 else 32, 3), np.nan)
+    sensors = min(assignment.shape[0], fused_assignment.shape[0])
+    bodies = min(assignment.shape[1], fused_assignment.shape[1]) if assignment.ndim == 2 else 0
+    mine = assignment[:sensors, :bodies]
+    rows = fused_assignment[:sensors, :bodies]
+    for person in range(n_persons):
+        joined = rows[(mine == person) & (rows >= 0)]
+        if joined.size:
+            values, counts = np.unique(joined, return_counts=True)
+            priors[person] = fused[values[np.argmax(counts)]]
+    return priors
