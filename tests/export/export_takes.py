@@ -17,10 +17,17 @@ from skelfuse.sim.rig import paper_rig
 FPS = 30.0
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """The cached takes are shared by every test that asks for them: one that writes into them fails at once."""
+    array = np.array(array)
+    array.flags.writeable = False
+    return array
+
+
 @lru_cache(maxsize=8)
 def truth_take(gesture: str, duration_s: float = 4.0, seed: int = 1) -> np.ndarray:
     """(T, 32, 3) mm world: a rigid, fixed-length skeleton (the simulator's own forward kinematics)."""
-    return make_gesture(gesture, duration_s=duration_s, fps=FPS, facing_deg=30.0, seed=seed).positions
+    return _read_only(make_gesture(gesture, duration_s=duration_s, fps=FPS, facing_deg=30.0, seed=seed).positions)
 
 
 @lru_cache(maxsize=8)
@@ -30,7 +37,7 @@ def fused_take(gesture: str, duration_s: float = 4.0, seed: int = 1) -> tuple[np
     obs = simulate(motion, list(paper_rig(N_CAPTURE)), load_profile(None), seed=seed + 1)
     run = FusionRun("skelfuse", "skelfuse", None, tuple(range(N_CAPTURE)))
     fused = fuse_take(run, _world_skeletons(obs), np.asarray(obs.confidence), FPS)
-    return fused, np.asarray(obs.truth, dtype=np.float64)
+    return _read_only(fused), _read_only(np.asarray(obs.truth, dtype=np.float64))
 
 
 def as_frames(positions: np.ndarray, track_id: int = 7, fps: float = FPS) -> list[FusedFrame]:

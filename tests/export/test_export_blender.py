@@ -20,6 +20,8 @@ from skelfuse.export.bvh import UNIT_MM, write_bvh
 from skelfuse.export.fbx import write_fbx
 from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_NAMES
 
+pytestmark = pytest.mark.live
+
 SAMPLED = [0, 1, 37, 74, 119]
 TOLERANCE_MM = 1.0
 

@@ -1,10 +1,14 @@
-"""BVH export: the file's own forward kinematics (read back with the simulator's independent BVH reader)
-reproduces the fitted armature; header, units, rotation order and multi-person naming as documented."""
+"""BVH export: the file's own forward kinematics reproduces the fitted armature, read back two ways: with
+bvhio (a BVH library from PyPI) against axes written out by hand here, and with the simulator's BVH reader and
+our axis constant; header, units, rotation order and multi-person naming as documented.
+
+Our own reader alone would not do: an axis mistake in ``BVH_FROM_WORLD`` cancels out on the way back."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import bvhio
 import numpy as np
 import pytest
 from export_takes import FPS, as_frames, fused_take, truth_take
@@ -29,6 +33,33 @@ def _read_back(path: Path, unit: str) -> tuple[np.ndarray, object]:
     bvh = parse_bvh(path.read_text(), source=str(path))
     positions, _ = forward_kinematics(bvh)
     return world_positions_from_bvh(positions, [j.name for j in bvh.joints], unit=unit), bvh
+
+
+BVH_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""BVH is Y up, Z toward the viewer: (X, Y, Z) = (x, z, -y) of our z-up world (x right, y forward), by hand."""
+MM_PER_UNIT = {"cm": 10.0, "mm": 1.0, "m": 1000.0}
+
+
+def _read_with_bvhio(path: Path) -> np.ndarray:
+    """(F, 32, 3) joint positions in the file's own axes and unit, k4abt order, by bvhio's forward kinematics."""
+    root = bvhio.readAsHierarchy(str(path))
+    joints = {joint.Name: joint for joint, _, _ in root.layout()}
+    n_frames = len(bvhio.readAsBvh(str(path)).Root.Keyframes)
+    out = np.empty((n_frames, N_JOINTS, 3))
+    for frame in range(n_frames):
+        root.loadPose(frame)
+        for j, name in enumerate(JOINT_NAMES):
+            position = joints[name].PositionWorld
+            out[frame, j] = (position.x, position.y, position.z)
+    return out
+
+
+@pytest.mark.parametrize("unit", ["cm", "m"])
+def test_an_independent_reader_finds_the_fitted_positions_in_bvh_axes(tmp_path: Path, unit: str) -> None:
+    fused, _ = fused_take("random")
+    export = write_bvh_arrays(tmp_path / "take.bvh", np.arange(len(fused)) / FPS, fused, unit=unit)
+    in_file = _read_with_bvhio(export.path) * MM_PER_UNIT[unit]
+    np.testing.assert_allclose(in_file, export.motion.positions @ BVH_AXES.T, rtol=0, atol=1e-3)  # mm
 
 
 @pytest.mark.parametrize("unit", ["cm", "mm", "m"])

@@ -49,6 +49,7 @@ def test_the_fused_take_stands_on_the_floor(levelled: Path, tmp_path: Path, caps
     assert (control[:, J["HEAD"], 2] - control[:, J["PELVIS"], 2] > 400).mean() < 0.05
 
 
+@pytest.mark.live
 def test_blender_imports_the_bvh_standing(levelled: Path, tmp_path: Path, capsys) -> None:
     try:
         ensure_bpy()
@@ -63,7 +64,7 @@ def test_blender_imports_the_bvh_standing(levelled: Path, tmp_path: Path, capsys
 
 
 def test_opensim_reads_the_trc_standing(levelled: Path, tmp_path: Path) -> None:
-    osim = pytest.importorskip("opensim", reason="OpenSim's TRC reader (pip install opensim)")
+    osim = pytest.importorskip("opensim", reason="OpenSim's TRC reader: the optional extra `opensim` is not installed")
     trc = tmp_path / "take.trc"
     assert main(["export", str(levelled), "--format", "trc", "-o", str(trc)]) == 0
     table = osim.TimeSeriesTableVec3(str(trc))

@@ -33,17 +33,6 @@ def take() -> real.RealTake:
     return real.load_take(DATA_DIR)
 
 
-def _fusion_available() -> bool:
-    try:
-        from skelfuse.fusion.pipeline import Fuser  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_fusion = pytest.mark.skipif(not _fusion_available(), reason="skelfuse.fusion.pipeline.Fuser is not available yet")
-
-
 @pytest.fixture(scope="module")
 def report() -> real.RealEvalResult:
     return real.run_real_eval(DATA_DIR)
@@ -99,7 +88,6 @@ def test_no_view_is_mirrored(take: real.RealTake) -> None:
         assert decided.all() and not mirrored.any()
 
 
-@needs_fusion
 @pytest.mark.parametrize("preset_name", ["A1", "A2", "A3", "A4", "A5"])
 def test_every_preset_fuses_the_take(take: real.RealTake, preset_name: str) -> None:
     fused = real.fuse_views(take.positions, take.confidence, preset_name)
@@ -112,7 +100,6 @@ def test_every_preset_fuses_the_take(take: real.RealTake, preset_name: str) -> N
     assert np.median(dist) < 100.0
 
 
-@needs_fusion
 def test_report_end_to_end(report: real.RealEvalResult) -> None:
     assert report.n_frames == N_FRAMES and report.presets == ["A1", "A2", "A3", "A4", "A5", "skelfuse"]
     for method in [*report.presets, "authors"]:

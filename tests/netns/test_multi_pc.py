@@ -23,8 +23,9 @@ from skelfuse.config.access import rig_identities
 from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
+from waiting import wait_until
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 RIG = "lab"
 PORT = 7447
@@ -79,10 +80,13 @@ def test_router_refuses_strangers_and_other_sensors_keys_across_namespaces(lab: 
     out = tmp_path / "probe.jsonl"
     probe = lab.probe(app_ns, "probe", "listen", str(config), "app-probe", endpoints[app_ns], str(out))
     stranger = lab.probe(stranger_ns, "stranger", "connect", str(config), "-", endpoints[stranger_ns])
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and "listening" not in lab.log(probe):
-        time.sleep(0.1)
-    time.sleep(0.3)
+    status_key = f"skelfuse/{RIG}/status/router"
+
+    def router_statuses() -> list:
+        return [r for r in read_probe(out) if r["key"] == status_key] if out.exists() else []
+
+    # The router's status reached the probe: its subscription is in place at the router.
+    wait_until(router_statuses, "the router's status at the probe", 60, lambda: lab.log(probe) + lab.log(router))
     own, other, fused = (
         f"skelfuse/{RIG}/sensors/capture_0/skeletons",
         f"skelfuse/{RIG}/sensors/capture_1/skeletons",
@@ -91,14 +95,14 @@ def test_router_refuses_strangers_and_other_sensors_keys_across_namespaces(lab: 
     forger = lab.probe(pc_a, "forger", "forge", str(config), "capture-pc-a", endpoints[pc_a], own, other, fused)
     forger.wait(60.0)
     stranger.wait(60.0)
-    router_status = None
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:  # the router counts what it refused in its status (from zenoh's log)
-        statuses = [r for r in read_probe(out) if r["key"] == f"skelfuse/{RIG}/status/router"]
-        router_status = decode_status(bytes.fromhex(statuses[-1]["hex"])) if statuses else None
-        if router_status is not None and router_status.counters["refused_messages"] >= 40:
-            break
-        time.sleep(0.2)
+
+    def refusals_counted():  # the router counts what it refused in its status (from zenoh's log)
+        status = decode_status(bytes.fromhex(router_statuses()[-1]["hex"]))
+        return status if status.counters["refused_messages"] >= 40 else None
+
+    router_status = wait_until(
+        refusals_counted, "the router's status counting 40 refusals", 60, lambda: lab.log(router)
+    )
     lab.stop(probe)
     assert "forged" in lab.log(forger), lab.log(forger)
     assert "refused" in lab.log(stranger), lab.log(stranger)

@@ -20,6 +20,7 @@ from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
+from waiting import wait_until
 
 RIG = "svc"
 
@@ -142,12 +143,7 @@ class Listener:
     def wait_for(
         self, predicate: Callable[[], bool], timeout_s: float, what: str, logs: Callable[[], str] = str
     ) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if predicate():
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}\n{logs()}")
+        wait_until(predicate, what, timeout_s, logs)
 
     def sensor_frames(self) -> list[Any]:
         with self.lock:

@@ -3,9 +3,10 @@
     python stoppable_subscriber.py KEY PORT OUT.json [SO_RCVBUF]
 
 Connects to ``tcp/127.0.0.1:PORT`` only (peer mode; no listener, no gossip, no scouting, so nothing else links
-to it or reaches data through it), subscribes to KEY and, on SIGTERM, writes the first 8 bytes of each payload
-it received (little-endian int: the tests' sequence numbers) to OUT.json. ``SO_RCVBUF`` (bytes) shrinks its TCP
-receive buffer (zenoh ``transport/link/tcp/so_rcvbuf``).
+to it or reaches data through it), subscribes to KEY and, on SIGTERM or on receiving ``END`` (a payload whose
+first 8 bytes are all 0xff, sent after the last frame: it arrives after all that was sent before it), writes the
+first 8 bytes of each payload it received (little-endian int: the tests' sequence numbers) to OUT.json.
+``SO_RCVBUF`` (bytes) shrinks its TCP receive buffer (zenoh ``transport/link/tcp/so_rcvbuf``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import zenoh
 
 from skelfuse.service.zenoh_io import loopback_config
 
+END = b"\xff" * 8
+
 
 def main() -> int:
     key, port, out = sys.argv[1], int(sys.argv[2]), Path(sys.argv[3])
@@ -33,9 +36,12 @@ def main() -> int:
     done = threading.Event()
 
     def on_sample(sample: zenoh.Sample) -> None:
-        number = int.from_bytes(sample.payload.to_bytes()[:8], "little")
+        head = sample.payload.to_bytes()[:8]
+        if head == END:
+            done.set()
+            return
         with lock:
-            received.append(number)
+            received.append(int.from_bytes(head, "little"))
 
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     session = zenoh.open(conf)

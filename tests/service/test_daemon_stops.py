@@ -29,6 +29,8 @@ from skelfuse.recording import RecordingWriter
 from skelfuse.service.worker import SimSource
 from skelfuse.service.zenoh_io import free_port, loopback_args
 
+pytestmark = pytest.mark.live
+
 STOP_BOUND_S = 12.0
 """Start of the stop -> process gone: drain 2 s + view flush 2 s + view release 2 s + exit grace 5 s, rounded up."""
 RUN_TIMEOUT_S = 90.0

@@ -16,7 +16,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pytest
+
 from skelfuse.service.lifecycle import STOP_TIMEOUT_S
+
+pytestmark = pytest.mark.live
 
 START_TIMEOUT_S = 120.0
 """Import, four workers and the take origin (8 s) on a loaded machine; a hang beyond it fails the test."""

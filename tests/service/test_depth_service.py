@@ -21,7 +21,7 @@ from skelfuse.config import load_rig_config
 from skelfuse.schema.skeleton import EVAL_JOINTS
 from skelfuse.service.worker import SimSource
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 TAKE_S = 4.0
 """The workers' take (looped); every worker renders each take frame's depth once."""

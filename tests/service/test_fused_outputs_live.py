@@ -25,7 +25,7 @@ from skelfuse.service.zenoh_io import loopback_args
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_fused_frame
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 SENSORS = ("capture_0", "capture_1")
 DRAIN_S = 1.0
@@ -111,7 +111,8 @@ def test_recorder_and_osc_stream_carry_the_fused_skeletons(
                 f"the {name}'s liveliness token",
                 lambda process=process: processes.log(process),
             )
-        time.sleep(0.5)  # let their subscriptions reach the node
+        # Each declared its subscriptions before its token, on its one link to the node, and the token reached
+        # this session through the node: the node knows their subscriptions.
         workers = [
             processes.start(f"w{i}", *worker_args(config, node_port, sid, "--duration", "3", listener=listener))
             for i, sid in enumerate(SENSORS)

@@ -22,6 +22,8 @@ from skelfuse.service.worker import SimSource
 from skelfuse.service.zenoh_io import StopBudget, free_port, loopback_config
 from skelfuse.wire.codec import encode_sensor_frame
 
+pytestmark = pytest.mark.live
+
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 DRAIN_TIMEOUT_S = 2.0
 SLOW_S = 0.005
@@ -37,7 +39,6 @@ def test_the_stop_budget_gives_the_close_its_share_of_the_drain_timeout() -> Non
 
 
 def test_a_starved_node_with_a_backlog_stops_within_its_drain_timeout(caplog: pytest.LogCaptureFixture) -> None:
-    pytest.importorskip("zenoh")
     rig = load_rig_config(RIG_SIM_4)
     sources = {sid: SimSource(rig, sid, take_duration_s=4.0) for sid in rig.sensor_ids}
     backlog = [

@@ -32,6 +32,8 @@ from skelfuse.service.zenoh_io import SESSION_CLOSE_TIMEOUT_S, free_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
+pytestmark = pytest.mark.live
+
 SUBSCRIBER = Path(__file__).with_name("stoppable_subscriber.py")
 DRAIN_TIMEOUT_S = NodeOptions().drain_timeout_s
 MARGIN_S = 1.0
@@ -48,7 +50,6 @@ def fused_publish(listener) -> dict:
 def test_sigterm_with_a_full_link_to_a_subscriber_stops_the_node_within_its_drain_timeout(
     tmp_path: Path, processes: Processes, run: int
 ) -> None:
-    pytest.importorskip("zenoh")
     assert SESSION_CLOSE_TIMEOUT_S < DRAIN_TIMEOUT_S
     port = free_port()
     config = write_rig(tmp_path)

@@ -9,13 +9,12 @@ tests/unit/test_grouping.py; here they run together, end to end.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 from service_helpers import Processes, start_node, worker_args, write_rig
 
-pytestmark = [pytest.mark.service, pytest.mark.soak]  # five processes: ~30 s on a loaded machine
+pytestmark = [pytest.mark.live, pytest.mark.soak]  # five processes: ~30 s on a loaded machine
 
 SENSORS = ("capture_0", "capture_1", "capture_2", "capture_3")
 
@@ -27,7 +26,7 @@ def run_rig(tmp_path: Path, processes: Processes, node_port: int, clocks: dict[i
         workers = {sid: processes.start(sid, *worker_args(config, node_port, sid)) for sid in SENSORS}
         listener.wait_for(lambda: len(listener.fused) >= 30, 60.0, "30 fused frames", lambda: processes.log(node))
         start = len(listener.fused)
-        time.sleep(3.0)  # about 90 instants once every clock is learned
+        listener.wait_for(lambda: len(listener.fused) >= start + 90, 120.0, "90 more fused frames (3 s of the rig)")
         with listener.lock:
             recent = [f for _, f in listener.fused[start:]]
         status = listener.fusion_status()

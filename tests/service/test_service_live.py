@@ -24,8 +24,9 @@ from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.wire import keys
 from skelfuse.wire.codec import decode_sensor_frame, encode_sensor_frame
+from waiting import wait_for_subscriber
 
-pytestmark = pytest.mark.service
+pytestmark = pytest.mark.live
 
 SENSORS = ("capture_0", "capture_1", "capture_2", "capture_3")
 BIRTH_FRAMES = 3
@@ -75,7 +76,6 @@ def test_live_rig_equals_offline_fusion_of_the_same_frames(
             "the fused stream to settle",
         )
         assert processes.stop(node) == 0, processes.log(node)
-        time.sleep(0.3)
         frames = listener.sensor_frames()
         node_received = {sid: s["received"] for sid, s in listener.fusion_status().info["sensors"].items()}
         live = [frame for _, frame in listener.fused]
@@ -91,7 +91,7 @@ def test_live_rig_equals_offline_fusion_of_the_same_frames(
     with RecordingWriter(path, rig=RIG, sensor_ids=cfg.sensor_ids) as writer:
         for frame in sorted(frames, key=lambda f: f.host_time_ns):
             writer.write(frame)
-    offline = {f.time_us: f for f in fuse_recording(path, rig_config=cfg, progress=False)}
+    offline = {f.time_us: f for f in fuse_recording(path, rig_config=cfg, progress=False, smoother="none")}
 
     both = [f for f in live if f.time_us in offline]
     assert len(both) >= 0.95 * len(live) and len(both) >= 60, (len(both), len(live), len(offline))
@@ -207,7 +207,8 @@ def test_corrupt_payloads_are_rejected_counted_and_good_frames_keep_fusing(
     sent_reasons: dict[str, int] = {}
     try:
         publishers = {sid: listener.session.declare_publisher(keys.sensor_skeletons(RIG, sid)) for sid in SENSORS}
-        time.sleep(0.3)
+        for publisher in publishers.values():
+            wait_for_subscriber(publisher, "the node's subscription")
         base_us = time.time_ns() // 1000
         start = time.monotonic()
         for k in range(n_instants):
@@ -278,7 +279,8 @@ def test_grouping_with_constant_offsets_and_jitter(
     expected_times = []
     try:
         publishers = {sid: listener.session.declare_publisher(keys.sensor_skeletons(RIG, sid)) for sid in SENSORS}
-        time.sleep(0.3)
+        for publisher in publishers.values():
+            wait_for_subscriber(publisher, "the node's subscription")
         base_us = time.time_ns() // 1000
         start = time.monotonic()
         for k in range(n_instants):
@@ -300,21 +302,26 @@ def test_grouping_with_constant_offsets_and_jitter(
             for frame in stamped:
                 publishers[frame.sensor_id].put(encode_sensor_frame(frame))
                 time.sleep(rng.uniform(0, 0.002))
+        # The node's status and its fused frames leave one session on one link, in order: a status that counts
+        # n_instants frames out comes after all of them, so an extra frame would be here by then.
         listener.wait_for(
-            lambda: len(listener.fused) >= n_instants,
-            10.0,
-            f"{n_instants} fused frames",
+            lambda: (s := listener.fusion_status()) is not None and s.counters["frames_out"] >= n_instants,
+            60.0,
+            f"a status counting {n_instants} fused frames",
             lambda: str(listener.fusion_status()),
         )
-        time.sleep(0.3)
+        assert listener.fusion_status().counters["frames_out"] == n_instants
         fused = [f for _, f in listener.fused]
         if by == "device":
             assert [f.time_us for f in fused] == expected_times
         else:  # on the rig's clock: each sensor's offset removed, the stamps' jitter smoothed (module docs)
-            # The reference is the sensors' median offset when the epoch began (latencies on a loaded machine
-            # included): within half a frame of the stamps, and one frame period apart.
+            # The reference is the sensors' median offset when the epoch began, this machine's latency then
+            # included (23 ms measured beside two CPU burners): so not the stamps' absolute value, but one
+            # offset from them for every instant (within half a frame), and one frame period apart. The offsets
+            # themselves are checked on injected arrival times in tests/unit/test_grouping.py.
             assert len(fused) == n_instants
-            assert max(abs(f.time_us - t) for f, t in zip(fused, expected_times, strict=True)) < 16_000
+            offsets = [f.time_us - t for f, t in zip(fused, expected_times, strict=True)]
+            assert max(offsets) - min(offsets) < 16_000, offsets
             steps = np.diff([f.time_us for f in fused])
             assert np.abs(steps[3:] - 33_333).max() <= 3_000
         assert all(f.n_persons == (i >= BIRTH_FRAMES - 1) for i, f in enumerate(fused))

@@ -31,6 +31,8 @@ import pytest
 from skelfuse.service.worker import MAX_FAILURES_WHILE_HUNG
 from skelfuse.service.zenoh_io import loopback_args
 
+pytestmark = pytest.mark.live
+
 ROOT = Path(__file__).resolve().parents[2]
 RUNNER = ROOT / "tests" / "fake_k4a" / "run_skelfuse.py"
 UNIT = ROOT / "config" / "systemd" / "skelfuse-capture@.service"

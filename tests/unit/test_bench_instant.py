@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from skelfuse.bench.instant import (
 from skelfuse.cli.bench import _sensors_by_people
 
 
+@pytest.mark.live  # bench runs are subprocesses
 def test_runs_alternate_between_baseline_and_current_and_record_the_load() -> None:
     result = run_instant_bench([(2, 1)], n_frames=4, rounds=1, baseline=OWN_SRC, progress=False)
     (case,) = result["cases"]
@@ -28,6 +30,16 @@ def test_runs_alternate_between_baseline_and_current_and_record_the_load() -> No
         assert len(run["load_before"]) == 3 and run["p50_ms"] > 0
     assert case["ratio_p50"] > 0 and case["ratio_cpu_p99"] > 0 and len(case["load_1min"]) == 2
     assert "| 2 x 1 |" in format_instant_bench(result)
+
+
+@pytest.mark.live  # bench runs are subprocesses
+def test_baseline_runs_import_the_baseline_tree(tmp_path: Path) -> None:
+    # A baseline whose skelfuse cannot be imported: its run fails and says why. Were the baseline's runs made
+    # on this tree, the bench would time it twice and never notice.
+    (tmp_path / "skelfuse").mkdir()
+    (tmp_path / "skelfuse" / "__init__.py").write_text('raise ImportError("the baseline tree was imported")\n')
+    with pytest.raises(RuntimeError, match="the baseline tree was imported"):
+        run_instant_bench([(2, 1)], n_frames=2, rounds=1, baseline=tmp_path, progress=False)
 
 
 def test_cases_parse_as_sensors_by_people() -> None:
@@ -45,12 +57,14 @@ def test_paced_runs_give_each_instant_its_frame_period() -> None:
     assert time_instants(2, 1, 6)["paced"] is False
 
 
+@pytest.mark.live  # bench runs are subprocesses
 def test_the_table_says_whether_instants_were_paced() -> None:
     result = run_instant_bench([(2, 1)], n_frames=3, rounds=1, paced=True, progress=False)
     assert result["paced"] and result["cases"][0]["runs"]["current"][0]["paced"]
     assert f"paced at {FPS:g} Hz" in format_instant_bench(result)
 
 
+@pytest.mark.live  # bench runs are subprocesses
 def test_positions_only_turns_off_the_orientation_and_uncertainty_stages_and_keeps_the_positions() -> None:
     # What the option times is a rig whose consumers need positions only: the same fused positions, bit for bit,
     # without the orientations and position_std that the stages it leaves out would have added.

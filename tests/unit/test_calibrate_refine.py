@@ -9,12 +9,12 @@ recorded simulated walk with a miscalibrated rig (the refined file is closer to 
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from recorder_progress import RecorderProgress
 
 from skelfuse.calibration.refine import CAPTURE_CENTRE_MM, pose_errors, simulated_walk, walk_frames
 from skelfuse.cli import main
@@ -26,6 +26,7 @@ from skelfuse.service.recorder import run_recorder
 from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import PersonCloudsFrame, encode_person_clouds
+from waiting import wait_for_subscriber
 
 RIG = "walk"
 
@@ -66,7 +67,10 @@ def test_pose_errors_by_hand() -> None:
     assert centre_mm == pytest.approx([0.0, 50.0]) and CAPTURE_CENTRE_MM[2] == 1000.0
 
 
-def test_the_recorder_writes_the_person_clouds_of_a_depth_rig(tmp_path: Path) -> None:
+@pytest.mark.live
+def test_the_recorder_writes_the_person_clouds_of_a_depth_rig(
+    tmp_path: Path, recorder_progress: RecorderProgress
+) -> None:
     import zenoh
 
     pose = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
@@ -95,11 +99,14 @@ def test_the_recorder_writes_the_person_clouds_of_a_depth_rig(tmp_path: Path) ->
     recorder.start()
     sent = [_clouds("s0", 1_000_000 + k * 33_333, 50 + k) for k in range(5)]
     with zenoh.open(loopback_config(connect_ports=[port])) as session:
-        time.sleep(1.0)  # the recorder's subscription reaches this peer
+        clouds = session.declare_publisher(keys.sensor_clouds(RIG, "s0"))
+        end = session.declare_publisher(keys.fused_skeletons(RIG))
+        wait_for_subscriber(clouds, "the recorder's subscription")
         for frame in sent:
-            session.put(keys.sensor_clouds(RIG, "s0"), encode_person_clouds(frame))
-        session.put(keys.sensor_clouds(RIG, "s0"), b"SKLF")  # truncated: counted, not written
-        time.sleep(0.5)
+            clouds.put(encode_person_clouds(frame))
+        clouds.put(b"SKLF")  # truncated: counted, not written
+        end.put(recorder_progress.end_marker())
+        recorder_progress.wait_for_end_marker()
     lifecycle.request_exit()
     recorder.join(10.0)
     report: Any = result["report"]

@@ -9,11 +9,11 @@ from __future__ import annotations
 import copy
 import re
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import pytest
+from recorder_progress import RecorderProgress
 
 from skelfuse.config import parse_rig_config
 from skelfuse.schema.errors import ConfigError
@@ -23,6 +23,7 @@ from skelfuse.service.worker import SimSource
 from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
+from waiting import wait_for_subscriber
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "configuration.md"
 BOGUS = "zz_not_a_key"
@@ -131,7 +132,10 @@ def test_record_with_nothing_to_record_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("record_sensors", [True, False])
-def test_record_sensors_decides_whether_sensor_frames_are_recorded(tmp_path: Path, record_sensors: bool) -> None:
+@pytest.mark.live
+def test_record_sensors_decides_whether_sensor_frames_are_recorded(
+    tmp_path: Path, record_sensors: bool, recorder_progress: RecorderProgress
+) -> None:
     import zenoh
 
     pose = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
@@ -161,12 +165,14 @@ def test_record_sensors_decides_whether_sensor_frames_are_recorded(tmp_path: Pat
     source = SimSource(cfg, "s0", take_duration_s=1.0, clock_ns=lambda: 10**18)
     with zenoh.open(loopback_config(connect_ports=[port])) as session:
         publisher = session.declare_publisher(keys.sensor_skeletons("rec", "s0"))
-        time.sleep(1.0)  # the recorder's subscription reaches this peer
+        end = session.declare_publisher(keys.fused_skeletons("rec"))
+        wait_for_subscriber(end, "the recorder's subscription")  # declared with the sensor one, if any
         for n in range(30):
             frame = source.frame_at(n)
             if frame is not None:
                 publisher.put(encode_sensor_frame(frame))
-        time.sleep(0.5)
+        end.put(recorder_progress.end_marker())
+        recorder_progress.wait_for_end_marker()
     lifecycle.request_exit()
     recorder.join(10.0)
     report = result["report"]

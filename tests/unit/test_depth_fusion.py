@@ -215,12 +215,21 @@ def test_virtual_depth_image_equals_a_direct_render_up_to_the_voxel_size(squat_s
 def test_the_inverse_warp_maps_a_skeleton_in_the_virtual_image_back_onto_the_truth(squat_scene) -> None:
     truth, clouds = squat_scene
     view = fuse_person_depth(clouds, POSES, K, skeleton_facing_deg=float(facing_deg(truth)))
+    # The virtual camera, built by hand from what the view decided (facing, centroid): level with the cloud's
+    # middle, the working distance ahead of the person, looking back at them; image x is the person's left.
+    frontal = view.frontal
+    facing = np.radians(frontal.facing_deg)
+    ahead = np.array([np.cos(facing), np.sin(facing), 0.0])
+    camera_at = frontal.centroid_mm + DEFAULT_WORKING_DISTANCE_MM * ahead
+    camera_axes = np.stack([[-np.sin(facing), np.cos(facing), 0.0], [0.0, 0.0, -1.0], -ahead])  # rows: x, y, z
     # What a perfect tracker would report on the virtual image: the true skeleton in the virtual camera frame.
-    found = view.frontal.to_camera(truth)
+    found = frontal.to_camera(truth)
+    np.testing.assert_allclose(found, (truth - camera_at) @ camera_axes.T, atol=1e-6)
     found[J["HANDTIP_LEFT"]] = np.nan  # a joint the tracker did not report
-    back = view.frontal.to_world(found)
+    back = frontal.to_world(found)
     keep = np.arange(32) != J["HANDTIP_LEFT"]
-    np.testing.assert_allclose(back[keep], truth[keep], atol=1e-9)
+    np.testing.assert_allclose(back[keep], camera_at + found[keep] @ camera_axes, atol=1e-6)
+    np.testing.assert_allclose(back[keep], truth[keep], atol=1e-6)
     assert np.isnan(back[J["HANDTIP_LEFT"]]).all()
     # ... and that skeleton faces the virtual camera: the person's left on the image's right (+x), the
     # pelvis at the working distance, every evaluated joint inside the rendered body, behind its surface.

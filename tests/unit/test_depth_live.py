@@ -35,6 +35,7 @@ from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
 from skelfuse.wire.clouds import encode_person_clouds
 from skelfuse.wire.codec import encode_sensor_frame
+from waiting import wait_for_subscriber, wait_until
 
 RIG = "dl"
 FIRST = 1_020  # instant number of take frame 0 (1020 = 34 x 30): the window never wraps the 1 s take
@@ -184,12 +185,12 @@ def test_bodies_join_the_nearest_previous_person_within_the_gate() -> None:
     assert associate_bodies(world, valid, np.zeros((0, 32, 3))).tolist() == [[-1, -1], [-1, -1]]
 
 
+@pytest.mark.live
 def test_the_node_subscribes_to_the_clouds_and_fuses_them_over_zenoh(tmp_path: Path) -> None:
     """A FusionNode in depth mode on a loopback zenoh session: clouds and skeletons published on their keys
     (clouds first, as the capture worker does) come out as the tracker's skeletons, and the rejects of a bad
     cloud payload are counted in the status, not raised."""
     import threading
-    import time
 
     import zenoh
 
@@ -216,21 +217,26 @@ def test_the_node_subscribes_to_the_clouds_and_fuses_them_over_zenoh(tmp_path: P
             session.declare_subscriber(
                 keys.fused_skeletons(RIG), lambda s: fused.append(decode_fused_frame(s.payload.to_bytes()))
             )
-            time.sleep(0.5)  # the declarations reach the node
-            session.put(keys.sensor_clouds(RIG, cfg.sensor_ids[1]), b"SKLF\x01\x00\x04")  # truncated
-            for n in range(FIRST, FIRST + 12):
+            clouds = {sid: session.declare_publisher(keys.sensor_clouds(RIG, sid)) for sid in cfg.sensor_ids}
+            skeletons = {sid: session.declare_publisher(keys.sensor_skeletons(RIG, sid)) for sid in cfg.sensor_ids}
+            # Both ways: the node's subscriptions reach this session, this session's reaches the node's publisher.
+            for publisher in [*clouds.values(), *skeletons.values()]:
+                wait_for_subscriber(publisher, "the node's subscriptions")
+            wait_for_subscriber(node._fused_publisher._publisher, "this test's fused subscription")
+            clouds[cfg.sensor_ids[1]].put(b"SKLF\x01\x00\x04")  # truncated
+            for k, n in enumerate(range(FIRST, FIRST + 12)):
                 for source in sources:
                     frame = source.frame_at(n)
                     if frame is not None:
-                        session.put(
-                            keys.sensor_clouds(RIG, source.sensor_id), encode_person_clouds(source.clouds_at(frame))
-                        )
-                        session.put(keys.sensor_skeletons(RIG, source.sensor_id), encode_sensor_frame(frame))
-                time.sleep(0.05)
-            deadline = time.monotonic() + 20.0
-            while time.monotonic() < deadline and node.core.frames_out < 12:
-                time.sleep(0.05)
-            time.sleep(0.3)
+                        clouds[source.sensor_id].put(encode_person_clouds(source.clouds_at(frame)))
+                        skeletons[source.sensor_id].put(encode_sensor_frame(frame))
+                # one instant at a time, as a live rig sends them: the next once the node has this one's clouds
+                wait_until(lambda k=k: node.depth.report()["clouds_received"] >= 4 * (k + 1), f"instant {k}'s clouds")
+            wait_until(
+                lambda: node.depth.report()["clouds_received"] == 4 * 12 and len(fused) >= node.core.frames_out >= 12,
+                "12 instants fused and received here",
+                details=lambda: str(node.depth.report()),
+            )
     finally:
         node.lifecycle.request_exit()
         thread.join(20.0)

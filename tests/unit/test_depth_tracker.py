@@ -155,6 +155,7 @@ def test_a_capture_the_tracker_cannot_read_is_refused(echo) -> None:
     assert fake_k4abt.stats().bad_captures == 1
 
 
+@pytest.mark.live
 def test_the_nodes_depth_stage_runs_the_sdk_adapter_one_tracker_per_person(echo, tmp_path, monkeypatch) -> None:
     """``[depth] tracker = "k4abt"``: the node's depth stage loads the SDK (here the fakes, found the way the
     node finds the SDK: SKELFUSE_K4A_LIBRARY / SKELFUSE_K4ABT_LIBRARY), says so, creates one tracker per track

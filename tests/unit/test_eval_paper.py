@@ -200,6 +200,7 @@ def test_rows_mark_ours_and_average_lag_and_jitter_over_their_members() -> None:
     assert result.paper_value("n_sensors", "4", "ae_mm", "torso") == 39.6
 
 
+@pytest.mark.live
 def test_report_files_markdown_and_json(tmp_path) -> None:
     from skelfuse.eval.report import write_report
 
@@ -297,20 +298,9 @@ def test_progress_draws_only_when_enabled() -> None:
 # End to end on the simulator and the fusion core.
 
 
-def _require_core() -> None:
-    for module in (
-        "skelfuse.fusion.pipeline",
-        "skelfuse.sim.observe",
-        "skelfuse.sim.rig",
-        "skelfuse.sim.gestures",
-    ):
-        pytest.importorskip(module)
-
-
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     """Both scenarios, 3 gestures x 2 directions x 5 s, seed 1124 (about 20 s on one core)."""
-    _require_core()
     out = tmp_path_factory.mktemp("paper")
     suite = paper.run_paper_eval(
         quick=True,
@@ -505,7 +495,6 @@ def test_fused_orientations_are_scored_against_truth_and_beat_the_views(quick_ru
 
 
 def test_orientations_do_not_change_the_fused_positions() -> None:
-    _require_core()
     from skelfuse.fusion.orientation import aim_directions, views_to_world
     from skelfuse.schema.skeleton import ORIENTATION_DERIVED_SOURCE
     from skelfuse.sim.gestures import make_gesture
@@ -532,7 +521,6 @@ def test_orientations_do_not_change_the_fused_positions() -> None:
 def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(monkeypatch) -> None:
     """The live node knows where its sensors stand (the rear-view rule of the temporal realignment needs it);
     the paper experiment must fuse with the same knowledge, each run with the positions of the sensors it uses."""
-    _require_core()
     from skelfuse.sim.gestures import make_gesture
     from skelfuse.sim.observe import load_profile, simulate
     from skelfuse.sim.rig import best_view_sensor, paper_rig

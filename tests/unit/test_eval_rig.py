@@ -19,6 +19,7 @@ from skelfuse.eval.rig import (
     dropout_share,
     gross_share,
     median_jitter,
+    seen_joints,
     velocity_lag,
 )
 from skelfuse.fusion.orientation import apply_derived, body_hint_frames, quat_from_rotvec, quat_multiply
@@ -50,6 +51,15 @@ def test_metric_functions_on_hand_made_cases() -> None:
     gappy[:15] = np.nan
     assert dropout_share(gappy, views, joints) == pytest.approx(0.25)
     assert math.isnan(dropout_share(path, np.full_like(views, np.nan), joints))
+    # Hands the tracker reported NONE in both views were never seen: nothing to drop (not 100 %).
+    hands = REPORT_GROUPS["hands"]
+    confidence = np.full(views.shape[:3], 2, dtype=np.uint8)
+    confidence[:, :, hands] = 0
+    no_hands = path.copy()
+    no_hands[:, hands] = np.nan  # the fusion drops NONE joints
+    assert dropout_share(no_hands, views, hands) == 1.0  # counted as seen, as the report did
+    assert math.isnan(dropout_share(no_hands, seen_joints(views, confidence, True), hands))
+    assert dropout_share(no_hands, seen_joints(views, confidence, False), hands) == 1.0
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +90,12 @@ def test_eval_real_on_json_views_with_auto_calibration(three_view_take, tmp_path
     fused_agreement = np.median(list(torso["skelfuse"]["agreement"].values()))
     assert fused_agreement < np.median([np.median(list(torso[v]["agreement"].values())) for v in views])
     assert result["track_ids"]["skelfuse"] == 1
+    # Causal, fixed-lag and smoothed side by side: smoothing lowers the jitter without lag; no continuity break.
+    for label in ("skelfuse lag 3", "skelfuse rts"):
+        assert torso[label]["jitter"] < torso["skelfuse"]["jitter"]
+        assert all(lag == 0 for lag in torso[label]["lag"].values())
+    assert torso["skelfuse rts"]["jitter"] < torso["skelfuse lag 3"]["jitter"]
+    assert all(v["one_view_episodes"] == 0 and v["steps"] == 0 for v in result["continuity"].values())
     # leave-one-out: the fused pair predicts the held-out view at least as well as the worse single view
     for held, row in result["leave_one_out"]["skelfuse"].items():
         singles = [v for k, v in row.items() if k.startswith("view ")]

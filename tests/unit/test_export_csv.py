@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from skelfuse.export.csv import FUSED_COLUMNS, read_fused_table, write_fused
@@ -115,7 +116,6 @@ def test_csv_layout_read_by_the_stdlib(tmp_path: Path, orient: bool) -> None:
 
 @pytest.mark.parametrize("orient", [False, True], ids=["positions only", "with orientations"])
 def test_parquet_layout_read_by_pyarrow(tmp_path: Path, orient: bool) -> None:
-    pq = pytest.importorskip("pyarrow.parquet")
     frames = [with_orientations(f) if orient else f for f in fused_frames()]
     path = tmp_path / "fused.parquet"
     assert write_fused(frames, path) == 3 * N_JOINTS
@@ -127,8 +127,6 @@ def test_parquet_layout_read_by_pyarrow(tmp_path: Path, orient: bool) -> None:
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_reader_gives_back_the_frames(tmp_path: Path, suffix: str) -> None:
-    if suffix == ".parquet":
-        pytest.importorskip("pyarrow.parquet")
     frames = fused_frames()
     path = tmp_path / f"fused{suffix}"
     write_fused(frames, path)

@@ -11,6 +11,8 @@ import json
 import warnings
 from pathlib import Path
 
+import c3d
+import ezc3d
 import numpy as np
 import pytest
 
@@ -99,8 +101,6 @@ def test_tracks_on_the_grid() -> None:
 
 
 def test_c3d_read_back_by_ezc3d_and_by_c3d(tmp_path: Path, fused_csv: Path, capsys) -> None:
-    ezc3d = pytest.importorskip("ezc3d")
-    c3d = pytest.importorskip("c3d", reason="the independent pure-Python C3D reader (pip install c3d)")
     summary = export(str(fused_csv), "--format", "c3d", "--output", str(tmp_path / "out.c3d"), capsys=capsys)
     files = [Path(f) for f in summary["files"]]
     assert [f.name for f in files] == ["out_track3.c3d", "out_track8.c3d"]
@@ -138,13 +138,16 @@ def test_c3d_read_back_by_ezc3d_and_by_c3d(tmp_path: Path, fused_csv: Path, caps
         np.testing.assert_allclose(values[~gaps], positions[~gaps], rtol=0, atol=1e-3)
 
 
+OPENSIM_MISSING = "OpenSim's TRC reader: the optional extra `opensim` is not installed (pip install -e '.[opensim]')"
+
+
 def osim_table(path: Path):
-    osim = pytest.importorskip("opensim", reason="OpenSim's TRC reader (pip install opensim)")
+    osim = pytest.importorskip("opensim", reason=OPENSIM_MISSING)
     return osim, osim.TimeSeriesTableVec3(str(path))
 
 
 def test_trc_read_by_opensim(tmp_path: Path, fused_csv: Path, capsys) -> None:
-    pytest.importorskip("opensim", reason="OpenSim's TRC reader (pip install opensim)")
+    pytest.importorskip("opensim", reason=OPENSIM_MISSING)
     summary = export(str(fused_csv), "--format", "trc", "--output", str(tmp_path / "out.trc"), capsys=capsys)
     rate = summary["rate_hz"]  # from the timestamps: 1e6 / the median step
     assert rate == pytest.approx(1e6 / STEP_US, rel=1e-4)
@@ -173,15 +176,16 @@ def test_trc_read_by_opensim(tmp_path: Path, fused_csv: Path, capsys) -> None:
         assert markers.getUnits().getAbbreviation() == "mm"
 
 
-def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path) -> None:
+@pytest.mark.parametrize("track", [3, 8], ids=["with-gap-row", "arriving-late"])
+def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path, track: int) -> None:
     """The layout OpenSim's documentation gives for .trc files, without OpenSim."""
     out = tmp_path / "p.trc"
-    export(str(fused_csv), "--format", "trc", "--person", "8", "--output", str(out), "--world-axes")
+    export(str(fused_csv), "--format", "trc", "--person", str(track), "--output", str(out), "--world-axes")
     lines = out.read_text(encoding="utf-8").split("\n")
     assert lines[0].split("\t") == ["PathFileType", "4", "(X/Y/Z)", "p.trc"]
     assert tuple(lines[1].split("\t")) == HEADER_KEYS
     values = dict(zip(HEADER_KEYS, lines[2].split("\t"), strict=True))
-    first, positions = expected_person(8)
+    first, positions = expected_person(track)
     assert float(values["DataRate"]) == float(values["CameraRate"]) == float(values["OrigDataRate"])
     assert int(values["NumFrames"]) == len(positions) and int(values["NumMarkers"]) == N_JOINTS
     assert values["Units"] == "mm" and values["OrigDataStartFrame"] == "1"
@@ -198,8 +202,16 @@ def test_trc_layout_line_by_line(tmp_path: Path, fused_csv: Path) -> None:
         cells = row[2 : 2 + 3 * N_JOINTS]
         got = np.array([np.nan if c == "" else float(c) for c in cells]).reshape(N_JOINTS, 3)
         np.testing.assert_allclose(got, positions[k], atol=1e-4, equal_nan=True)  # --world-axes: z up as fused
-    gap_row = rows[DROPPED - first] if first <= DROPPED else None
-    assert gap_row is None  # track 8 starts after the dropped slot: no gap row in its file
+    if first > DROPPED:
+        assert track == 8  # it arrives after the dropped slot: no gap row in its file
+        return
+    # The dropped slot is a row of its own, with its frame number and time and no marker value.
+    gap_row = rows[DROPPED - first]
+    assert int(gap_row[0]) == DROPPED + 1 and float(gap_row[1]) == pytest.approx(DROPPED * STEP_US / 1e6, abs=1e-3)
+    assert gap_row[2 : 2 + 3 * N_JOINTS] == [""] * (3 * N_JOINTS)
+    nan_row = rows[NAN_JOINT[0] - first]  # one joint without an estimate: only its three cells are empty
+    empty = [k // 3 for k, cell in enumerate(nan_row[2 : 2 + 3 * N_JOINTS]) if cell == ""]
+    assert empty == [NAN_JOINT[1]] * 3
 
 
 def test_csv_export_from_a_fused_recording_and_a_sensor_recording(tmp_path: Path, capsys) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import stat
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +20,7 @@ from skelfuse.config.model import ZenohTls
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service.certs import make_rig_certificates
 from skelfuse.service.zenoh_io import free_port
+from waiting import wait_until
 
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 
@@ -67,6 +67,7 @@ def test_session_config_carries_tls_retry_and_size_limits(certs: Path) -> None:
         zenoh_config(cfg, mode="client", identity="capture-pc-z")  # no such certificate
 
 
+@pytest.mark.live
 def test_congestion_keys_reach_the_session_config_and_the_fused_publisher() -> None:
     """[zenoh] wait_before_drop_ms / wait_before_close_ms (ms) become zenoh's microseconds; the fused
     publisher is declared with the chosen congestion control, express, on DATA_HIGH (read back from zenoh)."""
@@ -146,6 +147,7 @@ def _secured(cfg: RigConfig, tls: ZenohTls) -> RigConfig:
     return dataclasses.replace(cfg, zenoh=z)
 
 
+@pytest.mark.live
 def test_router_enforces_mutual_tls_and_per_key_access(certs: Path, tmp_path: Path) -> None:
     import zenoh
 
@@ -171,15 +173,27 @@ def test_router_enforces_mutual_tls_and_per_key_access(certs: Path, tmp_path: Pa
 
         app.declare_subscriber("skelfuse/sim4/**", on_sample)
         pc_a, fusion = client(cfg, "capture-pc-a"), client(cfg, "fusion")
-        time.sleep(0.5)
-        pc_a.put("skelfuse/sim4/sensors/capture_0/skeletons", b"own sensor")
+        own_key, fused_key = "skelfuse/sim4/sensors/capture_0/skeletons", "skelfuse/sim4/fused/skeletons"
+
+        def arrived(key: str, payload: bytes) -> bool:
+            with lock:
+                return (key, payload) in received
+
+        # Each client's allowed key reaches the viewer before the check starts (routes are in place).
+        for session, key in ((pc_a, own_key), (fusion, fused_key)):
+            wait_until(lambda s=session, k=key: s.put(k, b"ready") or arrived(k, b"ready"), f"{key} to route")
+        pc_a.put(own_key, b"own sensor")
         pc_a.put("skelfuse/sim4/sensors/capture_2/skeletons", b"pc-b's sensor, forged")
-        pc_a.put("skelfuse/sim4/fused/skeletons", b"fused, forged by a capture PC")
-        fusion.put("skelfuse/sim4/fused/skeletons", b"fused")
+        pc_a.put(fused_key, b"fused, forged by a capture PC")
+        fusion.put(fused_key, b"fused")
         fusion.put("skelfuse/sim4/sensors/capture_3/skeletons", b"sensor, forged by the fusion node")
-        time.sleep(0.8)
+        # One session's messages keep their order on its link: once each client's last message has arrived,
+        # a forged one sent before it would have arrived too.
+        pc_a.put(own_key, b"end")
+        fusion.put(fused_key, b"end")
+        wait_until(lambda: arrived(own_key, b"end") and arrived(fused_key, b"end"), "both clients' last messages")
         with lock:
-            got = sorted(received)
+            got = sorted(sample for sample in received if sample[1] not in (b"ready", b"end"))
         assert got == [
             ("skelfuse/sim4/fused/skeletons", b"fused"),
             ("skelfuse/sim4/sensors/capture_0/skeletons", b"own sensor"),

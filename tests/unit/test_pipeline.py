@@ -43,9 +43,12 @@ VARIANTS = [pytest.param(preset(name), id=name) for name in PAPER_PRESETS] + [
     pytest.param(replace(preset("A5"), realign="body"), id="A5-body"),
     pytest.param(replace(preset("A5"), filter="cv_kalman", max_coast_frames=2), id="A5-cv"),
     pytest.param(replace(preset("A4"), filter="alpha_beta", min_confidence=None), id="A4-alphabeta-allconf"),
-    pytest.param(preset("skelfuse"), id="skelfuse"),
+    # The loop reference has no plausibility stage (tests/unit/test_plausibility.py checks that one).
+    pytest.param(replace(preset("skelfuse"), plausibility_gate_mm=None), id="skelfuse"),
     pytest.param(replace(preset("A4"), realign="temporal", recovery_frames=1, recovery_share=0.55), id="temporal-rec1"),
-    pytest.param(replace(preset("skelfuse"), previous_candidate="predicted"), id="skelfuse-predicted"),
+    pytest.param(
+        replace(preset("skelfuse"), previous_candidate="predicted", plausibility_gate_mm=None), id="skelfuse-predicted"
+    ),
     pytest.param(
         replace(preset("A4"), realign="temporal", filter="alpha_beta", previous_candidate="predicted"),
         id="temporal-alphabeta-predicted",
@@ -65,7 +68,8 @@ def test_fuse_equals_reference_implementation(params):
 @pytest.mark.parametrize(
     "params",
     [
-        pytest.param(preset("skelfuse"), id="skelfuse"),
+        # The loop reference has no plausibility stage (tests/unit/test_plausibility.py checks that one).
+        pytest.param(replace(preset("skelfuse"), plausibility_gate_mm=None), id="skelfuse"),
         pytest.param(
             replace(preset("A5"), realign="temporal", recovery_frames=2, recovery_share=0.6), id="A5-temporal"
         ),
@@ -244,7 +248,7 @@ def test_skelfuse_equals_reference_across_a_teleport():
     # A looped take's seam: every body jumps 400 mm between frames 3 and 4 (the teleport rule starts the
     # realignment cold; the reference must do the same) while half the views are mirrored.
     rng = np.random.default_rng(SEED + 4)
-    params = preset("skelfuse")
+    params = replace(preset("skelfuse"), plausibility_gate_mm=None)  # the loop reference has no plausibility stage
     assert params.max_body_speed_mm_s is not None
     fuser, oracle = Fuser(params, 2), ReferenceFuser(params, 2)
     for t, (cand, conf) in enumerate(_sequence(rng, 2, 4, 7)):

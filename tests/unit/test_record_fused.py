@@ -8,11 +8,11 @@ bytes as given.
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 from mcap.reader import make_reader
 
 from skelfuse.config import parse_rig_config
@@ -24,6 +24,7 @@ from skelfuse.service.recorder import RecordReport, run_recorder
 from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, encode_fused_frame, encode_sensor_frame
+from waiting import wait_for_subscriber, wait_until
 
 RIG = "lab"
 SENSORS = ("000111", "000222")
@@ -150,12 +151,12 @@ def test_a_bad_fused_payload_is_refused_and_a_file_without_fused_channel_yields_
 
 
 @pytest.mark.parametrize("record_fused", [True, False], ids=["fused on", "fused off"])
+@pytest.mark.live
 def test_recorder_records_the_fused_key_as_configured_and_rejects_bad_payloads(
     tmp_path: Path, record_fused: bool
 ) -> None:
     """run_recorder in-process on a real zenoh loopback session: `[record] fused` decides whether the fused key is
     recorded; a bad payload on it is counted by reason and the recorder goes on."""
-    zenoh = pytest.importorskip("zenoh")
     port = free_port()
     cfg = parse_rig_config(
         {
@@ -177,27 +178,32 @@ def test_recorder_records_the_fused_key_as_configured_and_rejects_bad_payloads(
     thread.start()
     session = zenoh.open(loopback_config(connect_ports=[port]))
     try:
-        deadline = time.monotonic() + 20
-        while not any(
-            getattr(r, "ok", None) is not None
-            for r in session.liveliness().get(keys.alive(RIG, "recorder"), timeout=0.5)
-        ):
-            assert time.monotonic() < deadline, "the recorder never declared its liveliness token"
-        time.sleep(0.3)
+        wait_until(
+            lambda: any(
+                getattr(r, "ok", None) is not None
+                for r in session.liveliness().get(keys.alive(RIG, "recorder"), timeout=0.5)
+            ),
+            "the recorder's liveliness token",
+        )
         fused_pub = session.declare_publisher(keys.fused_skeletons(RIG))
         sensor_pub = session.declare_publisher(keys.sensor_skeletons(RIG, SENSORS[0]))
+        wait_for_subscriber(sensor_pub, "the recorder's subscription")
+        if record_fused:
+            wait_for_subscriber(fused_pub, "the recorder's fused subscription")
         good = [encode_fused_frame(fused_frame(i)) for i in range(3)]
         fused_pub.put(good[0])
         fused_pub.put(b"SKLF garbage")
         fused_pub.put(good[1])
         sensor_pub.put(encode_sensor_frame(sensor_frame(0, 0)))
         fused_pub.put(good[2])
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and output.exists():
+
+        def recorded() -> bool:  # flushed every 0.2 s: read back what the file holds so far
+            if not output.exists():
+                return False
             rec = RecordingReader(output)
-            if len(list(rec.frames())) == 1 and (not record_fused or len(list(rec.fused_frames())) == 3):
-                break
-            time.sleep(0.1)
+            return len(list(rec.frames())) == 1 and (not record_fused or len(list(rec.fused_frames())) == 3)
+
+        wait_until(recorded, "the sensor frame (and the 3 good fused frames) in the recording")
     finally:
         lifecycle.request_exit()
         thread.join(15)

@@ -19,6 +19,7 @@ from mcap.writer import Writer
 
 import skelfuse
 from skelfuse.config import FusionConfig, RigConfig, SensorConfig
+from skelfuse.fusion.orientation import aim_directions, quat_rotate
 from skelfuse.fusion.transform import invert_transform, make_transform
 from skelfuse.recording import (
     RecordingReader,
@@ -29,7 +30,7 @@ from skelfuse.recording import (
 )
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import SensorFrame
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.schema.skeleton import N_JOINTS, ORIENTATION_AIMED
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_sensor_frame
 
@@ -194,6 +195,7 @@ def _child_record(path: str) -> None:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL")
+@pytest.mark.live
 def test_kill_9_leaves_a_readable_file_up_to_the_last_flush(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     code = (
@@ -484,3 +486,37 @@ def test_replay_paces_by_log_time(tmp_path: Path) -> None:
     assert fast.sleeps == [] and [due for due, _ in got] == pytest.approx(offsets)
     with pytest.raises(ValueError, match="speed"):
         list(replay_frames(reader, speed=0))
+
+
+def test_offline_smoothing_lowers_the_jitter_and_the_error(tmp_path: Path) -> None:
+    path = tmp_path / "synthetic.mcap"
+    write_synthetic(path, rig_poses(), 120, store_calibration=True, drop={(0, 60), (1, 60)})
+    live = list(fuse_recording(path, progress=False, smoother="none"))
+    smoothed = list(fuse_recording(path, progress=False))  # the default with the skelfuse preset: rts
+    assert [f.time_us for f in live] == [f.time_us for f in smoothed]
+    frame_of = [round((f.time_us - 5_000_000) / 33_333) for f in live]
+    truth = np.stack([truth_skeleton(i) for i in frame_of[BIRTH_FRAMES - 1 :]])
+    positions = {
+        name: np.stack([f.positions[0] for f in take[BIRTH_FRAMES - 1 :]])
+        for name, take in (("live", live), ("rts", smoothed))
+    }
+    error = {name: float(np.median(np.linalg.norm(x - truth, axis=-1))) for name, x in positions.items()}
+    jitter = {name: float(np.median(np.abs(np.diff(x - truth, 2, axis=0)))) for name, x in positions.items()}
+    assert error["rts"] < error["live"]
+    assert jitter["rts"] < 0.5 * jitter["live"]
+    for a_frame, b_frame in zip(live, smoothed, strict=True):  # the same persons, flags and missing joints
+        np.testing.assert_array_equal(a_frame.track_ids, b_frame.track_ids)
+        np.testing.assert_array_equal(a_frame.n_agree, b_frame.n_agree)
+        np.testing.assert_array_equal(np.isnan(a_frame.positions), np.isnan(b_frame.positions))
+        if b_frame.n_persons:  # the orientations follow the smoothed bones (their X axis on the aim bone)
+            x_axes = quat_rotate(b_frame.orientations[0], np.array([1.0, 0.0, 0.0]))
+            aims = aim_directions(b_frame.positions[0])
+            np.testing.assert_allclose(x_axes[ORIENTATION_AIMED], aims[ORIENTATION_AIMED], atol=1e-9)
+
+
+def test_the_rts_smoother_refuses_a_filter_without_velocity(tmp_path: Path) -> None:
+    path = tmp_path / "synthetic.mcap"
+    write_synthetic(path, rig_poses(), 5, store_calibration=True)
+    with pytest.raises(DataError, match="--smoother none"):
+        fuse_recording(path, preset_name="A5", smoother="rts", progress=False)
+    assert len(list(fuse_recording(path, preset_name="A5", progress=False))) == 5  # default: none for A5

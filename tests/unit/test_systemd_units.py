@@ -44,6 +44,7 @@ def test_unit_command_line_parses_with_skelfuses_own_parser(unit: Path) -> None:
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+@pytest.mark.live
 def test_units_pass_systemd_analyze_verify(tmp_path: Path) -> None:
     skelfuse = Path(sys.executable).parent / "skelfuse"  # the venv's entry point stands in for /opt/skelfuse
     assert skelfuse.exists()

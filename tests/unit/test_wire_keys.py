@@ -101,7 +101,8 @@ def test_parse_sensor_key_checks_the_rig() -> None:
 
 
 def test_keys_are_valid_zenoh_key_expressions() -> None:
-    zenoh = pytest.importorskip("zenoh")
+    import zenoh
+
     sensor = zenoh.KeyExpr(keys.sensor_skeletons("lab", "000123412512"))
     assert zenoh.KeyExpr(keys.all_sensor_skeletons("lab")).intersects(sensor)
     assert not zenoh.KeyExpr(keys.all_sensor_skeletons("studio")).intersects(sensor)

@@ -114,6 +114,7 @@ def test_example_subscriber_decodes_the_sections():
     assert "orientations" not in plain["persons"][0] and "position_std" not in plain["persons"][0]
 
 
+@pytest.mark.live
 def test_old_decoders_read_new_payloads_and_new_decoders_read_old_ones(tmp_path):
     old_codec = _module_from_git("src/skelfuse/wire/codec.py", "skelfuse_wire_codec_1_0", tmp_path)
     old_example = _module_from_git("scripts/example_subscriber.py", "skelfuse_example_1_0", tmp_path)

@@ -36,6 +36,7 @@ from skelfuse.config.parse import load_rig_config
 from skelfuse.config.zenoh_session import zenoh_config
 from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.schema.frames import FusedFrame
+from skelfuse.service.zenoh_io import close_session
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
@@ -165,7 +166,7 @@ class FusedSubscriber:
             self._closed = True
             self._put_newest(_CLOSED)
         self._subscriber.undeclare()
-        self._session.close()
+        close_session(self._session, what="the subscriber's zenoh session")  # bounded: a stalled peer cannot hold it
 
     def __enter__(self) -> FusedSubscriber:
         return self
@@ -242,7 +243,7 @@ def subscribe(
     try:
         return FusedSubscriber(session, keys.fused_skeletons(cfg.name), queue_frames)
     except BaseException:
-        session.close()
+        close_session(session, what="the subscriber's zenoh session")
         raise
 
 

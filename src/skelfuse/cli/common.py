@@ -103,6 +103,10 @@ class PathArg:
         return f"PathArg({self.must})"
 
 
+OFFLINE_SMOOTHERS = ("rts", "none")
+"""``--smoother`` choices: the names of :data:`skelfuse.fusion.smoother.SMOOTHERS` (tests/unit/test_smoother.py checks
+they agree), here so that parsing imports no fusion code."""
+
 EXISTING_FILE = PathArg("file")
 EXISTING_DIR = PathArg("dir")
 OUTPUT_FILE = PathArg("output")

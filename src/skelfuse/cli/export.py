@@ -19,6 +19,7 @@ from skelfuse.cli.common import (
     COUNT,
     EXIT_OK,
     INDEX,
+    OFFLINE_SMOOTHERS,
     POSITIVE,
     add_json_option,
     add_output_option,
@@ -160,6 +161,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         refuse=args.fuse,
         progress=not quiet,
         world_from_sensor=_fusion_poses(args, cfg),
+        smoother=args.smoother,
     )
     if not quiet:
         note(f"export: reading {args.input} ({source.kind})")
@@ -297,6 +299,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     export.add_argument(
         "--preset", default=None, help=f"recording of sensor frames: fusion preset (default: {DEFAULT_PRESET})"
+    )
+    export.add_argument(
+        "--smoother",
+        choices=OFFLINE_SMOOTHERS,
+        default=None,
+        help="recording of sensor frames: zero-lag smoothing of the fused take (rts) or the live filter's output "
+        "(none); default rts with the skelfuse preset",
     )
     export.add_argument(
         "--fuse", action="store_true", help="recording: fuse its sensor frames even if it holds a fused stream"

@@ -14,6 +14,7 @@ from skelfuse.cli.common import (
     EXISTING_FILE,
     EXIT_OK,
     NON_NEGATIVE,
+    OFFLINE_SMOOTHERS,
     OUTPUT_FILE,
     PORT,
     POSITIVE,
@@ -143,7 +144,12 @@ def _fuse_offline(args: argparse.Namespace) -> int:
         source = Path(args.input[0])
     poses = world_poses(args, take, cfg)
     frames = fuse_recording(
-        source, rig_config=cfg, world_from_sensor=poses, preset_name=args.preset, progress=not args.json
+        source,
+        rig_config=cfg,
+        world_from_sensor=poses,
+        preset_name=args.preset,
+        progress=not args.json,
+        smoother=args.smoother,
     )
     try:
         rows = write_fused(frames, args.output)
@@ -326,6 +332,13 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:
         "writes); overrides the config's and the recording's",
     )
     add_level_options(fuse)
+    fuse.add_argument(
+        "--smoother",
+        choices=OFFLINE_SMOOTHERS,
+        default=None,
+        help="offline: zero-lag smoothing of the whole take (rts) or the live filter's output, frame by frame (none); "
+        "default rts with the skelfuse preset",
+    )
     fuse.add_argument(
         "--preset",
         default=None,

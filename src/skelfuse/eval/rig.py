@@ -31,7 +31,15 @@ The metrics (all in mm unless said; docs/evaluation.md says what each can and ca
     points against the majority of the others (:mod:`skelfuse.eval.view_mirroring`): the rig's own mirroring
     rate, to set against ``skelfuse eval robustness --mirroring-sweep``.
 ``dropouts``
-    share of instants where some view has the group but the fused output has none.
+    share of instants where some view has the group (not reported NONE) but the fused output has none.
+``continuity``
+    fused pelvis steps faster than a person moves, and episodes where the fused body followed one view away
+    from its path (:mod:`skelfuse.eval.continuity`): a tracker failure the fusion followed, which the gross
+    count cannot see (the fused joint sits on the failing view).
+``causal / lag 3 / rts``
+    a preset with the constant-velocity filter is reported three ways: the live filter's output (its name),
+    the fixed-lag smoother at 3 instants (100 ms at 30 fps) and the fixed-interval RTS smoother of offline
+    fusion and exports (:mod:`skelfuse.fusion.smoother`).
 ``track_ids``
     distinct track ids the fused person had over the take (1 = never lost).
 ``leave-one-out`` (N >= 3)
@@ -54,6 +62,7 @@ import numpy as np
 
 from skelfuse.calibration.skeleton import calibrate_from_skeletons
 from skelfuse.calibration.takes import take_arrays
+from skelfuse.eval.continuity import continuity
 from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
 from skelfuse.eval.view_mirroring import view_mirroring
@@ -141,6 +150,14 @@ def dropout_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray) -> f
     return float((view_has & ~fused_has).sum() / view_has.sum()) if view_has.any() else math.nan
 
 
+def seen_joints(views: np.ndarray, confidence: np.ndarray, meaningful: bool) -> np.ndarray:
+    """(T, S, 32, 3) views with the joints the tracker reported NONE set to NaN: such a joint carries a guessed
+    position, it was not seen, so the fused output cannot have dropped it (confidence not meaningful: as is)."""
+    if not meaningful:
+        return views
+    return np.where((np.asarray(confidence) > int(Confidence.NONE))[..., None], views, np.nan)
+
+
 def median_distance(a: np.ndarray, b: np.ndarray, joints: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Median distance of (T, 32, 3) ``a`` and ``b`` over ``joints`` where both exist (and ``mask`` (T, 32))."""
     d = np.linalg.norm(a[:, joints] - b[:, joints], axis=-1)
@@ -169,6 +186,7 @@ class RigEvalResult:
     groups: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     mirrored: dict[str, int] = field(default_factory=dict)
     track_ids: dict[str, int] = field(default_factory=dict)
+    continuity: dict[str, dict[str, int]] = field(default_factory=dict)
     leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     orientation_agreement: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     view_mirroring: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -194,10 +212,16 @@ def _jsonable(value: Any) -> Any:
 
 
 def _fused_person(
-    take: InputTake, poses: np.ndarray, preset_name: str, views: np.ndarray, eps_mm: float | None
+    take: InputTake,
+    poses: np.ndarray,
+    preset_name: str,
+    views: np.ndarray,
+    eps_mm: float | None,
+    smoothing: tuple[str, int | None] = ("none", None),
 ) -> tuple[np.ndarray, np.ndarray | None, int]:
     """(T, 32, 3) the fused person nearest the views' pelvis per instant, its (T, 32, 4) orientations (None where
-    the preset makes none), and how many track ids it had."""
+    the preset makes none), and how many track ids it had. ``smoothing``: the offline smoother and its lag
+    (:func:`skelfuse.recording.fuse_recording`); the default is the live filter's own output."""
     frames = list(
         fuse_recording(
             take,
@@ -205,6 +229,8 @@ def _fused_person(
             preset_name=preset_name,
             eps_mm=eps_mm,
             progress=False,
+            smoother=smoothing[0],
+            smoother_lag=smoothing[1],
         )
     )
     if len(frames) != len(views):
@@ -279,6 +305,27 @@ def _poses(
     )
 
 
+FIXED_LAG_FRAMES = 3
+"""The fixed lag ``eval real`` reports beside the causal and the smoothed outputs (100 ms at 30 fps)."""
+
+
+def smoothing_variants(preset_name: str) -> dict[str, tuple[str, int | None]]:
+    """The outputs a preset is reported as: label -> (smoother, lag). A preset whose filter has no velocity model
+    is reported as it runs live only."""
+    if preset(preset_name).filter != "cv_kalman":
+        return {preset_name: ("none", None)}
+    return {
+        preset_name: ("none", None),
+        f"{preset_name} lag {FIXED_LAG_FRAMES}": ("rts", FIXED_LAG_FRAMES),
+        f"{preset_name} rts": ("rts", None),
+    }
+
+
+def take_times_s(take: InputTake) -> np.ndarray:
+    """(T,) each grouped instant's time, s (the time the take's frames were matched by)."""
+    return np.array([group.time_us / 1e6 for group in take.groups(None)], dtype=np.float64)
+
+
 def run_rig_eval(
     take: InputTake,
     *,
@@ -306,6 +353,7 @@ def run_rig_eval(
     evaluated = slice(first, len(world))
     views = world[evaluated]
     views_s = np.moveaxis(views, 1, 0)  # (S, T, 32, 3)
+    seen_views = seen_joints(views, confidence[evaluated], meaningful)
     result = RigEvalResult(
         sensors=list(ids),
         formats=dict(take.formats),
@@ -317,14 +365,17 @@ def run_rig_eval(
         confidence_meaningful=meaningful,
         presets=list(presets),
     )
+    times_s = take_times_s(take)
     fused_by_preset: dict[str, np.ndarray] = {}
     quats_by_preset: dict[str, np.ndarray] = {}
     for name in presets:
-        fused_all, quats_all, n_ids = _fused_person(take, poses, name, world, eps_mm)
-        fused_by_preset[name] = fused_all[evaluated]
-        if quats_all is not None:
-            quats_by_preset[name] = quats_all[evaluated]
-        result.track_ids[name] = n_ids
+        for label, smoothing in smoothing_variants(name).items():
+            fused_all, quats_all, n_ids = _fused_person(take, poses, name, world, eps_mm, smoothing)
+            fused_by_preset[label] = fused_all[evaluated]
+            if quats_all is not None and label == name:  # orientation agreement: the live output's
+                quats_by_preset[label] = quats_all[evaluated]
+            result.track_ids[label] = n_ids
+            result.continuity[label] = continuity(fused_all[evaluated], views, times_s[evaluated])
     if quats_by_preset:
         view_quats = _view_orientations(take, poses)
         if len(view_quats) != len(world):
@@ -335,7 +386,7 @@ def run_rig_eval(
                 quats, fused_by_preset[name], view_quats, views, ids
             )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
-    result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated]))
+    result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated], seen_views))
     for label, seq in candidates.items():
         others = [i for i, s in enumerate(ids) if label != f"view {s}"]
         flags, _ = mirrored_frames(seq, views_s[others])
@@ -349,10 +400,14 @@ def run_rig_eval(
 
 
 def _agreement_groups(
-    candidates: dict[str, np.ndarray], ids: Sequence[str], views: np.ndarray, medium_evaluated: np.ndarray
+    candidates: dict[str, np.ndarray],
+    ids: Sequence[str],
+    views: np.ndarray,
+    medium_evaluated: np.ndarray,
+    seen_views: np.ndarray,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Per report group and candidate (each preset's fused person, each view): jitter, agreement with the other
-    views, lag, gross errors and dropouts."""
+    views, lag, gross errors and dropouts (against ``seen_views``: the views without their NONE joints)."""
     groups: dict[str, dict[str, dict[str, Any]]] = {}
     for group, joints in REPORT_GROUPS.items():
         rows: dict[str, dict[str, Any]] = {}
@@ -366,7 +421,7 @@ def _agreement_groups(
                 },
                 "lag": {ids[i]: velocity_lag(seq, views[:, i], joints) for i in others} if not is_view else {},
                 "gross": gross_share(seq, views[:, others], joints),
-                "dropouts": dropout_share(seq, views, joints) if not is_view else math.nan,
+                "dropouts": dropout_share(seq, seen_views, joints) if not is_view else math.nan,
             }
         groups[group] = rows
     return groups
@@ -470,9 +525,20 @@ def format_markdown(result: RigEvalResult) -> str:
                 f"{_f(100 * row['dropouts']) if math.isfinite(row['dropouts']) else '-'} |"
             )
         lines.append("")
-    lines += ["## Whole skeleton", "", "| output | mirrored frames | track ids |", "|---|---|---|"]
+    lines += [
+        "## Whole skeleton",
+        "",
+        "| output | mirrored frames | track ids | pelvis steps > 3 m/s | one-view episodes (instants) |",
+        "|---|---|---|---|---|",
+    ]
     for label, count in result.mirrored.items():
-        lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} |")
+        breaks = result.continuity.get(label)
+        cells = (
+            "- | -"
+            if breaks is None
+            else (f"{breaks['steps']} | {breaks['one_view_episodes']} ({breaks['one_view_frames']})")
+        )
+        lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} | {cells} |")
     lines += _view_mirroring_lines(result)
     if result.orientation_agreement:
         lines += [

@@ -56,6 +56,7 @@ def open_fused(
     refuse: bool = False,
     progress: bool = True,
     world_from_sensor: Mapping[str, np.ndarray] | None = None,
+    smoother: str | None = None,
 ) -> FusedSource:
     """Open ``path`` as a source of fused frames (see the module docstring).
 
@@ -63,6 +64,8 @@ def open_fused(
     ----------
     refuse : bool
         For a recording: fuse its sensor frames even when it holds a recorded fused stream.
+    smoother : "rts", "none" or None
+        For a recording fused here: :func:`skelfuse.recording.fuse_recording`'s smoother (None: its default).
     progress : bool
         Offline fusion draws its progress bar on stderr (when it is a terminal).
     world_from_sensor : mapping sensor id -> (4, 4), optional
@@ -93,7 +96,12 @@ def open_fused(
     if not reader.sensors:
         raise DataError(f"recording {path} holds neither a fused stream nor sensor frames: nothing to export")
     frames = fuse_recording(
-        path, rig_config=rig_config, world_from_sensor=world_from_sensor, preset_name=preset_name, progress=progress
+        path,
+        rig_config=rig_config,
+        world_from_sensor=world_from_sensor,
+        preset_name=preset_name,
+        progress=progress,
+        smoother=smoother,
     )
     return FusedSource(frames, "fused from the sensor frames", reader.message_count)
 

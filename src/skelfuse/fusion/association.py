@@ -19,6 +19,11 @@ Cycle of :func:`associate`:
    with the bodies left over (an established person is never out-bid by a track being born).
 4. Leftover bodies that lie within ``duplicate_mm`` of a track that already took a body of the same
    sensor are dropped as duplicates (the tracker split one person into two skeletons).
+4b. Re-acquisition: a leftover whose pelvis lies within ``duplicate_mm`` of the predicted pelvis of a confirmed
+   track that holds no body of the same sensor is that person re-acquired (a tracker that lost the person
+   and found them again under a new body id, upside down or off for a few frames) and goes to that track,
+   closest first, one body per sensor and track; the fusion's plausibility stage judges whether it is used.
+   Two people's pelvises are never that close, so no bystander is taken.
 5. Remaining leftovers are clustered across sensors (complete linkage under the gate, at most one body
    per sensor per cluster, closest pairs first); each cluster is a candidate new person. A body seen by
    one sensor only forms its own cluster: a bystander is never merged into the subject.
@@ -274,6 +279,8 @@ def associate(
         taken[s_idx, person[s_idx, b_idx]] = True
         duplicates = leftover & ((cost <= float(duplicate_mm)) & taken[:, None, :]).any(axis=2)
         leftover &= ~duplicates
+    if duplicate_mm is not None and K and leftover.any():
+        _reacquire(body_desc, tracks, confirmed, leftover, person, float(duplicate_mm))
 
     n_new = _cluster_leftovers(body_desc, leftover, person, K, float(gate_mm), min_common_points)
     n_persons = K + n_new
@@ -294,6 +301,30 @@ def associate(
         duplicates=duplicates,
         cost=assigned_cost,
     )
+
+
+def _reacquire(
+    body_desc: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    leftover: np.ndarray,
+    person: np.ndarray,
+    radius_mm: float,
+) -> None:
+    """Step 4b in place: leftovers whose pelvis is within ``radius_mm`` of a confirmed track's predicted pelvis,
+    where that track holds no body of the sensor, join the track (closest first); ``leftover`` is updated."""
+    S, _ = person.shape
+    diff = body_desc[:, :, None, 0] - tracks[None, None, :, 0]  # (S, B, K): pelvis to predicted pelvis
+    distance = np.sqrt(np.sum(diff * diff, axis=-1))
+    taken = np.zeros((S, tracks.shape[0]), dtype=bool)
+    s_idx, b_idx = np.nonzero(person >= 0)
+    taken[s_idx, person[s_idx, b_idx]] = True
+    near = leftover[:, :, None] & confirmed[None, None, :] & ~taken[:, None, :] & (distance <= radius_mm)
+    for s, b, k in sorted(zip(*np.nonzero(near), strict=True), key=lambda sbk: distance[sbk]):
+        if person[s, b] < 0 and not taken[s, k]:
+            person[s, b] = k
+            taken[s, k] = True
+            leftover[s, b] = False
 
 
 def _cluster_leftovers(

@@ -291,7 +291,7 @@ def quat_from_matrix_nan(R: np.ndarray) -> np.ndarray:
 
 def body_hint_frames(positions: np.ndarray) -> np.ndarray:
     """(..., 32, 4) orientations from the bones alone, the twist from the body's left/forward (ORIENTATION_HINT);
-    derived joints NaN (see :func:`apply_derived`). The simulator's procedural truth uses this too."""
+    derived joints NaN (see :func:`apply_derived`)."""
     aims = aim_directions(positions)
     body = body_directions(positions)  # (..., 3, 3)
     hints = body[..., _HINT_BODY, :]  # (..., 32, 3)

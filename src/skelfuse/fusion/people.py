@@ -50,6 +50,12 @@ class PeopleResult:
     body_track_ids : (S, B) int64, track id of each input body, tentative tracks included (-1: none).
     orientations : (P, J, 4) float64 or None, fused world quaternions w, x, y, z (``params.orientations``).
     position_std : (P, J) float64 or None, mm, one-sigma position uncertainty per axis (``params.position_std``).
+    held_out : (P, S) uint8 or None, why each sensor's view of the person was held out of the merge (0 = used
+        or absent; :data:`skelfuse.fusion.plausibility.HOLD_REASONS`), with ``params.plausibility_gate_mm``.
+    agreement_mm : (P,) float64 or None, how far the used views lie from the fused torso (see
+        :attr:`skelfuse.fusion.pipeline.FusionResult.agreement_mm`), with ``params.position_std``.
+    merged : (P, J, 3) float64 or None, mm, the merge before the temporal filter (NaN = no measurement).
+    restarted : (P,) bool or None, the person's filter restarted at the views (plausibility follow rule).
     """
 
     time_s: float
@@ -63,6 +69,10 @@ class PeopleResult:
     body_track_ids: np.ndarray
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
+    held_out: np.ndarray | None = None
+    agreement_mm: np.ndarray | None = None
+    merged: np.ndarray | None = None
+    restarted: np.ndarray | None = None
 
     @property
     def n_persons(self) -> int:
@@ -181,6 +191,10 @@ class PeopleFuser:
             return PeopleResult(
                 orientations=np.zeros((0, N_JOINTS, 4)) if self.params.orientations else None,
                 position_std=np.zeros((0, N_JOINTS)) if self.params.position_std else None,
+                held_out=np.zeros((0, S), dtype=np.uint8) if self.params.plausibility_gate_mm is not None else None,
+                agreement_mm=np.zeros(0) if self.params.position_std else None,
+                merged=np.zeros((0, N_JOINTS, 3)),
+                restarted=np.zeros(0, dtype=bool) if self.params.plausibility_gate_mm is not None else None,
                 time_s=time_s,
                 track_ids=np.zeros(0, dtype=np.int64),
                 positions=np.zeros((0, N_JOINTS, 3)),
@@ -223,6 +237,10 @@ class PeopleFuser:
             body_track_ids=body_track_ids,
             orientations=result.orientations,
             position_std=result.position_std,
+            held_out=result.held_out,
+            agreement_mm=result.agreement_mm,
+            merged=result.merged,
+            restarted=result.restarted,
         )
 
     def _init_fusion(self, n_tracks: int) -> FusionState:

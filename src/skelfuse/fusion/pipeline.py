@@ -22,7 +22,12 @@ Stages (each a pure function of its own module, so it can be tested and timed al
 5. Optional (``params.orientations``): :func:`skelfuse.fusion.orientation.fuse_orientations` on the filtered
    positions and the views' world quaternions (``fuse(..., orientations=)``); views the realignment flipped
    (any pair, for "paper") and views whose candidate was not merged into the joint are left out.
-6. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
+6. Optional (``params.plausibility_gate_mm``, between 1 and 2, and after 2): :mod:`skelfuse.fusion.plausibility`
+   holds out the views whose body cannot be the tracked person (a teleport away from the track's prediction,
+   upside down, another body size) before they can vote on the left/right labels, and after the realignment
+   drops single joints far beyond their prediction; when every view has failed for a while the body's filter
+   and realignment restart at the views.
+7. Optional (``params.position_std``): :mod:`skelfuse.fusion.uncertainty`, the per-joint one-sigma position
    uncertainty from the merged cluster's spread and a covariance recursion. Neither changes the positions.
 
 Quality fields: ``n_agree`` and ``confidence`` describe this frame's measurement, so a coasted (predicted
@@ -40,9 +45,21 @@ import numpy as np
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
+from skelfuse.fusion.plausibility import (
+    TORSO_JOINTS,
+    PlausibilityParams,
+    PlausibilityResult,
+    PlausibilityState,
+    drop_far_joints,
+    init_plausibility_state,
+    learn_bones,
+    plausibility_step,
+    realignment_views,
+    remove_held,
+)
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step
+from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step, view_agreement
 from skelfuse.schema.skeleton import N_JOINTS
 
 _ONES3 = np.ones(3)
@@ -64,6 +81,16 @@ class FusionResult:
         ``params.position_std``.
     flipped : (B, S) bool, views the realignment found left/right mirrored this instant (and swapped); None
         without realignment. What ``skelfuse eval real`` counts per view as the rig's mirroring rate.
+    held_out : (B, S) uint8, why each view was held out of the merge
+        (:data:`skelfuse.fusion.plausibility.HOLD_REASONS`, ``reason - 1``; 0 = used or absent); None unless
+        ``params.plausibility_gate_mm``.
+    agreement_mm : (B,) float64, mm, how far the views used lie from the fused torso
+        (:func:`skelfuse.fusion.uncertainty.view_agreement`; NaN: fewer than two views); None unless
+        ``params.position_std``.
+    merged : (B, J, 3) float64, mm, the merge's output before the temporal filter (NaN = no measurement): what
+        an offline smoother takes as its measurements.
+    restarted : (B,) bool, the plausibility stage's follow rule restarted the body's filter at the views this
+        frame (an offline smoother does not smooth across it); None unless ``params.plausibility_gate_mm``.
     """
 
     positions: np.ndarray
@@ -73,6 +100,10 @@ class FusionResult:
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
     flipped: np.ndarray | None = None
+    held_out: np.ndarray | None = None
+    agreement_mm: np.ndarray | None = None
+    merged: np.ndarray | None = None
+    restarted: np.ndarray | None = None
 
 
 @dataclass
@@ -92,6 +123,11 @@ class FusionState:
     orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
     angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
     position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
+    view_held, view_release : (B, S) uint8 / int32 or None, the plausibility stage's hold-out reason and release
+        streak per view (None reads as nothing held).
+    follow_streak : (B,) int32 or None, frames in a row every view failed the plausibility checks.
+    bone_lengths : (B, NB) float64 or None, mm, the person's learned bone lengths (0 or NaN: not learned).
+    bone_frames : (B,) int32 or None, frames the bone lengths were learned from.
     """
 
     previous: np.ndarray
@@ -102,6 +138,11 @@ class FusionState:
     orientation: np.ndarray | None = None
     angular_velocity: np.ndarray | None = None
     position_cov: np.ndarray | None = None
+    view_held: np.ndarray | None = None
+    view_release: np.ndarray | None = None
+    follow_streak: np.ndarray | None = None
+    bone_lengths: np.ndarray | None = None
+    bone_frames: np.ndarray | None = None
 
     @property
     def n_bodies(self) -> int:
@@ -213,14 +254,34 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
+    held_out = plausibility = restarted = predicted = None
+    state_coast, flip_counters = state.coast, state.flip_counters
+    if params.plausibility_gate_mm is not None:
+        predicted = _predicted(state, dt_s)
+        verdict, plausibility = _plausibility(positions, predicted, state, params)
+        held_out, restarted = verdict.held, verdict.restart
+        positions, conf = realignment_views(positions, conf, held_out)
+        if restarted.any():  # the track follows the views: filter, trick 2 and the realignment start over there
+            state_coast = np.where(restarted[:, None], -1, state.coast)
+            previous = np.where(restarted[:, None, None], np.nan, previous)
+            if flip_counters is not None:
+                flip_counters = np.where(restarted[:, None], 0, flip_counters).astype(flip_counters.dtype)
     positions, conf, reference, streak, flipped = _realign(
-        positions, conf, params, previous, state.flip_counters, dt_s, sensor_positions
+        positions, conf, params, previous, flip_counters, dt_s, sensor_positions
     )
+    if predicted is not None and restarted is not None and held_out is not None:
+        positions, conf = remove_held(positions, conf, held_out)
+        if params.plausibility_joint_speed_mm_s is not None:
+            plausible = _plausibility_params(params)
+            positions, conf = drop_far_joints(positions, conf, predicted, restarted, plausible, dt_s)
+        reference = None  # recomputed from what is left where the merge needs one
     merged = _merge(positions, conf, reference, previous, params)
+    if plausibility is not None:
+        plausibility = learn_bones(plausibility, merged.positions, merged.n_agree)
     out, x, P, coast = filter_step(
         state.x.reshape(B * J, 2, 3),
         state.P.reshape(B * J, 3),
-        state.coast.reshape(B * J),
+        state_coast.reshape(B * J),
         merged.positions.reshape(B * J, 3),
         merged.n_agree.reshape(B * J),
         params,
@@ -232,12 +293,13 @@ def fuse(
         orientation_out, orientation_state, angular_velocity = _orientations(
             fused, orientations, flipped, merged, state, params, dt_s
         )
-    std = position_cov = None
+    std = position_cov = agreement = None
     if params.position_std:
+        agreement = view_agreement(positions, merged.positions, TORSO_JOINTS)
         r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
         previous_cov = state.position_cov if state.position_cov is not None else np.zeros((B, J, 3))
         std, position_cov = uncertainty_step(
-            previous_cov.reshape(B * J, 3), state.coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+            previous_cov.reshape(B * J, 3), state_coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
         )
         std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
         position_cov = position_cov.reshape(B, J, 3)
@@ -249,6 +311,10 @@ def fuse(
         orientations=orientation_out,
         position_std=std,
         flipped=flipped,
+        held_out=held_out,
+        agreement_mm=agreement,
+        merged=merged.positions,
+        restarted=restarted,
     )
     new_state = FusionState(
         previous=merged.positions,
@@ -259,8 +325,60 @@ def fuse(
         orientation=orientation_state,
         angular_velocity=angular_velocity,
         position_cov=position_cov,
+        **_plausibility_fields(plausibility),
     )
     return result, new_state
+
+
+def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
+    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track)."""
+    x = state.x
+    return np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)
+
+
+def _plausibility(
+    positions: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
+) -> tuple[PlausibilityResult, PlausibilityState]:
+    """The plausibility stage's view checks, before the realignment, against the track's prediction."""
+    B, S = positions.shape[:2]
+    held, release, follow = state.view_held, state.view_release, state.follow_streak
+    bones, bone_frames = state.bone_lengths, state.bone_frames
+    if (
+        held is None
+        or release is None
+        or follow is None
+        or bones is None
+        or bone_frames is None
+        or held.shape != (B, S)
+    ):
+        previous = init_plausibility_state(B, S)
+    else:
+        previous = PlausibilityState(held=held, release=release, follow=follow, bones=bones, bone_frames=bone_frames)
+    return plausibility_step(positions, predicted, previous, _plausibility_params(params))
+
+
+def _plausibility_params(params: FusionParams) -> PlausibilityParams:
+    return PlausibilityParams(
+        gate_mm=float(params.plausibility_gate_mm or 0.0),
+        up_cos=params.plausibility_up_cos,
+        bone_ratio=params.plausibility_bone_ratio,
+        joint_speed_mm_s=float(params.plausibility_joint_speed_mm_s or math.inf),
+        release_frames=params.plausibility_release_frames,
+        follow_frames=params.plausibility_follow_frames,
+    )
+
+
+def _plausibility_fields(state: PlausibilityState | None) -> dict[str, np.ndarray | None]:
+    """The FusionState fields of the plausibility stage (all None when it is off)."""
+    if state is None:
+        return {}
+    return {
+        "view_held": state.held,
+        "view_release": state.release,
+        "follow_streak": state.follow,
+        "bone_lengths": state.bones,
+        "bone_frames": state.bone_frames,
+    }
 
 
 def _orientations(

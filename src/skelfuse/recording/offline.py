@@ -29,12 +29,14 @@ from typing import Any
 import numpy as np
 
 from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
+from skelfuse.fusion.orientation import aim_directions, apply_derived, swing_onto_aims
 from skelfuse.fusion.presets import FusionParams, preset
+from skelfuse.fusion.smoother import SMOOTHERS, smooth_tracks
 from skelfuse.progress import Progress
 from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
 from skelfuse.rig.grouping import FrameGrouper
-from skelfuse.rig.instant import RESET_GAP_S, GroupFuser
+from skelfuse.rig.instant import RESET_GAP_S, FusedInstant, GroupFuser
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 
@@ -154,8 +156,10 @@ def fuse_recording(
     start_ns: int | None = None,
     end_ns: int | None = None,
     progress: bool = True,
+    smoother: str | None = None,
+    smoother_lag: int | None = None,
 ) -> Iterator[FusedFrame]:
-    """Fuse every instant of a recording, as the live node would have.
+    """Fuse every instant of a recording, as the live node would have, then smooth it with zero lag.
 
     Parameters
     ----------
@@ -182,6 +186,11 @@ def fuse_recording(
         Log-time (host ns) window of an MCAP recording to fuse (ignored for an opened take).
     progress : bool
         Draw a progress bar on stderr (only when it is a terminal).
+    smoother : {"rts", "none"} or None
+        "rts": the zero-lag RTS smoother over the whole take (:mod:`skelfuse.fusion.smoother`); "none": the
+        live output, frame by frame. None: "rts" with the "cv_kalman" filter, else "none" (logged).
+    smoother_lag : int, optional
+        With "rts": the fixed-lag form, each instant from the instants up to this many later.
 
     Returns
     -------
@@ -198,14 +207,24 @@ def fuse_recording(
         :func:`resolve_poses`).
     """
     params = _params(rig_config, preset_name, eps_mm)
+    smooth = _smoother(smoother, params)
     sync = rig_config.sync if rig_config is not None else SyncConfig()
     if isinstance(recording_path, InputTake):
         take = recording_path
         poses = resolve_poses(take.sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, take=take)
         grouper = take.grouper(sync, tolerance_us=tolerance_us, deadline_us=deadline_us)
-        return _fuse_take(take, poses, params, grouper, progress)
-    reader = RecordingReader(recording_path)
+        return _smoothed(_fuse_take(take, poses, params, grouper, progress), params, smooth, smoother_lag)
+    reader = _open_recording(recording_path)
     sensor_ids = reader.require_sensors("nothing to fuse")
+    poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
+    grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
+    instants = _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+    return _smoothed(instants, params, smooth, smoother_lag)
+
+
+def _open_recording(path: str | os.PathLike[str]) -> RecordingReader:
+    """The MCAP recording, with a warning where it ends early or has unreadable chunks."""
+    reader = RecordingReader(path)
     if reader.truncated or reader.bad_chunks:
         log.warning(
             "recording %s %s; fusing what it holds up to there%s",
@@ -215,14 +234,73 @@ def fuse_recording(
             else f"has {reader.bad_chunks} unreadable chunk(s)",
             f" ({'; '.join(reader.problems[:3])})" if reader.problems else "",
         )
-    poses = resolve_poses(sensor_ids, world_from_sensor=world_from_sensor, rig_config=rig_config, recording=reader)
-    grouper = FrameGrouper.from_sync(sensor_ids, sync, by=by, tolerance_us=tolerance_us, deadline_us=deadline_us)
-    return _fuse(reader, sensor_ids, poses, params, grouper, start_ns, end_ns, progress)
+    return reader
+
+
+def _smoother(name: str | None, params: FusionParams) -> bool:
+    """Whether to smooth: the named smoother, or the default for the fusion's filter (logged)."""
+    if name is None:
+        smooth = params.filter == "cv_kalman"
+        log.info(
+            "offline smoothing: %s",
+            "rts (zero lag; --smoother none for the live filter's output)"
+            if smooth
+            else f"none (the {params.filter} filter has no velocity model to smooth over)",
+        )
+        return smooth
+    if name not in SMOOTHERS:
+        raise DataError(f"unknown smoother {name!r}; expected one of {', '.join(SMOOTHERS)}")
+    if name == "rts" and params.filter != "cv_kalman":
+        raise DataError(
+            f"the rts smoother needs the cv_kalman filter (the skelfuse preset); this fusion uses {params.filter!r}: "
+            "choose --smoother none"
+        )
+    return name == "rts"
+
+
+def _smoothed(
+    instants: Iterator[FusedInstant], params: FusionParams, smooth: bool, lag: int | None
+) -> Iterator[FusedFrame]:
+    """The instants' frames, live (streamed) or, when ``smooth``, after the RTS smoother over the whole take."""
+    if not smooth:
+        return (instant.frame for instant in instants)
+    return _smooth_take(instants, params, lag)
+
+
+def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams, lag: int | None) -> Iterator[FusedFrame]:
+    frames: list[FusedFrame] = []
+    times: list[float] = []
+    ids: list[np.ndarray] = []
+    merged: list[np.ndarray] = []
+    agree: list[np.ndarray] = []
+    restarted: list[np.ndarray | None] = []
+    for instant in instants:
+        people = instant.people
+        frames.append(instant.frame)
+        times.append(people.time_s)
+        ids.append(people.track_ids)
+        # the merge before the filter; a path without one gives the smoother no measurement there
+        merged.append(people.merged if people.merged is not None else np.full_like(people.positions, np.nan))
+        agree.append(people.n_agree)
+        restarted.append(people.restarted)
+    smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params, lag)
+    for frame, people_ids, positions in zip(frames, ids, smoothed, strict=True):
+        rows = np.searchsorted(people_ids, frame.track_ids)  # both ascending; the frame's are a subset
+        yield replace(frame, positions=positions[rows], orientations=follow_bones(frame.orientations, positions[rows]))
+
+
+def follow_bones(orientations: np.ndarray | None, positions: np.ndarray) -> np.ndarray | None:
+    """The fused orientations swung onto the smoothed bones (their twist kept): every aimed joint's X axis lies
+    on its bone of the smoothed positions, as the live fusion's lies on the live positions' (docs/orientations.md)."""
+    if orientations is None:
+        return None
+    swung = apply_derived(swing_onto_aims(orientations, aim_directions(positions)))
+    return np.where(np.isfinite(swung).all(axis=-1, keepdims=True), swung, orientations)
 
 
 def _fuse_take(
     take: InputTake, poses: np.ndarray, params: FusionParams, grouper: FrameGrouper, progress: bool
-) -> Iterator[FusedFrame]:
+) -> Iterator[FusedInstant]:
     """A take of any format, clocked by its matched time (host time where the take has it)."""
     host = take.clock == "host"
     frames = ((f, int(f.host_time_ns) if host else int(f.device_time_us) * 1000) for f in take.frames())
@@ -239,7 +317,7 @@ def _fuse(
     start_ns: int | None,
     end_ns: int | None,
     progress: bool,
-) -> Iterator[FusedFrame]:
+) -> Iterator[FusedInstant]:
     """A skelfuse recording: the recorded host time stands in for the arrival clock, so deadlines behave as
     they did live."""
     frames = ((f, int(f.host_time_ns)) for f in reader.frames(start_ns, end_ns))
@@ -255,17 +333,17 @@ def _fuse_clocked(
     grouper: FrameGrouper,
     total: int,
     progress: bool,
-) -> Iterator[FusedFrame]:
+) -> Iterator[FusedInstant]:
     """Group (frame, arrival clock in ns) pairs as the node would and fuse every group."""
     fuser = GroupFuser(sensor_ids, poses, params)
     bar = Progress(total, "fuse", enabled=None if progress else False)
     try:
         for frame, now_ns in frames:
             for group in grouper.push(frame, now_ns):
-                yield fuser.step(group).frame
+                yield fuser.step(group)
             bar.update()
         for group in grouper.flush():
-            yield fuser.step(group).frame
+            yield fuser.step(group)
     finally:
         bar.close()
 

@@ -11,12 +11,14 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.fusion.plausibility import HOLD_REASONS
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
@@ -177,6 +179,7 @@ class FusionCore:
         self.groups_partial = 0
         self.deadline_emits = 0
         self.rejects: dict[str, Counter[str]] = {}
+        self.held_out: dict[str, Counter[str]] = {}  # views the plausibility stage held out, per sensor and reason
         self._sensors = {sid: _SensorWindow() for sid in self.sensor_ids}
         self._logged_rejects: Counter[tuple[str, str]] = Counter()
 
@@ -285,6 +288,8 @@ class FusionCore:
         depth = self.depth
         instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
         fused = instant.frame
+        if instant.people.held_out is not None:
+            count_held_out(self.held_out, instant.people.held_out, fused.sensor_ids)
         payload = encode_fused_frame(fused)
         self.frames_out += 1
         if group.complete:
@@ -322,7 +327,17 @@ class FusionCore:
                 "off_clock": counters.off_clock,
                 "invalid": sum(window.rejects.values()),
                 "rejects": dict(window.rejects),
+                "held_out": dict(self.held_out.get(sid, {})),
                 "clock": clocks[sid].to_dict(),
             }
             window.window_received = 0
         return report
+
+
+def count_held_out(counts: dict[str, Counter[str]], held_out: np.ndarray, sensor_ids: Sequence[str]) -> None:
+    """Add one instant's held-out views ((P, S) reason codes, columns in ``sensor_ids`` order) to ``counts``,
+    per sensor and reason name (:data:`skelfuse.fusion.plausibility.HOLD_REASONS`)."""
+    persons, sensors = np.nonzero(held_out)
+    for person, sensor in zip(persons.tolist(), sensors.tolist(), strict=True):
+        reason = HOLD_REASONS[int(held_out[person, sensor]) - 1]
+        counts.setdefault(sensor_ids[sensor], Counter())[reason] += 1

@@ -130,6 +130,12 @@ _FAMILIES = (
             "neighbour_off_prob": 0.1,
         },
     ),
+    Family(
+        "tracker_loss",
+        "a view's tracker loses the person (1% per frame): 3 frames upside down, then re-acquired under a new body "
+        "id 350 mm away for 10 frames (the episode of a real two-Kinect take; sim/tracker_loss.py)",
+        {"tracker_loss_prob": 0.01},
+    ),
 )
 FAMILIES: dict[str, Family] = {family.name: family for family in _FAMILIES}
 """Every family by name, ``baseline`` first."""

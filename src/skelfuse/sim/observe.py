@@ -47,6 +47,7 @@ from skelfuse.schema.skeleton import (
 )
 from skelfuse.sim.motion import Motion, root_facing
 from skelfuse.sim.rig import VirtualSensor
+from skelfuse.sim.tracker_loss import apply_tracker_loss, tracker_loss_episodes
 
 NOISE_GROUPS: tuple[str, ...] = tuple(BODY_REGIONS)
 """Joint groups of the per-group noise tables (see :data:`JOINT_NOISE_GROUP`)."""
@@ -169,6 +170,10 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
         "neighbour_swap_prob",
         "neighbour_merge_prob",
         "neighbour_off_prob",
+        "tracker_loss_prob",
+        "tracker_loss_flip_frames",
+        "tracker_loss_offset_mm",
+        "tracker_loss_away_frames",
     ),
 }
 """TOML section of every SimProfile field (sections only organise the file)."""
@@ -270,6 +275,10 @@ class SimProfile:
     neighbour_swap_prob: float = 0.0  # per frame, the first sensor: a burst in which it reports the neighbour
     neighbour_merge_prob: float = 0.0  # per frame, the first sensor: a burst in which it merges both into one body
     neighbour_off_prob: float = 0.1  # per frame: such a burst ends
+    tracker_loss_prob: float = 0.0  # per frame and view: the tracker loses the person (sim/tracker_loss.py)
+    tracker_loss_flip_frames: int = 3  # ... reports them upside down for this many frames
+    tracker_loss_offset_mm: float = 350.0  # ... then re-acquires them (new body id) this far off
+    tracker_loss_away_frames: int = 10  # ... for this many frames before the fit returns
 
     def __post_init__(self) -> None:
         _validate(self, "<SimProfile>")
@@ -302,6 +311,7 @@ _PROBABILITIES = (
     "neighbour_swap_prob",
     "neighbour_merge_prob",
     "neighbour_off_prob",
+    "tracker_loss_prob",
 )
 _RHOS = ("occluded_rho", "hand_none_rho", "scale_slow_rho")
 _FLAGS = ("flip_restarts_fit", "sitting", "lying")
@@ -737,7 +747,7 @@ def _two_bone(root: np.ndarray, target: np.ndarray, hint: np.ndarray, a: np.ndar
 def _sensor_rngs(seed: int, sensor_id: str) -> dict[str, np.random.Generator]:
     """Independent streams per sensor, keyed by its id: adding a sensor leaves the others' draws alone."""
     key = zlib.crc32(sensor_id.encode("utf-8"))
-    names = ("tracking", "noise", "confidence", "timing", "calibration", "scale", "failures")
+    names = ("tracking", "noise", "confidence", "timing", "calibration", "scale", "failures", "loss")
     return {name: np.random.default_rng([seed, key, idx]) for idx, name in enumerate(names)}
 
 
@@ -852,6 +862,14 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         prev_tracked = np.concatenate([[False], tracked[:-1]])
         prev_mirrored = np.concatenate([[False], mirrored[:-1]])
         new_body = tracked & (~prev_tracked | (mirrored & ~prev_mirrored))
+        loss_flipped, loss_away, loss_starts = tracker_loss_episodes(
+            rngs["loss"],
+            tracked,
+            profile.tracker_loss_prob,
+            profile.tracker_loss_flip_frames,
+            profile.tracker_loss_away_frames,
+        )
+        new_body |= loss_starts
         body_ids[:, index] = np.where(tracked, np.cumsum(new_body), -1)
 
         # 4-7. what the tracker reports: labels, error, body-model refit, confidence, timestamps
@@ -868,6 +886,10 @@ def simulate(motion: Motion, sensors: list[VirtualSensor], profile: SimProfile, 
         noisy = _partial_view_drag(noisy, lab, in_view, profile.partial_view_drag)
         fitted = _body_model(rngs["scale"], noisy, bone_lengths, pose_scale, profile, hidden | lost)
         labels = _confidence_labels(rngs["confidence"], hidden, in_view, profile, lost)
+        if loss_starts.any():
+            fitted = apply_tracker_loss(
+                fitted, loss_flipped, loss_away, -rotation[2], profile.tracker_loss_offset_mm, rngs["loss"]
+            )
 
         positions[tracked, index] = fitted[tracked].astype(np.float32)
         confidence[tracked, index] = labels[tracked]

@@ -1,15 +1,18 @@
 """Ground-truth joint orientations of a simulated take, and the trackers' orientations as the views report them.
 
-Truth (:func:`truth_orientations`), in the k4abt joint-frame convention (docs/orientations.md), world frame:
+Truth (:func:`truth_orientations`), in the k4abt joint-frame convention (docs/orientations.md), world frame,
+built from the simulator's own segment geometry (:mod:`skelfuse.sim.joint_frames`), never from the product's
+orientation code (an import-linter contract keeps ``skelfuse.fusion.orientation`` out of ``skelfuse.sim``):
 
-* the swing from the motion's own bones: every joint's X axis along its aim bone of the true positions,
-  the secondary axis towards the body's left / forward (:func:`skelfuse.fusion.orientation.body_hint_frames`);
-* procedural gestures: a twist about each arm and hand bone, a smooth random roll (a sum of two slow sines
-  per joint, up to :data:`ARM_TWIST_DEG`), so that the twist cannot be guessed from the body and must come
-  from the views. The gestures have no forearm roll of their own; this one is ASSUMED;
-* BVH motions (:func:`load_bvh_with_orientations`): the twist of the BVH segment each bone rides on (the
-  recorded motion's own joint rotations), fixed to the k4abt frame by the offset at the file's T-pose;
-* derived joints (hand tips, feet, face) copy their source joint (the SDK does the same, measured).
+* procedural gestures: the T-pose frame of each joint carried by its segment (torso joints by the line across
+  the body their segment holds, limbs by their parent and their own bone), then a twist about each arm and
+  hand bone, a smooth random roll (a sum of two slow sines per joint, up to :data:`ARM_TWIST_DEG`), so that
+  the twist cannot be guessed from the body and must come from the views. The gestures' forearm roll is
+  ASSUMED; their shoulder twist angle is not carried (a limb frame has no twist of its own from its parent);
+* BVH motions (:func:`load_bvh_with_orientations`): the recorded segment rotations, fixed to the frames of the
+  file's rest pose (built by the same rule) and laid on the k4abt bones by the smallest rotation;
+* derived joints (hand tips, feet, face) copy their source joint with the schema's fixed offsets (the SDK
+  does the same, measured).
 
 Views (:func:`observe_orientations`): each sensor reports the truth seen through its TRUE pose, turned by a
 tracker error: per joint a slow AR(1) rotation vector (rho 0.9 per frame) plus white jitter, the sizes per
@@ -31,34 +34,38 @@ from pathlib import Path
 
 import numpy as np
 
-from skelfuse.fusion.orientation import (
-    aim_directions,
-    apply_derived,
-    body_hint_frames,
-    quat_conjugate,
-    quat_from_matrix,
-    quat_from_rotvec,
-    quat_multiply,
-    swing_onto_aims,
-)
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
 from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
-from skelfuse.sim.motion import Motion, facing_deg
+from skelfuse.sim.joint_frames import (
+    bone_directions,
+    matrix_to_quat,
+    quat_to_matrix,
+    rotvec_to_matrix,
+    swing_matrix,
+    true_joint_frames,
+    with_derived,
+)
+from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
 from skelfuse.sim.observe import Observations, ar1
 
 ARM_TWIST_DEG = 35.0
 """Largest simulated roll of an arm or hand bone about itself, deg (assumed)."""
 
 _TWIST_REGIONS = ("arm", "hand")
-_TURN_180_Z = np.array([0.0, 0.0, 0.0, 1.0])
+_TURN_180_Z = np.diag([-1.0, -1.0, 1.0])
 
 
-def truth_orientations(positions: np.ndarray, fps: float, *, seed: int) -> np.ndarray:
-    """(T, 32, 4) float64 true world orientations of a take's (T, 32, 3) true positions (module docstring)."""
+def truth_orientations(
+    positions: np.ndarray, fps: float, *, seed: int, arm_twist_deg: float = ARM_TWIST_DEG
+) -> np.ndarray:
+    """(T, 32, 4) float64 true world orientations of a take's (T, 32, 3) true positions (module docstring).
+
+    ``arm_twist_deg`` 0 gives the segment frames without the assumed arm and hand roll.
+    """
     positions = np.asarray(positions, dtype=np.float64)
     T = positions.shape[0]
-    frames = body_hint_frames(positions)  # (T, J, 4), derived joints NaN
+    frames = true_joint_frames(positions)
     rng = np.random.default_rng([int(seed), 0x0F1E])
     twisting = np.concatenate([BODY_REGIONS[r] for r in _TWIST_REGIONS])
     t = np.arange(T)[:, None] / float(fps)
@@ -66,12 +73,11 @@ def truth_orientations(positions: np.ndarray, fps: float, *, seed: int) -> np.nd
     phase = rng.uniform(0.0, 2.0 * np.pi, (2, twisting.size))
     angle = (
         0.5
-        * np.radians(ARM_TWIST_DEG)
+        * np.radians(arm_twist_deg)
         * (np.sin(2 * np.pi * freq[0] * t + phase[0]) + np.sin(2 * np.pi * freq[1] * t + phase[1]))
     )  # (T, n)
-    roll = np.zeros((T, N_JOINTS, 3))
-    roll[:, twisting, 0] = angle  # about the local X axis: the bone
-    return apply_derived(quat_multiply(frames, quat_from_rotvec(roll)))
+    frames[:, twisting] = frames[:, twisting] @ axis_rotation("x", angle)  # about the local X axis: the bone
+    return matrix_to_quat(with_derived(frames))
 
 
 @dataclass(frozen=True)
@@ -142,18 +148,19 @@ def observe_orientations(
     truth = np.asarray(truth, dtype=np.float64)
     T, S = obs.n_frames, obs.n_sensors
     slow_sd, white_sd = noise.per_joint()
-    sensor_from_world = quat_conjugate(quat_from_matrix(np.asarray(obs.world_from_sensor)[:, :3, :3]))  # (S, 4)
+    sensor_from_world = np.swapaxes(np.asarray(obs.world_from_sensor)[:, :3, :3], -1, -2)  # (S, 3, 3)
+    true_frames = quat_to_matrix(truth)
     # A mirrored view: the frames of the mirror joints, turned 180 deg about the vertical.
-    mirrored_frames = quat_multiply(_TURN_180_Z, truth[:, MIRROR])
+    mirrored_frames = _TURN_180_Z @ true_frames[:, MIRROR]
     out = np.full((T, S, N_JOINTS, 4), np.nan, dtype=np.float32)
     for s in range(S):  # a handful of sensors; everything inside is vectorized over frames and joints
         rng = np.random.default_rng([int(seed), 0x0F1F, s])
         slow = ar1(rng, T, (N_JOINTS, 3), noise.slow_rho, slow_sd[:, None])
         white = rng.standard_normal((T, N_JOINTS, 3)) * white_sd[:, None]
         factor = np.where(np.asarray(obs.occluded)[:, s, :, None], noise.occluded_factor, 1.0)
-        error = quat_from_rotvec(factor * (slow + white))
-        world = np.where(np.asarray(obs.mirrored)[:, s, None, None], mirrored_frames, truth)
-        seen = quat_multiply(sensor_from_world[s], quat_multiply(world, error))
+        error = rotvec_to_matrix(factor * (slow + white))
+        world = np.where(np.asarray(obs.mirrored)[:, s, None, None, None], mirrored_frames, true_frames)
+        seen = matrix_to_quat(sensor_from_world[s] @ world @ error)
         tracked = np.asarray(obs.tracked)[:, s] & np.isfinite(np.asarray(obs.positions)[:, s]).all(axis=(-1, -2))
         out[:, s] = np.where(tracked[:, None, None], seen, np.nan)
     return out
@@ -197,11 +204,11 @@ def load_bvh_with_orientations(
     """A CMU BVH take as :func:`skelfuse.sim.bvh.load_bvh` loads it, and its true joint orientations.
 
     Each k4abt joint's frame rides on one BVH segment (``_BVH_SEGMENT``): at the file's T-pose (frame 0,
-    which the CMU conversion prepends) the offset between that segment's rotation and the k4abt frame built
-    from the T-pose's bones and body (:func:`~skelfuse.fusion.orientation.body_hint_frames`) is fixed; in every
-    frame the segment's rotation times that offset gives the frame, swung onto the k4abt bone exactly (the
-    k4abt points are not all on the segment's axis). Rotations are taken at the nearest source frame (CMU's
-    120 Hz to 30 Hz is exact).
+    which the CMU conversion prepends; its arms hang) the offset between that segment's rotation and the
+    joint's frame in that pose (:func:`~skelfuse.sim.joint_frames.true_joint_frames`, the rule of the
+    procedural motions) is fixed; in every frame the segment's rotation times that offset gives the frame,
+    swung onto the k4abt bone exactly (the k4abt points are not all on the segment's axis). Rotations are
+    taken at the nearest source frame (CMU's 120 Hz to 30 Hz is exact).
 
     Returns
     -------
@@ -225,19 +232,19 @@ def load_bvh_with_orientations(
     _, rotations = forward_kinematics(bvh)
     joints = [J[name] for name in _BVH_SEGMENT]
     segments = [role[_BVH_SEGMENT[name]] for name in _BVH_SEGMENT]
-    segment_quats = quat_from_matrix(_BVH_TO_WORLD @ rotations[:, segments])  # (F, n, 4), world axes
-    rest = body_hint_frames(world_rest[0])[joints]
-    offset = quat_multiply(quat_conjugate(segment_quats[0]), rest)  # fixed per joint
+    segment_frames = _BVH_TO_WORLD @ rotations[:, segments]  # (F, n, 3, 3), world axes
+    rest = true_joint_frames(world_rest[:1])[0, joints]  # the rest pose's frames, by the gestures' own rule
+    offset = np.swapaxes(segment_frames[0], -1, -2) @ rest  # fixed per joint
     fps_in = 1.0 / bvh.frame_time_s
     if abs(fps_in - round(fps_in)) < 1e-4 * fps_in:
         fps_in = float(round(fps_in))
     source = 1 + np.rint(np.arange(motion.n_frames) * fps_in / motion.fps).astype(np.int64)
-    source = np.minimum(source, segment_quats.shape[0] - 1)
+    source = np.minimum(source, segment_frames.shape[0] - 1)
     # load_bvh turned the take about z so that its first frame faces facing_deg_: the same turn here.
     unturned = Motion(motion.name, fps_in, world_rest[1:]).resampled(fps_out).positions[0]
     turn = np.radians(facing_deg_ - float(facing_deg(unturned)))
-    q_turn = np.array([np.cos(turn / 2), 0.0, 0.0, np.sin(turn / 2)])
-    quats = np.full((motion.n_frames, N_JOINTS, 4), np.nan)
-    quats[:, joints] = quat_multiply(q_turn, quat_multiply(segment_quats[source], offset))
-    aims = aim_directions(motion.positions)
-    return motion, apply_derived(swing_onto_aims(quats, aims))
+    frames = np.full((motion.n_frames, N_JOINTS, 3, 3), np.nan)
+    frames[:, joints] = axis_rotation("z", turn) @ segment_frames[source] @ offset
+    aims = bone_directions(motion.positions)
+    frames = swing_matrix(frames[..., 0], aims) @ frames
+    return motion, matrix_to_quat(with_derived(frames))

@@ -1,0 +1,201 @@
+"""Zero-lag smoothing of a recording: a Rauch-Tung-Striebel smoother over the live filter's motion model.
+
+The live filter (:func:`skelfuse.fusion.filters.filter_step`, "cv_kalman") is causal: every output uses the
+frames up to now, so it trades smoothness for lag. A recording has the frames after each instant too. This
+module runs the *same* forward filter over the merged measurements of a track (so the forward pass equals
+the live output to the last bit) and then the RTS backward pass over it (Rauch, Tung and Striebel 1965; the
+form of ``filterpy.kalman.KalmanFilter.rts_smoother``), per joint:
+
+    C_t  = P_t F' (P~_{t+1})^-1
+    xs_t = x_t + C_t (xs_{t+1} - x~_{t+1})
+
+where ``x_t, P_t`` are the filtered state and covariance and ``x~_{t+1}, P~_{t+1}`` the prediction of the next
+frame. The backward pass never crosses a track start (the first frame of a joint's track, or a restart of the
+plausibility stage's follow rule): a segment is smoothed on its own. Frames without a measurement inside a
+segment (a gap of at most ``max_coast_frames``) get the smoothed interpolation; the live filter had only a
+prediction there.
+
+:func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
+option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
+full smoother.
+
+Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
+Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skelfuse.fusion.filters import _cv_model, filter_step, init_filter_state
+from skelfuse.fusion.presets import FusionParams
+
+SMOOTHERS: tuple[str, ...] = ("rts", "none")
+"""Offline smoother names: the fixed-interval RTS smoother, or the live filter's own output."""
+
+
+@dataclass(frozen=True)
+class ForwardPass:
+    """The live filter over a sequence, with what the backward pass needs.
+
+    Attributes
+    ----------
+    out : (T, N, 3) the live filter's output (NaN = no estimate).
+    x : (T, N, 2, 3) filtered state; P : (T, N, 3) filtered covariance triangle (p00, p01, p11).
+    x_pred : (T, N, 2, 3) and P_pred : (T, N, 3), the prediction of frame t from frame t - 1.
+    linked : (T, N) bool, frame t continues frame t - 1's track (the backward pass may cross into t - 1).
+    """
+
+    out: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray
+    P_pred: np.ndarray
+    linked: np.ndarray
+
+
+def forward_pass(
+    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+) -> ForwardPass:
+    """Run :func:`filter_step` frame by frame over one track's merged measurements.
+
+    Parameters
+    ----------
+    z : (T, N, 3) mm, merged positions (NaN = no measurement); n_agree : (T, N) views behind each.
+    dt_s : (T,) seconds since the previous frame (dt_s[0] is not used).
+    restart : (T,) bool, the live fusion restarted the track's filter at frame t (plausibility follow rule).
+    params : FusionParams with ``filter == "cv_kalman"``.
+    """
+    if params.filter != "cv_kalman":
+        raise ValueError(f"the RTS smoother needs the cv_kalman filter's motion model, got filter={params.filter!r}")
+    z = np.asarray(z, dtype=np.float64)
+    T, N, _ = z.shape
+    x, P, coast = init_filter_state(N)
+    shape = (T, N)
+    out = np.full((T, N, 3), np.nan)
+    xs, Ps = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
+    x_pred, P_pred = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
+    linked = np.zeros(shape, dtype=bool)
+    n_agree = np.asarray(n_agree).astype(np.int16)
+    for t in range(T):
+        dt = float(dt_s[t]) if t else 1.0 / 30.0
+        coast_in = np.where(restart[t], -1, coast)
+        cov_map, q_vec, state_map = _cv_model(dt, params.cv_accel_sigma_mm_s2)
+        x_pred[t], P_pred[t] = state_map @ x, P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
+        out[t], x, P, coast = filter_step(x, P, coast_in, z[t], n_agree[t], params, dt)
+        linked[t] = (coast_in >= 0) & (coast >= 0)
+        xs[t], Ps[t] = x, P
+    return ForwardPass(out=out, x=xs, P=Ps, x_pred=x_pred, P_pred=P_pred, linked=linked)
+
+
+def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
+    """(N, 2, 2) RTS gain C = P F' (P~)^-1 from the covariance triangles (p00, p01, p11)."""
+    a, b, c = P[:, 0], P[:, 1], P[:, 2]
+    pft = np.stack([np.stack([a + b * dt, b], -1), np.stack([b + c * dt, c], -1)], -2)  # P F'
+    p, q, r = P_pred[:, 0], P_pred[:, 1], P_pred[:, 2]
+    det = p * r - q * q
+    det = np.where(det > 0, det, np.inf)  # a degenerate prediction gives no correction
+    inverse = np.stack([np.stack([r, -q], -1), np.stack([-q, p], -1)], -2) / det[:, None, None]
+    return pft @ inverse
+
+
+def _backward_step(fwd: ForwardPass, t: int, later: np.ndarray, dt: float) -> np.ndarray:
+    """xs_t from xs_{t+1} (``later``, (N, 2, 3)); frames not linked to t + 1 keep their filtered state."""
+    gain = _gain(fwd.P[t], fwd.P_pred[t + 1], dt)
+    smoothed = fwd.x[t] + gain @ (later - fwd.x_pred[t + 1])
+    return np.where(fwd.linked[t + 1][:, None, None], smoothed, fwd.x[t])
+
+
+def rts_smooth(
+    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-interval smoothing of one track (see the module docstring).
+
+    Returns
+    -------
+    smoothed : (T, N, 3) mm, NaN where the live filter had no estimate.
+    causal : (T, N, 3) mm, the live filter's own output (the forward pass), for comparison.
+    """
+    fwd = forward_pass(z, n_agree, dt_s, restart, params)
+    T = fwd.out.shape[0]
+    states = fwd.x.copy()
+    for t in range(T - 2, -1, -1):
+        states[t] = _backward_step(fwd, t, states[t + 1], float(dt_s[t + 1]))
+    alive = np.isfinite(fwd.out)
+    return np.where(alive, states[:, :, 0], np.nan), fwd.out
+
+
+def fixed_lag_smooth(
+    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams, lag: int
+) -> np.ndarray:
+    """(T, N, 3) the estimate of each frame t from the frames up to t + ``lag`` (NaN where no estimate).
+
+    Frames within ``lag`` of the end use what there is (the end of a take is the end of the data).
+    """
+    if int(lag) < 0:
+        raise ValueError(f"lag must be >= 0 frames, got {lag!r}")
+    fwd = forward_pass(z, n_agree, dt_s, restart, params)
+    T = fwd.out.shape[0]
+    result = fwd.x[:, :, 0].copy()
+    for t in range(T):
+        end = min(t + int(lag), T - 1)
+        state = fwd.x[end]
+        for k in range(end - 1, t - 1, -1):
+            state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
+        result[t] = state[:, 0]
+    return np.where(np.isfinite(fwd.out), result, np.nan)
+
+
+def smooth_tracks(
+    times_s: np.ndarray,
+    track_ids: list[np.ndarray],
+    merged: list[np.ndarray],
+    n_agree: list[np.ndarray],
+    restarted: list[np.ndarray | None],
+    params: FusionParams,
+    lag: int | None = None,
+) -> list[np.ndarray]:
+    """Smooth every track of a fused take, instant by instant as the live fusion gave them.
+
+    Parameters
+    ----------
+    times_s : (T,) the instants' times, s (increasing).
+    track_ids : per instant, (P_t,) the persons' track ids (a track appears in every instant from its
+        confirmation to its death).
+    merged : per instant, (P_t, J, 3) the merged positions before the filter, mm.
+    n_agree : per instant, (P_t, J) the views behind them.
+    restarted : per instant, (P_t,) bool or None, the follow rule restarted the person's filter.
+    params : the FusionParams of the live fusion ("cv_kalman").
+    lag : None for the fixed-interval smoother, else the fixed lag in frames.
+
+    Returns
+    -------
+    per instant, (P_t, J, 3) the smoothed positions in the instant's person order (NaN where the live filter
+    had no estimate).
+    """
+    times_s = np.asarray(times_s, dtype=np.float64)
+    out = [np.full(np.shape(m), np.nan) for m in merged]
+    rows: dict[int, list[tuple[int, int]]] = {}
+    for t, ids in enumerate(track_ids):
+        for row, track_id in enumerate(np.asarray(ids).tolist()):
+            rows.setdefault(int(track_id), []).append((t, row))
+    for where in rows.values():
+        instants = np.array([t for t, _ in where])
+        z = np.stack([merged[t][row] for t, row in where])
+        agree = np.stack([n_agree[t][row] for t, row in where])
+        restart = np.array([_restarted_at(restarted[t], row) for t, row in where])
+        dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
+        if lag is None:
+            smoothed, _ = rts_smooth(z, agree, dt, restart, params)
+        else:
+            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag)
+        for k, (t, row) in enumerate(where):
+            out[t][row] = smoothed[k]
+    return out
+
+
+def _restarted_at(restarted: np.ndarray | None, row: int) -> bool:
+    """Whether the follow rule restarted row ``row``'s filter at this instant (None: no plausibility stage)."""
+    return restarted is not None and bool(restarted[row])
