@@ -9,7 +9,8 @@ The public Python API is what this module exports (``__all__``); docs/python-api
             print(frame.time_us, frame.track_ids, frame.positions[:, skelfuse.joint_index("PELVIS")])
 
 Everything else (``skelfuse.fusion``, ``skelfuse.wire``, ...) is internal: it may change in any 0.x release.
-The recording functions load on first use (PEP 562), so that an app that only subscribes imports numpy and
+Every exported name loads on first use (PEP 562): ``import skelfuse`` (and so the ``skelfuse`` command line,
+whose ``--help`` needs none of them) imports no numpy, and an app that only subscribes imports numpy and
 zenoh, not the recording container or the fusion pipeline's SciPy.
 """
 
@@ -18,14 +19,14 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from skelfuse.api.live import FusedSubscriber, subscribe
-from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
-from skelfuse.schema.frames import FusedFrame, SensorFrame
-from skelfuse.schema.skeleton import BONES, JOINT_NAMES, MIRROR, N_JOINTS, PARENTS, Confidence, joint_index
-from skelfuse.version import __version__
-
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # what mypy and IDEs see; at run time each name loads on first access (below)
+    from skelfuse.api.live import FusedSubscriber, subscribe
     from skelfuse.api.recordings import fuse_recording, read_fused_frames, read_sensor_frames
+    from skelfuse.schema.errors import ConfigError, DataError, ServiceError, SkelfuseError
+    from skelfuse.schema.frames import FusedFrame, SensorFrame
+    from skelfuse.schema.skeleton import BONES, JOINT_NAMES, MIRROR, N_JOINTS, PARENTS, Confidence, joint_index
+
+from skelfuse.version import __version__
 
 __all__ = [
     "BONES",
@@ -49,14 +50,21 @@ __all__ = [
     "subscribe",
 ]
 
-_LAZY_HOME = "skelfuse.api.recordings"
-"""The module of the names that load on first use (the recording readers and offline fusion)."""
+_HOMES = {
+    "skelfuse.api.live": ("FusedSubscriber", "subscribe"),
+    "skelfuse.api.recordings": ("fuse_recording", "read_fused_frames", "read_sensor_frames"),
+    "skelfuse.schema.errors": ("ConfigError", "DataError", "ServiceError", "SkelfuseError"),
+    "skelfuse.schema.frames": ("FusedFrame", "SensorFrame"),
+    "skelfuse.schema.skeleton": ("BONES", "JOINT_NAMES", "MIRROR", "N_JOINTS", "PARENTS", "Confidence", "joint_index"),
+}
+_HOME_OF = {name: module for module, names in _HOMES.items() for name in names}
+"""Where each exported name is defined: it loads from there on first access."""
 
 
 def __getattr__(name: str) -> Any:
-    """Load the recording functions on first access (then they are plain module attributes)."""
-    if name in __all__:
-        value = getattr(importlib.import_module(_LAZY_HOME), name)
+    """Load an exported name on first access (then it is a plain module attribute)."""
+    if name in _HOME_OF:
+        value = getattr(importlib.import_module(_HOME_OF[name]), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

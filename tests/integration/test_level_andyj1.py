@@ -73,3 +73,40 @@ def test_opensim_reads_the_trc_standing(levelled: Path, tmp_path: Path) -> None:
     row = table.getRowAtIndex(0)
     head, pelvis = row[labels.index("HEAD")], row[labels.index("PELVIS")]
     assert head[1] - pelvis[1] > 400  # OpenSim: y up, mm
+
+
+@pytest.fixture(scope="module")
+def registered_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The take converted with --registered: an MCAP of sensor frames whose recorded poses are all identity."""
+    out = tmp_path_factory.mktemp("convert") / "take.mcap"
+    inputs = [f"{v}={DATA / f'joints_gen_{v}.csv'}" for v in VIEWS]
+    assert main(["convert", *inputs, "--registered", "-o", str(out)]) == 0
+    return out
+
+
+def test_export_levels_a_recording_it_fuses_on_the_way(registered_recording: Path, tmp_path: Path, capsys) -> None:
+    """``export`` of sensor frames levels as ``fuse --input`` does: the same report, --no-level the control."""
+    table = tmp_path / "exported.csv"
+    assert main(["export", str(registered_recording), "--format", "csv", "-o", str(table)]) == 0
+    assert "levelled the world from the skeletons" in capsys.readouterr().err
+    p = _positions(table)
+    assert (p[:, J["HEAD"], 2] - p[:, J["PELVIS"], 2] > 400).mean() > 0.95
+    assert abs(np.nanmedian(p[:, [J["FOOT_LEFT"], J["FOOT_RIGHT"]], 2])) < 100
+    control = tmp_path / "control.csv"
+    assert main(["export", str(registered_recording), "--format", "csv", "--no-level", "-o", str(control)]) == 0
+    assert "levelled" not in capsys.readouterr().err
+    c = _positions(control)  # the master camera's frame: y down, the trunk along -y
+    assert (c[:, J["HEAD"], 2] - c[:, J["PELVIS"], 2] > 400).mean() < 0.05
+    assert (c[:, J["PELVIS"], 1] - c[:, J["HEAD"], 1] > 400).mean() > 0.95
+
+
+def test_export_up_names_the_axis_and_is_refused_for_a_fused_input(
+    registered_recording: Path, levelled: Path, tmp_path: Path, capsys
+) -> None:
+    table = tmp_path / "up.csv"
+    assert main(["export", str(registered_recording), "--format", "csv", "--up=-y", "-o", str(table)]) == 0
+    p = _positions(table)
+    assert (p[:, J["HEAD"], 2] - p[:, J["PELVIS"], 2] > 400).mean() > 0.95  # the camera's -y is up
+    capsys.readouterr()
+    assert main(["export", str(levelled), "--format", "csv", "--up=-y", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "already fused" in capsys.readouterr().err

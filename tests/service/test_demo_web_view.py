@@ -177,7 +177,11 @@ def test_the_printed_web_viewer_url_shows_the_fused_skeleton(tmp_path: Path) -> 
             found = skeleton_pixels(shot, color)
             time.sleep(2.0)
         viewer.close()  # one browser at a time: each draws on the CPU (SwiftShader)
-        control = Browser(url.split("?")[0], tmp_path / "control")  # the same viewer, no stream to connect to
+        # The control: the same viewer page pointed at a port where nothing serves a stream (the bare page may
+        # connect to the server that served it, which is the demo's own stream).
+        nothing = url.replace(f"%3A{grpc}%2F", f"%3A{tools.free_port()}%2F")
+        assert nothing != url
+        control = Browser(nothing, tmp_path / "control")
         browsers.append(control)
         background = control.screenshot()
         while not viewer_drawn(background):  # the control page loaded too (its UI drawn)

@@ -84,6 +84,7 @@ def test_no_function_local_imports_but_heavy_optional_packages(path: Path) -> No
     assert not bad, f"{path.relative_to(PACKAGE)} imports inside functions (move to the top): {bad}"
 
 
+@pytest.mark.live  # starts an interpreter to see what the module loads
 def test_the_rule_catches_a_hidden_import(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
     sample.write_text("def f():\n    from skelfuse.wire import keys\n    import rerun\n    import json\n")

@@ -80,6 +80,17 @@ def test_help_imports_nothing_heavy(argv: list[str]) -> None:
     assert not heavy, f"`skelfuse {' '.join(argv)} --help` imported {heavy[:8]}"
 
 
+@pytest.mark.parametrize("argv", [["--help"], ["--version"]], ids=" ".join)
+def test_the_top_level_loads_no_numpy(argv: list[str]) -> None:
+    """``skelfuse --help`` lists the commands from their table: neither the public API (PEP 562) nor the exit
+    codes nor the service's lifecycle may pull in numpy (or the config, which loads it)."""
+    modules, out = imported_modules(argv)
+    assert "skelfuse" in out
+    assert "skelfuse.cli" in modules
+    loaded = sorted(m for m in modules if m.split(".")[0] == "numpy" or m.startswith("skelfuse.config"))
+    assert not loaded, f"`skelfuse {' '.join(argv)}` imported {loaded[:8]}"
+
+
 def test_each_command_imports_only_its_own_module() -> None:
     """``skelfuse --help`` builds no command's module; ``skelfuse fuse --help`` only the service commands'."""
     groups = {module for module, _ in COMMANDS.values()}
@@ -101,3 +112,5 @@ def test_the_probe_sees_a_heavy_import() -> None:
     """The control: a command that runs the simulator does show it in the log."""
     modules, _ = imported_modules(["sim", "check", "--seeds", "1", "--duration", "0.5", "--no-real", "--json", "-q"])
     assert "skelfuse.sim" in modules and "scipy" in modules
+    fuse, _ = imported_modules(["fuse", "--help"])
+    assert "numpy" in fuse  # a command's parser still reads the config, which loads numpy: the probe sees it

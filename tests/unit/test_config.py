@@ -546,6 +546,17 @@ def test_zenoh_flags_override_file_and_passthrough_overrides_flags() -> None:
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False  # from the file
 
 
+def test_a_session_opens_without_waiting_for_scouting_and_the_wait_can_be_restored() -> None:
+    """``scouting/delay`` is 0 (zenoh's 500 ms made ``zenoh.open`` wait on every node with multicast scouting
+    on); the file's raw key and ``--zenoh-cfg`` win over it, as over any default."""
+    assert json.loads(zenoh_config(zenoh_rig()).get_json("scouting/delay")) == 0
+    data = minimal()
+    data["zenoh"] = {"config": {"scouting/delay": 250}}
+    assert json.loads(zenoh_config(parse_rig_config(data)).get_json("scouting/delay")) == 250
+    restored = zenoh_config(zenoh_rig(), ["scouting/delay:500"])
+    assert json.loads(restored.get_json("scouting/delay")) == 500
+
+
 def test_no_multicast_scouting_flag() -> None:
     parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)

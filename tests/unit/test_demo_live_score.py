@@ -67,7 +67,7 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
     # a pass of the take starts at instant 0: the person jumps back and gets a new track, scored CONVERGE_S on
     settled = n_scored - round(demo.CONVERGE_S * cfg.sync.fps)
     assert len(estimate) > 0.9 * settled, "the live path output too few frames to score"
-    live = demo._group_errors(np.stack(estimate), np.stack(truth))
+    live = demo.group_errors(np.stack(estimate), np.stack(truth))
 
     world = apply_transform(obs.world_from_sensor_calibrated, obs.positions.astype(np.float64))
     offline_fuser = Fuser(
@@ -76,8 +76,8 @@ def _live_and_offline(tmp_path: Path, seed: int, preroll_s: float, scored_s: flo
     offline_out = np.stack(
         [offline_fuser.step(world[f][None], obs.confidence[f][None]).positions[0] for f in range(n_scored)]
     )
-    offline = demo._group_errors(offline_out[instants], obs.truth[instants])
-    singles = [demo._group_errors(world[instants, s], obs.truth[instants]) for s in range(len(obs.sensor_ids))]
+    offline = demo.group_errors(offline_out[instants], obs.truth[instants])
+    singles = [demo.group_errors(world[instants, s], obs.truth[instants]) for s in range(len(obs.sensor_ids))]
     best_single = min(singles, key=lambda errors: errors["all16"])
     return live, offline, best_single
 

@@ -36,7 +36,7 @@ from skelfuse.config.parse import load_rig_config
 from skelfuse.config.zenoh_session import zenoh_config
 from skelfuse.schema.errors import ConfigError, ServiceError
 from skelfuse.schema.frames import FusedFrame
-from skelfuse.service.zenoh_io import close_session
+from skelfuse.service.zenoh_io import close_session, put_dropping_oldest
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
@@ -110,16 +110,7 @@ class FusedSubscriber:
 
     def _put_newest(self, item: object) -> None:
         """Queue ``item``, discarding the oldest frame when the queue is full (caller holds the lock)."""
-        while True:
-            try:
-                self._queue.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    self._queue.get_nowait()
-                    self.dropped += 1
-                except queue.Empty:
-                    pass
+        self.dropped += put_dropping_oldest(self._queue, item)
 
     # ------------------------------------------------------------------------------------------------ app side
 

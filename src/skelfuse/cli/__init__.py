@@ -20,7 +20,7 @@ import time
 from collections.abc import Sequence
 
 from skelfuse.cli.commands import COMMANDS
-from skelfuse.cli.common import EXIT_ERROR, EXIT_OK, EXIT_USAGE
+from skelfuse.cli.exits import EXIT_ERROR, EXIT_OK, EXIT_USAGE
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
 from skelfuse.service.zenoh_io import sessions_left_behind

@@ -9,20 +9,19 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from skelfuse.cli.exits import (  # noqa: F401 - the commands read them here, beside the other shared parts
+    EXIT_ATTENTION,
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_STOP_TIMEOUT,
+    EXIT_USAGE,
+)
 from skelfuse.config import ZENOH_MODES, RigConfig, load_rig_config, zenoh_config
 from skelfuse.config.checks import did_you_mean
 from skelfuse.fusion.presets import ALL_PRESETS
 from skelfuse.schema.errors import ConfigError
-from skelfuse.service.lifecycle import FORCED_EXIT_CODE, RunLimits
-
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_USAGE = 2
-EXIT_ATTENTION = 3  # the result needs a person's attention: a "bad" calibration verdict, a moved sensor
-EXIT_STOP_TIMEOUT = FORCED_EXIT_CODE  # a daemon ended by its stop watchdog (service/lifecycle.py)
-EXIT_INTERRUPTED = 130
-"""The exit codes, one table in docs/service.md ("Exit codes"); argparse's usage errors are EXIT_USAGE too."""
-
+from skelfuse.service.lifecycle import RunLimits
 
 # -- argument types: every value is checked where it enters, argparse turns a failure into a usage error -----
 

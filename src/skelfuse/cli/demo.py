@@ -105,6 +105,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)",
     )
     add_seed_option(demo, default=0)
+    _add_view_options(demo)
+    add_json_option(demo, "the summary")
+    demo.set_defaults(func=_cmd_demo)
+
+
+def _add_view_options(demo: argparse.ArgumentParser) -> None:
+    """Where the view goes (a viewer spawned, a .rrd, served to viewers and browsers) and the offline mode."""
     demo.add_argument(
         "--rrd",
         type=OUTPUT_FILE,
@@ -139,5 +146,3 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=None,
         help="with --offline: pace frames at 30 Hz (default: only when a live viewer is open)",
     )
-    add_json_option(demo, "the summary")
-    demo.set_defaults(func=_cmd_demo)

@@ -26,15 +26,17 @@ from skelfuse.cli.common import (
     print_json,
     rig_config,
 )
-from skelfuse.config import DEFAULT_PRESET
+from skelfuse.cli.inputs import add_level_options, world_poses
+from skelfuse.config import DEFAULT_PRESET, RigConfig
 from skelfuse.export.bvh import write_bvh_arrays
 from skelfuse.export.c3d import write_c3d
 from skelfuse.export.csv import FUSED_FORMATS, write_fused
 from skelfuse.export.fbx import write_fbx_arrays
-from skelfuse.export.source import INPUT_FORMATS, FusedSource, open_fused
+from skelfuse.export.source import INPUT_FORMATS, FusedSource, fuses_sensor_frames, open_fused
 from skelfuse.export.tracks import PersonTrack, TakeTracks, take_tracks
 from skelfuse.export.trc import write_trc
 from skelfuse.progress import Progress, note
+from skelfuse.recording.inputs import open_inputs
 from skelfuse.schema.errors import ConfigError, DataError
 from skelfuse.schema.frames import FusedFrame
 
@@ -128,6 +130,21 @@ def _person_path(out: Path, track_id: int, several: bool) -> Path:
     return out.with_name(f"{out.stem}_track{track_id}{out.suffix}") if several else out
 
 
+def _fusion_poses(args: argparse.Namespace, cfg: RigConfig | None) -> dict[str, np.ndarray] | None:
+    """Where the export fuses a recording's sensor frames: the poses ``fuse --input`` would use, levelled from
+    the skeletons where no calibration defines the world (:func:`world_poses`); None: the config's or the
+    recording's own."""
+    if not fuses_sensor_frames(args.input, refuse=args.fuse):
+        if args.up is not None or args.no_level or args.registered:
+            raise ConfigError(
+                "--up, --no-level and --registered apply where the export fuses a recording's sensor frames (a "
+                "recording without a fused stream, or --fuse); this input is already fused"
+            )
+        return None
+    take = open_inputs([str(args.input)], registered=args.registered, by=cfg.sync.by if cfg is not None else "device")
+    return world_poses(args, take, cfg)
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     if args.rate is not None and args.format == "csv":
         raise ConfigError("--rate applies to the per-person formats (c3d, trc): a CSV keeps the fused timestamps")
@@ -143,6 +160,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         preset_name=args.preset,
         refuse=args.fuse,
         progress=not quiet,
+        world_from_sensor=_fusion_poses(args, cfg),
         smoother=args.smoother,
     )
     if not quiet:
@@ -292,5 +310,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     export.add_argument(
         "--fuse", action="store_true", help="recording: fuse its sensor frames even if it holds a fused stream"
     )
+    export.add_argument(
+        "--registered",
+        action="store_true",
+        help="recording of sensor frames: its sensors' skeletons are already in one frame (identity poses, "
+        "a world levelled from the skeletons as below); recorded identity poses are read so without it",
+    )
+    add_level_options(export)
     add_json_option(export, "a summary", "no progress output")
     export.set_defaults(func=_cmd_export)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -114,10 +114,12 @@ def add_level_options(parser: argparse.ArgumentParser) -> None:
 def world_poses(args: argparse.Namespace, take: InputTake, cfg: RigConfig | None) -> dict[str, np.ndarray] | None:
     """The poses to fuse ``take`` with: ``--calibration``'s, else those of the inputs' shared frame; levelled
     from the skeletons (z up, floor at z = 0, reported on stderr) where no calibration defines the world:
-    registered or single-view inputs, or a sensor-to-sensor calibration. None: the config's or recording's."""
+    registered or single-view inputs (a recording whose poses are all identity, as ``convert --registered``
+    writes it, included), or a sensor-to-sensor calibration. None: the config's or recording's. ``fuse
+    --input`` and ``export`` (of a recording fused on the way) both call it."""
     poses: dict[str, np.ndarray] | None = None
     world_defined = True
-    if args.calibration is not None:
+    if getattr(args, "calibration", None) is not None:  # `export` takes no --calibration: its --config's poses
         calibration = read_calibration(args.calibration)
         missing = [sid for sid in take.sensor_ids if sid not in calibration.sensors]
         if missing:
@@ -127,7 +129,7 @@ def world_poses(args: argparse.Namespace, take: InputTake, cfg: RigConfig | None
             )
         poses = calibration.world_from_sensor
         world_defined = "marker" in {calibration.method, *(s.method for s in calibration.sensors.values())}
-    elif take.registered:
+    elif take.registered or (cfg is None and _all_identity(take.poses)):  # as `convert --registered` wrote it
         poses, world_defined = dict(take.poses), False
     elif len(take.sensor_ids) == 1 and cfg is None and not take.poses:
         poses, world_defined = {take.sensor_ids[0]: np.eye(4)}, False  # one view: its camera's frame
@@ -142,3 +144,8 @@ def world_poses(args: argparse.Namespace, take: InputTake, cfg: RigConfig | None
     levelled, levelling = level_take(take, poses, up=up)
     print(f"note: {levelling.describe()}", file=sys.stderr)
     return levelled
+
+
+def _all_identity(poses: Mapping[str, np.ndarray]) -> bool:
+    """Recorded poses all identity: inputs already in one frame (a camera's), no world defined."""
+    return bool(poses) and all(np.allclose(pose, np.eye(4)) for pose in poses.values())

@@ -15,6 +15,14 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import zenoh
 
 
+SCOUTING_DELAY_MS = 0
+"""How long ``zenoh.open`` waits for peers found by scouting before it returns (zenoh's ``scouting/delay``;
+its own default is 500 ms, paid by every node with multicast scouting on or a connect endpoint not yet up,
+which was most of a daemon's start). Our nodes stream continuously, so a peer that connects a moment after
+the session opened loses nothing that matters; ``[zenoh.config] "scouting/delay"`` or ``--zenoh-cfg
+scouting/delay:500`` restore the wait."""
+
+
 def zenoh_config(
     cfg: RigConfig,
     overrides: Sequence[str] = (),
@@ -33,6 +41,7 @@ def zenoh_config(
 
     Order of application (later wins), as in zenoh-python's ``examples/common/common.py``:
 
+    0. skelfuse's default: ``scouting/delay`` = :data:`SCOUTING_DELAY_MS` (the session opens at once);
     1. ``[zenoh.config]`` raw keys of the file, then ``[zenoh]`` mode / connect / listen /
        multicast_scouting (validation forbids a raw key that duplicates one of those);
     2. the keyword flags (None: not given on the command line);
@@ -48,6 +57,7 @@ def zenoh_config(
     import zenoh
 
     conf = zenoh.Config()
+    _insert(conf, "scouting/delay", str(SCOUTING_DELAY_MS), "skelfuse's default")
     _apply_file(conf, cfg, mode, identity)
     _apply_flags(conf, mode, connect, listen, multicast_scouting)
     for item in overrides:

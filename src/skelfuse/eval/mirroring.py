@@ -24,8 +24,6 @@ import itertools
 import math
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -36,11 +34,10 @@ from skelfuse.eval.robustness import (
     GROUPS,
     HELD_OUT_SEED,
     REFERENCE,
-    _run_take,
     _Task,
     paired_interval,
+    run_tasks,
 )
-from skelfuse.progress import Progress
 
 BASES: dict[str, dict[str, float]] = {"mirroring": {}, "no_mirroring": {"flip_on_prob": 0.0}}
 """The two bases every family runs on: the calibrated profile, and the same without rear-view mirroring."""
@@ -48,22 +45,6 @@ BASE_FAMILY = "baseline"
 SWEEP_FLIP_ON: tuple[float, ...] = (0.0, 0.002, 0.005, 0.01, 0.02, 0.05, 0.15, 0.5)
 """``flip_on_prob`` values of the sweep: 0, the assumption (0.15) and beyond."""
 PAIR = (REFERENCE, CANDIDATE)
-
-
-def _run(tasks: list[_Task], workers: int, progress: bool, label: str) -> list[dict[str, Any]]:
-    bar = Progress(len(tasks), label, enabled=None if progress else False)
-    takes: list[dict[str, Any]] = []
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            for take in pool.map(_run_take, tasks):
-                takes.append(take)
-                bar.update(note=f"{take['family']} x{take['n_sensors']}")
-    else:
-        for task in tasks:
-            takes.append(_run_take(task))
-            bar.update(note=task.family)
-    bar.close()
-    return takes
 
 
 def _margin(take: dict[str, Any], group: str) -> float:
@@ -94,7 +75,7 @@ def run_bases(
         for k in range(n_seeds)
     ]
     t0 = time.perf_counter()
-    takes = _run(tasks, workers, progress, "eval robustness --bases")
+    takes = run_tasks(tasks, workers, progress, "eval robustness --bases")
     for take, task in zip(takes, tasks, strict=True):
         take["base"] = next(b for b, o in BASES.items() if tuple(o.items()) == task.base)
     cells = []
@@ -161,7 +142,7 @@ def run_sweep(
         for k in range(n_seeds)
     ]
     t0 = time.perf_counter()
-    takes = _run(tasks, workers, progress, "eval robustness --mirroring-sweep")
+    takes = run_tasks(tasks, workers, progress, "eval robustness --mirroring-sweep")
     points: list[dict[str, Any]] = []
     for rate in flip_on:
         for n in sensors:

@@ -180,6 +180,23 @@ class _Task:
     base: tuple[tuple[str, float], ...] = ()  # profile keys set before the family's (eval/mirroring.py)
 
 
+def run_tasks(tasks: list[_Task], workers: int, progress: bool, label: str) -> list[dict[str, Any]]:
+    """Run the takes, in ``workers`` spawned processes when more than one, with a progress bar named ``label``."""
+    bar = Progress(len(tasks), label, enabled=None if progress else False)
+    takes: list[dict[str, Any]] = []
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            for take in pool.map(_run_take, tasks):
+                takes.append(take)
+                bar.update(note=f"{take['family']} x{take['n_sensors']}")
+    else:
+        for task in tasks:
+            takes.append(_run_take(task))
+            bar.update(note=task.family)
+    bar.close()
+    return takes
+
+
 def _run_take(task: _Task) -> dict[str, Any]:
     """Simulate one take of one family and score every preset on it."""
     rng = np.random.default_rng([task.seed, task.n_sensors])
@@ -349,18 +366,7 @@ def run_robustness(
         for k in range(n_seeds)
     ]
     t0 = time.perf_counter()
-    bar = Progress(len(tasks), "eval robustness", enabled=None if progress else False)
-    takes: list[dict[str, Any]] = []
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            for take in pool.map(_run_take, tasks):
-                takes.append(take)
-                bar.update(note=f"{take['family']} x{take['n_sensors']}")
-    else:
-        for task in tasks:
-            takes.append(_run_take(task))
-            bar.update(note=task.family)
-    bar.close()
+    takes = run_tasks(tasks, workers, progress, "eval robustness")
     settings = {
         "families": list(families),
         "sensors": [int(n) for n in sensors],

@@ -6,15 +6,18 @@
 * ``.mcap`` with a fused channel (``[record] fused``): the fused frames as the live node published them;
 * ``.mcap`` with sensor channels only (or ``refuse=True``): fused on the way through
   :func:`skelfuse.recording.fuse_recording`, with the rig config's poses and fusion settings or the
-  recording's calibration metadata.
+  recording's calibration metadata, or the poses the caller gives (``world_from_sensor``: the command line's
+  levelled world where no calibration defines one, :func:`fuses_sensor_frames` says when it is needed).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from skelfuse.config import RigConfig
 from skelfuse.export.csv import FUSED_FORMATS, read_fused_table
@@ -52,6 +55,7 @@ def open_fused(
     preset_name: str | None = None,
     refuse: bool = False,
     progress: bool = True,
+    world_from_sensor: Mapping[str, np.ndarray] | None = None,
     smoother: str | None = None,
 ) -> FusedSource:
     """Open ``path`` as a source of fused frames (see the module docstring).
@@ -64,6 +68,8 @@ def open_fused(
         For a recording fused here: :func:`skelfuse.recording.fuse_recording`'s smoother (None: its default).
     progress : bool
         Offline fusion draws its progress bar on stderr (when it is a terminal).
+    world_from_sensor : mapping sensor id -> (4, 4), optional
+        Poses (mm) to fuse sensor frames with; override the rig config's and the recording's.
 
     Raises
     ------
@@ -89,5 +95,22 @@ def open_fused(
         return FusedSource(reader.fused_frames(), "recorded fused stream", reader.fused_message_count)
     if not reader.sensors:
         raise DataError(f"recording {path} holds neither a fused stream nor sensor frames: nothing to export")
-    frames = fuse_recording(path, rig_config=rig_config, preset_name=preset_name, progress=progress, smoother=smoother)
+    frames = fuse_recording(
+        path,
+        rig_config=rig_config,
+        world_from_sensor=world_from_sensor,
+        preset_name=preset_name,
+        progress=progress,
+        smoother=smoother,
+    )
     return FusedSource(frames, "fused from the sensor frames", reader.message_count)
+
+
+def fuses_sensor_frames(path: str | os.PathLike[str], *, refuse: bool = False) -> bool:
+    """Whether :func:`open_fused` fuses ``path``'s sensor frames (a recording without a fused stream, or
+    ``refuse``) rather than reading fused frames: only then do the poses matter."""
+    path = Path(path)
+    if path.suffix.lower() not in RECORDING_FORMATS or not path.is_file():
+        return False
+    reader = RecordingReader(path)
+    return bool(reader.sensors) and (refuse or reader.fused_topic is None)

@@ -13,6 +13,7 @@ import contextlib
 import json
 import logging
 import math
+import queue
 import socket
 import threading
 import time
@@ -455,3 +456,22 @@ def wait_for_port(port: int, *, host: str = "127.0.0.1", timeout_s: float = 10.0
                 return True
         time.sleep(0.05)
     return False
+
+
+def put_dropping_oldest(samples: queue.Queue[Any], item: object) -> int:
+    """Queue ``item`` in a bounded queue that a reader drains, discarding the oldest entries while it is full.
+
+    A subscriber that falls behind loses its oldest samples, never the newest and never its callback's time.
+    Returns how many entries were discarded (the caller counts them).
+    """
+    dropped = 0
+    while True:
+        try:
+            samples.put_nowait(item)
+            return dropped
+        except queue.Full:
+            try:
+                samples.get_nowait()
+                dropped += 1
+            except queue.Empty:
+                pass

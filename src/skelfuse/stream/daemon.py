@@ -25,7 +25,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 from skelfuse.config import RigConfig
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.lifecycle import Lifecycle, RunLimits
-from skelfuse.service.zenoh_io import SESSION_CLOSE_TIMEOUT_S, Received, StopBudget, close_session, open_session
+from skelfuse.service.zenoh_io import (
+    SESSION_CLOSE_TIMEOUT_S,
+    Received,
+    StopBudget,
+    close_session,
+    open_session,
+    put_dropping_oldest,
+)
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame
 
@@ -64,16 +71,7 @@ class BoundedSampleQueue:
         self.put(Received(time.monotonic_ns(), str(sample.key_expr), sample.payload.to_bytes()))
 
     def put(self, item: Received) -> None:
-        while True:
-            try:
-                self._queue.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    self._queue.get_nowait()
-                    self.dropped += 1
-                except queue.Empty:
-                    pass
+        self.dropped += put_dropping_oldest(self._queue, item)
 
     def get(self, timeout: float) -> Received | None:
         try:

@@ -38,7 +38,7 @@ duration of at least one pass (a longer run only adds passes of the same materia
 
 
 def __getattr__(name: str) -> Any:
-    """The runs (:mod:`skelfuse.apps.demo.run`) load on first use: ``skelfuse demo --help`` does not pay for
+    """The runs (:mod:`skelfuse.apps.demo.run` lists them) load on first use: ``skelfuse demo --help`` does not pay for
     the simulator, the fusion pipeline and Rerun."""
     run = importlib.import_module("skelfuse.apps.demo.run")
     try:
