@@ -11,8 +11,9 @@ import pytest
 from skelfuse.cli import main
 from skelfuse.eval import realism
 from skelfuse.schema.skeleton import Confidence, J
+from skelfuse.sim.body_model import ar1, student_t
 from skelfuse.sim.gestures import make_gesture
-from skelfuse.sim.observe import ar1, load_profile, student_t
+from skelfuse.sim.observe import load_profile
 
 DATA_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
 

@@ -9,19 +9,11 @@ import pytest
 
 from skelfuse.schema.errors import ConfigError
 from skelfuse.schema.skeleton import BONES, MIRROR, Confidence, J
+from skelfuse.sim.body_model import ar1, facing_away_deg, fit_body_model, segment_distance, student_t
 from skelfuse.sim.gestures import forward_kinematics, make_gesture, rest_offsets
 from skelfuse.sim.motion import Motion
-from skelfuse.sim.observe import (
-    SimProfile,
-    ar1,
-    default_profile_path,
-    facing_away_deg,
-    fit_body_model,
-    load_profile,
-    segment_distance,
-    simulate,
-    student_t,
-)
+from skelfuse.sim.observe import simulate
+from skelfuse.sim.profile import SimProfile, default_profile_path, load_profile
 from skelfuse.sim.rig import best_view_sensor, look_at, paper_rig
 
 PROFILE = load_profile()

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from skelfuse.schema.skeleton import EVAL_JOINTS, J
+from skelfuse.sim.body_model import facing_away_deg
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import facing_deg
-from skelfuse.sim.observe import facing_away_deg
 from skelfuse.sim.rig import VirtualSensor, best_view_sensor, look_at, paper_rig
 
 

@@ -164,24 +164,8 @@ def detect_plate_markers(
         f"{sorted(seen) if seen else 'none'} ({len(rejected)} rejected candidate squares)"
     )
     required = ids[:3]
-    missing = [i for i in required if i not in seen]
-    if missing:
-        raise CalibrationError(
-            f"marker calibration: marker id(s) {missing} not found; {context}. Check that the whole plate is "
-            f"in the master's colour view, evenly lit, not mirrored, and printed from {dictionary}"
-        )
-    duplicated = sorted({i for i in seen if i in ids and seen.count(i) > 1})
-    if duplicated:
-        raise CalibrationError(
-            f"marker calibration: id(s) {duplicated} detected more than once; {context}. "
-            "Remove other plates or printed markers from the view"
-        )
-    object_points = None
-    if marker_mm is not None:
-        half = marker_mm / 2
-        object_points = np.array(
-            [[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]], dtype=np.float64
-        )
+    _check_detected(seen, ids, required, context, dictionary)
+    object_points = None if marker_mm is None else _square_corners(marker_mm)
     out = {}
     for corners, marker_id in zip(corners_list, seen, strict=True):
         if marker_id not in ids:
@@ -201,6 +185,30 @@ def detect_plate_markers(
             center_pnp = np.asarray(tvec, dtype=np.float64).reshape(3) if ok else None
         out[marker_id] = MarkerObservation(marker_id, quad, center, n_pixels, center_pnp)
     return out
+
+
+def _check_detected(
+    seen: list[int], ids: Sequence[int], required: Sequence[int], context: str, dictionary: str
+) -> None:
+    """Refuse a detection that misses an axis-defining marker or sees one of the plate's ids twice."""
+    missing = [i for i in required if i not in seen]
+    if missing:
+        raise CalibrationError(
+            f"marker calibration: marker id(s) {missing} not found; {context}. Check that the whole plate is "
+            f"in the master's colour view, evenly lit, not mirrored, and printed from {dictionary}"
+        )
+    duplicated = sorted({i for i in seen if i in ids and seen.count(i) > 1})
+    if duplicated:
+        raise CalibrationError(
+            f"marker calibration: id(s) {duplicated} detected more than once; {context}. "
+            "Remove other plates or printed markers from the view"
+        )
+
+
+def _square_corners(marker_mm: float) -> np.ndarray:
+    """A marker's corners in its own frame, mm, in ArUco's order (top-left, top-right, bottom-right, bottom-left)."""
+    half = marker_mm / 2
+    return np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]], dtype=np.float64)
 
 
 def world_from_marker_centres(

@@ -292,15 +292,7 @@ def fit_floor(
     # Floor contacts: per frame and sensor the lowest foot joint along the spine's up. Grouped by (sensor,
     # joint): each group gets its own height (the ankle sits ~70 mm up, the toe joint ~25 mm, and each view
     # has its own constant offset of the feet, DESIGN "Real noise"), only the normal is shared.
-    groups = []
-    for points, valid in feet:
-        height = np.where(valid, points @ up, np.inf)  # (T, 4)
-        lowest = np.argmin(height, axis=1)
-        has = np.isfinite(height).any(axis=1)
-        for j in range(len(FOOT_JOINTS)):
-            sel = has & (lowest == j)
-            if sel.sum() >= 3:
-                groups.append(points[sel, j])
+    groups = _floor_contacts(feet, up)
     pelvis_mean = np.concatenate(pelvises).mean(axis=0) if sum(len(p) for p in pelvises) else np.zeros(3)
     n_contacts = sum(len(g) for g in groups)
     if n_contacts < 30:
@@ -351,6 +343,20 @@ def fit_floor(
         rms_mm=float(np.sqrt(np.mean(flat**2))),
         spine_tilt_deg=float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1)))),
     )
+
+
+def _floor_contacts(feet: list[tuple[np.ndarray, np.ndarray]], up: np.ndarray) -> list[np.ndarray]:
+    """Per (sensor, foot joint) the points where that joint was the lowest foot joint along ``up`` (3 or more)."""
+    groups = []
+    for points, valid in feet:
+        height = np.where(valid, points @ up, np.inf)  # (T, 4)
+        lowest = np.argmin(height, axis=1)
+        has = np.isfinite(height).any(axis=1)
+        for j in range(len(FOOT_JOINTS)):
+            sel = has & (lowest == j)
+            if sel.sum() >= 3:
+                groups.append(points[sel, j])
+    return groups
 
 
 def floor_world_from_master(floor: FloorFit) -> np.ndarray:

@@ -359,7 +359,17 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:
         metavar="SECONDS",
         help="status period (default: [node] status_period_s)",
     )
-    view = fuse.add_argument_group("live view (default: the config's [rerun])")
+    _add_live_view_options(fuse)
+    add_json_option(fuse, "a summary at exit")
+    add_input_options(fuse)
+    add_run_limits(fuse, "publishing N fused frames")
+    add_zenoh_arguments(fuse)
+    fuse.set_defaults(func=_cmd_fuse)
+
+
+def _add_live_view_options(parser: argparse.ArgumentParser) -> None:
+    """The fusion node's live Rerun view: save, spawn, serve or none (each defaults to the config's [rerun])."""
+    view = parser.add_argument_group("live view (default: the config's [rerun])")
     view.add_argument(
         "--rrd",
         type=OUTPUT_FILE,
@@ -392,11 +402,6 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:
         help="with --serve: also serve the web viewer on this port",
     )
     view.add_argument("--no-view", action="store_true", help="no live view, whatever the config says")
-    add_json_option(fuse, "a summary at exit")
-    add_input_options(fuse)
-    add_run_limits(fuse, "publishing N fused frames")
-    add_zenoh_arguments(fuse)
-    fuse.set_defaults(func=_cmd_fuse)
 
 
 def _add_record(commands: argparse._SubParsersAction) -> None:

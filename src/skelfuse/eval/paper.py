@@ -48,181 +48,99 @@ Swapped: the share of (frame, limb pair) samples whose left and right are the wr
 
 from __future__ import annotations
 
-import itertools
-import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skelfuse.eval import paper_reference
 from skelfuse.eval.metrics import (
     ErrorAccumulator,
-    ErrorStats,
     angle_stats,
     angular_errors,
     best_lag,
-    group_means,
     jitter_rms,
     jitter_sums,
     lag_error_curve,
-    mean_stats,
     swap_counts,
 )
-from skelfuse.fusion import presets
 from skelfuse.fusion.orientation import views_to_world
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.progress import Progress
-from skelfuse.schema.skeleton import EVAL_JOINT_NAMES, EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
+from skelfuse.schema.skeleton import EVAL_JOINTS, JOINT_GROUPS, N_JOINTS, PAPER_REALIGN_PAIRS
 from skelfuse.sim.gestures import GESTURES, make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import best_view_sensor, paper_rig
 
-__all__ = [
+__all__ = [  # with the plan's and the result's names, which the report and the tests reach through here
+    "BEST_VIEW_RAW",
     "DIRECTIONS_DEG",
     "EPS_MM",
+    "EXACT_TRUTH",
     "EXPERIMENTS",
+    "GROUP_NAMES",
+    "LAG_SHIFTS",
+    "N_CAPTURE",
     "OURS",
     "PAPER_PRESETS",
     "PROTOCOLS",
     "SCENARIOS",
+    "SCENARIO_DESCRIPTIONS",
+    "FusionRun",
     "PaperEvalResult",
     "PaperEvalSuite",
+    "TakeResult",
+    "TakeTask",
+    "collect",
+    "evaluate_take",
+    "fuse_sequence",
+    "fuse_take",
+    "fuse_take_oriented",
+    "fusion_runs",
+    "is_ours",
+    "plan_takes",
     "run_paper_eval",
+    "scenario_profile",
+    "sensor_combinations",
 ]
 
-EPS_MM: tuple[float, ...] = (50.0, 100.0, 150.0, 200.0)
-DIRECTIONS_DEG: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
-N_CAPTURE = 4
-TNOS_EPS_MM = 100.0
-LAG_SHIFTS = np.arange(-5, 21)
-PROTOCOLS: tuple[str, ...] = ("truth", "best_view")
-EXPERIMENTS: tuple[str, ...] = ("algorithms", "eps_sweep", "n_sensors")
-GROUP_NAMES: tuple[str, ...] = tuple(JOINT_GROUPS)
-PAPER_PRESETS: tuple[str, ...] = ("A1", "A2", "A3", "A4", "A5")
-OURS = "skelfuse"
-"""Our preset (``skelfuse.fusion.presets.preset("skelfuse")``), run beside the paper's in experiments 1 and 3."""
-SCENARIOS: tuple[str, ...] = ("paper", "rear_mirroring")
-SCENARIO_DESCRIPTIONS: dict[str, str] = {
-    "paper": "the paper's conditions: no left/right mirroring in any view (section 3.1: \"no misorientation "
-    'case in evaluation data"); default profile with flip_on_prob = 0',
-    "rear_mirroring": "the default profile: views from behind mirror left/right in bursts (trackers are reported "
-    "to do so; the rate is the profile's assumption, not a measurement); two of the four capture views are rear "
-    "views",
-}
-EXACT_TRUTH = "exact_truth"
-"""Output key of the simulator's exact truth in the jitter table: the motion's own acceleration."""
-
-DEFAULT_DURATION_S = 1000.0 / 30.0  # the paper's takes: 1000 frames per gesture (section 2.3)
-QUICK_DURATION_S = 4.0
-QUICK_GESTURES: tuple[str, ...] = ("hands_up_down", "squat")
-QUICK_DIRECTIONS_DEG: tuple[float, ...] = (0.0, 180.0)
-FPS = 30.0
-
-
-# ----------------------------------------------------------------------------------------------------
-# Run plan: which outputs one take produces.
-
-
-@dataclass(frozen=True)
-class FusionRun:
-    """One fusion configuration applied to one take.
-
-    Attributes
-    ----------
-    key : str
-        Name in tables: "A5_100" (all four sensors), "A5_100[0,2]" (a subset of the capture sensors).
-    preset : str
-        Preset name: the paper's "A1".."A5" or ours, "skelfuse".
-    eps_mm : float or None
-        DBSCAN radius handed to the preset; None: the preset's own default (A1/A2 and ours).
-    sensors : tuple of int
-        Indices of the capture sensors that take part.
-    """
-
-    key: str
-    preset: str
-    eps_mm: float | None
-    sensors: tuple[int, ...]
-
-    def params(self) -> Any:
-        """The preset's ``FusionParams``: eps is passed only where the run sets one (A3-A5)."""
-
-        return presets.preset(self.preset) if self.eps_mm is None else presets.preset(self.preset, eps_mm=self.eps_mm)
-
-
-def fusion_runs(
-    n_capture: int = N_CAPTURE,
-    eps_values: Sequence[float] = EPS_MM,
-    tnos_eps_mm: float = TNOS_EPS_MM,
-    ours: Sequence[str] = (OURS,),
-) -> list[FusionRun]:
-    """Every fusion run of one take: the paper's algorithm/eps grid on all sensors and ours on all sensors,
-    then A5 and ours on every proper subset of 2..n-1 sensors (the full set is already run; single sensors are
-    raw data, not fused)."""
-    all_sensors = tuple(range(n_capture))
-    runs = [FusionRun("A1", "A1", None, all_sensors), FusionRun("A2", "A2", None, all_sensors)]
-    for name in ("A3", "A4", "A5"):
-        runs += [FusionRun(_eps_key(name, eps), name, float(eps), all_sensors) for eps in eps_values]
-    runs += [FusionRun(name, name, None, all_sensors) for name in ours]
-    for size in range(2, n_capture):
-        for combo in itertools.combinations(all_sensors, size):
-            runs.append(FusionRun(_subset_key(_eps_key("A5", tnos_eps_mm), combo), "A5", tnos_eps_mm, combo))
-            runs += [FusionRun(_subset_key(name, combo), name, None, combo) for name in ours]
-    return runs
-
-
-def sensor_combinations(
-    n_capture: int = N_CAPTURE, tnos_eps_mm: float = TNOS_EPS_MM, algorithm: str = "A5"
-) -> dict[int, list[str]]:
-    """Output keys averaged for each number of sensors in experiment 3: raw skeletons for one sensor,
-    ``algorithm`` (A5 at ``tnos_eps_mm``, or ours at its own eps) on every combination otherwise (4, 6, 4, 1 of
-    them for four sensors)."""
-    full = _eps_key("A5", tnos_eps_mm) if algorithm == "A5" else algorithm
-    out: dict[int, list[str]] = {1: [_raw_key(s) for s in range(n_capture)]}
-    for size in range(2, n_capture):
-        out[size] = [_subset_key(full, c) for c in itertools.combinations(range(n_capture), size)]
-    out[n_capture] = [full]
-    return out
-
-
-def is_ours(config: str) -> bool:
-    """Whether a row or output key is our algorithm (not the paper's, not raw data)."""
-    return config == OURS or config.startswith((OURS + "_", OURS + "["))
-
-
-def scenario_profile(profile: Any, scenario: str) -> Any:
-    """The simulator profile of a scenario (``SCENARIOS``), derived from ``profile``."""
-    if scenario == "paper":
-        return replace(profile, flip_on_prob=0.0)
-    if scenario == "rear_mirroring":
-        return profile
-    raise ValueError(f"unknown scenario {scenario!r}; expected one of {SCENARIOS}")
-
-
-def _eps_key(preset: str, eps_mm: float) -> str:
-    return f"{preset}_{round(eps_mm)}"
-
-
-def _subset_key(key: str, sensors: Sequence[int]) -> str:
-    return f"{key}[{','.join(str(s) for s in sensors)}]"
-
-
-def _raw_key(sensor: int) -> str:
-    return f"raw[{sensor}]"
-
-
-BEST_VIEW_RAW = "best_view_raw"
-"""Output key of the best-view skeleton itself, scored against exact truth: how good the paper's reference
-is."""
-
+from skelfuse.eval.paper_plan import (
+    BEST_VIEW_RAW,
+    DEFAULT_DURATION_S,
+    DIRECTIONS_DEG,
+    EPS_MM,
+    EXACT_TRUTH,
+    EXPERIMENTS,
+    FPS,
+    GROUP_NAMES,
+    LAG_SHIFTS,
+    N_CAPTURE,
+    OURS,
+    PAPER_PRESETS,
+    PROTOCOLS,
+    QUICK_DIRECTIONS_DEG,
+    QUICK_DURATION_S,
+    QUICK_GESTURES,
+    SCENARIO_DESCRIPTIONS,
+    SCENARIOS,
+    TNOS_EPS_MM,
+    FusionRun,
+    _raw_key,
+    fusion_runs,
+    is_ours,
+    scenario_profile,
+    sensor_combinations,
+)
+from skelfuse.eval.paper_result import (
+    PaperEvalResult,
+    PaperEvalSuite,
+)
 
 # ----------------------------------------------------------------------------------------------------
 # One take (runs in a worker process when workers > 1).
@@ -362,16 +280,7 @@ def evaluate_take(task: TakeTask) -> TakeResult:
     errors, lag, jitter and left/right swaps."""
 
     t0 = time.perf_counter()
-    motion = make_gesture(
-        task.gesture,
-        duration_s=task.duration_s,
-        fps=task.fps,
-        facing_deg=task.facing_deg,
-        seed=task.motion_seed,
-    )
-    sensors = [*list(paper_rig(N_CAPTURE)), best_view_sensor(task.facing_deg)]
-    profile = scenario_profile(load_profile(task.profile_path), task.scenario)
-    obs = simulate(motion, sensors, profile, seed=task.sim_seed)
+    obs = _simulate_take(task)
     t_sim = time.perf_counter() - t0
 
     world = _world_skeletons(obs)
@@ -410,10 +319,7 @@ def evaluate_take(task: TakeTask) -> TakeResult:
     orientation: dict[str, dict[str, np.ndarray]] = {}
 
     def score_orientation(key: str, quats: np.ndarray) -> None:
-        errors = angular_errors(quats, true_quats)
-        orientation[key] = {
-            g: errors[:, idx][np.isfinite(errors[:, idx])].astype(np.float32) for g, idx in JOINT_GROUPS.items()
-        }
+        orientation[key] = _orientation_errors(quats, true_quats)
 
     for sensor in range(N_CAPTURE):
         score_orientation(_raw_key(sensor), view_quats[:, sensor])
@@ -433,285 +339,47 @@ def evaluate_take(task: TakeTask) -> TakeResult:
         score(run.key, fused, with_lag=len(run.sensors) == N_CAPTURE)
     t_fuse = time.perf_counter() - t1
 
-    tracked = np.asarray(obs.tracked, dtype=bool)
-    mirrored = np.asarray(obs.mirrored, dtype=bool) & tracked
-    info = {
-        "scenario": task.scenario,
-        "gesture": task.gesture,
-        "facing_deg": task.facing_deg,
-        "n_frames": int(truth.shape[0]),
-        "tracked_fraction": [float(x) for x in tracked.mean(axis=0)],
-        "mirrored_fraction": [float(x) for x in mirrored.mean(axis=0)],
-        "simulate_s": t_sim,
-        "fuse_s": t_fuse,
-        "n_fusion_steps": int(truth.shape[0]) * len(runs),
-    }
+    info = _take_info(task, obs, n_frames=int(truth.shape[0]), n_runs=len(runs), simulate_s=t_sim, fuse_s=t_fuse)
     return TakeResult(task.gesture, task.facing_deg, errors, lag, info, swaps, jitter, task.scenario, orientation)
 
 
-# ----------------------------------------------------------------------------------------------------
-# The result.
+def _simulate_take(task: TakeTask) -> Any:
+    """The take's observations: its gesture seen by the four capture sensors and the best-view sensor."""
+    motion = make_gesture(
+        task.gesture,
+        duration_s=task.duration_s,
+        fps=task.fps,
+        facing_deg=task.facing_deg,
+        seed=task.motion_seed,
+    )
+    sensors = [*list(paper_rig(N_CAPTURE)), best_view_sensor(task.facing_deg)]
+    profile = scenario_profile(load_profile(task.profile_path), task.scenario)
+    return simulate(motion, sensors, profile, seed=task.sim_seed)
 
 
-@dataclass
-class PaperEvalResult:
-    """Everything ``skelfuse eval paper`` measured in one scenario.
-
-    Attributes
-    ----------
-    settings : dict
-        Scenario, gestures, directions, duration, fps, seed, eps values, our presets ("ours"), workers, quick.
-    stats : dict output key -> protocol -> gesture -> ErrorStats over the 16 EVAL_JOINTS
-        Frames pooled over the directions of that gesture.
-    lag : dict output key -> group -> {"lag_frames", "error_mm"}
-        Against exact truth, pooled over all takes.
-    takes : list of per-take info dicts
-    swapped : dict output key -> fraction of (frame, pair) samples with a left/right pair the wrong way round
-        against exact truth (pairs: shoulders, elbows, wrists, hips, knees, ankles), over all takes
-    jitter : dict output key -> group -> RMS second difference over time, mm/frame², over all takes
-        4-sensor outputs, raw sensors and ``exact_truth`` (the motion's own acceleration).
-    elapsed_s : float
-        Wall time of the whole run.
-    files : list of str
-        Files written (empty without an output folder).
-    """
-
-    settings: dict[str, Any]
-    stats: dict[str, dict[str, dict[str, ErrorStats]]]
-    lag: dict[str, dict[str, dict[str, float]]]
-    takes: list[dict[str, Any]]
-    swapped: dict[str, float] = field(default_factory=dict)
-    elapsed_s: float = 0.0
-    files: list[str] = field(default_factory=list)
-    jitter: dict[str, dict[str, float]] = field(default_factory=dict)
-    orientation: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
-
-    # ---- derived views -------------------------------------------------------------------------------------
-
-    @property
-    def gestures(self) -> list[str]:
-        return list(self.settings["gestures"])
-
-    @property
-    def eps_values(self) -> list[float]:
-        return list(self.settings["eps_mm"])
-
-    @property
-    def scenario(self) -> str:
-        return str(self.settings.get("scenario", "rear_mirroring"))
-
-    @property
-    def ours(self) -> list[str]:
-        """Our presets that were run (extra rows of experiments 1 and 3)."""
-        return [name for name in self.settings.get("ours", []) if name in self.stats]
-
-    def experiment_configs(self, experiment: str) -> list[str]:
-        """Row names of an experiment, in display order: the paper's rows, then ours."""
-        if experiment == "algorithms":
-            return [*PAPER_PRESETS, *self.ours]
-        if experiment == "eps_sweep":
-            return [_eps_key(p, e) for p in ("A3", "A4", "A5") for e in self.eps_values]
-        if experiment == "n_sensors":
-            rows = [str(n) for n in sorted(self._combinations())]
-            return rows + [f"{name}_{n}" for name in self.ours for n in sorted(self._combinations()) if n > 1]
-        raise ValueError(f"unknown experiment {experiment!r}; expected one of {EXPERIMENTS}")
-
-    def _combinations(self, algorithm: str = "A5") -> dict[int, list[str]]:
-        return sensor_combinations(N_CAPTURE, TNOS_EPS_MM, algorithm)
-
-    def members(self, experiment: str, config: str) -> list[str]:
-        """The base output keys whose per-gesture stats are averaged into one row."""
-        if experiment == "algorithms" and config in ("A3", "A4", "A5"):
-            return [_eps_key(config, e) for e in self.eps_values]
-        if experiment == "n_sensors":
-            algorithm, _, n = config.rpartition("_")
-            return self._combinations(algorithm or "A5")[int(n)]
-        return [config]
-
-    @staticmethod
-    def n_sensors_of(config: str) -> int:
-        """Number of sensors of an experiment-3 row ("3" or "skelfuse_3")."""
-        return int(config.rpartition("_")[2])
-
-    def row_lag(self, experiment: str, config: str, group: str) -> float:
-        """Lag in frames of a row against exact truth: mean over its member outputs that have one (4 sensors)."""
-        values = [self.lag[k][group]["lag_frames"] for k in self.members(experiment, config) if k in self.lag]
-        return float(np.mean(values)) if values else float("nan")
-
-    def row_jitter(self, experiment: str, config: str, group: str) -> float:
-        """RMS second difference (mm/frame²) of a row: mean over its member outputs that have one."""
-        values = [self.jitter[k][group] for k in self.members(experiment, config) if k in self.jitter]
-        return float(np.mean(values)) if values else float("nan")
-
-    def row_swapped(self, experiment: str, config: str) -> float:
-        """Share of left/right limb pairs the wrong way round in a row: mean over its member outputs."""
-        values = [self.swapped[k] for k in self.members(experiment, config) if k in self.swapped]
-        return float(np.mean(values)) if values else float("nan")
-
-    def joint_stats(self, experiment: str, config: str, protocol: str, gesture: str = "all") -> ErrorStats:
-        """Per-joint stats of one row: mean over its member outputs (eps values or sensor combinations) and,
-        for ``gesture="all"``, over gestures."""
-        gestures = self.gestures if gesture == "all" else [gesture]
-        items = [self.stats[key][protocol][g] for key in self.members(experiment, config) for g in gestures]
-        return mean_stats(items)
-
-    def group_stats(
-        self, experiment: str, config: str, protocol: str, gesture: str = "all"
-    ) -> dict[str, dict[str, float]]:
-        """{group: {"ae_mm", "rmse_mm", "std_mm", "n_frames", "n_missing"}} of one row."""
-        s = self.joint_stats(experiment, config, protocol, gesture)
-        out: dict[str, dict[str, float]] = {g: {} for g in GROUP_NAMES}
-        for metric in ("ae_mm", "rmse_mm", "std_mm"):
-            for g, v in group_means(getattr(s, metric), EVAL_JOINTS, JOINT_GROUPS).items():
-                out[g][metric] = float(v)
-        col = {int(j): k for k, j in enumerate(EVAL_JOINTS)}
-        for g, idx in JOINT_GROUPS.items():
-            cols = [col[int(j)] for j in idx]
-            out[g]["n_frames"] = int(s.n_frames[cols].sum())
-            out[g]["n_missing"] = int(s.n_missing[cols].sum())
-        return out
-
-    def paper_value(self, experiment: str, config: str, metric: str, group: str) -> float | None:
-        """The paper's figure for a row (``metric`` "ae_mm" or "std_mm"), or None (e.g. for our rows)."""
-        if is_ours(config):
-            return None
-        if experiment == "algorithms":
-            return paper_reference.reference_value("algorithms", config, metric, group)
-        if experiment == "eps_sweep":
-            name, eps = config.split("_")
-            if name != paper_reference.EPS_SWEEP_PRESET:
-                return None
-            return paper_reference.reference_value("eps_sweep", float(eps), metric, group)
-        if experiment == "n_sensors":
-            if is_ours(config):
-                return None
-            return paper_reference.reference_value("n_sensors", int(config), metric, group)
-        return None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serializable summary (NaN becomes None).
-
-        Scenario and settings; per experiment, protocol and row the group and joint values over all gestures and
-        the group values per gesture, the row's lag, jitter and swapped share; lag, jitter and swapped share per
-        output; per-take facts; the paper's figures.
-        """
-        experiments: dict[str, Any] = {}
-        for exp in EXPERIMENTS:
-            experiments[exp] = {}
-            for protocol in PROTOCOLS:
-                rows = {}
-                for config in self.experiment_configs(exp):
-                    s = self.joint_stats(exp, config, protocol)
-                    rows[config] = {
-                        "algorithm": "ours" if is_ours(config) else "paper",
-                        "members": self.members(exp, config),
-                        "groups": self.group_stats(exp, config, protocol),
-                        "groups_by_gesture": {g: self.group_stats(exp, config, protocol, g) for g in self.gestures},
-                        "joints": {
-                            name: {
-                                "ae_mm": float(s.ae_mm[k]),
-                                "rmse_mm": float(s.rmse_mm[k]),
-                                "std_mm": float(s.std_mm[k]),
-                                "n_frames": int(s.n_frames[k]),
-                                "n_missing": int(s.n_missing[k]),
-                                "n_ref_missing": int(s.n_ref_missing[k]),
-                            }
-                            for k, name in enumerate(EVAL_JOINT_NAMES)
-                        },
-                        "n_missing": int(s.n_missing.sum()),
-                        "lag_frames": {g: self.row_lag(exp, config, g) for g in GROUP_NAMES},
-                        "jitter_mm_per_frame2": {g: self.row_jitter(exp, config, g) for g in GROUP_NAMES},
-                        "swapped_fraction": self.row_swapped(exp, config),
-                        "paper": {
-                            g: {m: self.paper_value(exp, config, m, g) for m in ("ae_mm", "std_mm")}
-                            for g in GROUP_NAMES
-                        },
-                    }
-                experiments[exp][protocol] = rows
-        best = {g: v for g, v in self.group_stats_key(BEST_VIEW_RAW, "truth").items()}
-        return _json_safe(
-            {
-                "scenario": self.scenario,
-                "settings": self.settings,
-                "elapsed_s": self.elapsed_s,
-                "experiments": experiments,
-                "best_view_vs_truth": best,
-                "lag": self.lag,
-                "jitter_mm_per_frame2": self.jitter,
-                "swapped_fraction": self.swapped,
-                "orientation_error_deg": self.orientation,
-                "takes": self.takes,
-                "paper": {
-                    "citation": paper_reference.CITATION,
-                    "algorithms": paper_reference.ALGORITHMS,
-                    "eps_sweep": {str(int(k)): v for k, v in paper_reference.EPS_SWEEP.items()},
-                    "n_sensors": {str(k): v for k, v in paper_reference.N_SENSORS.items()},
-                    "oddities": list(paper_reference.ODDITIES),
-                },
-                "files": self.files,
-            }
-        )
-
-    def group_stats_key(self, key: str, protocol: str) -> dict[str, dict[str, float]]:
-        """Group values of one base output key (e.g. ``best_view_raw``) over all gestures."""
-        s = mean_stats([self.stats[key][protocol][g] for g in self.gestures])
-        out: dict[str, dict[str, float]] = {g: {} for g in GROUP_NAMES}
-        for metric in ("ae_mm", "rmse_mm", "std_mm"):
-            for g, v in group_means(getattr(s, metric), EVAL_JOINTS, JOINT_GROUPS).items():
-                out[g][metric] = float(v)
-        return out
+def _orientation_errors(quats: np.ndarray, true_quats: np.ndarray) -> dict[str, np.ndarray]:
+    """Angular error of each joint group's finite orientations, degrees (float32, the result's storage)."""
+    errors = angular_errors(quats, true_quats)
+    return {g: errors[:, idx][np.isfinite(errors[:, idx])].astype(np.float32) for g, idx in JOINT_GROUPS.items()}
 
 
-@dataclass
-class PaperEvalSuite:
-    """``skelfuse eval paper`` over several scenarios: one ``PaperEvalResult`` per scenario.
-
-    Attributes
-    ----------
-    scenarios : dict scenario name -> PaperEvalResult
-        In ``SCENARIOS`` order.
-    settings : dict
-        What all scenarios share (the per-scenario settings add the scenario and its profile change).
-    elapsed_s : float
-        Wall time of the whole run.
-    files : list of str
-        Files written: the combined report.md and result.json, and each scenario's folder.
-    """
-
-    scenarios: dict[str, PaperEvalResult]
-    settings: dict[str, Any]
-    elapsed_s: float = 0.0
-    files: list[str] = field(default_factory=list)
-
-    def __getitem__(self, scenario: str) -> PaperEvalResult:
-        return self.scenarios[scenario]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serializable: settings, run time, files, and each scenario's ``PaperEvalResult.to_dict()``."""
-        return _json_safe(
-            {
-                "settings": self.settings,
-                "elapsed_s": self.elapsed_s,
-                "scenario_descriptions": {k: SCENARIO_DESCRIPTIONS.get(k, "") for k in self.scenarios},
-                "scenarios": {name: result.to_dict() for name, result in self.scenarios.items()},
-                "files": self.files,
-            }
-        )
-
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _json_safe(value.tolist())
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        value = float(value)
-        return value if math.isfinite(value) else None
-    return value
+def _take_info(
+    task: TakeTask, obs: Any, *, n_frames: int, n_runs: int, simulate_s: float, fuse_s: float
+) -> dict[str, Any]:
+    """What the take was and how the views tracked it (tracked and mirrored share per sensor), with its timing."""
+    tracked = np.asarray(obs.tracked, dtype=bool)
+    mirrored = np.asarray(obs.mirrored, dtype=bool) & tracked
+    return {
+        "scenario": task.scenario,
+        "gesture": task.gesture,
+        "facing_deg": task.facing_deg,
+        "n_frames": n_frames,
+        "tracked_fraction": [float(x) for x in tracked.mean(axis=0)],
+        "mirrored_fraction": [float(x) for x in mirrored.mean(axis=0)],
+        "simulate_s": simulate_s,
+        "fuse_s": fuse_s,
+        "n_fusion_steps": n_frames * n_runs,
+    }
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -889,7 +557,30 @@ def run_paper_eval(
         scenarios=scenarios,
         ours=tuple(ours),
     )
-    settings = {
+    settings = _run_settings(
+        tasks, quick=quick, seed=seed, scenarios=scenarios, ours=ours, profile=profile, workers=workers
+    )
+    results = _run_takes(tasks, scenarios, workers=workers, progress=progress)
+    per_scenario = {name: collect(results[name], {**settings, **_scenario_settings(name)}) for name in scenarios}
+    suite = PaperEvalSuite(per_scenario, settings)
+    suite.elapsed_s = time.perf_counter() - t0
+    for result in per_scenario.values():
+        result.elapsed_s = suite.elapsed_s
+    return suite
+
+
+def _run_settings(
+    tasks: Sequence[TakeTask],
+    *,
+    quick: bool,
+    seed: int,
+    scenarios: Sequence[str],
+    ours: Sequence[str],
+    profile: str | None,
+    workers: int,
+) -> dict[str, Any]:
+    """The run's settings as the result records them (what was run, so a reader can rerun it)."""
+    return {
         "quick": quick,
         "seed": seed,
         "scenarios": list(scenarios),
@@ -906,6 +597,21 @@ def run_paper_eval(
         "workers": workers,
         "n_takes": len(tasks) // len(scenarios),
     }
+
+
+def _scenario_settings(name: str) -> dict[str, Any]:
+    """What a scenario adds to the run's settings: its description and its change to the profile."""
+    return {
+        "scenario": name,
+        "scenario_description": SCENARIO_DESCRIPTIONS[name],
+        "profile_change": {"flip_on_prob": 0.0} if name == "paper" else {},
+    }
+
+
+def _run_takes(
+    tasks: Sequence[TakeTask], scenarios: Sequence[str], *, workers: int, progress: bool
+) -> dict[str, list[TakeResult]]:
+    """Every take's result by scenario, in this process or spread over ``workers`` processes."""
     results: dict[str, list[TakeResult]] = {name: [] for name in scenarios}
     with Progress(len(tasks), "eval paper", enabled=None if progress else False) as bar:
         if workers == 1:
@@ -920,20 +626,4 @@ def run_paper_eval(
                     task = futures[future]
                     results[task.scenario].append(future.result())
                     bar.update(1, f"{task.scenario} {task.gesture} {task.facing_deg:.0f}°")
-    per_scenario = {
-        name: collect(
-            results[name],
-            {
-                **settings,
-                "scenario": name,
-                "scenario_description": SCENARIO_DESCRIPTIONS[name],
-                "profile_change": {"flip_on_prob": 0.0} if name == "paper" else {},
-            },
-        )
-        for name in scenarios
-    }
-    suite = PaperEvalSuite(per_scenario, settings)
-    suite.elapsed_s = time.perf_counter() - t0
-    for result in per_scenario.values():
-        result.elapsed_s = suite.elapsed_s
-    return suite
+    return results

@@ -427,6 +427,39 @@ def run_real_eval(
         groups=list(groups),
     )
 
+    _add_view_facts(result, take, medium)
+
+    fused = {name: fuse_views(views, conf, name, eps_mm) for name in presets}
+    outputs = {**fused, AUTHORS: take.authors_positions}
+    for method, output in outputs.items():
+        result.fused_to_view[method] = {
+            view: {g: distance_stats(joint_distances(output, views[s]), joints) for g, joints in groups.items()}
+            for s, view in enumerate(names)
+        }
+
+    sequences = {**{name: views[s] for s, name in enumerate(names)}, **outputs}
+    for method, sequence in sequences.items():
+        result.jitter[method] = {g: jitter_rms(sequence, joints) for g, joints in groups.items()}
+        cv = bone_length_cv(sequence)
+        result.bone_cv[method] = {g: group_bone_cv(cv, joints) for g, joints in groups.items()}
+
+    for method, output in outputs.items():
+        flags, decided = mirrored_frames(output, views)
+        result.mirrored[method] = _mirror_row(flags, decided)
+    for s, name in enumerate(names):
+        flags, decided = mirrored_frames(views[s], np.delete(views, s, axis=0))
+        result.mirrored[name] = _mirror_row(flags, decided)
+
+    _add_leave_one_out(result, take, presets, eps_mm, medium)
+
+    result.notes = _notes(result, take)
+    return result
+
+
+def _add_view_facts(result: RealEvalResult, take: RealTake, medium: np.ndarray) -> None:
+    """Facts about the data (MEDIUM share, duplicates, repeats, the authors' file against the master) and the
+    views' disagreement with each other, into ``result``."""
+    views, names, groups = take.positions, list(take.view_names), REPORT_GROUPS
     for s, name in enumerate(names):
         result.data_facts[name] = {
             "medium_share": {g: float(medium[s][:, joints].mean()) for g, joints in groups.items()},
@@ -454,27 +487,12 @@ def run_real_eval(
             "residual_median_mm": residual_mm,
         }
 
-    fused = {name: fuse_views(views, conf, name, eps_mm) for name in presets}
-    outputs = {**fused, AUTHORS: take.authors_positions}
-    for method, output in outputs.items():
-        result.fused_to_view[method] = {
-            view: {g: distance_stats(joint_distances(output, views[s]), joints) for g, joints in groups.items()}
-            for s, view in enumerate(names)
-        }
 
-    sequences = {**{name: views[s] for s, name in enumerate(names)}, **outputs}
-    for method, sequence in sequences.items():
-        result.jitter[method] = {g: jitter_rms(sequence, joints) for g, joints in groups.items()}
-        cv = bone_length_cv(sequence)
-        result.bone_cv[method] = {g: group_bone_cv(cv, joints) for g, joints in groups.items()}
-
-    for method, output in outputs.items():
-        flags, decided = mirrored_frames(output, views)
-        result.mirrored[method] = _mirror_row(flags, decided)
-    for s, name in enumerate(names):
-        flags, decided = mirrored_frames(views[s], np.delete(views, s, axis=0))
-        result.mirrored[name] = _mirror_row(flags, decided)
-
+def _add_leave_one_out(
+    result: RealEvalResult, take: RealTake, presets: Sequence[str], eps_mm: float | None, medium: np.ndarray
+) -> None:
+    """Each view held out in turn, scored against the fusion of the others (and each other view alone)."""
+    views, conf, names, groups = take.positions, take.confidence, list(take.view_names), REPORT_GROUPS
     for h, held_out in enumerate(names):
         rest = [s for s in range(len(names)) if s != h]
         target = views[h]
@@ -496,7 +514,11 @@ def run_real_eval(
             for name in presets
         }
 
-    result.notes = [
+
+def _notes(result: RealEvalResult, take: RealTake) -> list[str]:
+    """What a reader of the report must know about these numbers and this take."""
+    names = list(take.view_names)
+    return [
         "Cross-view numbers cannot see errors all views share: they are lower bounds on true error.",
         "Leave-one-out targets are the held-out view's MEDIUM joints only (LOW joints are the tracker's "
         "guesses); n = samples (frames x joints). The authors' fused file includes the held-out view, so its "
@@ -513,7 +535,6 @@ def run_real_eval(
         MIRROR_NOTE,
         BONE_CV_NOTE,
     ]
-    return result
 
 
 def _offset_note(offsets: Mapping[str, Mapping[str, float]]) -> str:
@@ -580,18 +601,7 @@ def format_markdown(result: RealEvalResult) -> str:
         "## Data: share of MEDIUM joints per group",
         "",
     ]
-    rows = []
-    for view in views:
-        facts = result.data_facts[view]
-        rows.append(
-            [
-                view,
-                *[_fmt(100 * facts["medium_share"][g], 0) + "%" for g in groups],
-                str(facts["duplicates_dropped"]),
-                str(facts["repeated_frames"]),
-            ]
-        )
-    lines += _table(["view", *groups, "copies dropped", "repeated frames"], rows)
+    lines += _table(["view", *groups, "copies dropped", "repeated frames"], _data_rows(result))
 
     lines += ["", "## Cross-view disagreement before fusion: median (p90), all joints", ""]
     lines += _table(
@@ -626,17 +636,7 @@ def format_markdown(result: RealEvalResult) -> str:
         "'authors' includes the held-out view (reference only).",
         "",
     ]
-    rows = []
-    for held_out, table in result.leave_one_out.items():
-        wins = result.leave_one_out_wins[held_out]
-        for method, row in table.items():
-            cells = []
-            for g in groups:
-                stats = row[g]
-                mark = "*" if wins.get(method, {}).get(g) else ""
-                cells.append(f"{_fmt(stats['mean'])}{mark} ({stats['n']})" if stats["n"] else "n/a")
-            rows.append([held_out, method, *cells])
-    lines += _table(["held out", "method", *groups], rows)
+    lines += _table(["held out", "method", *groups], _leave_one_out_rows(result))
 
     lines += ["", "## Left/right mirrored frames (vs. the majority of views)", ""]
     lines += _table(
@@ -658,3 +658,36 @@ def format_markdown(result: RealEvalResult) -> str:
     lines += ["", "## Notes", ""]
     lines += [f"- {note}" for note in result.notes]
     return "\n".join(lines) + "\n"
+
+
+def _data_rows(result: RealEvalResult) -> list[list[str]]:
+    """The data table's rows: per view, its MEDIUM share per group, copies dropped, repeated frames."""
+    groups = result.groups
+    rows = []
+    for view in result.views:
+        facts = result.data_facts[view]
+        rows.append(
+            [
+                view,
+                *[_fmt(100 * facts["medium_share"][g], 0) + "%" for g in groups],
+                str(facts["duplicates_dropped"]),
+                str(facts["repeated_frames"]),
+            ]
+        )
+    return rows
+
+
+def _leave_one_out_rows(result: RealEvalResult) -> list[list[str]]:
+    """The leave-one-out table's rows: per held-out view and method, mean (n) per group, '*' for a win."""
+    groups = result.groups
+    rows = []
+    for held_out, table in result.leave_one_out.items():
+        wins = result.leave_one_out_wins[held_out]
+        for method, row in table.items():
+            cells = []
+            for g in groups:
+                stats = row[g]
+                mark = "*" if wins.get(method, {}).get(g) else ""
+                cells.append(f"{_fmt(stats['mean'])}{mark} ({stats['n']})" if stats["n"] else "n/a")
+            rows.append([held_out, method, *cells])
+    return rows

@@ -50,7 +50,8 @@ from skelfuse.progress import note
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BODY_REGIONS, BONES, Confidence, J
 from skelfuse.sim.gestures import make_gesture
-from skelfuse.sim.observe import SimProfile, load_profile, simulate
+from skelfuse.sim.observe import load_profile, simulate
+from skelfuse.sim.profile import SimProfile
 from skelfuse.sim.rig import arc_rig
 from skelfuse.sources.recorded import load_andyj1_csv
 

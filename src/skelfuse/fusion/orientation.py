@@ -554,6 +554,30 @@ def view_consensus(
     return quats.transpose(1, 2, 0), n_views
 
 
+def _rows_measure(
+    view_quats: np.ndarray | None,
+    usable: np.ndarray | None,
+    predicted: np.ndarray,
+    aims_one: np.ndarray,
+    agree_deg: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The views' consensus (4, B, J) and its view counts (B, J), and the prediction swung onto this frame's
+    bones (4, B, J); component-major rows as in :func:`fuse_orientations`."""
+    if view_quats is None or usable is None or np.shape(view_quats)[1] == 0:
+        measured = np.full((4, *predicted.shape[1:]), np.nan)
+        n_views = np.zeros(predicted.shape[1:], dtype=np.int16)
+        swung_prediction = _rows_swing_onto(predicted, aims_one)
+    else:
+        # The views and the prediction swung onto this frame's bones in one call: (4, S + 1, B, J); the views'
+        # axis ahead of the bodies' so that the aims (4, 1, B, J) broadcast over a leading axis.
+        views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)
+        swung = _rows_swing_onto(np.concatenate([views, predicted[:, None]], axis=1), aims_one[:, None])
+        usable_rows = np.asarray(usable, dtype=bool).transpose(1, 0, 2)  # (S, B, J)
+        measured, n_views = _rows_consensus(swung[:, :-1], usable_rows, agree_deg)
+        swung_prediction = swung[:, -1]
+    return measured, n_views, swung_prediction
+
+
 def fuse_orientations(
     positions: np.ndarray,
     view_quats: np.ndarray | None,
@@ -593,18 +617,7 @@ def fuse_orientations(
     omega = np.where(has_prev, np.asarray(omega_prev, dtype=np.float64).transpose(2, 0, 1), 0.0)
     predicted = _rows_bilinear(_rows_rotvec_to_quat(omega * dt_s), prev, _QMUL_ROWS)
     has_aim = aims[0] == aims[0]
-    if view_quats is None or usable is None or np.shape(view_quats)[1] == 0:
-        measured = np.full((4, B, N_JOINTS), np.nan)
-        n_views = np.zeros((B, N_JOINTS), dtype=np.int16)
-        swung_prediction = _rows_swing_onto(predicted, aims_one)
-    else:
-        # The views and the prediction swung onto this frame's bones in one call: (4, S + 1, B, J); the views'
-        # axis ahead of the bodies' so that the aims (4, 1, B, J) broadcast over a leading axis.
-        views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)
-        swung = _rows_swing_onto(np.concatenate([views, predicted[:, None]], axis=1), aims_one[:, None])
-        usable_rows = np.asarray(usable, dtype=bool).transpose(1, 0, 2)  # (S, B, J)
-        measured, n_views = _rows_consensus(swung[:, :-1], usable_rows, params.agree_deg)
-        swung_prediction = swung[:, -1]
+    measured, n_views, swung_prediction = _rows_measure(view_quats, usable, predicted, aims_one, params.agree_deg)
     has_meas = measured[0] == measured[0]  # a consensus row is all finite or all NaN
     # The prediction follows this frame's bone; without a bone it coasts on the rotation alone.
     predicted = np.where(has_aim, swung_prediction, predicted)

@@ -245,11 +245,7 @@ def fuse(
     candidates = np.asarray(candidates)
     confidence = np.asarray(confidence)
     _validate(candidates, confidence, state, dt_s)
-    if sensor_positions is not None and np.shape(sensor_positions) != (candidates.shape[1], 3):
-        raise ValueError(
-            f"sensor_positions must have shape ({candidates.shape[1]}, 3), one world position per sensor of the "
-            f"candidates, got {np.shape(sensor_positions)}"
-        )
+    _check_sensor_positions(candidates, sensor_positions)
     B, _, J, _ = candidates.shape
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
@@ -295,14 +291,9 @@ def fuse(
         )
     std = position_cov = agreement = None
     if params.position_std:
-        agreement = view_agreement(positions, merged.positions, TORSO_JOINTS)
-        r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
-        previous_cov = state.position_cov if state.position_cov is not None else np.zeros((B, J, 3))
-        std, position_cov = uncertainty_step(
-            previous_cov.reshape(B * J, 3), state_coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+        std, position_cov, agreement = _position_uncertainty(
+            positions, merged, fused, state.position_cov, state_coast, coast, params, dt_s
         )
-        std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
-        position_cov = position_cov.reshape(B, J, 3)
     result = FusionResult(
         positions=fused,
         n_agree=merged.n_agree,
@@ -328,6 +319,37 @@ def fuse(
         **_plausibility_fields(plausibility),
     )
     return result, new_state
+
+
+def _check_sensor_positions(candidates: np.ndarray, sensor_positions: np.ndarray | None) -> None:
+    """Refuse sensor positions that are not one world position per sensor of the candidates."""
+    if sensor_positions is not None and np.shape(sensor_positions) != (candidates.shape[1], 3):
+        raise ValueError(
+            f"sensor_positions must have shape ({candidates.shape[1]}, 3), one world position per sensor of the "
+            f"candidates, got {np.shape(sensor_positions)}"
+        )
+
+
+def _position_uncertainty(
+    positions: np.ndarray,
+    merged: MergeResult,
+    fused: np.ndarray,
+    previous_position_cov: np.ndarray | None,
+    state_coast: np.ndarray,
+    coast: np.ndarray,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each fused joint's position std (B, J) and covariance state (B, J, 3), and the views' torso agreement."""
+    B, J = fused.shape[:2]
+    agreement = view_agreement(positions, merged.positions, TORSO_JOINTS)
+    r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
+    previous_cov = previous_position_cov if previous_position_cov is not None else np.zeros((B, J, 3))
+    std, position_cov = uncertainty_step(
+        previous_cov.reshape(B * J, 3), state_coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+    )
+    std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
+    return std, position_cov.reshape(B, J, 3), agreement
 
 
 def _predicted(state: FusionState, dt_s: float) -> np.ndarray:

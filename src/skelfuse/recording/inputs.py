@@ -356,46 +356,10 @@ def open_inputs(
     """
     if not specs:
         raise DataError("no input given; pass one recording (MCAP, long CSV) or one file per sensor")
-    if fmt is not None and fmt not in FORMATS:
-        raise DataError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
-    if clock not in CLOCK_MODES:
-        raise DataError(f"unknown clock mode {clock!r}; known: {', '.join(CLOCK_MODES)}")
-    if by not in ("device", "host"):
-        raise DataError(f"unknown matching clock {by!r}; use device or host")
-    assumed_confidence_level(assume_confidence)  # validates
+    _check_options(fmt=fmt, clock=clock, by=by, assume_confidence=assume_confidence)
     period_us = 1e6 / fps
-    recordings: list[Recording] = []
-    formats: dict[str, str] = {}
-    poses: dict[str, np.ndarray] = {}
-    for raw in specs:
-        spec = raw if isinstance(raw, InputSpec) else InputSpec.parse(str(raw))
-        kind = fmt or detect_format(spec.path)
-        if kind == "mcap":
-            got, mcap_poses = read_mcap(spec.path, sensor_id=spec.sensor_id)
-            poses.update(mcap_poses)
-        else:
-            got = load_sensor_file(spec, fmt=kind, assume_confidence=assume_confidence)
-        for recording in got:
-            if recording.sensor_id in formats:
-                raise DataError(
-                    f"sensor {recording.sensor_id!r} comes twice (again from {spec.path}); give each sensor once, "
-                    "naming files with ID=PATH where their names clash"
-                )
-            formats[recording.sensor_id] = kind
-            recordings.append(recording)
-    notes: list[str] = []
-    for r in recordings:
-        notes += [f"{r.sensor_id}: {n}" for n in r.notes]
-        if r.n_frames == 0:
-            raise DataError(f"{r.source}: sensor {r.sensor_id!r} holds no frames")
-    assumed = {r.sensor_id: r.confidence_assumed for r in recordings if r.confidence_assumed is not None}
-    if assumed:
-        levels = sorted(set(assumed.values()))
-        notes.append(
-            f"no confidence in the file(s) of {', '.join(assumed)}: assumed {' / '.join(levels)} for every joint "
-            "(--assume-confidence); metrics that rely on MEDIUM confidence are "
-            + ("meaningless for them" if "unknown" in levels or "low" in levels else "only as good as that guess")
-        )
+    recordings, formats, poses = _read_recordings(specs, fmt=fmt, assume_confidence=assume_confidence)
+    notes = _recording_notes(recordings)
     ids = [r.sensor_id for r in recordings]
     offsets_ms = dict(time_offsets_ms or {})
     unknown = sorted(set(offsets_ms) - set(ids))
@@ -433,8 +397,72 @@ def open_inputs(
         notes.append("frames matched by host receive time (by = host)")
         return take
 
+    _match_device_clocks(take, clock=clock, explicit_ms=offsets_ms)
+    return take
+
+
+def _check_options(*, fmt: str | None, clock: str, by: str, assume_confidence: str) -> None:
+    """Refuse an unknown format, clock mode, matching clock or confidence level before any file is read."""
+    if fmt is not None and fmt not in FORMATS:
+        raise DataError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    if clock not in CLOCK_MODES:
+        raise DataError(f"unknown clock mode {clock!r}; known: {', '.join(CLOCK_MODES)}")
+    if by not in ("device", "host"):
+        raise DataError(f"unknown matching clock {by!r}; use device or host")
+    assumed_confidence_level(assume_confidence)  # validates
+
+
+def _read_recordings(
+    specs: Sequence[str | InputSpec], *, fmt: str | None, assume_confidence: str
+) -> tuple[list[Recording], dict[str, str], dict[str, np.ndarray]]:
+    """Every sensor's recording in the inputs, with its file's format and the poses the files store."""
+    recordings: list[Recording] = []
+    formats: dict[str, str] = {}
+    poses: dict[str, np.ndarray] = {}
+    for raw in specs:
+        spec = raw if isinstance(raw, InputSpec) else InputSpec.parse(str(raw))
+        kind = fmt or detect_format(spec.path)
+        if kind == "mcap":
+            got, mcap_poses = read_mcap(spec.path, sensor_id=spec.sensor_id)
+            poses.update(mcap_poses)
+        else:
+            got = load_sensor_file(spec, fmt=kind, assume_confidence=assume_confidence)
+        for recording in got:
+            if recording.sensor_id in formats:
+                raise DataError(
+                    f"sensor {recording.sensor_id!r} comes twice (again from {spec.path}); give each sensor once, "
+                    "naming files with ID=PATH where their names clash"
+                )
+            formats[recording.sensor_id] = kind
+            recordings.append(recording)
+    return recordings, formats, poses
+
+
+def _recording_notes(recordings: Sequence[Recording]) -> list[str]:
+    """The loaders' notes and the confidence assumed where files store none; refuses a sensor with no frames."""
+    notes: list[str] = []
+    for r in recordings:
+        notes += [f"{r.sensor_id}: {n}" for n in r.notes]
+        if r.n_frames == 0:
+            raise DataError(f"{r.source}: sensor {r.sensor_id!r} holds no frames")
+    assumed = {r.sensor_id: r.confidence_assumed for r in recordings if r.confidence_assumed is not None}
+    if assumed:
+        levels = sorted(set(assumed.values()))
+        notes.append(
+            f"no confidence in the file(s) of {', '.join(assumed)}: assumed {' / '.join(levels)} for every joint "
+            "(--assume-confidence); metrics that rely on MEDIUM confidence are "
+            + ("meaningless for them" if "unknown" in levels or "low" in levels else "only as good as that guess")
+        )
+    return notes
+
+
+def _match_device_clocks(take: InputTake, *, clock: str, explicit_ms: Mapping[str, float]) -> None:
+    """Matching by device time: per sensor after the first, share its clock or estimate the offset; ``take``'s
+    offsets, estimates and notes are updated in place (``explicit_ms``: the offsets the user gave)."""
+    recordings, notes, offsets_us = take.recordings, take.notes, take.offsets_us
+    ids = [r.sensor_id for r in recordings]
     if len(recordings) < 2:
-        return take
+        return
     reference = recordings[0]
     ref_times = reference.frame_times_us()
     for other in recordings[1:]:
@@ -446,18 +474,17 @@ def open_inputs(
         shares = _overlap_fraction(ref_times, times) > 0.0
         if clock == "shared" or (clock == "auto" and shares):
             continue
-        estimate = estimate_offset(reference, other, period_us=period_us)
+        estimate = estimate_offset(reference, other, period_us=take.period_us)
         take.estimates[sid] = estimate
         offsets_us[sid] = estimate.offset_us
         notes.append(estimate.describe())
-    matched = [s for s in ids[1:] if s not in take.estimates and s not in offsets_ms]
+    matched = [s for s in ids[1:] if s not in take.estimates and s not in explicit_ms]
     if matched:
         notes.append(
             f"frames matched by device timestamp ({', '.join([ids[0], *matched])} share one clock"
             + (", their time ranges overlap" if clock == "auto" else "")
             + "), whatever frame each file starts at"
         )
-    return take
 
 
 # ------------------------------------------------------------------------------------------------ writing

@@ -11,7 +11,8 @@
 from skelfuse.sim.bvh import load_bvh
 from skelfuse.sim.gestures import GESTURES, make_gesture
 from skelfuse.sim.motion import Motion
-from skelfuse.sim.observe import Observations, SimProfile, load_profile, simulate
+from skelfuse.sim.observe import Observations, simulate
+from skelfuse.sim.profile import SimProfile, load_profile
 from skelfuse.sim.rig import VirtualSensor, best_view_sensor, look_at, paper_rig
 
 __all__ = [

@@ -7,7 +7,7 @@ Cycle of :func:`simulate_people`:
 2. Presence: a person outside their presence window (people entering or leaving the room) is neither
    seen nor occluding.
 3. Other-person occlusion, per sensor: the ray from the sensor to each joint of a person against the body
-   capsules (:data:`skelfuse.sim.observe.CAPSULES`, the profile's radii) of every OTHER present person. A
+   capsules (:data:`skelfuse.sim.profile.CAPSULES`, the profile's radii) of every OTHER present person. A
    hidden joint gets the tracker's guess error (AR(1) with the profile's occluded rho/sigma), is labelled
    LOW with ``occluded_low_prob``, and the skeleton is refitted to its body model (one size factor per
    frame: bones are never perturbed independently). A body whose torso tracking joints are hidden (fewer
@@ -31,18 +31,11 @@ from numpy.typing import ArrayLike
 
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.schema.skeleton import BONES, MIRROR, N_JOINTS, TORSO_TRACKING_JOINTS, Confidence, J
+from skelfuse.sim.body_model import ar1, fit_body_model, segment_distance, symmetric_bone_lengths
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
-from skelfuse.sim.observe import (
-    CAPSULES,
-    SimProfile,
-    _group_values,
-    ar1,
-    fit_body_model,
-    segment_distance,
-    simulate,
-    symmetric_bone_lengths,
-)
+from skelfuse.sim.observe import _group_values, simulate
+from skelfuse.sim.profile import CAPSULES, SimProfile
 from skelfuse.sim.rig import VirtualSensor, paper_rig
 
 _CAPSULE_START = np.array([J[c[1]] for c in CAPSULES])
@@ -136,7 +129,7 @@ def other_person_occlusion(
     ----------
     points : (T, 32, 3) one person's true joints, camera frame, mm.
     occluders : (T, Q, 32, 3) other people's true joints, camera frame; NaN rows (absent people) hide nothing.
-    radii : capsule radius per key of :data:`skelfuse.sim.observe.CAPSULES`, mm.
+    radii : capsule radius per key of :data:`skelfuse.sim.profile.CAPSULES`, mm.
     margin_mm : the occluding surface must lie at least this far in front of the joint along the ray.
 
     Returns

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any
 
-from skelfuse.sim.observe import SimProfile
+from skelfuse.sim.profile import SimProfile
 
 __all__ = ["FAMILIES", "MIXTURE", "Family", "family_profile"]
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
+from skelfuse.sim.body_model import ar1
 from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
 from skelfuse.sim.joint_frames import (
     bone_directions,
@@ -47,7 +48,7 @@ from skelfuse.sim.joint_frames import (
     with_derived,
 )
 from skelfuse.sim.motion import Motion, axis_rotation, facing_deg
-from skelfuse.sim.observe import Observations, ar1
+from skelfuse.sim.observe import Observations
 
 ARM_TWIST_DEG = 35.0
 """Largest simulated roll of an arm or hand bone about itself, deg (assumed)."""

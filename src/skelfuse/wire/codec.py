@@ -21,424 +21,68 @@ from __future__ import annotations
 
 import functools
 import json
-import operator
-import struct
-from dataclasses import dataclass, field
-from enum import IntEnum
-from typing import Any
 
 import numpy as np
 
-from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
-
-MAGIC = b"SKLF"
-"""First 4 bytes of every payload."""
-VERSION_MAJOR = 1
-"""Schema major version written and read. A reader rejects any other major."""
-VERSION_MINOR = 0
-"""Schema minor version of sensor frames, status, and fused frames without the 1.1 sections. A reader
-accepts any minor of its major (see docs/wire-format.md)."""
-FUSED_MINOR_WITH_SECTIONS = 1
-"""Minor version of a fused frame that carries orientations and/or position_std (schema 1.1). A fused frame
-without them is written as 1.0, byte for byte what a 1.0 writer produced, so 1.0 readers see no change."""
-FUSED_SECTION_ORIENTATIONS = 1
-"""Bit of the fused header's ``sections`` field (the 1.0 ``reserved`` u32): f64[P][32][4] orientations follow."""
-FUSED_SECTION_POSITION_STD = 2
-"""Bit of ``sections``: f64[P][32] position_std (mm) follow (after the orientations, when both are present)."""
-_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_SECTIONS, 3: VERSION_MINOR, 4: 0}  # by message kind byte
-PERSON_CLOUDS_HEADER_SIZE = 46
-"""Header size of a person-cloud payload (kind 4; its codec is :mod:`skelfuse.wire.clouds`)."""
-_UNIT_TOLERANCE = 1e-3
-
-MAX_BODIES = 64
-"""Most bodies in one sensor frame (the k4abt tracker reports a handful)."""
-MAX_PERSONS = 64
-"""Most persons in one fused frame."""
-MAX_SENSORS = 64
-"""Most sensors in one rig (columns of ``contributors``, and the cap on ``n_agree``)."""
-MAX_ID_BYTES = 255
-"""Longest sensor id, UTF-8 bytes."""
-MAX_STATUS_BYTES = 65536
-"""Longest status JSON document, bytes."""
-
-STATUS_STATES = ("starting", "running", "degraded", "stopping", "stopped")
-"""States a node reports. Writers use these; readers accept any non-empty string (newer minors may add)."""
-
-REJECT_REASONS = (
-    "truncated",  # fewer bytes than the header or the declared counts need
-    "bad_magic",  # not a skelfuse payload
-    "bad_version",  # schema major version this reader does not support
-    "bad_kind",  # unknown message kind, or another kind than the decoder expects
-    "bad_header",  # header size smaller than the version defines (or not as defined for a known minor)
-    "bad_length",  # bytes left over after the declared content (for a minor this reader knows)
-    "too_large",  # a count or length beyond its cap (bodies, persons, sensors, id bytes, JSON bytes)
-    "bad_joint_count",  # joints per skeleton is not 32
-    "non_finite",  # NaN/Inf where the format forbids it
-    "bad_confidence",  # confidence outside 0..3
-    "bad_value",  # any other out-of-range or inconsistent value (duplicate ids, flags 0/1, negative counts)
-    "bad_utf8",  # a sensor id or the status document is not valid UTF-8
-    "bad_json",  # the status document is not valid JSON or lacks required fields
+from skelfuse.wire.layout import (
+    _F4,
+    _F8,
+    _FUSED_HEADER,
+    _I2,
+    _I8,
+    _I64,
+    _SENSOR_HEADER,
+    _STATUS_HEADER,
+    _U1,
+    _U4,
+    _U16,
+    _U64,
+    FUSED_BYTES_PER_PERSON,
+    FUSED_HEADER_SIZE,
+    FUSED_MINOR_WITH_SECTIONS,
+    FUSED_SECTION_ORIENTATIONS,
+    FUSED_SECTION_POSITION_STD,
+    MAGIC,
+    MAX_BODIES,
+    MAX_ID_BYTES,
+    MAX_PERSONS,
+    MAX_SENSORS,
+    MAX_STATUS_BYTES,
+    PERSON_CLOUDS_HEADER_SIZE,
+    REJECT_REASONS,
+    SENSOR_BYTES_PER_BODY,
+    SENSOR_HEADER_SIZE,
+    STATUS_HEADER_SIZE,
+    STATUS_STATES,
+    VERSION_MAJOR,
+    VERSION_MINOR,
+    DecodeError,
+    MessageKind,
+    NodeStatus,
+    _Invalid,
 )
-"""Every value :attr:`DecodeError.reason` can take."""
-
-
-class MessageKind(IntEnum):
-    """Message kind, byte 6 of every payload."""
-
-    SENSOR_FRAME = 1
-    FUSED_FRAME = 2
-    STATUS = 3
-    PERSON_CLOUDS = 4  # encoded / decoded by skelfuse.wire.clouds
-
-
-class DecodeError(DataError):
-    """A payload was rejected. ``reason`` is a short machine-readable code from :data:`REJECT_REASONS`.
-
-    Attributes
-    ----------
-    reason : str
-        One of :data:`REJECT_REASONS`, to count rejects per reason.
-    """
-
-    def __init__(self, reason: str, message: str) -> None:
-        if reason not in REJECT_REASONS:  # a programming error in this module, never data-dependent
-            raise ValueError(f"unknown DecodeError reason {reason!r}; expected one of {REJECT_REASONS}")
-        super().__init__(message)
-        self.reason = reason
-
-    def __reduce__(self) -> tuple[type[DecodeError], tuple[str, str]]:
-        return (type(self), (self.reason, str(self)))
-
-
-@dataclass(frozen=True)
-class NodeStatus:
-    """What a node says about itself on ``skelfuse/<rig>/status/<node>``.
-
-    Attributes
-    ----------
-    node : str
-        Node name (the ``<node>`` of its keys).
-    role : str
-        What the node does, e.g. "capture", "fusion", "recorder".
-    state : str
-        One of :data:`STATUS_STATES` when written by skelfuse.
-    time_ns : int
-        Host clock when the status was made, nanoseconds since the Unix epoch.
-    counters : dict[str, int]
-        Monotonic non-negative counts since start, e.g. ``{"frames_out": 901, "rejects.truncated": 2}``.
-    info : dict[str, Any]
-        Free-form JSON details (fps, last error, software version...).
-    """
-
-    node: str
-    role: str
-    state: str
-    time_ns: int
-    counters: dict[str, int] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)
-
-
-# Layouts, all little-endian ("<": no padding). Offsets are in docs/wire-format.md.
-_PREFIX = struct.Struct("<4sBBBBH")  # magic, major, minor, kind, flags, header_size
-_SENSOR_HEADER = struct.Struct("<4sBBBBHHHHQqq")  # + n_joints, n_bodies, reserved, sequence, dev us, host ns
-_FUSED_HEADER = struct.Struct("<4sBBBBHHHHqII")  # + n_joints, n_persons, n_sensors, time_us, table, reserved
-_STATUS_HEADER = struct.Struct("<4sBBBBHHI")  # + reserved, json_size
-_U16 = struct.Struct("<H")
-
-SENSOR_HEADER_SIZE = _SENSOR_HEADER.size  # 40
-FUSED_HEADER_SIZE = _FUSED_HEADER.size  # 32
-STATUS_HEADER_SIZE = _STATUS_HEADER.size  # 16
-
-# Bytes per body (sensor frame) and per person (fused frame), excluding the per-person contributors row.
-SENSOR_BYTES_PER_BODY = 4 + N_JOINTS * 3 * 4 + N_JOINTS * 4 * 4 + N_JOINTS  # 932
-FUSED_BYTES_PER_PERSON = 8 + N_JOINTS * 3 * 8 + N_JOINTS * 2 + N_JOINTS  # 872
-
-_KIND_NAMES = {
-    MessageKind.SENSOR_FRAME: "sensor frame",
-    MessageKind.FUSED_FRAME: "fused frame",
-    MessageKind.STATUS: "status",
-    MessageKind.PERSON_CLOUDS: "person-clouds",
-}
-_HEADER_SIZES = {
-    MessageKind.SENSOR_FRAME: SENSOR_HEADER_SIZE,
-    MessageKind.FUSED_FRAME: FUSED_HEADER_SIZE,
-    MessageKind.STATUS: STATUS_HEADER_SIZE,
-    MessageKind.PERSON_CLOUDS: PERSON_CLOUDS_HEADER_SIZE,
-}
-_I64 = (-(2**63), 2**63 - 1)
-_U64 = (0, 2**64 - 1)
-
-
-class _Invalid(Exception):
-    """A rule broken by a frame: becomes DecodeError when decoding and ValueError when encoding."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
-
-
-# --------------------------------------------------------------------------------------------------------
-# Shared validation: one routine per rule, used by both the encoder (ValueError) and the decoder.
-# The rules run on every frame at 30 Hz per sensor, so each is one numpy call on the fast path.
-
-_CONFIDENCE_VALUES = bytes(range(4))
-
-
-def _check_confidence(raw: bytes) -> None:
-    """``raw``: the uint8 confidence bytes. ``translate`` deletes 0..3; anything left is out of range."""
-    bad = raw.translate(None, _CONFIDENCE_VALUES)
-    if bad:
-        raise _Invalid("bad_confidence", f"confidence holds value {max(bad)}; expected 0..3 (NONE, LOW, MEDIUM, HIGH)")
-
-
-def _check_unique(ids: np.ndarray, what: str) -> None:
-    values = ids.tolist()
-    if len(set(values)) != len(values):
-        raise _Invalid("bad_value", f"{what} hold duplicates: {values}")
-
-
-def _check_sensor_floats(floats: np.ndarray) -> None:
-    """``floats``: positions and/or orientations of a sensor frame."""
-    # Sensor frames come straight from the tracker, which always reports a (predicted) joint: no NaN.
-    if not np.isfinite(floats).all():
-        raise _Invalid(
-            "non_finite",
-            "positions or orientations hold NaN or Inf; the tracker always "
-            "reports a joint, so a sensor frame must be finite (drop the body instead)",
-        )
-
-
-def _check_orientations(quats: np.ndarray) -> None:
-    """``quats``: (P, 32, 4). A joint is all NaN (unknown) or a finite unit quaternion."""
-    nan = np.isnan(quats)
-    if np.isinf(quats).any() or (nan.any(axis=-1) != nan.all(axis=-1)).any():
-        raise _Invalid(
-            "non_finite",
-            "orientations hold Inf or a joint with some but not all components NaN; an unknown "
-            "orientation is NaN in w, x, y and z",
-        )
-    norm = np.linalg.norm(np.where(nan, 0.0, quats), axis=-1)
-    if (np.abs(norm - 1.0)[~nan[..., 0]] > _UNIT_TOLERANCE).any():
-        raise _Invalid("bad_value", f"orientations hold a quaternion whose norm is not 1 (within {_UNIT_TOLERANCE})")
-
-
-def _check_position_std(std: np.ndarray) -> None:
-    """``std``: (P, 32) mm, NaN (no estimate) or finite and >= 0."""
-    if np.isinf(std).any():
-        raise _Invalid("non_finite", "position_std holds Inf; only NaN (no estimate) is allowed")
-    if (std < 0).any():
-        raise _Invalid("bad_value", "position_std holds a negative value")
-
-
-def _check_fused_positions(positions: np.ndarray) -> None:
-    """``positions``: (P, 32, 3). NaN means "no estimate" for a whole joint; Inf is never valid."""
-    if np.isfinite(positions).all():
-        return
-    nan = np.isnan(positions)
-    if np.isinf(positions).any():
-        raise _Invalid("non_finite", "positions hold Inf; only NaN (no estimate) is allowed")
-    if (nan.any(axis=-1) != nan.all(axis=-1)).any():
-        raise _Invalid(
-            "non_finite",
-            "positions hold a joint with some but not all coordinates NaN; a missing joint is NaN in x, y and z",
-        )
-
-
-def _check_n_agree(n_agree: np.ndarray) -> None:
-    """``n_agree``: int16. Viewed as uint16, negative values are >= 32768, so one max() checks both ends."""
-    if n_agree.size and int(n_agree.view(np.uint16).max()) > MAX_SENSORS:
-        raise _Invalid(
-            "bad_value",
-            f"n_agree spans {int(n_agree.min())}..{int(n_agree.max())}; "
-            f"expected 0..{MAX_SENSORS} (sensors in the winning cluster)",
-        )
-
-
-def _check_contributors(raw: bytes) -> None:
-    if raw.translate(None, b"\x00\x01"):
-        raise _Invalid("bad_value", "contributors hold values other than 0 and 1")
-
-
-def _check_sensor_ids(sensor_ids: tuple[str, ...]) -> None:
-    if len(set(sensor_ids)) != len(sensor_ids):
-        raise _Invalid("bad_value", f"sensor_ids hold duplicates: {list(sensor_ids)}")
-
-
-def _check_id(sensor_id: str, what: str) -> bytes:
-    if not isinstance(sensor_id, str):
-        raise ValueError(f"{what} must be a str, got {type(sensor_id).__name__}: {sensor_id!r}")
-    raw = sensor_id.encode("utf-8")
-    if not raw:
-        raise ValueError(f"{what} is empty; expected the device serial or simulator name")
-    if len(raw) > MAX_ID_BYTES:
-        raise ValueError(f"{what} {sensor_id[:40]!r}... is {len(raw)} UTF-8 bytes; at most {MAX_ID_BYTES}")
-    return raw
-
-
-def _check_int(value: int, bounds: tuple[int, int], what: str) -> int:
-    number = operator.index(value)  # accepts numpy integers, refuses floats (TypeError)
-    if not bounds[0] <= number <= bounds[1]:
-        raise ValueError(f"{what} = {number} is outside {bounds[0]}..{bounds[1]}")
-    return number
-
-
-def _as_wire(array: object, dtype: np.dtype[Any], shape: tuple[int, ...], what: str, kinds: str) -> np.ndarray:
-    """``array`` as a C-contiguous array of wire dtype ``dtype``; ValueError on shape, kind or range."""
-    arr = np.asarray(array)
-    if arr.shape != shape:
-        raise ValueError(f"{what} has shape {arr.shape}, expected {shape}")
-    if arr.dtype == dtype:
-        return np.ascontiguousarray(arr)
-    if arr.dtype.kind not in kinds:
-        expected = "a float" if kinds == "f" else "an integer"
-        raise ValueError(f"{what} has dtype {arr.dtype}, expected {expected} array (sent as {dtype})")
-    if dtype.kind in "iu" and arr.size and arr.dtype.kind in "iu":
-        info = np.iinfo(dtype)
-        low, high = int(arr.min()), int(arr.max())
-        if low < info.min or high > info.max:
-            raise ValueError(f"{what} spans {low}..{high}, which {dtype} cannot hold")
-    with np.errstate(all="ignore"):  # float64 beyond float32 range becomes Inf, caught by the finiteness rule
-        return np.ascontiguousarray(arr, dtype=dtype)
-
-
-_U1, _U4, _I2, _I8 = np.dtype("u1"), np.dtype("<u4"), np.dtype("<i2"), np.dtype("<i8")
-_F4, _F8 = np.dtype("<f4"), np.dtype("<f8")
-
-
-# --------------------------------------------------------------------------------------------------------
-# Reading helpers (every failure is a DecodeError).
-
-
-def _buffer(data: bytes | bytearray | memoryview) -> memoryview:
-    try:
-        view = memoryview(data)
-    except TypeError:
-        hint = " (for a zenoh sample, pass sample.payload.to_bytes())" if hasattr(data, "to_bytes") else ""
-        raise TypeError(f"payload must be bytes-like, got {type(data).__name__}{hint}") from None
-    if view.ndim != 1 or view.itemsize != 1:
-        view = view.cast("B")
-    return view
-
-
-def _read_prefix(view: memoryview, expected: MessageKind | None) -> tuple[MessageKind, int, int]:
-    """Check magic, major version and kind; return (kind, minor, header_size)."""
-    what = _KIND_NAMES[expected] if expected is not None else "skelfuse"
-    if len(view) < len(MAGIC) or view[: len(MAGIC)] != MAGIC:
-        if len(view) < len(MAGIC) and bytes(view) == MAGIC[: len(view)]:
-            raise DecodeError(
-                "truncated",
-                f"{what} payload rejected (truncated): {len(view)} bytes, shorter than the {_PREFIX.size}-byte prefix",
-            )
-        raise DecodeError(
-            "bad_magic",
-            f"{what} payload rejected (bad_magic): starts with "
-            f"{bytes(view[:4])!r}, expected {MAGIC!r}; is this a skelfuse payload?",
-        )
-    if len(view) < _PREFIX.size:
-        raise DecodeError(
-            "truncated",
-            f"{what} payload rejected (truncated): {len(view)} bytes, shorter than the {_PREFIX.size}-byte prefix",
-        )
-    _, major, minor, kind_byte, _flags, header_size = _PREFIX.unpack_from(view)
-    if major != VERSION_MAJOR:
-        raise DecodeError(
-            "bad_version",
-            f"{what} payload rejected (bad_version): schema version "
-            f"{major}.{minor}, this reader supports major version {VERSION_MAJOR} "
-            f"(writes {VERSION_MAJOR}.{VERSION_MINOR}); upgrade the reader or the writer",
-        )
-    if kind_byte not in _KIND_BY_BYTE:
-        raise DecodeError(
-            "bad_kind",
-            f"{what} payload rejected (bad_kind): unknown message kind "
-            f"{kind_byte}; known kinds {[int(k) for k in MessageKind]}",
-        )
-    kind = _KIND_BY_BYTE[kind_byte]
-    if expected is not None and kind != expected:
-        raise DecodeError(
-            "bad_kind",
-            f"{what} payload rejected (bad_kind): message kind {int(kind)} "
-            f"({_KIND_NAMES[kind]}), expected {int(expected)} ({what}); check the key "
-            "the payload came from",
-        )
-    known_size = _HEADER_SIZES[kind]
-    # A newer minor may grow the header; the same or an older minor must match it.
-    if header_size < known_size or (minor <= _KNOWN_MINOR[int(kind)] and header_size != known_size):
-        raise DecodeError(
-            "bad_header",
-            f"{_KIND_NAMES[kind]} payload rejected (bad_header): header size "
-            f"{header_size} for version {major}.{minor}, expected {known_size}",
-        )
-    if len(view) < header_size:
-        raise DecodeError(
-            "truncated",
-            f"{_KIND_NAMES[kind]} payload rejected (truncated): {len(view)} "
-            f"bytes, shorter than its {header_size}-byte header",
-        )
-    return kind, minor, header_size
-
-
-_KIND_BY_BYTE = {int(kind): kind for kind in MessageKind}
-
-
-def _check_length(view: memoryview, end: int, minor: int, what: str, known_minor: int = VERSION_MINOR) -> None:
-    if len(view) < end:
-        raise DecodeError(
-            "truncated", f"{what} payload rejected (truncated): {len(view)} bytes, the header's counts need {end}"
-        )
-    if len(view) > end and minor <= known_minor:
-        raise DecodeError(
-            "bad_length",
-            f"{what} payload rejected (bad_length): {len(view)} bytes, the header's counts need exactly {end}",
-        )
-
-
-def _read_id(view: memoryview, offset: int, what: str, kind_name: str) -> tuple[str, int]:
-    if offset + 2 > len(view):
-        raise DecodeError(
-            "truncated",
-            f"{kind_name} payload rejected (truncated): {what} length prefix "
-            f"at byte {offset} is past the end ({len(view)} bytes)",
-        )
-    (size,) = _U16.unpack_from(view, offset)
-    offset += 2
-    if size == 0:
-        raise DecodeError("bad_value", f"{kind_name} payload rejected (bad_value): {what} is empty")
-    if size > MAX_ID_BYTES:
-        raise DecodeError(
-            "too_large", f"{kind_name} payload rejected (too_large): {what} is {size} bytes, at most {MAX_ID_BYTES}"
-        )
-    if offset + size > len(view):
-        raise DecodeError(
-            "truncated",
-            f"{kind_name} payload rejected (truncated): {what} of {size} bytes "
-            f"at byte {offset} runs past the end ({len(view)} bytes)",
-        )
-    try:
-        text = str(view[offset : offset + size], "utf-8")
-    except UnicodeDecodeError as exc:
-        raise DecodeError(
-            "bad_utf8",
-            f"{kind_name} payload rejected (bad_utf8): {what} is not UTF-8 ({exc.reason} at byte {offset + exc.start})",
-        ) from None
-    return text, offset + size
-
-
-def _cap(count: int, cap: int, what: str, kind_name: str) -> None:
-    if count > cap:
-        raise DecodeError("too_large", f"{kind_name} payload rejected (too_large): {count} {what}, at most {cap}")
-
-
-def _joints(n_joints: int, kind_name: str) -> None:
-    if n_joints != N_JOINTS:
-        raise DecodeError(
-            "bad_joint_count",
-            f"{kind_name} payload rejected (bad_joint_count): "
-            f"{n_joints} joints per skeleton, expected {N_JOINTS} (k4abt joint set)",
-        )
-
+from skelfuse.wire.rules import (
+    _as_wire,
+    _buffer,
+    _cap,
+    _check_confidence,
+    _check_contributors,
+    _check_fused_positions,
+    _check_id,
+    _check_int,
+    _check_length,
+    _check_n_agree,
+    _check_orientations,
+    _check_position_std,
+    _check_sensor_floats,
+    _check_sensor_ids,
+    _check_unique,
+    _joints,
+    _read_id,
+    _read_prefix,
+)
 
 # --------------------------------------------------------------------------------------------------------
 # Sensor frames
@@ -871,6 +515,7 @@ __all__ = [
     "MAX_PERSONS",
     "MAX_SENSORS",
     "MAX_STATUS_BYTES",
+    "PERSON_CLOUDS_HEADER_SIZE",
     "REJECT_REASONS",
     "SENSOR_BYTES_PER_BODY",
     "SENSOR_HEADER_SIZE",
