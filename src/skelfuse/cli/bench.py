@@ -12,8 +12,8 @@ from skelfuse.cli.common import (
     EXIT_OK,
     POSITIVE,
     add_json_option,
+    add_preset_option,
     add_seed_option,
-    preset_name,
     print_json,
 )
 
@@ -130,7 +130,7 @@ def _add_fusion(bench_commands: argparse._SubParsersAction) -> None:
     fusion.add_argument(
         "--bodies", type=COUNT, nargs="+", default=[1, 3, 6], metavar="N", help="body counts (default: %(default)s)"
     )
-    fusion.add_argument("--preset", type=preset_name, default="A5", help="fusion preset to time (default: %(default)s)")
+    add_preset_option(fusion, default="A5", what="fusion preset to time")
     fusion.add_argument("--frames", type=COUNT, default=300, help="timed frames per case (default: %(default)s)")
     fusion.add_argument("--quick", action="store_true", help="fewer frames and a few cases, for CI")
     add_json_option(fusion)
@@ -146,7 +146,7 @@ def _add_people(bench_commands: argparse._SubParsersAction) -> None:
     people.add_argument("--sensors", type=COUNT, default=8, help="sensors in the rig (default: %(default)s)")
     people.add_argument("--people", type=COUNT, default=6, help="people in the crowd (default: %(default)s)")
     people.add_argument("--frames", type=COUNT, default=300, help="timed frames (default: %(default)s)")
-    people.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
+    add_preset_option(people, default="skelfuse")
     add_json_option(people)
     people.set_defaults(func=_cmd_bench_people)
 

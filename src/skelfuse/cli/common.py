@@ -145,6 +145,22 @@ def add_seed_option(parser: argparse.ArgumentParser, *, default: int = 0, what: 
     parser.add_argument("--seed", type=SEED, default=default, help=f"{what} (default: %(default)s)")
 
 
+def add_preset_option(
+    parser: argparse.ArgumentParser,
+    *,
+    default: str | None,
+    what: str = "fusion preset",
+    default_text: str = "%(default)s",
+) -> None:
+    """``--preset``: one of the fusion presets, checked when parsed (one spelling, one check for every command)."""
+    parser.add_argument(
+        "--preset",
+        type=preset_name,
+        default=default,
+        help=f"{what}: skelfuse or the paper's A1..A5 (default: {default_text})",
+    )
+
+
 def preset_name(text: str) -> str:
     """argparse ``type`` of ``--preset``: one of the fusion presets."""
     if text not in ALL_PRESETS:

@@ -15,8 +15,8 @@ from skelfuse.cli.common import (
     POSITIVE,
     Number,
     add_json_option,
+    add_preset_option,
     add_seed_option,
-    preset_name,
     print_json,
 )
 from skelfuse.config import DEFAULT_PRESET
@@ -98,12 +98,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         choices=["hands_up_down", "jump", "squat", "lunge", "walking", "random"],
         help="what the simulated person does (default: %(default)s)",
     )
-    demo.add_argument(
-        "--preset",
-        type=preset_name,
-        default=DEFAULT_PRESET,
-        help="fusion preset: skelfuse, or the paper's A1..A5 (default: %(default)s)",
-    )
+    add_preset_option(demo, default=DEFAULT_PRESET)
     add_seed_option(demo, default=0)
     _add_view_options(demo)
     add_json_option(demo, "the summary")

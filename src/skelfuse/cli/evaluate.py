@@ -19,8 +19,8 @@ from skelfuse.cli.common import (
     SEED,
     add_json_option,
     add_output_option,
+    add_preset_option,
     add_seed_option,
-    preset_name,
     print_json,
 )
 from skelfuse.cli.inputs import INPUT_HELP, add_input_options, open_take
@@ -247,7 +247,7 @@ def _add_tracking(eval_commands: argparse._SubParsersAction) -> None:
     )
     tracking.add_argument("--quick", action="store_true", help="shorter takes, for CI")
     add_seed_option(tracking, default=0)
-    tracking.add_argument("--preset", type=preset_name, default="skelfuse", help="fusion preset (default: %(default)s)")
+    add_preset_option(tracking, default="skelfuse")
     add_json_option(tracking)
     tracking.set_defaults(func=_cmd_eval_tracking)
 

@@ -23,6 +23,7 @@ from skelfuse.cli.common import (
     POSITIVE,
     add_json_option,
     add_output_option,
+    add_preset_option,
     print_json,
     rig_config,
 )
@@ -297,8 +298,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="RIG.toml",
         help="recording of sensor frames: the rig's poses, [sync] and [fusion] (default: the recording's calibration)",
     )
-    export.add_argument(
-        "--preset", default=None, help=f"recording of sensor frames: fusion preset (default: {DEFAULT_PRESET})"
+    add_preset_option(
+        export, default=None, what="recording of sensor frames: fusion preset", default_text=DEFAULT_PRESET
     )
     export.add_argument(
         "--smoother",

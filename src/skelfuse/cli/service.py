@@ -22,9 +22,9 @@ from skelfuse.cli.common import (
     Number,
     add_json_option,
     add_output_option,
+    add_preset_option,
     add_run_limits,
     add_zenoh_arguments,
-    preset_name,
     print_json,
     rig_config,
     run_limits,
@@ -339,12 +339,11 @@ def _add_fuse(commands: argparse._SubParsersAction) -> None:
         help="offline: zero-lag smoothing of the whole take (rts) or the live filter's output, frame by frame (none); "
         "default rts with the skelfuse preset",
     )
-    fuse.add_argument(
-        "--preset",
+    add_preset_option(
+        fuse,
         default=None,
-        type=preset_name,
-        help=f"fusion preset, {DEFAULT_PRESET} or the paper's A1..A5, live or offline "
-        f"(default: the config's [fusion] preset, else {DEFAULT_PRESET})",
+        what="fusion preset, live or offline",
+        default_text=f"the config's [fusion] preset, else {DEFAULT_PRESET}",
     )
     fuse.add_argument(
         "--node",
