@@ -96,7 +96,8 @@ class WorkerOptions:
     frame for this long is treated as stalled and restarted like a source that failed, counted in the status
     as ``stalls``: a body tracker that keeps answering with nothing, and a read that never returns (a hung SDK
     call: the source is read on a thread of its own, :class:`SourceReader`). A Kinect source gets the same
-    timeout for its own diagnosis (no capture / no tracker result). None: off."""
+    timeout for its own diagnosis (no capture / no tracker result); the watchdog waits 0.5 s longer
+    (``service.worker.DIAGNOSIS_GRACE_S``) so that diagnosis names the cause first. None: off."""
     open_timeout_s: float | None = DEFAULT_OPEN_TIMEOUT_S
     """Watchdog before the source's first answer (``[capture] open_timeout_s``, ``--open-timeout``): a source
     whose start (device open, tracker create, a master's wait for its subordinates) has not answered within this

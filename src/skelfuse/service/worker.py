@@ -271,6 +271,13 @@ def _publish_loop(
     _PublishLoop(cfg, sensor_id, name, source, session, options, lifecycle, report, started).run()
 
 
+DIAGNOSIS_GRACE_S = 0.5
+"""How long past ``stall_timeout_s`` the watchdog waits before it restarts a silent source: a source that
+diagnoses its own stall with the same timeout (a Kinect source: no capture, or no tracker result) names the
+cause first; the watchdog stays the backstop for a read that never returns. Equal timers raced: on a busy
+machine the watchdog's generic SourceStalled replaced the source's TrackerStalled."""
+
+
 class _PublishLoop:
     """The capture worker's loop over one source.
 
@@ -379,7 +386,7 @@ class _PublishLoop:
     def _watchdog(self, watching: bool, silent_s: float) -> None:
         """Raise SourceStalled when the source has been silent too long (after its first answer, or before)."""
         options = self.options
-        if watching and options.stall_timeout_s is not None and silent_s > options.stall_timeout_s:
+        if watching and options.stall_timeout_s is not None and silent_s > options.stall_timeout_s + DIAGNOSIS_GRACE_S:
             raise SourceStalled(f"no frame for {silent_s:.1f} s (watchdog: restarting the source)")
         if not watching and options.open_timeout_s is not None and silent_s > options.open_timeout_s:
             raise SourceStalled(
