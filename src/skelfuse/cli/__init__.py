@@ -21,6 +21,7 @@ from collections.abc import Sequence
 
 from skelfuse.cli.commands import COMMANDS
 from skelfuse.cli.exits import EXIT_ERROR, EXIT_OK, EXIT_USAGE
+from skelfuse.cli.stamp import RunStamp
 from skelfuse.schema.errors import ConfigError, DataError, SkelfuseError
 from skelfuse.service.lifecycle import configure_logging
 from skelfuse.service.zenoh_io import sessions_left_behind
@@ -84,6 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = _command_in(argv)
     parser = build_parser([command] if command is not None else [])
     args = parser.parse_args(argv)
+    args.stamp = RunStamp.begin(argv)  # what --json results that docs quote record of their making
     configure_logging(verbose=args.verbose, fmt=args.log_format)
     try:
         return int(args.func(args))

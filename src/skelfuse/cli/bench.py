@@ -60,7 +60,7 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
         progress=not args.json,
     )
     if args.json:
-        print_json(result)
+        print_json(result, args)
     else:
         print(format_instant_bench(result))
     return EXIT_OK
@@ -78,7 +78,7 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
         node_src=args.node_src,
     )
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(latency.format_table(result))
     return EXIT_OK

@@ -170,7 +170,12 @@ def preset_name(text: str) -> str:
     return text
 
 
-def print_json(payload: dict[str, Any]) -> None:
+def print_json(payload: dict[str, Any], args: argparse.Namespace | None = None) -> None:
+    """``payload`` as JSON on stdout; with the command's ``args``, stamped with where it came from
+    (``"stamp"``: command line, revision, machine, load; cli/stamp.py), for results that docs quote."""
+    stamp = getattr(args, "stamp", None)
+    if stamp is not None:
+        payload = {**payload, "stamp": stamp.finished()}
     json.dump(payload, sys.stdout, indent=2, allow_nan=False, default=_json_default)
     sys.stdout.write("\n")
 

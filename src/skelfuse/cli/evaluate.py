@@ -46,7 +46,7 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
     if not args.no_files:
         report.write_suite(result, args.out)
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(report.format_markdown(result))
         if not args.no_files:
@@ -79,7 +79,7 @@ def _cmd_eval_real(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "report.md").write_text(text + "\n", encoding="utf-8")
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(text)
         if args.out is not None:
@@ -92,7 +92,7 @@ def _cmd_eval_tracking(args: argparse.Namespace) -> int:
 
     result = run_tracking_eval(quick=args.quick, seed=args.seed, preset_name=args.preset)
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(result.format_markdown())
     return EXIT_OK

@@ -39,7 +39,7 @@ def _cmd_eval_robustness(args: argparse.Namespace) -> int:
         print(f"skelfuse: error: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(robustness.format_markdown(result), end="")
     if args.strict and (result.n_worse or result.n_live_worse):

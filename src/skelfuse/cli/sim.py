@@ -34,7 +34,7 @@ def _cmd_sim_check(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     if args.json:
-        print_json(result.to_dict())
+        print_json(result.to_dict(), args)
     else:
         print(realism.format_markdown(result), end="")
     return EXIT_OK

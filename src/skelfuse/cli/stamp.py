@@ -1,0 +1,78 @@
+"""Where a measurement came from: the command line, the code's revision, the machine and its load.
+
+A command that prints ``--json`` results others quote (``eval paper``, ``eval robustness``, ``eval real``,
+``sim check``, ``bench instant``, ``bench latency``) adds this stamp under ``"stamp"``, so that a table built
+from the JSON (docs/evidence.md) names what produced it: the producer records it, not whoever renders it. The
+1-minute load is taken when the command starts and again when it prints, because on a shared machine a busy
+CPU changes speed figures (accuracy figures are seeded and do not depend on it).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shlex
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from skelfuse.version import __version__
+
+SOURCE_DIR = Path(__file__).resolve().parents[1]
+"""The skelfuse package folder whose revision the stamp names (the code that ran, not the working folder)."""
+
+
+@dataclass(frozen=True)
+class RunStamp:
+    """A command's provenance: the command line and the load when it starts; :meth:`finished` adds the rest
+    when it prints (asking git costs milliseconds that every command's start-up would otherwise pay)."""
+
+    command: str
+    load_1min_start: float
+
+    @classmethod
+    def begin(cls, argv: Sequence[str]) -> RunStamp:
+        """The stamp of ``skelfuse ARGV`` starting now."""
+        return cls(command=shlex.join(["skelfuse", *argv]), load_1min_start=round(os.getloadavg()[0], 2))
+
+    def finished(self) -> dict[str, Any]:
+        """The stamp as JSON, with the 1-minute load now, at the end of the run."""
+        return {
+            "command": self.command,
+            "revision": code_revision(),
+            "version": __version__,
+            "machine": {"cpu_model": cpu_model(), "cores": os.cpu_count() or 0},
+            "load_1min": {"start": self.load_1min_start, "end": round(os.getloadavg()[0], 2)},
+        }
+
+
+def code_revision(source_dir: Path = SOURCE_DIR) -> str:
+    """``git describe --always --dirty`` of the checkout holding ``source_dir``; ``"unknown (...)"`` where the
+    package is not in a git checkout (an installed wheel) or git is missing."""
+    try:
+        done = subprocess.run(
+            ["git", "-C", str(source_dir), "describe", "--always", "--dirty", "--abbrev=12"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"unknown (git: {exc})"
+    if done.returncode != 0:
+        return "unknown (not a git checkout)"
+    return done.stdout.strip()
+
+
+def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo, else what the platform module knows)."""
+    try:
+        for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
