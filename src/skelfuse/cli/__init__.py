@@ -85,7 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = _command_in(argv)
     parser = build_parser([command] if command is not None else [])
     args = parser.parse_args(argv)
-    args.stamp = RunStamp.begin(argv)  # what --json results that docs quote record of their making
+    # what --json results record of their making (only there: asking git costs start-up time)
+    args.stamp = RunStamp.begin(argv) if getattr(args, "json", False) else None
     configure_logging(verbose=args.verbose, fmt=args.log_format)
     try:
         return int(args.func(args))

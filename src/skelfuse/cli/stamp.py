@@ -26,22 +26,27 @@ SOURCE_DIR = Path(__file__).resolve().parents[1]
 
 @dataclass(frozen=True)
 class RunStamp:
-    """A command's provenance: the command line and the load when it starts; :meth:`finished` adds the rest
-    when it prints (asking git costs milliseconds that every command's start-up would otherwise pay)."""
+    """A command's provenance, taken when it starts (the revision too: the tree may change during a long run);
+    :meth:`finished` adds the load when it prints."""
 
     command: str
+    revision: str
     load_1min_start: float
 
     @classmethod
     def begin(cls, argv: Sequence[str]) -> RunStamp:
         """The stamp of ``skelfuse ARGV`` starting now."""
-        return cls(command=shlex.join(["skelfuse", *argv]), load_1min_start=round(os.getloadavg()[0], 2))
+        return cls(
+            command=shlex.join(["skelfuse", *argv]),
+            revision=code_revision(),
+            load_1min_start=round(os.getloadavg()[0], 2),
+        )
 
     def finished(self) -> dict[str, Any]:
         """The stamp as JSON, with the 1-minute load now, at the end of the run."""
         return {
             "command": self.command,
-            "revision": code_revision(),
+            "revision": self.revision,
             "version": __version__,
             "machine": {"cpu_model": cpu_model(), "cores": os.cpu_count() or 0},
             "load_1min": {"start": self.load_1min_start, "end": round(os.getloadavg()[0], 2)},
