@@ -3,7 +3,7 @@
     python scripts/node_memory_probe.py OUT.jsonl [--period 10] [--trim-every 0] -- fuse --config rig.toml ...
 
 Used by ``scripts/soak_hostile.py --memory-probe`` to attribute the fusion node's RSS growth without tracemalloc
-(which was too slow to let the node fuse at all on the shared machine, session 20). Per line of OUT.jsonl:
+(which slows the node too much to fuse the soak's rig in real time). Per line of OUT.jsonl:
 
 - ``rss_mb``, and ``smaps`` (resident MB by kind of mapping: heap = glibc's main arena, anon = anonymous
   mappings: glibc's per-thread arenas, mmapped pymalloc arenas, large buffers; file; stack);

@@ -48,6 +48,7 @@ import numpy as np
 
 from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.bench.latency import synthetic_frames
+from skelfuse.cli.stamp import RunStamp
 from skelfuse.service.zenoh_io import free_port, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import decode_fused_frame, decode_status, encode_sensor_frame
@@ -233,6 +234,7 @@ def main() -> int:
         "--malloc-arena-max", type=int, default=None, help="run the node with MALLOC_ARENA_MAX set to this"
     )
     args = parser.parse_args()
+    stamp = RunStamp.begin(sys.argv[1:], program=("python", "scripts/soak_hostile.py"))
     import zenoh
 
     duration_s = args.minutes * 60.0
@@ -529,6 +531,7 @@ def main() -> int:
             "node_counters": last_status.counters,
             "clock_relearns": dict(last_relearns),
             "windows": windows,
+            "stamp": stamp.finished(),  # command, revision, machine and load, as skelfuse's --json results
         }
         summary = {k: v for k, v in figures.items() if k != "windows"}
         print(json.dumps(summary, indent=2))

@@ -1,79 +1,349 @@
-"""Regenerate the generated tables in README.md and docs/simulator.md from the commands that measure them.
+"""docs/evidence.md from the commands' own ``--json`` results, stored in docs/evidence/.
 
-Each table sits between two marker lines, ``<!-- generated: NAME -->`` and ``<!-- end generated: NAME -->``;
-this script replaces what lies between them, so a table cannot drift from its command. Usage:
+Every measured figure the README and the guides quote lives on one page, docs/evidence.md, in blocks between
+``<!-- generated: NAME -->`` and ``<!-- end generated: NAME -->``. Each block is rendered from the JSON a
+skelfuse command printed, stored under docs/evidence/, and stamped with what that command recorded of its own
+run (command line, revision, machine, 1-minute load at start and end; skelfuse/cli/stamp.py). Two modes:
 
-    python scripts/update_doc_tables.py sim-check      # docs/simulator.md: skelfuse sim check (about a minute)
-    python scripts/update_doc_tables.py robustness     # docs/simulator.md: skelfuse eval robustness (long)
-    python scripts/update_doc_tables.py paper [--report eval_out/paper/report.md]
-                                                       # README.md: experiment 1 of skelfuse eval paper's summary
-    python scripts/update_doc_tables.py speed          # docs/service.md: skelfuse bench instant (back to back,
-                                                       # paced, positions only) and bench latency (x 1 and x 6
-                                                       # people), ~12 min;
-                                                       # run it on an otherwise idle machine
+    python scripts/update_doc_tables.py record NAME [--quick]   # run NAME's commands, store their JSON
+    python scripts/update_doc_tables.py write                   # render every block from the stored JSON
+    python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
-``paper`` reads the summary an earlier ``skelfuse eval paper`` wrote (run it first; it takes minutes), and
-copies its experiment-1 table.
+``record`` runs nothing but the commands listed in RECORDS (NAME: paper, robustness, sim-check, real, speed,
+soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as ``check``
+does, so a hand edit of a block fails. ``--quick`` records a tiny configuration under --store (to try the
+plumbing; never into docs/evidence/). Paths under the repository root are stored relative to it, so the stored
+results do not depend on where the checkout lives.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "evidence.md"
+STORE = ROOT / "docs" / "evidence"
+SKELFUSE = (sys.executable, "-m", "skelfuse")
+SOAK = (sys.executable, "scripts/soak_hostile.py")
+DATA = "../shared/data"
+"""The shared real recordings, named relative to the repository root as the commands' defaults find them."""
+
+_INSTANT = ["bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3", "--json"]
+_LATENCY = ["bench", "latency", "--duration", "10", "--json"]
+RECORDS: dict[str, dict[str, list[str]]] = {
+    "paper": {"paper": ["eval", "paper", "--json", "--no-files", "-q"]},
+    "robustness": {"robustness": ["eval", "robustness", "--json", "-q"]},
+    "sim-check": {"sim-check": ["sim", "check", "--data", DATA, "--json", "-q"]},
+    "real": {"real": ["eval", "real", "--json"]},
+    "speed": {
+        "speed-instant": _INSTANT,
+        "speed-instant-paced": [*_INSTANT, "--paced"],
+        "speed-instant-positions": [*_INSTANT, "--positions-only"],
+        "speed-latency": [*_LATENCY, "--sensors", "4", "8", "16"],
+        "speed-latency-people": [*_LATENCY, "--sensors", "8", "--people", "6"],
+    },
+    "soak": {"soak": ["--minutes", "60", "--nice", "-10", "--json", "{out}"]},
+}
+"""NAME -> stored file stem -> the command's arguments (skelfuse's, or the soak script's for ``soak``)."""
+
+QUICK: dict[str, dict[str, list[str]]] = {
+    "paper": {"paper": ["eval", "paper", "--quick", "--duration", "2", "--json", "--no-files", "-q"]},
+    "robustness": {"robustness": ["eval", "robustness", "--quick", "--families", "baseline", "--json", "-q"]},
+    "sim-check": {"sim-check": ["sim", "check", "--seeds", "1", "--duration", "3", "--no-real", "--json", "-q"]},
+    "real": RECORDS["real"],
+    "speed": {
+        "speed-instant": ["bench", "instant", "--cases", "2x1", "--frames", "20", "--rounds", "1", "--json"],
+        "speed-latency": ["bench", "latency", "--sensors", "2", "--duration", "1", "--no-sweep", "--json"],
+    },
+    "soak": {"soak": ["--minutes", "0.5", "--sensors", "2", "--adversary-hz", "50", "--json", "{out}"]},
+}
+"""Tiny configurations of the same commands, to try ``record`` end to end in seconds."""
 
 
-def replace_block(path: Path, name: str, body: str) -> None:
-    """Replace the lines between the markers of ``name`` in ``path`` with ``body``."""
-    text = path.read_text(encoding="utf-8")
-    start, end = f"<!-- generated: {name} -->", f"<!-- end generated: {name} -->"
-    pattern = re.compile(re.escape(start) + r"\n.*?" + re.escape(end), re.DOTALL)
-    if not pattern.search(text):
-        sys.exit(f"{path}: markers {start!r} ... {end!r} not found")
-    text = pattern.sub(lambda _: f"{start}\n{body.rstrip()}\n{end}", text)
-    path.write_text(text, encoding="utf-8")
-    print(f"updated {name} in {path.relative_to(ROOT)}", file=sys.stderr)
+# ---------------------------------------------------------------------------------------------- recording
 
 
-def run(command: list[str]) -> str:
+def record(name: str, store: Path, table: dict[str, dict[str, list[str]]] = RECORDS) -> list[Path]:
+    """Run ``name``'s commands from the repository root and store each one's JSON as ``store/STEM.json``."""
+    store.mkdir(parents=True, exist_ok=True)
+    written = []
+    for stem, args in table[name].items():
+        result = _run_soak(args) if name == "soak" else _run_skelfuse(args)
+        path = store / f"{stem}.json"
+        path.write_text(json.dumps(_relative_paths(result), indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+        print(f"stored {path}", file=sys.stderr)
+        written.append(path)
+    return written
+
+
+def _run_skelfuse(args: list[str]) -> dict[str, Any]:
+    command = [*SKELFUSE, *args]
     print("running: " + " ".join(command), file=sys.stderr)
-    return subprocess.run(command, check=True, capture_output=True, text=True, cwd=ROOT).stdout
+    done = subprocess.run(command, check=True, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    return json.loads(done.stdout)
 
 
-def experiment_one(report: Path) -> str:
-    """The experiment-1 table of ``skelfuse eval paper``'s summary, with its heading line dropped."""
-    text = report.read_text(encoding="utf-8")
-    match = re.search(r"## Experiment 1[^\n]*\n\n(\|.*?)\n\n", text, re.DOTALL)
-    if match is None:
-        sys.exit(f"{report}: no experiment-1 table (is it the summary report.md of skelfuse eval paper?)")
-    return match.group(1)
+def _run_soak(args: list[str]) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "soak.json"
+        command = [*SOAK, *(a.replace("{out}", str(out)) for a in args)]
+        print("running: " + " ".join(command), file=sys.stderr)
+        subprocess.run(command, check=False, stdout=sys.stderr, cwd=ROOT)  # exit 1 = instants lost: still a result
+        result = json.loads(out.read_text(encoding="utf-8"))
+    result["stamp"]["command"] = result["stamp"]["command"].replace(str(out), "OUT.json")
+    result.pop("windows", None)  # per-10 s detail: in the script's own output, too long to store
+    return result
 
 
-def main() -> None:
+def _relative_paths(value: Any) -> Any:
+    """Strings naming a path under the repository root (or the shared data beside it) made relative to it."""
+    if isinstance(value, dict):
+        return {k: _relative_paths(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_relative_paths(v) for v in value]
+    if isinstance(value, str):
+        return value.replace(str(ROOT.parent / "shared" / "data"), DATA).replace(str(ROOT) + "/", "")
+    return value
+
+
+# ---------------------------------------------------------------------------------------------- rendering
+
+
+def load(stem: str, store: Path) -> dict[str, Any] | None:
+    path = store / f"{stem}.json"
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+
+
+def stamp_line(result: dict[str, Any]) -> str:
+    """Where a result came from, as its command recorded it."""
+    s = result["stamp"]
+    machine, load_1min = s["machine"], s["load_1min"]
+    return (
+        f"`{s['command']}` · revision `{s['revision']}` · {machine['cpu_model']}, {machine['cores']} cores · "
+        f"1-minute load {load_1min['start']:.2f} at the start, {load_1min['end']:.2f} at the end"
+    )
+
+
+def render_paper(paper: dict[str, Any]) -> str:
+    """``skelfuse eval paper``: its settings, experiments 1-3, lag and swaps, the best view's own error."""
+    from skelfuse.eval.paper_plan import GROUP_NAMES
+    from skelfuse.eval.paper_reference import EPS_SWEEP_PRESET
+    from skelfuse.eval.report_files import fmt, pct
+
+    scenarios = paper["scenarios"]
+    s = paper["settings"]
+    lines = [
+        f"{len(scenarios)} scenarios x {s['n_takes']} takes: gestures {', '.join(s['gestures'])}; facing "
+        f"{', '.join(f'{d:.0f}°' for d in s['directions_deg'])}; {s['duration_s']:.1f} s at {s['fps']:.0f} Hz each; "
+        f"seed {s['seed']}; profile {s.get('profile_path') or 'azure_kinect (packaged)'}. Scenarios:",
+        "",
+    ]
+    for name, result in scenarios.items():
+        takes = result["takes"]
+        mirrored = sum(sum(t["mirrored_fraction"][:-1]) / (len(t["mirrored_fraction"]) - 1) for t in takes) / len(takes)
+        lines.append(
+            f"- **{name}**: {paper['scenario_descriptions'][name]}. Capture views mirrored: {pct(mirrored)} of frames."
+        )
+    lines += ["", "RMSE in mm, torso / upper limb / lower limb (the paper's figure: its mean error).", ""]
+    lines += _paper_table(scenarios, "algorithms", "Experiment 1, algorithms, 4 sensors (A3-A5: mean over eps)")
+    lines += _paper_table(
+        scenarios,
+        "eps_sweep",
+        f"Experiment 2, DBSCAN radius, {EPS_SWEEP_PRESET}",
+        keep=lambda config: config.startswith(EPS_SWEEP_PRESET + "_"),
+    )
+    lines += _paper_table(scenarios, "n_sensors", "Experiment 3, number of sensors (mean over all combinations)")
+    lines += [
+        "Experiment 1 against exact truth: left/right pairs the wrong way round (share of frames x limb pairs) and "
+        "lag (frames, torso / upper / lower; positive = late).",
+        "",
+        "| config | " + " | ".join(f"{n}: swapped | {n}: lag" for n in scenarios) + " |",
+        "|---|" + "---|---|" * len(scenarios),
+    ]
+    first = next(iter(scenarios.values()))["experiments"]["algorithms"]["truth"]
+    for config in first:
+        cells = [config]
+        for result in scenarios.values():
+            row = result["experiments"]["algorithms"]["truth"].get(config)
+            cells += (
+                ["—", "—"]
+                if row is None
+                else [pct(row["swapped_fraction"]), " / ".join(fmt(row["lag_frames"][g], 1) for g in GROUP_NAMES)]
+            )
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "The best-view reference sensor's own RMSE against exact truth (mm, torso / upper / lower):", ""]
+    for name, result in scenarios.items():
+        best = result["best_view_vs_truth"]
+        lines.append(f"- {name}: " + " / ".join(fmt(best[g]["rmse_mm"], 0) for g in GROUP_NAMES))
+    return "\n".join(lines)
+
+
+def _paper_table(
+    scenarios: dict[str, Any], experiment: str, title: str, keep: Callable[[str], bool] = lambda config: True
+) -> list[str]:
+    """One experiment's RMSE per row: each scenario against exact truth and against the best view."""
+    from skelfuse.eval.paper_plan import GROUP_NAMES
+    from skelfuse.eval.report_files import by_label, fmt, row_cell
+
+    header = ["config", "by"]
+    for name in scenarios:
+        header += [f"{name}: vs truth", f"{name}: vs best view"]
+    lines = [f"{title}:", "", "| " + " | ".join([*header, "paper's figure"]) + " |", "|" + "---|" * (len(header) + 1)]
+    first = next(iter(scenarios.values()))["experiments"][experiment]["truth"]
+    for config in filter(keep, first):
+        cells = [row_cell(experiment, config), by_label(experiment, config)]
+        for result in scenarios.values():
+            for protocol in ("truth", "best_view"):
+                row = result["experiments"][experiment][protocol].get(config)
+                cells.append(
+                    "—" if row is None else " / ".join(fmt(row["groups"][g]["rmse_mm"], 0) for g in GROUP_NAMES)
+                )
+        figure = [first[config]["paper"][g]["ae_mm"] for g in GROUP_NAMES]
+        cells.append("—" if all(v is None for v in figure) else " / ".join(fmt(v, 0) for v in figure))
+        lines.append("| " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def render_robustness(result: dict[str, Any]) -> str:
+    from skelfuse.eval import robustness
+
+    return robustness.format_markdown(robustness.RobustnessResult.from_dict(result))
+
+
+def render_sim_check(result: dict[str, Any]) -> str:
+    from skelfuse.eval import realism
+
+    return realism.format_markdown(realism.SimCheckResult.from_dict(result))
+
+
+def render_real(result: dict[str, Any]) -> str:
+    """``skelfuse eval real``'s report, its headings moved under the page's section."""
+    from skelfuse.eval import rig
+
+    fields = {k: v for k, v in result.items() if k != "stamp"}
+    text = rig.format_markdown(rig.RigEvalResult.from_dict(fields))
+    lines = [("##" + line if line.startswith("#") else line) for line in text.splitlines()]
+    return "\n".join(line for line in lines if line != "### Real-data report")
+
+
+def render_instant(result: dict[str, Any]) -> str:
+    from skelfuse.bench.instant import format_instant_bench
+
+    return format_instant_bench(result)
+
+
+def render_latency(result: dict[str, Any]) -> str:
+    from skelfuse.bench import latency
+
+    return latency.format_table(latency.LatencyResult.from_dict({k: v for k, v in result.items() if k != "stamp"}))
+
+
+SOAK_FIGURES = (
+    ("sensors", "sensors"),
+    ("minutes", "minutes"),
+    ("instants published", "instants_published"),
+    ("fused frames received", "fused_frames"),
+    ("instants lost", "instants_lost"),
+    ("instants fused with every sensor", "instants_with_every_sensor"),
+    ("hostile payloads sent", "hostile_payloads_sent"),
+    ("node RSS at the start, MB", "node_rss_mb_at_start"),
+    ("node RSS growth after the warm-up, MB per minute", "node_rss_growth_mb_per_min_after_warmup"),
+    ("1-minute load, median / max", None),
+)
+
+
+def render_soak(result: dict[str, Any]) -> str:
+    """The soak's headline figures (``scripts/soak_hostile.py --json``)."""
+    lines = ["| figure | value |", "|---|---:|"]
+    for label, key in SOAK_FIGURES:
+        value = f"{result['load_1min_median']:.2f} / {result['load_1min_max']:.2f}" if key is None else result.get(key)
+        lines.append(f"| {label} | {'—' if value is None else value} |")
+    return "\n".join(lines)
+
+
+BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
+    "paper": ("paper", "paper", render_paper),
+    "robustness": ("robustness", "robustness", render_robustness),
+    "sim-check": ("sim-check", "sim-check", render_sim_check),
+    "real": ("real", "real", render_real),
+    "bench-instant": ("speed", "speed-instant", render_instant),
+    "bench-instant-paced": ("speed", "speed-instant-paced", render_instant),
+    "bench-instant-positions": ("speed", "speed-instant-positions", render_instant),
+    "bench-latency": ("speed", "speed-latency", render_latency),
+    "bench-latency-people": ("speed", "speed-latency-people", render_latency),
+    "soak": ("soak", "soak", render_soak),
+}
+"""Block name on the page -> (record NAME, stored file stem, renderer)."""
+
+
+def render_block(block: str, store: Path = STORE) -> str:
+    """A block's text: the stamp, then the table, or how to record it where nothing is stored."""
+    name, stem, render = BLOCKS[block]
+    result = load(stem, store)
+    if result is None:
+        return f"Not recorded: `python scripts/update_doc_tables.py record {name}` stores {stem}.json."
+    return stamp_line(result) + "\n\n" + render(result).rstrip()
+
+
+MARKERS = re.compile(r"<!-- generated: (?P<name>[\w-]+) -->\n(?P<body>.*?)<!-- end generated: (?P=name) -->\n?", re.S)
+
+
+def render_page(text: str, store: Path = STORE) -> str:
+    """``text`` (docs/evidence.md) with every generated block rendered from the stored results."""
+    found = [m.group("name") for m in MARKERS.finditer(text)]
+    unknown = sorted(set(found) - set(BLOCKS))
+    missing = sorted(set(BLOCKS) - set(found))
+    if unknown or missing:
+        raise ValueError(f"docs/evidence.md: blocks without a renderer {unknown}, renderers without a block {missing}")
+    return MARKERS.sub(
+        lambda m: (
+            f"<!-- generated: {m['name']} -->\n{render_block(m['name'], store)}\n<!-- end generated: {m['name']} -->\n"
+        ),
+        text,
+    )
+
+
+def stale_blocks(text: str, store: Path = STORE) -> list[str]:
+    """Names of the blocks in ``text`` that differ from what the stored results render."""
+    expected = {m["name"]: m["body"] for m in MARKERS.finditer(render_page(text, store))}
+    return [m["name"] for m in MARKERS.finditer(text) if m["body"] != expected[m["name"]]]
+
+
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("table", choices=["sim-check", "robustness", "paper", "speed"])
-    parser.add_argument("--report", type=Path, default=ROOT / "eval_out" / "paper" / "report.md")
-    args = parser.parse_args()
-    skelfuse = [sys.executable, "-m", "skelfuse"]
-    if args.table == "sim-check":
-        replace_block(ROOT / "docs" / "simulator.md", "sim-check", run([*skelfuse, "sim", "check", "-q"]))
-    elif args.table == "robustness":
-        replace_block(ROOT / "docs" / "simulator.md", "robustness", run([*skelfuse, "eval", "robustness", "-q"]))
-    elif args.table == "speed":
-        service = ROOT / "docs" / "service.md"
-        instant = [*skelfuse, "bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3"]
-        tables = [run(instant), run([*instant, "--paced"]), run([*instant, "--positions-only"])]
-        replace_block(service, "bench-instant", "\n".join(tables))
-        latency = [*skelfuse, "bench", "latency", "--duration", "10"]
-        one = run([*latency, "--sensors", "4", "8", "16"])
-        replace_block(service, "bench-latency", one + "\n" + run([*latency, "--sensors", "8", "--people", "6"]))
-    else:
-        replace_block(ROOT / "README.md", "eval-paper", experiment_one(args.report))
+    modes = parser.add_subparsers(dest="mode", required=True)
+    rec = modes.add_parser("record", help="run NAME's commands and store their JSON")
+    rec.add_argument("name", choices=list(RECORDS))
+    rec.add_argument("--quick", action="store_true", help="a tiny configuration (needs --store outside docs/)")
+    rec.add_argument("--store", type=Path, default=STORE, help="where to store the JSON (default: docs/evidence)")
+    write = modes.add_parser("write", help="render every block of docs/evidence.md from the stored JSON")
+    check = modes.add_parser("check", help="exit 1 if a block differs from what the stored JSON renders")
+    for sub in (write, check):
+        sub.add_argument("--store", type=Path, default=STORE, help="the stored JSON (default: docs/evidence)")
+    args = parser.parse_args(argv)
+    if args.mode == "record":
+        if args.quick and args.store.resolve() == STORE.resolve():
+            parser.error("--quick results are not evidence: pass --store DIR outside docs/evidence")
+        record(args.name, args.store, QUICK if args.quick else RECORDS)
+        return 0
+    text = PAGE.read_text(encoding="utf-8")
+    if args.mode == "check":
+        stale = stale_blocks(text, args.store)
+        for name in stale:
+            print(f"docs/evidence.md: block {name!r} differs from its stored result", file=sys.stderr)
+        return 1 if stale else 0
+    PAGE.write_text(render_page(text, args.store), encoding="utf-8")
+    print(f"wrote {PAGE.relative_to(ROOT)}", file=sys.stderr)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

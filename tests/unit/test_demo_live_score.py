@@ -1,6 +1,6 @@
 """The demo's live score: the live node's path must fuse the demo's take as well as the offline one.
 
-Regression (session 19, issue 11): `skelfuse demo --duration 10 --seed 0` scored 104.7 mm fused against 94.5 mm
+Regression: `skelfuse demo --duration 10 --seed 0` scored 104.7 mm fused against 94.5 mm
 for the best single sensor, while `--offline` on the same take scored 16.9 mm. The capture workers come up
 before the take's origin and play the end of the 20 s loop first; at the loop's seam the walking body jumps
 267 mm and turns round in one frame, the temporal realignment's anchor (last frame's skeleton) was left

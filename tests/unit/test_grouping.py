@@ -397,7 +397,7 @@ def test_host_grouping_holds_when_one_pc_clock_is_offset(offset_ms: int) -> None
 
 
 def test_clock_estimates_match_numpys_median_and_asdict() -> None:
-    # The status reads these every second; their fast forms (session 23) against numpy and dataclasses.
+    # The status reads these every second; their fast forms against numpy and dataclasses.
     g = grouper(by="host", tolerance_us=13_000)
     run(g, rig_stream(120, np.random.default_rng(SEED + 12), clock_jitter_us={"s1": 3_000.0}))
     clock = g._clocks["s1"]
@@ -537,10 +537,10 @@ def forged_first(
 
 @pytest.mark.parametrize(("by", "hz"), [("device", 125.0), ("host", 125.0), ("device", 30.0)])
 def test_a_forged_clock_that_speaks_first_loses_the_sensor_to_the_genuine_stream(by: str, hz: float) -> None:
-    # s1's key: a forger stamping 0.9 s ahead starts 0.5 s before the genuine frames and never stops. It took
-    # s1's clock for good (session 20's soak: 0 complete instants in 3 min); now the genuine stream wins it
-    # back: paced like the sensor where the forger is not (125 Hz), or, at 30 Hz in device mode, by agreeing
-    # with the rig's other sensors.
+    # s1's key: a forger stamping 0.9 s ahead starts 0.5 s before the genuine frames and never stops. Holding
+    # s1's clock for good would leave no complete instant; the genuine stream wins it back: paced like the
+    # sensor where the forger is not (125 Hz), or, at 30 Hz in device mode, by agreeing with the rig's other
+    # sensors.
     rng = np.random.default_rng(SEED + 16)
     events = synced_stream(300, rng)
     forged = forged_first(events, "s1", ahead_us=900_000, hz=hz, lead_s=0.5)
@@ -566,9 +566,9 @@ def test_a_forged_clock_that_speaks_first_loses_the_sensor_to_the_genuine_stream
 
 
 def test_the_soak_race_a_forger_on_a_clock_of_its_own_then_two_forged_streams() -> None:
-    # Session 20's soak with the adversary started with the rig: its first frames, stamped on a clock of its
-    # own (0 + 0.9 s, 0 + 10^10 µs), taught s1's clock; then every frame (genuine, 0.9 s ahead, 10^10 ahead,
-    # interleaved) was off clock and no resync_after in a row agreed: s1 was never fused again.
+    # The soak's adversary started with the rig: its first frames, stamped on a clock of its
+    # own (0 + 0.9 s, 0 + 10^10 µs), can teach s1's clock; then every frame (genuine, 0.9 s ahead, 10^10 ahead,
+    # interleaved) is off clock and no resync_after in a row agree: s1 would never be fused again.
     events = synced_stream(300, np.random.default_rng(SEED + 17))
     first_s1 = next(a for a, f in events if f.sensor_id == "s1")
     forged = []
@@ -587,11 +587,10 @@ def test_the_soak_race_a_forger_on_a_clock_of_its_own_then_two_forged_streams() 
 
 
 def test_a_forger_does_not_take_a_clock_while_the_rig_pauses() -> None:
-    # Session 21's first soak with the candidate clocks: the soak's publisher stalled 0.8 s (all sensors silent,
-    # then a burst); the adversary (same process) went on more slowly, its stamps frozen at the last instant
-    # + 0.9 s. Those forged frames were paced in arrival and s1's stream was quiet: they took s1's clock, and
-    # the forged instants 0.9 s ahead made 17 instants of every sensor late. A sensor's own frames are also
-    # stamped a frame period apart; frozen stamps are not.
+    # The soak's publisher stalls 0.8 s (all sensors silent, then a burst); the adversary (same process) goes
+    # on more slowly, its stamps frozen at the last instant + 0.9 s. Those forged frames are paced in arrival
+    # and s1's stream is quiet: taking s1's clock, the forged instants 0.9 s ahead would make every sensor
+    # late. A sensor's own frames are also stamped a frame period apart; frozen stamps are not.
     events = synced_stream(300, np.random.default_rng(SEED + 18))
     stall_from = next(a for a, f in events if f.sequence == 100)
     stall_to = stall_from + 800_000_000
@@ -618,11 +617,11 @@ def test_a_forger_does_not_take_a_clock_while_the_rig_pauses() -> None:
 
 @pytest.mark.parametrize("forged_hz", [30.0, 40.0])
 def test_a_forger_does_not_take_a_clock_while_the_whole_rig_is_silent(forged_hz: float) -> None:
-    # Session 21's one-hour soak lost 37 instants in two windows where the node was starved: the rig's frames
-    # (one link) stopped arriving for a few hundred ms and then came as a burst, while the adversary's link
-    # went on delivering frames on s1's key stamped 0.9 s ahead on a clock that keeps running (slowed to
-    # 30-40 Hz, so paced like a sensor). s1's learned stream was "quiet", so the forged clock re-learned s1's
-    # clock; its instants 0.9 s ahead were emitted and every sensor's frames of the next 0.9 s were late. A
+    # A starved node: the rig's frames (one link) stop arriving for a few hundred ms and then come as a burst,
+    # while the adversary's link goes on delivering frames on s1's key stamped 0.9 s ahead on a clock that
+    # keeps running (slowed to 30-40 Hz, so paced like a sensor). s1's learned stream is "quiet"; were the
+    # forged clock to re-learn s1's clock, its instants 0.9 s ahead would be emitted and every sensor's frames
+    # of the next 0.9 s would be late (instants lost). A
     # sensor whose stream goes quiet together with the whole rig has not stepped its clock: nothing arrived.
     events = synced_stream(300, np.random.default_rng(SEED + 19))
     stall_from = next(a for a, f in events if f.sequence == 100)

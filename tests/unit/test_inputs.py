@@ -1,8 +1,8 @@
 """The reader layer (every recorded format), ``skelfuse convert`` round trips, and time matching.
 
 Fixtures are made here from the simulator: a 2-sensor walk whose master file starts 57 frames after the
-subordinate's (as in the take of issue 9), written in each format by the format's own writer or by hand
-(offline_processor JSON, andyj1 CSV). Nothing is read from ../shared/data.
+subordinate's (as in a real two-sensor take whose files start at different instants), written in each format
+by the format's own writer or by hand (offline_processor JSON, andyj1 CSV). Nothing is read from ../shared/data.
 """
 
 from __future__ import annotations

@@ -283,7 +283,7 @@ def test_a_forged_frame_from_the_future_is_rejected_and_output_stays_whole(
 def test_an_exception_inside_the_fusion_step_is_counted_and_the_node_goes_on(
     rig: RigConfig, sources: dict[str, SimSource], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A bug in the core (here an IndexError, the kind session 19 found in the orientation gather) costs its
+    """A bug in the core (here an IndexError, as an out-of-range gather of orientations would raise) costs its
     instant, counted as a fusion error; the tracks start afresh and the next instants are fused."""
     core = FusionCore(rig)
     real_step = core.fuser.step

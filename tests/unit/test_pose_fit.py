@@ -90,7 +90,7 @@ def test_no_verdict_before_enough_instants_saw_the_sensor() -> None:
 
 
 def test_the_medians_are_numpys_nanmedian_and_nan_for_a_sensor_nobody_saw() -> None:
-    # The monitor's medians (a fast path since session 23) against numpy's own nanmedian, odd and even counts.
+    # The monitor's medians (a fast path) against numpy's own nanmedian, odd and even counts.
     rng = np.random.default_rng(3)
     monitor = PoseFitMonitor(("a", "b", "c", "d"), window=40, min_frames=5, check_every=1000)
     for t in range(57):  # wraps the 40-instant window

@@ -117,7 +117,7 @@ def test_sim_check_refuses_a_missing_real_take(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_default_profile_lands_where_the_issue_found_it_outside() -> None:
-    """The statistics issue 11 measured outside the real range with the old profile, on two 20 s two-view squat
+    """The statistics an earlier profile put outside the real range, on two 20 s two-view squat
     takes: each is now inside, or at least on the real side of where it was (old value in the comment)."""
     result = realism.run_sim_check(load_profile(), seeds=(0, 1), duration_s=20.0)
     value = {(r.statistic, r.group): r.value for r in result.rows}

@@ -1,7 +1,7 @@
 """One way to close a zenoh session: ``service/zenoh_io.py`` ``close_session`` (bounded), never a raw close.
 
 zenoh's ``Session.close()`` has no timeout and waits on the session's links: towards a peer that stopped reading
-it took 2.5 s (session 21), so a raw close makes a process's stop depend on its peers.
+it can take seconds (2.5 s measured on loopback), so a raw close makes a process's stop depend on its peers.
 """
 
 from __future__ import annotations

@@ -83,11 +83,14 @@ class LatencyResult:
     sweep: list[LatencyCase] = field(default_factory=list)
     max_sustained_sensors: int | None = None
     duration_s: float = 0.0
+    cpus: int | None = field(default_factory=os.cpu_count)
+    """The measuring machine's CPU count, which the table names (it may be rendered on another machine)."""
 
     def to_dict(self) -> dict[str, Any]:
         out = {
             "fps": FPS,
             "duration_s": self.duration_s,
+            "cpus": self.cpus,
             "cases": [asdict(c) for c in self.cases],
             "sweep": [asdict(c) for c in self.sweep],
             "max_sustained_sensors": self.max_sustained_sensors,
@@ -98,6 +101,22 @@ class LatencyResult:
             },
         }
         return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> LatencyResult:
+        """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON)."""
+
+        def case(fields: dict[str, Any]) -> LatencyCase:
+            tuples = {k: tuple(fields[k]) for k in ("load_before", "load_after") if k in fields}
+            return LatencyCase(**{**fields, **tuples})
+
+        return cls(
+            cases=[case(c) for c in data["cases"]],
+            sweep=[case(c) for c in data["sweep"]],
+            max_sustained_sensors=data["max_sustained_sensors"],
+            duration_s=data["duration_s"],
+            cpus=data.get("cpus"),
+        )
 
 
 def _rig_toml(directory: Path, n_sensors: int) -> Path:
@@ -439,8 +458,8 @@ def format_table(result: LatencyResult) -> str:
         "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",
         "node: the fusion node's own added latency (completing frame in -> fused frame out), over every measured "
         "instant (from the node's status windows).",
-        f"load 1 min: os.getloadavg() before-after each case, on {os.cpu_count()} CPUs (a shared machine inflates "
-        "every figure).",
+        f"load 1 min: os.getloadavg() before-after each case, on {result.cpus or os.cpu_count()} CPUs (a shared "
+        "machine inflates every figure).",
         f"Largest sensor count sustained at {FPS:g} Hz: {result.max_sustained_sensors or 'none measured'}.",
         f"Targets: node adds <= {TARGET_NODE_ADDED_P99_MS:g} ms p99; e2e p99 <= {TARGET_E2E_P99_MS:g} ms "
         f"for {TARGET_E2E_SENSORS} sensors.",

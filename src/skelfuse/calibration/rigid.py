@@ -5,7 +5,7 @@ Cycle: corresponding points ``source`` (N, 3) and ``target`` (N, 3), mm, in two 
 :func:`fit_rigid_ransac` wraps it for data with outliers: RANSAC on minimal 3-point samples, then a
 trimmed refinement on the points within a final threshold.
 
-Both fixes of the paper's errata (``../shared/seeds/README.md``) are applied:
+Both fixes of the paper's errata are applied:
 
 * the translation is ``t = mean_target - R @ mean_source`` (the paper's text drops ``R``);
 * the SVD rotation is forced to a proper rotation (det +1): ``R = U diag(1, 1, det(U V')) V'``. Without it,

@@ -34,10 +34,10 @@ class RunStamp:
     load_1min_start: float
 
     @classmethod
-    def begin(cls, argv: Sequence[str]) -> RunStamp:
-        """The stamp of ``skelfuse ARGV`` starting now."""
+    def begin(cls, argv: Sequence[str], program: Sequence[str] = ("skelfuse",)) -> RunStamp:
+        """The stamp of ``PROGRAM ARGV`` (a skelfuse command, or a script such as the soak) starting now."""
         return cls(
-            command=shlex.join(["skelfuse", *argv]),
+            command=shlex.join([*program, *argv]),
             revision=code_revision(),
             load_1min_start=round(os.getloadavg()[0], 2),
         )
@@ -72,7 +72,8 @@ def code_revision(source_dir: Path = SOURCE_DIR) -> str:
 
 
 def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
-    """The CPU's model name (Linux's /proc/cpuinfo, else what the platform module knows)."""
+    """The CPU's model name (Linux's /proc/cpuinfo), else the machine's architecture (``platform.processor``
+    would start a process to ask ``uname``)."""
     try:
         for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
             key, _, value = line.partition(":")
@@ -80,4 +81,4 @@ def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
                 return value.strip()
     except OSError:
         pass
-    return platform.processor() or platform.machine() or "unknown"
+    return platform.machine() or "unknown"

@@ -33,8 +33,10 @@ its standard deviation) and Appendices A/B (RMSE and STD per joint and gesture).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -452,3 +454,15 @@ def view_orientation_agreement(
     if twist_only:
         views = swing_onto_aims(views, aim_directions(fused_positions)[:, None])
     return quat_angle_deg(views, fused[:, None])
+
+
+def nan_for_none(value: Any) -> Any:
+    """What results' ``to_dict()`` wrote for NaN (``None``: JSON has no NaN) read back as NaN, in nested dicts
+    and lists, so that a formatter gets the floats it was written for."""
+    if value is None:
+        return math.nan
+    if isinstance(value, dict):
+        return {k: nan_for_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [nan_for_none(v) for v in value]
+    return value

@@ -2,8 +2,8 @@
 
 The same functions run on a real take (views already in one frame) and on a simulated one, so the two can be
 set side by side (``skelfuse sim check``, ``docs/simulator.md``). Every statistic needs no ground truth: it
-compares views with each other, or one view with itself over time, exactly as the real figures in
-``../shared/DESIGN.md`` "Real noise" were measured. Cross-view figures cannot see errors all views share, so
+compares views with each other, or one view with itself over time, exactly as the real figures of the
+design brief's "Real noise" section were measured. Cross-view figures cannot see errors all views share, so
 they are lower bounds on the true error, for real and simulated takes alike.
 
 Statistics, per joint group (:data:`GROUPS`, the simulator's noise groups):
@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from skelfuse.calibration.rigid import fit_rigid
-from skelfuse.eval.metrics import joint_distances
+from skelfuse.eval.metrics import joint_distances, nan_for_none
 from skelfuse.progress import note
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.skeleton import BODY_REGIONS, BONES, Confidence, J
@@ -246,8 +246,8 @@ class RealRange:
     """What real recordings showed for one statistic and group.
 
     ``low``/``high`` bound the real figures (inclusive); ``source`` says where they were measured and how
-    the range was read from the text (DESIGN.md "Real noise" and issue 11 quote three real two-view squat
-    takes and a 3-sensor take that are not shipped with the project).
+    the range was read from the text (the design brief's "Real noise" section and the measurements of three
+    real two-view squat takes, which are not shipped with the project, quote them).
     """
 
     low: float
@@ -259,7 +259,7 @@ class RealRange:
 
 
 _D = "DESIGN.md Real noise"
-_I = "issue 11 (3 real 2-view squat takes)"
+_I = "3 real 2-view squat takes"
 REAL_RANGES: dict[tuple[str, str], RealRange] = {
     ("disagree_median", "torso"): RealRange(8.0, 13.5, f"{_D}: median 10-11 mm (±25%)"),
     ("disagree_p90", "torso"): RealRange(16.0, 28.0, f"{_D}: p90 about 22 mm (±25%)"),
@@ -442,6 +442,28 @@ class SimCheckResult:
             "inside": self.n_inside,
             "rows": rows,
         }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SimCheckResult:
+        """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON)."""
+        rows = [nan_for_none(row) for row in data["rows"]]
+        return cls(
+            profile=data["profile"],
+            seeds=list(data["seeds"]),
+            duration_s=data["duration_s"],
+            rows=[
+                CheckRow(
+                    r["statistic"],
+                    r["group"],
+                    RealRange(r["real_low"], r["real_high"], r["source"]),
+                    r["simulated_per_seed"],
+                    r["recorded_take"],
+                )
+                for r in rows
+            ],
+            three_view={(r["statistic"], r["group"]): r["simulated_three_view"] for r in rows},
+            recorded_dir=data["recorded_take"],
+        )
 
 
 def run_sim_check(

@@ -63,7 +63,7 @@ import numpy as np
 from skelfuse.calibration.skeleton import calibrate_from_skeletons
 from skelfuse.calibration.takes import take_arrays
 from skelfuse.eval.continuity import continuity
-from skelfuse.eval.metrics import view_orientation_agreement
+from skelfuse.eval.metrics import nan_for_none, view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
 from skelfuse.eval.view_mirroring import view_mirroring
 from skelfuse.fusion import presets
@@ -194,6 +194,14 @@ class RigEvalResult:
 
     def to_dict(self) -> dict[str, Any]:
         return _jsonable(asdict(self))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RigEvalResult:
+        """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON); every
+        ``None`` among the measured figures was a NaN."""
+        measured = ("groups", "leave_one_out", "orientation_agreement", "view_mirroring")
+        fields = {k: nan_for_none(v) if k in measured else v for k, v in data.items()}
+        return cls(**{**fields, "evaluated": tuple(data["evaluated"])})
 
 
 def _jsonable(value: Any) -> Any:

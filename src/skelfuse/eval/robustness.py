@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 from scipy import stats as scipy_stats
 
-from skelfuse.eval.metrics import best_lag, lag_error_curve, swap_counts
+from skelfuse.eval.metrics import best_lag, lag_error_curve, nan_for_none, swap_counts
 from skelfuse.eval.paper import fuse_sequence
 from skelfuse.fusion import presets
 from skelfuse.fusion.presets import FusionParams
@@ -273,6 +273,11 @@ class RobustnessResult:
         return _jsonable(
             {"settings": self.settings, "cells": self.cells, "takes": self.takes, "elapsed_s": self.elapsed_s}
         )
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RobustnessResult:
+        """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON)."""
+        return cls(data["settings"], data["takes"], nan_for_none(data["cells"]), data["elapsed_s"])
 
     @property
     def n_worse(self) -> int:

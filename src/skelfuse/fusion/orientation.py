@@ -421,8 +421,8 @@ def _rows_swing_onto(quats: np.ndarray, aims_one: np.ndarray) -> np.ndarray:
     """:func:`swing_onto_aims` component-major: quats (4, ...), ``aims_one`` (4, ...) = (1, aim), broadcast.
 
     The swing and its product with q as two bilinear products and one normalization, part of the orientation
-    stage's component-major layout (the stage 1.23x-1.72x cheaper than axis-last in session 21's A/B, 4 x 1 to
-    16 x 6); checked against :func:`swing_onto_aims`."""
+    stage's component-major layout (fewer numpy calls on small arrays than axis-last; ``skelfuse bench instant``,
+    docs/evidence.md "Speed"); checked against :func:`swing_onto_aims`."""
     swing = _rows_bilinear(_rows_bilinear(quats, quats, _ONE_XAXIS_ROWS), aims_one, _SWING_ROWS)
     opposite = swing[0] < 1e-9
     if opposite.any():  # rare: the X axis points exactly away from the aim

@@ -73,8 +73,8 @@ Sensor clocks (:class:`SensorClock`, one per sensor)
     the clock and is replayed in order, so a genuine epoch change loses no frame, if (1) the learned stream went
     quiet (none of its frames since the candidate's last ``resync_after``: a clock step or restart) while the
     rig's other sensors kept arriving (a frame of any of them since then, on clock or not; a starved node or a
-    stalled link silences the whole rig, and then a forger's frames are merely the only ones getting through:
-    session 21's one-hour soak lost 37 instants that way; other sensors silent since ``2 * resync_after``
+    stalled link silences the whole rig, and then a forger's frames are merely the only ones getting through,
+    and re-learning then hands the forger the clock; other sensors silent since ``2 * resync_after``
     periods before the stream went quiet are dead, not a reference), or (2) the
     learned stream itself is not paced (a forger that spoke first holds the clock and outruns the sensor) and,
     in device mode, the candidate agrees with the rig's other sensors no worse than the learned clock (within

@@ -89,8 +89,8 @@ class PoseFitMonitor:
 
     def _medians(self) -> tuple[np.ndarray, np.ndarray]:
         frames = np.isfinite(self._distances).sum(axis=0)
-        # NaN where a sensor saw nobody in the window; not np.nanmedian, whose masked-array path took ~1 ms
-        # of the node's loop at 16 sensors, twice per status (session 23).
+        # NaN where a sensor saw nobody in the window; not np.nanmedian, whose masked-array path costs about
+        # a millisecond of the node's loop at 16 sensors, twice per status.
         return nanmedian_axis(self._distances, 0), frames
 
     def _verdicts(self) -> list[FitChange]:

@@ -312,8 +312,8 @@ class StopBudget:
 
     The drain (fusing or sending what was queued) is bounded by the drain timeout, and so is everything after
     it: the last flush, the "stopped" status and the session close (itself bounded by
-    :data:`SESSION_CLOSE_TIMEOUT_S`) come out of the same budget, not on top of it. Before, a starved node's
-    drain used the whole 2 s and the close added 1 s more (3.9 s once, session 21). The close is given up to
+    :data:`SESSION_CLOSE_TIMEOUT_S`) come out of the same budget, not on top of it: a starved node's drain
+    can use the whole budget, and a close on top of it would overrun the stop. The close is given up to
     half the budget and at most :data:`SESSION_CLOSE_TIMEOUT_S`; the drain stops that much before the end.
     """
 

@@ -9,9 +9,9 @@ control and mutual TLS (``tests/unit/test_router_refusals.py``):
 * a client certificate from another CA: ``WARN zenoh_link_tls::unicast: invalid peer certificate: BadSignature``
   on every connection attempt (a bare TCP connection that never speaks TLS, e.g. a port probe: ``tls handshake
   eof``); a client without any certificate (that trusts the rig's CA): ``peer sent no certificates``. All are
-  counted under ``refused_tls``, by reason. (Session 19 saw no line for a certificate-less client: that probe's
-  client most likely failed on its own side, e.g. name verification of the router's certificate, before the
-  router asked for its certificate; then the router logs ``received fatal alert: BadCertificate`` instead.)
+  counted under ``refused_tls``, by reason. (A certificate-less client that fails on its own side first, e.g.
+  on name verification of the router's certificate, never gets asked for its certificate; then the router logs
+  ``received fatal alert: BadCertificate`` instead.)
 * a message the access control refuses: at TRACE level of ``zenoh::net::routing::interceptor::access_control``
   only. On a key the sender declared (a publisher), one line per message: ``Using cached result: <zid> is
   unauthorized to Put (ingress) on <key>``. On an undeclared key (``session.put(key, ...)``), one line per ACL

@@ -1,0 +1,156 @@
+"""docs/evidence.md is what its generator renders from the stored results, and each result names its maker.
+
+Every generated block of the page must equal what ``scripts/update_doc_tables.py`` renders from the JSON stored
+in docs/evidence/ (no command runs here), so a hand edit of a figure fails; every stored result must carry the
+stamp its command wrote (command line, revision, machine, load), and that command must be the one the generator
+records it with. The stamp itself (skelfuse/cli/stamp.py) is checked against git and a known cpuinfo text.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+from skelfuse.cli import main
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp, code_revision, cpu_model
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def generator() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("skelfuse_update_doc_tables", ROOT / "scripts/update_doc_tables.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_generated_block_equals_its_rendering_from_the_stored_results(generator: ModuleType) -> None:
+    text = generator.PAGE.read_text(encoding="utf-8")
+    assert generator.stale_blocks(text) == [], (
+        "docs/evidence.md differs from the stored results: run `python scripts/update_doc_tables.py write` "
+        "(or `record NAME` first, to re-measure)"
+    )
+
+
+def test_a_hand_edited_figure_is_caught(generator: ModuleType) -> None:
+    text = generator.PAGE.read_text(encoding="utf-8")
+    block = next(m for m in generator.MARKERS.finditer(text) if re.search(r"\d", m["body"]))
+    digit = re.search(r"\d", block["body"])
+    assert digit is not None
+    at = block.start("body") + digit.start()
+    edited = text[:at] + str((int(text[at]) + 1) % 10) + text[at + 1 :]
+    assert generator.stale_blocks(edited) == [block["name"]]
+
+
+def test_the_accuracy_results_are_stored(generator: ModuleType) -> None:
+    """The seeded accuracy figures the guides quote (they reproduce anywhere, so they are always recorded)."""
+    for stem in ("paper", "robustness", "sim-check", "real"):
+        assert (generator.STORE / f"{stem}.json").is_file(), (
+            f"record it: python scripts/update_doc_tables.py record {stem}"
+        )
+
+
+def test_every_stored_result_carries_the_stamp_of_the_command_that_records_it(generator: ModuleType) -> None:
+    stored = 0
+    for name, files in generator.RECORDS.items():
+        for stem, args in files.items():
+            path = generator.STORE / f"{stem}.json"
+            if not path.is_file():
+                continue  # the page says "Not recorded" for it (the block test checks that)
+            stamp = json.loads(path.read_text(encoding="utf-8"))["stamp"]
+            program = ["python", "scripts/soak_hostile.py"] if name == "soak" else ["skelfuse"]
+            expected = shlex.join([*program, *(a.replace("{out}", "OUT.json") for a in args)])
+            assert stamp["command"] == expected, path
+            assert re.fullmatch(r"[0-9a-f]{7,40}|v?\d[\w.]*-\d+-g[0-9a-f]+", stamp["revision"]), (
+                f"{path}: recorded from an uncommitted tree or outside git ({stamp['revision']}); commit, then record"
+            )
+            assert stamp["machine"]["cores"] >= 1 and stamp["machine"]["cpu_model"]
+            assert {"start", "end"} <= set(stamp["load_1min"])
+            stored += 1
+    assert stored >= 4
+
+
+def test_stored_results_read_back_to_what_they_were(generator: ModuleType) -> None:
+    """Each renderer reads a result back into the command's own result type: it must lose nothing."""
+    from skelfuse.bench.latency import LatencyResult
+    from skelfuse.eval.realism import SimCheckResult
+    from skelfuse.eval.rig import RigEvalResult
+    from skelfuse.eval.robustness import RobustnessResult
+
+    kinds = {
+        "robustness": RobustnessResult,
+        "sim-check": SimCheckResult,
+        "real": RigEvalResult,
+        "speed-latency": LatencyResult,
+        "speed-latency-people": LatencyResult,
+    }
+    for stem, kind in kinds.items():
+        result = generator.load(stem, generator.STORE)
+        if result is None:
+            continue
+        result.pop("stamp")
+        assert kind.from_dict(result).to_dict() == result, stem
+
+
+@pytest.mark.live  # the stamp asks git for the revision
+def test_a_json_result_is_stamped_by_the_command_line(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    import skelfuse.cli.sim as sim_cli
+
+    def fake_check(args) -> int:
+        print_json({"figure": 1}, args)
+        return 0
+
+    monkeypatch.setattr(sim_cli, "_cmd_sim_check", fake_check)
+    assert main(["sim", "check", "--seeds", "2", "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["figure"] == 1
+    stamp = payload["stamp"]
+    assert stamp["command"] == "skelfuse sim check --seeds 2 --json"
+    assert stamp["revision"] == code_revision()
+    assert stamp["machine"]["cores"] >= 1
+
+
+def test_without_json_no_stamp_is_taken(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    import skelfuse.cli.sim as sim_cli
+
+    seen = []
+    monkeypatch.setattr(sim_cli, "_cmd_sim_check", lambda args: seen.append(args.stamp) or 0)
+    assert main(["sim", "check"]) == 0
+    assert seen == [None]
+
+
+@pytest.mark.live  # runs git
+def test_the_revision_is_gits_and_says_so_outside_a_checkout(tmp_path: Path) -> None:
+    described = subprocess.run(
+        ["git", "-C", str(ROOT), "describe", "--always", "--dirty", "--abbrev=12"], capture_output=True, text=True
+    )
+    if described.returncode != 0:
+        pytest.skip("the tests run outside a git checkout (git describe failed)")
+    assert code_revision() == described.stdout.strip()
+    assert code_revision(tmp_path) == "unknown (not a git checkout)"
+
+
+def test_the_cpu_model_is_read_from_cpuinfo(tmp_path: Path) -> None:
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 7B13\ncores\t: 2\n")
+    assert cpu_model(cpuinfo) == "AMD EPYC 7B13"
+    assert cpu_model(tmp_path / "missing") != ""
+
+
+@pytest.mark.live  # the stamp asks git for the revision
+def test_the_stamp_quotes_the_command_line_for_a_shell() -> None:
+    stamp = RunStamp.begin(["eval", "real", "--input", "a b.csv"]).finished()
+    assert stamp["command"] == "skelfuse eval real --input 'a b.csv'"
+    assert stamp["load_1min"]["start"] >= 0 and stamp["load_1min"]["end"] >= 0
