@@ -233,8 +233,10 @@ def render_real(result: dict[str, Any]) -> str:
 
     fields = {k: v for k, v in result.items() if k != "stamp"}
     text = rig.format_markdown(rig.RigEvalResult.from_dict(fields))
-    lines = [("##" + line if line.startswith("#") else line) for line in text.splitlines()]
-    return "\n".join(line for line in lines if line != "### Real-data report")
+    lines = [("#" + line if line.startswith("#") else line) for line in text.splitlines()]
+    if lines[:2] == ["## Real-data report", ""]:  # the page's section is its title
+        lines = lines[2:]
+    return "\n".join(lines)
 
 
 def render_instant(result: dict[str, Any]) -> str:

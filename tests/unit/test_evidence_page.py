@@ -101,7 +101,7 @@ def test_stored_results_read_back_to_what_they_were(generator: ModuleType) -> No
         if result is None:
             continue
         result.pop("stamp")
-        assert kind.from_dict(result).to_dict() == result, stem
+        assert json.loads(json.dumps(kind.from_dict(result).to_dict())) == result, stem
 
 
 @pytest.mark.live  # the stamp asks git for the revision
@@ -154,3 +154,22 @@ def test_the_stamp_quotes_the_command_line_for_a_shell() -> None:
     stamp = RunStamp.begin(["eval", "real", "--input", "a b.csv"]).finished()
     assert stamp["command"] == "skelfuse eval real --input 'a b.csv'"
     assert stamp["load_1min"]["start"] >= 0 and stamp["load_1min"]["end"] >= 0
+
+
+@pytest.mark.live  # runs skelfuse sim check in a subprocess
+def test_record_stores_the_commands_json_and_write_renders_it_with_its_stamp(
+    generator: ModuleType, tmp_path: Path
+) -> None:
+    (path,) = generator.record("sim-check", tmp_path, generator.QUICK)
+    stored = json.loads(path.read_text(encoding="utf-8"))
+    assert stored["seeds"] == [0] and stored["duration_s"] == 3.0  # the quick configuration's own output
+    quick = shlex.join(["skelfuse", *generator.QUICK["sim-check"]["sim-check"]])
+    block = generator.render_block("sim-check", tmp_path)
+    assert block.startswith(f"`{quick}` · revision `{stored['stamp']['revision']}`")
+    assert f"**{stored['inside']} of {len(stored['rows'])} statistics inside the real range.**" in block
+    assert generator.render_block("paper", tmp_path).startswith("Not recorded: ")
+
+
+def test_quick_results_are_refused_as_evidence(generator: ModuleType) -> None:
+    with pytest.raises(SystemExit):
+        generator.main(["record", "paper", "--quick"])
