@@ -66,7 +66,7 @@ QUICK: dict[str, dict[str, list[str]]] = {
         "speed-instant": ["bench", "instant", "--cases", "2x1", "--frames", "20", "--rounds", "1", "--json"],
         "speed-latency": ["bench", "latency", "--sensors", "2", "--duration", "1", "--no-sweep", "--json"],
     },
-    "soak": {"soak": ["--minutes", "0.5", "--sensors", "2", "--adversary-hz", "50", "--json", "{out}"]},
+    "soak": {"soak": ["--minutes", "0.5", "--sensors", "3", "--adversary-hz", "50", "--json", "{out}"]},
 }
 """Tiny configurations of the same commands, to try ``record`` end to end in seconds."""
 
