@@ -46,10 +46,11 @@ def test_every_generated_block_equals_its_rendering_from_the_stored_results(gene
 
 def test_a_hand_edited_figure_is_caught(generator: ModuleType) -> None:
     text = generator.PAGE.read_text(encoding="utf-8")
-    block = next(m for m in generator.MARKERS.finditer(text) if re.search(r"\d", m["body"]))
-    digit = re.search(r"\d", block["body"])
-    assert digit is not None
-    at = block.start("body") + digit.start()
+    row = re.compile(r"^\|[^\n]*?(\d)", re.M)  # a figure in a table row
+    block = next(m for m in generator.MARKERS.finditer(text) if row.search(m["body"]))
+    figure = row.search(block["body"])
+    assert figure is not None
+    at = block.start("body") + figure.start(1)
     edited = text[:at] + str((int(text[at]) + 1) % 10) + text[at + 1 :]
     assert generator.stale_blocks(edited) == [block["name"]]
 
@@ -73,7 +74,7 @@ def test_every_stored_result_carries_the_stamp_of_the_command_that_records_it(ge
             program = ["python", "scripts/soak_hostile.py"] if name == "soak" else ["skelfuse"]
             expected = shlex.join([*program, *(a.replace("{out}", "OUT.json") for a in args)])
             assert stamp["command"] == expected, path
-            assert re.fullmatch(r"[0-9a-f]{7,40}|v?\d[\w.]*-\d+-g[0-9a-f]+", stamp["revision"]), (
+            assert not stamp["revision"].endswith("-dirty") and not stamp["revision"].startswith("unknown"), (
                 f"{path}: recorded from an uncommitted tree or outside git ({stamp['revision']}); commit, then record"
             )
             assert stamp["machine"]["cores"] >= 1 and stamp["machine"]["cpu_model"]
