@@ -87,6 +87,14 @@ def record(name: str, store: Path, table: dict[str, dict[str, list[str]]] = RECO
     return written
 
 
+def uncommitted_changes() -> list[str]:
+    """``git status`` lines of tracked files that differ from the commit (the stamp names only the commit)."""
+    done = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, cwd=ROOT, check=True
+    )
+    return done.stdout.splitlines()
+
+
 def _run_skelfuse(args: list[str]) -> dict[str, Any]:
     command = [*SKELFUSE, *args]
     print("running: " + " ".join(command), file=sys.stderr)
@@ -335,8 +343,11 @@ def main(argv: list[str] | None = None) -> int:
         sub.add_argument("--store", type=Path, default=STORE, help="the stored JSON (default: docs/evidence)")
     args = parser.parse_args(argv)
     if args.mode == "record":
-        if args.quick and args.store.resolve() == STORE.resolve():
+        evidence = args.store.resolve() == STORE.resolve()
+        if args.quick and evidence:
             parser.error("--quick results are not evidence: pass --store DIR outside docs/evidence")
+        if evidence and uncommitted_changes():
+            parser.error("commit first: the stamp names the commit, and the tree has uncommitted changes")
         record(args.name, args.store, QUICK if args.quick else RECORDS)
         return 0
     text = PAGE.read_text(encoding="utf-8")

@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import platform
 import shlex
-import subprocess
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,21 +53,33 @@ class RunStamp:
 
 
 def code_revision(source_dir: Path = SOURCE_DIR) -> str:
-    """``git describe --always --dirty`` of the checkout holding ``source_dir``; ``"unknown (...)"`` where the
-    package is not in a git checkout (an installed wheel) or git is missing."""
-    try:
-        done = subprocess.run(
-            ["git", "-C", str(source_dir), "describe", "--always", "--dirty", "--abbrev=12"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=False,
-        )
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        return f"unknown (git: {exc})"
-    if done.returncode != 0:
+    """The commit checked out (12 hex digits) in the git checkout holding ``source_dir``, read from the
+    repository's files (asking ``git`` would start a process in every command that prints JSON); ``"unknown
+    (...)"`` outside a checkout (an installed wheel). Uncommitted changes are not seen here:
+    ``scripts/update_doc_tables.py record`` refuses a tree that has them."""
+    git_dir = next((d / ".git" for d in (source_dir, *source_dir.parents) if (d / ".git").exists()), None)
+    if git_dir is None:
         return "unknown (not a git checkout)"
-    return done.stdout.strip()
+    try:
+        if git_dir.is_file():  # a worktree or submodule: "gitdir: PATH"
+            git_dir = (git_dir.parent / git_dir.read_text(encoding="utf-8").split(":", 1)[1].strip()).resolve()
+        head = (git_dir / "HEAD").read_text(encoding="utf-8").strip()
+        if not head.startswith("ref: "):
+            return head[:12]  # a detached HEAD names its commit
+        ref = head.removeprefix("ref: ")
+        common = git_dir / "commondir"
+        shared = (git_dir / common.read_text(encoding="utf-8").strip()).resolve() if common.is_file() else git_dir
+        for base in (git_dir, shared):
+            if (base / ref).is_file():
+                return (base / ref).read_text(encoding="utf-8").strip()[:12]
+        packed = shared / "packed-refs"
+        for line in packed.read_text(encoding="utf-8").splitlines() if packed.is_file() else []:
+            commit, _, name = line.partition(" ")
+            if name == ref:
+                return commit[:12]
+    except (OSError, IndexError) as exc:
+        return f"unknown (git files: {exc})"
+    return f"unknown ({ref} not found)"
 
 
 def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
