@@ -39,8 +39,8 @@ DATA = "../shared/data"
 _INSTANT = ["bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3", "--json"]
 _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 # The accuracy runs are recorded at a reduced size (10 s paper takes instead of the paper's ~33 s; 3 seeds of 5 s
-# robustness takes instead of 6 of 10 s), about 7 CPU-minutes each; the full sizes, `eval paper` and
-# `eval robustness` with their defaults, take about 25 CPU-minutes each.
+# robustness takes instead of 6 of 10 s); the full sizes are `eval paper` and `eval robustness` with their
+# defaults, several times the CPU time.
 RECORDS: dict[str, dict[str, list[str]]] = {
     "paper": {"paper": ["eval", "paper", "--duration", "10", "--json", "--no-files", "-q"]},
     "robustness": {"robustness": ["eval", "robustness", "--seeds", "3", "--duration", "5", "--json", "-q"]},
