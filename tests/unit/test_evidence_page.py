@@ -184,3 +184,24 @@ def test_record_stores_the_commands_json_and_write_renders_it_with_its_stamp(
 def test_quick_results_are_refused_as_evidence(generator: ModuleType) -> None:
     with pytest.raises(SystemExit):
         generator.main(["record", "paper", "--quick"])
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a markdown heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_links_into_the_evidence_page_name_its_sections(generator: ModuleType) -> None:
+    text = generator.PAGE.read_text(encoding="utf-8")
+    anchors = {_anchor(h) for h in re.findall(r"^#{1,6} (.+)$", text, re.M)}
+    sections = ("accuracy-against-the-paper", "robustness", "simulator-check", "real-recordings", "speed", "soak")
+    assert set(sections) <= anchors
+    guides = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("*.md"))]
+    broken = [
+        f"{path.relative_to(ROOT)}: #{anchor}"
+        for path in guides
+        if path.is_file()
+        for anchor in re.findall(r"evidence\.md#([\w-]+)", path.read_text(encoding="utf-8"))
+        if anchor not in anchors
+    ]
+    assert not broken, f"links to sections docs/evidence.md does not have: {broken}"
