@@ -9,8 +9,8 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py write                   # render every block from the stored JSON
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
-``record`` runs nothing but the commands listed in RECORDS (NAME: paper, robustness, sim-check, real, speed,
-soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as ``check``
+``record`` runs nothing but the commands listed in RECORDS (NAME: paper, robustness, mirroring, sim-check, real,
+speed, soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as ``check``
 does, so a hand edit of a block fails. ``--quick`` records a tiny configuration under --store (to try the
 plumbing; never into docs/evidence/). Paths under the repository root are stored relative to it, so the stored
 results do not depend on where the checkout lives.
@@ -36,6 +36,7 @@ SOAK = (sys.executable, "scripts/soak_hostile.py")
 DATA = "../shared/data"
 """The shared real recordings, named relative to the repository root as the commands' defaults find them."""
 
+_SMALL_ROBUSTNESS = ["--seeds", "3", "--duration", "5", "--json", "-q"]
 _INSTANT = ["bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3", "--json"]
 _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 # The accuracy runs are recorded at a reduced size (10 s paper takes instead of the paper's ~33 s; 3 seeds of 5 s
@@ -44,6 +45,10 @@ _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 RECORDS: dict[str, dict[str, list[str]]] = {
     "paper": {"paper": ["eval", "paper", "--duration", "10", "--json", "--no-files", "-q"]},
     "robustness": {"robustness": ["eval", "robustness", "--seeds", "3", "--duration", "5", "--json", "-q"]},
+    "mirroring": {
+        "mirroring-sweep": ["eval", "robustness", "--mirroring-sweep", *_SMALL_ROBUSTNESS],
+        "mirroring-bases": ["eval", "robustness", "--bases", *_SMALL_ROBUSTNESS],
+    },
     "sim-check": {"sim-check": ["sim", "check", "--data", DATA, "--json", "-q"]},
     "real": {"real": ["eval", "real", "--json"]},
     "speed": {
@@ -60,6 +65,10 @@ RECORDS: dict[str, dict[str, list[str]]] = {
 QUICK: dict[str, dict[str, list[str]]] = {
     "paper": {"paper": ["eval", "paper", "--quick", "--duration", "2", "--json", "--no-files", "-q"]},
     "robustness": {"robustness": ["eval", "robustness", "--quick", "--families", "baseline", "--json", "-q"]},
+    "mirroring": {
+        "mirroring-sweep": ["eval", "robustness", "--mirroring-sweep", "--quick", "--sensors", "2", "--json", "-q"],
+        "mirroring-bases": ["eval", "robustness", "--bases", "--quick", "--families", "baseline", "--json", "-q"],
+    },
     "sim-check": {"sim-check": ["sim", "check", "--seeds", "1", "--duration", "3", "--no-real", "--json", "-q"]},
     "real": RECORDS["real"],
     "speed": {
@@ -229,6 +238,22 @@ def render_robustness(result: dict[str, Any]) -> str:
     return robustness.format_markdown(robustness.RobustnessResult.from_dict(result))
 
 
+def render_mirroring_sweep(result: dict[str, Any]) -> str:
+    from skelfuse.eval import mirroring
+    from skelfuse.eval.metrics import nan_for_none
+
+    sweep = result["sweep"]
+    return mirroring.format_sweep({**sweep, "points": nan_for_none(sweep["points"])})
+
+
+def render_mirroring_bases(result: dict[str, Any]) -> str:
+    from skelfuse.eval import mirroring
+    from skelfuse.eval.metrics import nan_for_none
+
+    bases = result["bases"]
+    return mirroring.format_bases({**bases, "cells": nan_for_none(bases["cells"])})
+
+
 def render_sim_check(result: dict[str, Any]) -> str:
     from skelfuse.eval import realism
 
@@ -285,6 +310,8 @@ def render_soak(result: dict[str, Any]) -> str:
 BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     "paper": ("paper", "paper", render_paper),
     "robustness": ("robustness", "robustness", render_robustness),
+    "mirroring-sweep": ("mirroring", "mirroring-sweep", render_mirroring_sweep),
+    "mirroring-bases": ("mirroring", "mirroring-bases", render_mirroring_bases),
     "sim-check": ("sim-check", "sim-check", render_sim_check),
     "real": ("real", "real", render_real),
     "bench-instant": ("speed", "speed-instant", render_instant),

@@ -70,7 +70,7 @@ def _cmd_mirroring(
         print(f"skelfuse: error: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print_json(out)
+        print_json(out, args)
         return EXIT_OK
     if "bases" in out:
         print(mirroring.format_bases(out["bases"]))  # type: ignore[arg-type]
