@@ -97,11 +97,12 @@ def record(name: str, store: Path, table: dict[str, dict[str, list[str]]] = RECO
 
 
 def uncommitted_changes() -> list[str]:
-    """``git status`` lines of tracked files that differ from the commit (the stamp names only the commit)."""
+    """``git status`` lines of tracked files that differ from the commit (the stamp names only the commit), the
+    page and the stored results aside (they are this script's outputs, not the code that measures)."""
     done = subprocess.run(
         ["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, cwd=ROOT, check=True
     )
-    return done.stdout.splitlines()
+    return [line for line in done.stdout.splitlines() if not line[3:].startswith("docs/evidence")]
 
 
 def _run_skelfuse(args: list[str]) -> dict[str, Any]:
