@@ -1,0 +1,87 @@
+"""Compiled kernels of the per-instant path (numba), loaded on first use.
+
+The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
+per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`) and the per-joint filters
+(:mod:`.filters`). Their numpy forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the
+live path never imports.
+
+How the kernels are built, and why:
+
+* Loaded lazily: importing :mod:`skelfuse.fusion` (or running ``skelfuse --help``, or any command that does not
+  fuse) imports no numba. The first :func:`load` imports numba and the kernel modules.
+* Compiled once, cached on disk (``cache=True``) in a user cache directory, so a read-only install works:
+  ``$NUMBA_CACHE_DIR`` when the user set it, else ``$XDG_CACHE_HOME/skelfuse/numba`` (``~/.cache/skelfuse/numba``;
+  ``%LOCALAPPDATA%\\skelfuse\\numba`` on Windows). numba writes its cache files atomically, so processes that
+  compile at once (test workers, two nodes) share the directory safely.
+* Fixed signatures: float64 / int64 / bool arrays, C-contiguous, so each kernel compiles once.
+* Single-threaded (the capture PC's cores belong to the body trackers) and no fastmath: NaN joints are data, and
+  fastmath may assume they never occur.
+* Debugging: ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (slow, but a debugger steps into them).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from functools import cache
+from pathlib import Path
+from types import ModuleType
+from typing import NamedTuple
+
+KERNEL_MODULES = ("merge", "filters")
+"""The kernel modules of this package (one per compiled stage)."""
+
+
+class Kernels(NamedTuple):
+    """The loaded kernel modules."""
+
+    merge: ModuleType
+    filters: ModuleType
+
+
+def cache_dir() -> Path:
+    """Where numba keeps the compiled kernels: ``$NUMBA_CACHE_DIR``, else the user's cache directory."""
+    configured = os.environ.get("NUMBA_CACHE_DIR")
+    if configured:
+        return Path(configured)
+    if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
+        return Path(os.environ["LOCALAPPDATA"]) / "skelfuse" / "numba"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return base / "skelfuse" / "numba"
+
+
+def is_cached() -> bool:
+    """Whether every kernel module has compiled code in :func:`cache_dir` (else the next :func:`load` compiles).
+
+    numba names its index files ``<module>.<function>-<line>.pyXY.nbi``; a kernel module counts as cached when
+    one such file of it exists. A cache of another numba or source version is rebuilt by numba on load.
+    """
+    root = cache_dir()
+    if not root.is_dir():
+        return False
+    return all(any(root.rglob(f"{name}.*.nbi")) for name in KERNEL_MODULES)
+
+
+@cache
+def load() -> Kernels:
+    """Import numba (cache directory set first) and the kernel modules; the kernels compile on first call.
+
+    Sets ``NUMBA_CACHE_DIR`` to :func:`cache_dir` unless the user set it, before numba reads its configuration.
+    """
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
+    import numba.core.config
+
+    if not numba.core.config.CACHE_DIR:  # numba was imported before the variable was set
+        numba.core.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+    import skelfuse.fusion.kernels.filters
+    import skelfuse.fusion.kernels.merge
+
+    return Kernels(merge=skelfuse.fusion.kernels.merge, filters=skelfuse.fusion.kernels.filters)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel now, on tiny inputs of the fixed signatures."""
+    kernels = load()
+    kernels.merge.warm_up()
+    kernels.filters.warm_up()
