@@ -1,9 +1,9 @@
 """Compiled kernels of the per-instant path (numba), loaded on first use.
 
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
-per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`) and the per-joint filters
-(:mod:`.filters`). Their numpy forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the
-live path never imports.
+per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
+(:mod:`.filters`) and the plausibility stage's view checks (:mod:`.plausibility`). Their numpy forms live on in
+:mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
 
@@ -28,7 +28,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
-KERNEL_MODULES = ("merge", "filters")
+KERNEL_MODULES = ("merge", "filters", "plausibility")
 """The kernel modules of this package (one per compiled stage)."""
 
 
@@ -37,6 +37,7 @@ class Kernels(NamedTuple):
 
     merge: ModuleType
     filters: ModuleType
+    plausibility: ModuleType
 
 
 def cache_dir() -> Path:
@@ -76,12 +77,17 @@ def load() -> Kernels:
         numba.core.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
+    import skelfuse.fusion.kernels.plausibility
 
-    return Kernels(merge=skelfuse.fusion.kernels.merge, filters=skelfuse.fusion.kernels.filters)
+    return Kernels(
+        merge=skelfuse.fusion.kernels.merge,
+        filters=skelfuse.fusion.kernels.filters,
+        plausibility=skelfuse.fusion.kernels.plausibility,
+    )
 
 
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel now, on tiny inputs of the fixed signatures."""
     kernels = load()
-    kernels.merge.warm_up()
-    kernels.filters.warm_up()
+    for module in kernels:
+        module.warm_up()

@@ -14,7 +14,7 @@ PAPER_KALMAN, CV_KALMAN, ALPHA_BETA = 0, 1, 2
 """Filter kinds, as the kernel's ``kind`` argument."""
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _predict(
     x: np.ndarray,
     P: np.ndarray,
@@ -33,7 +33,7 @@ def _predict(
         pred[2, col] = P[i, 0] * cov_map[0, col] + P[i, 1] * cov_map[1, col] + P[i, 2] * cov_map[2, col] + q_vec[col]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _update(
     kind: int,
     pred: np.ndarray,
@@ -66,7 +66,7 @@ def _update(
         new_P[i, 2] = pred[2, 2]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def filter_step(
     kind: int,
     x: np.ndarray,

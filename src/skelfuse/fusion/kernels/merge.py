@@ -16,7 +16,7 @@ import numpy as np
 _ROUND_SCALE = 1e6  # centroid tie-break resolution: 1e-6 mm, as numpy's round(x, 6) (x * 1e6, rint, / 1e6)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarray, stack: np.ndarray) -> None:
     """label[i] = component of candidate i (-1: missing) over the first n rows of points (n, 3)."""
     for i in range(n):
@@ -51,7 +51,7 @@ def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarr
         n_labels += 1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.ndarray, centroid: np.ndarray) -> int:
     """The winning sensor candidate (its component wins) from the keys; ties by rounded centroid x, y, z."""
     best = 0
@@ -99,7 +99,7 @@ def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.
     return winner
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def merge_dbscan(
     positions: np.ndarray,
     confidence: np.ndarray,

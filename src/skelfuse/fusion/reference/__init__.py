@@ -11,11 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from skelfuse.fusion.reference import filters, merge
+from skelfuse.fusion.reference import filters, merge, plausibility
 
 LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
     ("skelfuse.fusion.pipeline", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
+    ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
