@@ -21,6 +21,7 @@ How the kernels are built, and why:
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from functools import cache
@@ -53,15 +54,17 @@ def cache_dir() -> Path:
 
 
 def is_cached() -> bool:
-    """Whether every kernel module has compiled code in :func:`cache_dir` (else the next :func:`load` compiles).
+    """Whether every kernel module has compiled code in :func:`cache_dir` (else the next :func:`warm_up` compiles).
 
-    numba names its index files ``<module>.<function>-<line>.pyXY.nbi``; a kernel module counts as cached when
-    one such file of it exists. A cache of another numba or source version is rebuilt by numba on load.
+    numba keeps a source folder's kernels in ``<folder name>_<sha1 of its absolute path>`` and names the index files
+    ``<module>.<function>-<line>.pyXY.nbi``; a kernel module counts as cached when one such file of it exists. (A
+    cache of an older numba or source is still rebuilt by numba on load; this answers "is this the first start".)
     """
-    root = cache_dir()
-    if not root.is_dir():
+    folder = os.path.dirname(os.path.abspath(__file__))  # as numba spells it
+    cached = cache_dir() / f"{os.path.basename(folder)}_{hashlib.sha1(folder.encode()).hexdigest()}"
+    if not cached.is_dir():
         return False
-    return all(any(root.rglob(f"{name}.*.nbi")) for name in KERNEL_MODULES)
+    return all(any(cached.glob(f"{name}.*.nbi")) for name in KERNEL_MODULES)
 
 
 @cache
