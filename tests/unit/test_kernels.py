@@ -7,11 +7,15 @@ counts, confidences, hold-out reasons, coasting counters; within 1e-9: positions
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from skelfuse.fusion import kernels, plausibility
+from skelfuse.fusion import kernels, plausibility, realign
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.kernels import plausibility as plausibility_kernel
 from skelfuse.fusion.merge import merge_dbscan
@@ -20,7 +24,8 @@ from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.reference import filters as filters_reference
 from skelfuse.fusion.reference import merge as merge_reference
 from skelfuse.fusion.reference import plausibility as plausibility_reference
-from skelfuse.schema.skeleton import N_JOINTS
+from skelfuse.fusion.reference import realign as realign_reference
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS
 
 ATOL = 1e-9
 
@@ -153,3 +158,47 @@ def test_the_cache_directory_is_the_users(monkeypatch, tmp_path):
     assert not kernels.is_cached()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
     assert kernels.cache_dir() == tmp_path / "mine"
+
+
+NUMBA_PROBE = """
+import sys
+import numpy as np
+import skelfuse.fusion.pipeline as pipeline
+import skelfuse.service.node
+before = "numba" in sys.modules
+params = pipeline.FusionParams()
+candidates = np.zeros((1, 2, pipeline.N_JOINTS, 3))
+pipeline.fuse(candidates, np.full((1, 2, pipeline.N_JOINTS), 2), pipeline.init_state(1, params), params)
+print(before, "numba" in sys.modules)
+"""
+
+
+@pytest.mark.live  # a fresh interpreter
+def test_numba_loads_with_the_first_fusion_not_with_the_modules():
+    done = subprocess.run([sys.executable, "-c", NUMBA_PROBE], capture_output=True, text=True, timeout=300, check=True)
+    assert done.stdout.split() == ["False", "True"]
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_bodies=st.integers(0, 3),
+    n_sensors=st.integers(1, 6),
+    missing_joints=st.sampled_from([0.0, 0.3, 0.9]),
+    missing_anchor=st.sampled_from([0.0, 0.3, 1.0]),
+)
+def test_realign_votes_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensors, missing_joints, missing_anchor):
+    rng = np.random.default_rng(seed)
+    bodies = np.array([_standing_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
+    views = bodies[:, None] + rng.normal(0.0, 30.0, (n_bodies, n_sensors, N_JOINTS, 3))
+    mirrored = rng.random((n_bodies, n_sensors)) < 0.4
+    views[mirrored] = views[mirrored][:, MIRROR]  # left/right labels swapped
+    views[rng.random(views.shape[:3]) < missing_joints] = np.nan
+    anchor = bodies[:, realign.PAPER_REALIGN_PAIRS.T.ravel()] + rng.normal(0.0, 10.0, (n_bodies, 1, 3))
+    anchor[rng.random(anchor.shape[:2]) < missing_anchor] = np.nan
+    got = realign.pair_votes(views, anchor)
+    want = realign_reference.pair_votes(views, anchor)
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-12, atol=ATOL)  # margin
+    np.testing.assert_array_equal(got[1], want[1])  # decided
+    np.testing.assert_array_equal(got[2], want[2])  # views that see a pair
+    np.testing.assert_array_equal(got[0] < 0.0, want[0] < 0.0)  # the flip decisions

@@ -98,6 +98,7 @@ def prepare_kernels(name: str) -> None:
     kernels.warm_up()
     log.info("fusion node %s: fusion kernels compiled in %.1f s", name, time.monotonic() - started)
 
+
 # The core lives in skelfuse.service.fusion_core; its names are re-exported here for the node's users.
 __all__ = [
     "BAD_KEY",

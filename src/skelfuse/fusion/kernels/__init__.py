@@ -2,7 +2,8 @@
 
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
 per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
-(:mod:`.filters`) and the plausibility stage's view checks (:mod:`.plausibility`). Their numpy forms live on in
+(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`) and the temporal left/right
+realignment's votes (:mod:`.realign`). Their numpy forms live on in
 :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
@@ -29,7 +30,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
-KERNEL_MODULES = ("merge", "filters", "plausibility")
+KERNEL_MODULES = ("merge", "filters", "plausibility", "realign")
 """The kernel modules of this package (one per compiled stage)."""
 
 
@@ -39,6 +40,7 @@ class Kernels(NamedTuple):
     merge: ModuleType
     filters: ModuleType
     plausibility: ModuleType
+    realign: ModuleType
 
 
 def cache_dir() -> Path:
@@ -81,11 +83,13 @@ def load() -> Kernels:
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
     import skelfuse.fusion.kernels.plausibility
+    import skelfuse.fusion.kernels.realign
 
     return Kernels(
         merge=skelfuse.fusion.kernels.merge,
         filters=skelfuse.fusion.kernels.filters,
         plausibility=skelfuse.fusion.kernels.plausibility,
+        realign=skelfuse.fusion.kernels.realign,
     )
 
 

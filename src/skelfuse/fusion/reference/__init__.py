@@ -11,12 +11,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from skelfuse.fusion.reference import filters, merge, plausibility
+from skelfuse.fusion.reference import filters, merge, plausibility, realign
 
 LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
     ("skelfuse.fusion.pipeline", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
+    ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
