@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Callable
 
 import numpy as np
 
@@ -267,32 +268,39 @@ def _fused_minor(sections: int) -> int:
     return min(minor for minor, bits in FUSED_SECTIONS_BY_MINOR.items() if sections & ~bits == 0)
 
 
+_FUSED_SECTIONS: tuple[tuple[int, str, tuple[int, ...], Callable[[np.ndarray], None]], ...] = (
+    (FUSED_SECTION_ORIENTATIONS, "orientations", (N_JOINTS, 4), _check_orientations),
+    (FUSED_SECTION_POSITION_STD, "position_std", (N_JOINTS,), _check_position_std),
+    (FUSED_SECTION_AGREEMENT, "agreement_mm", (), _check_agreement),
+)
+"""The optional float64 sections of a fused frame, in bit order: bit, FusedFrame field, shape per person, rule."""
+
+
 def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[memoryview]]:
     """The optional sections of a fused frame (1.1, 1.2): the ``sections`` bits and their bytes, in bit order."""
     sections = 0
     extra: list[memoryview] = []
-    orientations = getattr(frame, "orientations", None)
-    position_std = getattr(frame, "position_std", None)
-    agreement = getattr(frame, "agreement_mm", None)
     try:
-        if orientations is not None:
-            quats = _as_wire(orientations, _F8, (n, N_JOINTS, 4), "orientations", "f")
-            _check_orientations(quats)
-            sections |= FUSED_SECTION_ORIENTATIONS
-            extra.append(quats.data)
-        if position_std is not None:
-            std = _as_wire(position_std, _F8, (n, N_JOINTS), "position_std", "f")
-            _check_position_std(std)
-            sections |= FUSED_SECTION_POSITION_STD
-            extra.append(std.data)
-        if agreement is not None:
-            figure = _as_wire(agreement, _F8, (n,), "agreement_mm", "f")
-            _check_agreement(figure)
-            sections |= FUSED_SECTION_AGREEMENT
-            extra.append(figure.data)
+        for bit, field, shape, check in _FUSED_SECTIONS:
+            if (value := getattr(frame, field, None)) is not None:
+                array = _as_wire(value, _F8, (n, *shape), field, "f")
+                check(array)
+                sections |= bit
+                extra.append(array.data)
     except _Invalid as exc:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
     return sections, extra
+
+
+def _section_spans(sections: int, n: int, start: int) -> tuple[list[tuple[str, int, int, tuple[int, ...]]], int]:
+    """Where the sections ``sections`` names lie from byte ``start``: (field, begin, end, shape) each, and the end."""
+    spans = []
+    for bit, field, shape, _ in _FUSED_SECTIONS:
+        if sections & bit:
+            size = 8 * n * int(np.prod(shape))
+            spans.append((field, start, start + size, (n, *shape)))
+            start += size
+    return spans, start
 
 
 def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
@@ -321,11 +329,7 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     _cap(table_size, n_sensors * (2 + MAX_ID_BYTES), "bytes of sensor id table", name)
     table_at = offset + n * FUSED_BYTES_PER_PERSON + n * n_sensors
     table_end = table_at + table_size
-    sections = _known_sections(sections, minor, name)
-    orientations_at = table_end
-    std_at = orientations_at + (32 * N_JOINTS * n if sections & FUSED_SECTION_ORIENTATIONS else 0)
-    agreement_at = std_at + (8 * N_JOINTS * n if sections & FUSED_SECTION_POSITION_STD else 0)
-    end = agreement_at + (8 * n if sections & FUSED_SECTION_AGREEMENT else 0)
+    spans, end = _section_spans(_known_sections(sections, minor, name), n, table_end)
     _check_length(view, end, minor, name, FUSED_MINOR_WITH_AGREEMENT)
     table = view[:table_end]  # an id must not run past the declared table
     sensor_ids = []
@@ -347,20 +351,11 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     n_agree = np.frombuffer(owned, _I2, rows, n_agree_at).reshape(n, N_JOINTS)
     confidence_at = n_agree_at + 2 * rows
     contributors_at = confidence_at + rows
-    orientations = position_std = agreement = None
-    if sections & FUSED_SECTION_ORIENTATIONS:
-        orientations = np.frombuffer(bytearray(view[orientations_at:std_at]), _F8).reshape(n, N_JOINTS, 4)
-    if sections & FUSED_SECTION_POSITION_STD:
-        position_std = np.frombuffer(bytearray(view[std_at:agreement_at]), _F8).reshape(n, N_JOINTS)
-    if sections & FUSED_SECTION_AGREEMENT:
-        agreement = np.frombuffer(bytearray(view[agreement_at:end]), _F8)
+    extra = {f: np.frombuffer(bytearray(view[a:b]), _F8).reshape(shape) for f, a, b, shape in spans}
     try:
-        if orientations is not None:
-            _check_orientations(orientations)
-        if position_std is not None:
-            _check_position_std(position_std)
-        if agreement is not None:
-            _check_agreement(agreement)
+        for _, field, _, check in _FUSED_SECTIONS:
+            if field in extra:
+                check(extra[field])
         _check_fused_positions(positions)
         _check_n_agree(n_agree)
         _check_confidence(bytes(owned[confidence_at:contributors_at]))
@@ -377,9 +372,7 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
         confidence=np.frombuffer(owned, _U1, rows, confidence_at).reshape(n, N_JOINTS),
         contributors=np.frombuffer(owned, np.bool_, n * n_sensors, contributors_at).reshape(n, n_sensors),
         sensor_ids=tuple(sensor_ids),
-        orientations=None if orientations is None else orientations.astype(np.float64, copy=False),
-        position_std=None if position_std is None else position_std.astype(np.float64, copy=False),
-        agreement_mm=None if agreement is None else agreement.astype(np.float64, copy=False),
+        **{field: array.astype(np.float64, copy=False) for field, array in extra.items()},
     )
 
 
