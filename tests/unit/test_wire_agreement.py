@@ -247,3 +247,17 @@ def test_the_node_publishes_each_persons_agreement():
         figures.extend(decoded.agreement_mm.tolist())
     seen = np.array(figures)
     assert seen.size > 20 and np.isfinite(seen).mean() > 0.9 and np.nanmedian(seen) < 50.0
+
+
+def test_the_osc_stream_sends_each_persons_agreement():
+    """Decoded with python-osc's own parser: one agreement message per person, -1 for one view."""
+    from pythonosc.osc_bundle import OscBundle
+
+    from skelfuse.stream.osc import frame_bundles
+
+    frame = frame_with_agreement(2, others=False)
+    messages = [(m.address, list(m.params)) for d in frame_bundles(frame) for m in OscBundle(d)]
+    agreement = [(address, params) for address, params in messages if address.endswith("/agreement")]
+    assert agreement == [("/skelfuse/person/3/agreement", [-1.0]), ("/skelfuse/person/4/agreement", [120.0])]
+    without = [m.address for d in frame_bundles(frame_with_sections(1)) for m in OscBundle(d)]
+    assert not any(address.endswith("/agreement") for address in without)
