@@ -85,7 +85,7 @@ def test_the_node_publishes_the_offline_fixed_lag_smoother_of_its_causal_stream(
     lagged = run(lagged_core, plan)
 
     # Default off: the node publishes the instant's own causal frame.
-    assert [o.payload for o in live] == [o.payload for o in run(FusionCore(rig_config()), plan)]
+    assert [o.payload for o in live] == [o.payload for o in run(FusionCore(rig_config("fixed_lag_frames = 0")), plan)]
     assert all(
         np.array_equal(o.frame.positions, i.frame.positions, equal_nan=True)
         for o, i in zip(live, instants, strict=True)
