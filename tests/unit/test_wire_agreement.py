@@ -261,3 +261,22 @@ def test_the_osc_stream_sends_each_persons_agreement():
     assert agreement == [("/skelfuse/person/3/agreement", [-1.0]), ("/skelfuse/person/4/agreement", [120.0])]
     without = [m.address for d in frame_bundles(frame_with_sections(1)) for m in OscBundle(d)]
     assert not any(address.endswith("/agreement") for address in without)
+
+
+def test_the_rerun_view_labels_each_person_with_the_agreement(tmp_path):
+    """Read back from the saved .rrd: the label above each head carries the figure, "one view" for NaN."""
+    import rerun as rr
+    from test_rerun_sink import _columns
+
+    from skelfuse.sinks.rerun_sink import RerunSink
+
+    recording = rr.RecordingStream("skelfuse_test")
+    path = tmp_path / "agreement.rrd"
+    recording.save(path)
+    sink = RerunSink(recording, ["left", "right"])
+    sink.set_time(0.0)
+    sink.log_fused(np.zeros((2, N_JOINTS, 3)), np.array([7, 8]), np.array([12.4, np.nan]))
+    recording.flush()
+    recording.disconnect()
+    labels = _columns(path)["/world/fused/labels"]["Points3D:labels"][0]
+    assert labels == ["person 7 · views ±12 mm", "person 8 · one view"]

@@ -467,6 +467,7 @@ class FusionNode:
                     fusion_ms,
                     added_ms,
                     self._rates,
+                    agreement_mm=out.frame.agreement_mm,
                 )
                 if out.clouds:
                     view.log_clouds((out.frame.time_us - self._first_time_us) / 1e6, out.clouds)
