@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -297,7 +298,7 @@ def _section_spans(sections: int, n: int, start: int) -> tuple[list[tuple[str, i
     spans = []
     for bit, field, shape, _ in _FUSED_SECTIONS:
         if sections & bit:
-            size = 8 * n * int(np.prod(shape))
+            size = 8 * n * math.prod(shape)
             spans.append((field, start, start + size, (n, *shape)))
             start += size
     return spans, start
