@@ -17,7 +17,7 @@ prediction there.
 
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
 option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
-full smoother.
+full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
 Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.

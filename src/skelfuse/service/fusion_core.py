@@ -317,14 +317,16 @@ class FusionCore:
         instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
         if instant.people.held_out is not None:
             count_held_out(self.held_out, instant.people.held_out, instant.frame.sensor_ids)
+        beside = _Beside(instant.sensors_world, group.complete, () if depth is None else depth.last_clouds)
+        if self.fixed_lag is None:
+            out = [self._output(instant.frame, beside, tick, trigger_arrival_ns)]
+        else:
+            out = [self._output(f, b, tick, trigger_arrival_ns) for b, f in self.fixed_lag.push(instant, beside)]
         if group.complete:
             self.groups_complete += 1
         else:
             self.groups_partial += 1
-        beside = _Beside(instant.sensors_world, group.complete, () if depth is None else depth.last_clouds)
-        if self.fixed_lag is None:
-            return [self._output(instant.frame, beside, tick, trigger_arrival_ns)]
-        return [self._output(f, b, tick, trigger_arrival_ns) for b, f in self.fixed_lag.push(instant, beside)]
+        return out
 
     def _output(self, frame: FusedFrame, beside: _Beside, tick: int, trigger_arrival_ns: int | None) -> FusedOutput:
         payload = encode_fused_frame(frame)
