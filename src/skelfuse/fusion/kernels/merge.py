@@ -100,6 +100,75 @@ def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _gather(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    reference: np.ndarray,
+    previous: np.ndarray,
+    b: int,
+    j: int,
+    use_ref: bool,
+    use_prev: bool,
+    points: np.ndarray,
+    conf: np.ndarray,
+) -> tuple[int, int, int]:
+    """Joint (b, j)'s candidates into points (sensors, then the reference and the previous position) and the
+    sensors' confidences into conf; returns their count and the reference's and previous position's rows (-1)."""
+    S = positions.shape[1]
+    for s in range(S):
+        for axis in range(3):
+            points[s, axis] = positions[b, s, j, axis]
+        conf[s] = confidence[b, s, j]
+    n = S
+    ref_idx = prev_idx = -1
+    if use_ref:
+        ref_idx = n
+        for axis in range(3):
+            points[n, axis] = reference[b, j, axis]
+        n += 1
+    if use_prev:
+        prev_idx = n
+        for axis in range(3):
+            points[n, axis] = previous[b, j, axis]
+        n += 1
+    return n, ref_idx, prev_idx
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _score(
+    label: np.ndarray,
+    conf: np.ndarray,
+    n: int,
+    n_sensors: int,
+    ref_idx: int,
+    prev_idx: int,
+    rank: np.ndarray,
+    code: np.ndarray,
+    conf_sum: np.ndarray,
+    key: np.ndarray,
+) -> None:
+    """key[s] = the key of sensor candidate s's component: rank of its code (n_sensors + span has_ref + 2 span
+    has_prev) times (3 S + 1), plus its summed confidence; a missing candidate gets code 0's (below every one)."""
+    span = n_sensors + 1
+    for c in range(n):
+        code[c] = 0
+        conf_sum[c] = 0.0
+    for s in range(n_sensors):
+        if label[s] >= 0:
+            code[label[s]] += 1
+            conf_sum[label[s]] += conf[s]
+    if ref_idx >= 0 and label[ref_idx] >= 0:
+        code[label[ref_idx]] += span
+    if prev_idx >= 0 and label[prev_idx] >= 0:
+        code[label[prev_idx]] += 2 * span
+    for s in range(n_sensors):
+        if label[s] >= 0:
+            key[s] = rank[code[label[s]]] * (3 * n_sensors + 1) + conf_sum[label[s]]
+        else:
+            key[s] = rank[0] * (3 * n_sensors + 1)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def merge_dbscan(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -123,7 +192,6 @@ def merge_dbscan(
     merged (B, J, 3) float64, n_agree (B, J) int16, confidence (B, J) uint8, members (B, J, S) bool.
     """
     B, S, J, _ = positions.shape
-    span = S + 1
     n_max = S + 2
     eps_sq = eps_mm * eps_mm
     merged = np.empty((B, J, 3))
@@ -140,40 +208,11 @@ def merge_dbscan(
     centroid = np.empty((S, 3))
     for b in range(B):
         for j in range(J):
-            for s in range(S):
-                for axis in range(3):
-                    points[s, axis] = positions[b, s, j, axis]
-                conf[s] = confidence[b, s, j]
-            n = S
-            ref_idx = prev_idx = -1
-            if use_ref:
-                ref_idx = n
-                for axis in range(3):
-                    points[n, axis] = reference[b, j, axis]
-                n += 1
-            if use_prev:
-                prev_idx = n
-                for axis in range(3):
-                    points[n, axis] = previous[b, j, axis]
-                n += 1
+            n, ref_idx, prev_idx = _gather(
+                positions, confidence, reference, previous, b, j, use_ref, use_prev, points, conf
+            )
             _label_components(points, n, eps_sq, label, stack)
-            # Per component: its code n_sensors + span has_ref + 2 span has_prev, and its summed confidence.
-            for c in range(n):
-                code[c] = 0
-                conf_sum[c] = 0.0
-            for s in range(S):
-                if label[s] >= 0:
-                    code[label[s]] += 1
-                    conf_sum[label[s]] += conf[s]
-            if ref_idx >= 0 and label[ref_idx] >= 0:
-                code[label[ref_idx]] += span
-            if prev_idx >= 0 and label[prev_idx] >= 0:
-                code[label[prev_idx]] += 2 * span
-            for s in range(S):
-                if label[s] >= 0:
-                    key[s] = rank[code[label[s]]] * (3 * S + 1) + conf_sum[label[s]]
-                else:
-                    key[s] = rank[0] * (3 * S + 1)  # a missing candidate: code 0, below every cluster
+            _score(label, conf, n, S, ref_idx, prev_idx, rank, code, conf_sum, key)
             winner = _pick_winner(points, label, S, key, centroid)
             win_label = label[winner]
             count = 0
