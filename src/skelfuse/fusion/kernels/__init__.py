@@ -78,8 +78,10 @@ def load() -> Kernels:
     os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
     import numba.core.config
 
-    if not numba.core.config.CACHE_DIR:  # numba was imported before the variable was set
-        numba.core.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+    # numba was imported before the variable was set (it reads the environment once, into module attributes
+    # that its stubs do not declare): point it at the directory now, before the kernels' caches are made.
+    if not numba.core.config.CACHE_DIR:  # type: ignore[attr-defined]  # set from the environment at run time
+        numba.core.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]  # as above
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
     import skelfuse.fusion.kernels.plausibility
