@@ -53,7 +53,13 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
     for (module, name), numpy_form in LIVE_STAGES.items():
         assert getattr(importlib.import_module(module), name) is numpy_form
         assert numpy_form.__module__.startswith("skelfuse.fusion.reference.")
-    assert {name for _, name in LIVE_STAGES} == {"merge_dbscan", "filter_step", "check_views", "pair_votes"}
+    assert {name for _, name in LIVE_STAGES} == {
+        "merge_dbscan",
+        "filter_step",
+        "check_views",
+        "pair_votes",
+        "seen_motion",
+    }
 
 
 @pytest.mark.live  # bench runs are subprocesses

@@ -15,7 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from skelfuse.fusion import kernels, plausibility, realign
+from skelfuse.fusion import kernels, plausibility, realign, tracks
+from skelfuse.fusion.association import N_DESCRIPTOR
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.kernels import plausibility as plausibility_kernel
 from skelfuse.fusion.merge import merge_dbscan
@@ -25,6 +26,8 @@ from skelfuse.fusion.reference import filters as filters_reference
 from skelfuse.fusion.reference import merge as merge_reference
 from skelfuse.fusion.reference import plausibility as plausibility_reference
 from skelfuse.fusion.reference import realign as realign_reference
+from skelfuse.fusion.reference import tracks as tracks_reference
+from skelfuse.fusion.tracks import TrackParams
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS
 
 ATOL = 1e-9
@@ -202,3 +205,30 @@ def test_realign_votes_kernel_equals_the_numpy_reference(seed, n_bodies, n_senso
     np.testing.assert_array_equal(got[1], want[1])  # decided
     np.testing.assert_array_equal(got[2], want[2])  # views that see a pair
     np.testing.assert_array_equal(got[0] < 0.0, want[0] < 0.0)  # the flip decisions
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_tracks=st.integers(0, 5),
+    missing_points=st.sampled_from([0.0, 0.3, 1.0]),
+    still=st.booleans(),
+)
+def test_tracks_motion_kernel_equals_the_numpy_reference(seed, n_tracks, missing_points, still):
+    rng = np.random.default_rng(seed)
+    params = TrackParams(max_speed_mm_s=float(rng.choice([500.0, 7000.0])))
+    shape = (n_tracks, N_DESCRIPTOR, 3)
+    descriptor = rng.normal(0.0, 500.0, shape)
+    predicted = descriptor + rng.normal(0.0, 20.0, shape)
+    measured = predicted + rng.normal(0.0, 50.0, shape)
+    measured[rng.random(shape[:2]) < missing_points] = np.nan
+    velocity = rng.normal(0.0, 800.0, (n_tracks, 3))
+    last_seen_s = 10.0 - rng.choice([0.0, 1 / 30, 0.2], n_tracks) * (not still)
+    n_frames_seen = rng.integers(0, 4, n_tracks)
+    hit = rng.random(n_tracks) < 0.7
+    arguments = (descriptor, velocity, last_seen_s, n_frames_seen, predicted, measured, hit, 10.0, params)
+    got = tracks.seen_motion(*arguments)
+    want = tracks_reference.seen_motion(*arguments)
+    for got_array, want_array in zip(got, want, strict=True):
+        np.testing.assert_allclose(got_array, want_array, rtol=1e-12, atol=ATOL)
+    np.testing.assert_array_equal(descriptor, arguments[0])  # the inputs are left as they were

@@ -2,8 +2,8 @@
 
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
 per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
-(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`) and the temporal left/right
-realignment's votes (:mod:`.realign`). Their numpy forms live on in
+(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
+realignment's votes (:mod:`.realign`) and the seen tracks' motion update (:mod:`.tracks`). Their numpy forms live on in
 :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
@@ -30,7 +30,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
-KERNEL_MODULES = ("merge", "filters", "plausibility", "realign")
+KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks")
 """The kernel modules of this package (one per compiled stage)."""
 
 
@@ -41,6 +41,7 @@ class Kernels(NamedTuple):
     filters: ModuleType
     plausibility: ModuleType
     realign: ModuleType
+    tracks: ModuleType
 
 
 def cache_dir() -> Path:
@@ -86,12 +87,14 @@ def load() -> Kernels:
     import skelfuse.fusion.kernels.merge
     import skelfuse.fusion.kernels.plausibility
     import skelfuse.fusion.kernels.realign
+    import skelfuse.fusion.kernels.tracks
 
     return Kernels(
         merge=skelfuse.fusion.kernels.merge,
         filters=skelfuse.fusion.kernels.filters,
         plausibility=skelfuse.fusion.kernels.plausibility,
         realign=skelfuse.fusion.kernels.realign,
+        tracks=skelfuse.fusion.kernels.tracks,
     )
 
 

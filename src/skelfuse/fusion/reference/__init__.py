@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from skelfuse.fusion.reference import filters, merge, plausibility, realign
+from skelfuse.fusion.reference import filters, merge, plausibility, realign, tracks
 
 LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
@@ -19,5 +19,6 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
     ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
+    ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
