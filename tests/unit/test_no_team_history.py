@@ -36,7 +36,6 @@ OTHER_PROJECT_ISSUE = re.compile(
 
 # file (relative to the repository root) -> hits it may still carry; may only shrink
 ALLOWED: dict[str, int] = {
-    "README.md": 3,
     "docs/animation.md": 6,
     "docs/depth-fusion.md": 1,
     "docs/multi-pc.md": 27,
