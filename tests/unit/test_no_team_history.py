@@ -39,8 +39,6 @@ ALLOWED: dict[str, int] = {
     "docs/animation.md": 6,
     "docs/depth-fusion.md": 1,
     "docs/multi-pc.md": 27,
-    "docs/service.md": 3,
-    "docs/simulator.md": 18,
     "scripts/node_memory_probe.py": 1,
     "src/skelfuse/calibration/rigid.py": 1,
     "src/skelfuse/eval/realism.py": 3,
