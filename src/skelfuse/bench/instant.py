@@ -13,9 +13,9 @@ machine shared with other work, the CPU time is the fairer comparison (it leaves
 
 By default the instants run back to back, which keeps the processor's caches warm with this path's code and
 data. A live node gets an instant every 1/30 s and idles in between; ``--paced`` times that (the run sleeps to
-each instant's due time). On the 2-core development VMs the same code took about twice the CPU time per
-instant paced, close to the fusion step's time inside a live node (``skelfuse bench latency``): quote the paced
-figure for what a node spends (the measurements: docs/service.md, "Paced costs about twice back to back").
+each instant's due time). Paced, the same code costs about twice the CPU time per instant, close to the
+fusion step's time inside a live node (``skelfuse bench latency``): quote the paced figure for what a node
+spends (why: docs/service.md, "Where the time goes"; the figures: docs/evidence.md, "Speed").
 ``--positions-only`` times the same path with the preset's orientation and uncertainty stages off (a rig whose
 consumers need positions only: ``[fusion.params] orientations = false, position_std = false``); the fused
 positions are the same either way (those stages never change them).
