@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from skelfuse.cli import build_parser
+from skelfuse.cli.commands import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -93,12 +94,20 @@ def code_spans(text: str) -> list[tuple[int, str]]:
     return spans
 
 
+#: the top-level commands, for spans that name one without ``skelfuse`` (`` `fuse --input` ``)
+TOP_LEVEL = tuple(COMMANDS)
+
+
 def command_lines(span: str) -> list[str]:
-    """Each ``skelfuse ...`` command line in ``span`` (a shell line may hold several, joined by ; && |)."""
+    """Each ``skelfuse ...`` command line in ``span`` (a shell line may hold several, joined by ; && |), and
+    each span that starts with a top-level command followed by an option (`` `export --format fbx` ``)."""
     span = span.replace("\\|", "|").removeprefix("$ ")
     found = []
     for part in re.split(r"\s*(?:;|&&|\|\|| \| )\s*", span):
         part = re.sub(r"^(?:python3? -m |uv run |sudo |\S+=\S+ )+", "", part.strip())
+        words = part.split()
+        if len(words) >= 2 and words[0] in TOP_LEVEL and words[1].startswith("--"):
+            part = f"skelfuse {part}"
         if (part == "skelfuse" or part.startswith("skelfuse ")) and part not in NOT_COMMANDS:
             found.append(part)
     return found
