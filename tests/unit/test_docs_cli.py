@@ -242,3 +242,11 @@ def test_every_lone_option_is_an_option_of_some_command(parser: argparse.Argumen
 )
 def test_the_walk_catches_what_is_missing(parser: argparse.ArgumentParser, line: str, expected: list[str]) -> None:
     assert problems_in(line, parser) == expected
+
+
+def test_the_readme_maps_every_guide() -> None:
+    """The README's documentation map links every page of docs/."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    linked = set(re.findall(r"\]\(docs/([a-z0-9-]+\.md)\)", readme))
+    pages = {page.name for page in (ROOT / "docs").glob("*.md")}
+    assert pages <= linked, f"docs/ pages the README does not link: {sorted(pages - linked)}"
