@@ -20,9 +20,9 @@ spends (why: docs/service.md, "Where the time goes"; the figures: docs/evidence.
 consumers need positions only: ``[fusion.params] orientations = false, position_std = false``); the fused
 positions are the same either way (those stages never change them).
 Each timing runs in a fresh subprocess: this file executed as a script with ``PYTHONPATH`` set to a source tree
-(it imports only interfaces that have been stable since orientations landed), so ``--baseline SRC`` times an
-older checkout of skelfuse (e.g. a worktree at the starting revision) on the same inputs, alternating
-baseline / current run by run, and the ratio is taken per round (then the median over rounds). Every run
+(it imports only interfaces that any checkout with fused orientations has), so ``--baseline SRC`` times another
+checkout of skelfuse (e.g. the revision before a change) on the same inputs, alternating baseline / current
+run by run, and the ratio is taken per round (then the median over rounds). Every run
 records the machine's load (``os.getloadavg``) before and after: on a shared machine, prefer the ratios.
 """
 
