@@ -27,14 +27,6 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: options of other programs that the pages name in code spans of their own; each with whose it is
 FOREIGN_OPTIONS: dict[str, str] = {
     "--randomly-seed": "pytest-randomly",
-    "--dist": "pytest-xdist",
-    "--durations": "pytest",
-    "--serve": "rerun (the viewer)",
-    "--strict-config": "pytest",
-    "--strict-markers": "pytest",
-    "--web-viewer": "rerun (the viewer)",
-    "--connect": "rerun (the viewer)",
-    "--serve-web": "rerun (the viewer)",
     "--external-sync": "k4arecorder",
 }
 
