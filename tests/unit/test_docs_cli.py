@@ -33,6 +33,9 @@ FOREIGN_OPTIONS: dict[str, str] = {
 #: code spans that read as a command line but name something else: rows of ``skelfuse eval real``'s report
 NOT_COMMANDS = {"skelfuse lag 3", "skelfuse rts"}
 
+#: the top-level commands, for spans that name one without ``skelfuse`` (`` `fuse --input` ``)
+TOP_LEVEL = tuple(COMMANDS)
+
 OPTION = re.compile(r"^--?[A-Za-z][-A-Za-z0-9]*")
 COMMAND_WORD = re.compile(r"^[a-z][a-z0-9-]*$")
 
@@ -86,10 +89,6 @@ def code_spans(text: str) -> list[tuple[int, str]]:
     return spans
 
 
-#: the top-level commands, for spans that name one without ``skelfuse`` (`` `fuse --input` ``)
-TOP_LEVEL = tuple(COMMANDS)
-
-
 def command_lines(span: str) -> list[str]:
     """Each ``skelfuse ...`` command line in ``span`` (a shell line may hold several, joined by ; && |), and
     each span that starts with a top-level command followed by an option (`` `export --format fbx` ``)."""
@@ -119,7 +118,7 @@ def declared_options(script: Path) -> set[str]:
 
 
 def mentions(kind: str) -> list[Mention]:
-    """Every command line (``kind="command"``) or lone option span (``kind="option"``) of the pages."""
+    """Every command line (``kind="command"``), script line (``"script"``) or lone option span (``"option"``)."""
     found = []
     for page in PAGES:
         for number, span in code_spans(page.read_text(encoding="utf-8")):
@@ -128,8 +127,10 @@ def mentions(kind: str) -> list[Mention]:
                 found.extend(Mention(where, number, line) for line in command_lines(span))
             elif kind == "script":
                 found.extend(Mention(where, number, span) for _ in script_lines(span)[:1])
-            elif kind == "option" and OPTION.match(span) and span.startswith("--") and not span.endswith("*"):
-                found.append(Mention(where, number, OPTION.match(span).group(0)))  # type: ignore[union-attr]
+            elif (
+                kind == "option" and (option := OPTION.match(span)) and span.startswith("--") and not span.endswith("*")
+            ):
+                found.append(Mention(where, number, option.group(0)))
     return found
 
 
