@@ -106,17 +106,22 @@ def median_jitter(positions: np.ndarray, joints: np.ndarray) -> float:
     return float(np.median(second)) if second.size else math.nan
 
 
-def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES) -> float:
+def velocity_lag(
+    fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES, subframe: bool = False
+) -> float:
     """The shift (frames) maximizing the correlation of fused and view velocities; + = fused is late.
 
     Velocities are first differences of the group's joints, pooled over joints and axes; frames with a NaN
-    are left out per shift. NaN when fewer than 20 frames overlap at every shift.
+    are left out per shift. NaN when fewer than 20 frames overlap at every shift. ``subframe``: the peak is
+    refined by a parabola through the correlations at the best shift and its two neighbours (a timing
+    measure that slow offsets between the two cannot move: they hardly change the velocities).
     """
     vf = np.diff(np.asarray(fused, dtype=np.float64)[:, joints], axis=0).reshape(len(fused) - 1, -1)
     vv = np.diff(np.asarray(view, dtype=np.float64)[:, joints], axis=0).reshape(len(view) - 1, -1)
-    best, best_r = math.nan, -math.inf
     n = len(vf)
-    for shift in range(-max_lag, max_lag + 1):
+    shifts = np.arange(-max_lag, max_lag + 1)
+    r = np.full(len(shifts), -np.inf)
+    for k, shift in enumerate(shifts.tolist()):
         # fused[t + shift] against view[t]: a late fused output matches at a positive shift
         a = vf[max(shift, 0) : n + min(shift, 0)]
         b = vv[max(-shift, 0) : n + min(-shift, 0)]
@@ -125,10 +130,17 @@ def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_la
             continue
         x, y = a[ok], b[ok]
         denom = math.sqrt(float(np.sum(x * x)) * float(np.sum(y * y)))
-        r = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
-        if r > best_r:
-            best, best_r = float(shift), r
-    return best
+        r[k] = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
+    if not np.isfinite(r).any():
+        return math.nan
+    best = int(np.argmax(r))
+    lag = float(shifts[best])
+    if subframe and 0 < best < len(r) - 1 and np.isfinite(r[best - 1 : best + 2]).all():
+        left, mid, right = r[best - 1 : best + 2]
+        curvature = left - 2.0 * mid + right
+        if curvature < 0:
+            lag += float(0.5 * (left - right) / curvature)
+    return lag
 
 
 def gross_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray, limit_mm: float = GROSS_MM) -> float:
