@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_inputs import _recordings, write_offline_json
+from test_orientation import AIM_AXES
 
 from skelfuse.cli import main
 from skelfuse.eval.rig import (
@@ -106,14 +107,15 @@ def test_eval_real_on_json_views_with_auto_calibration(three_view_take, tmp_path
 
 def test_orientation_agreement_measures_the_twist_and_leaves_mirrored_views_out() -> None:
     """Hand-made: view 0 is the fused frame twisted 10° about each bone, view 1 twisted 40°, view 2 mirrored
-    left/right in every frame (its frames face the other way: left out, NaN)."""
+    left/right in every frame (its frames face the other way: left out, NaN). The bone is the local X axis, the
+    foot's direction at the ankles (the tracker's convention)."""
     truth = make_gesture("walking", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=1).positions
     fused_quats = apply_derived(body_hint_frames(truth))
     twist = {0: 10.0, 1: 40.0, 2: 10.0}
     view_quats = np.stack(
-        [quat_multiply(fused_quats, quat_from_rotvec(np.array([np.radians(twist[i]), 0.0, 0.0]))) for i in range(3)],
+        [quat_multiply(fused_quats, quat_from_rotvec(np.radians(twist[i]) * AIM_AXES)) for i in range(3)],
         axis=1,
-    )  # (T, 3, 32, 4): a rotation about the local X axis, which lies along the bone
+    )  # (T, 3, 32, 4): a rotation about the local axis that lies along the bone
     views = np.stack([truth, truth, truth[:, MIRROR]], axis=1)
     got = _orientation_agreement(fused_quats, truth, view_quats, views, ("a", "b", "c"))
     for group in ("torso", "arms", "legs"):

@@ -39,6 +39,7 @@ from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
 from skelfuse.sim.body_model import ar1
 from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
 from skelfuse.sim.joint_frames import (
+    AIM_OFFSETS,
     bone_directions,
     matrix_to_quat,
     quat_to_matrix,
@@ -247,5 +248,6 @@ def load_bvh_with_orientations(
     frames = np.full((motion.n_frames, N_JOINTS, 3, 3), np.nan)
     frames[:, joints] = axis_rotation("z", turn) @ segment_frames[source] @ offset
     aims = bone_directions(motion.positions)
-    frames = swing_matrix(frames[..., 0], aims) @ frames
+    frames = frames @ np.swapaxes(AIM_OFFSETS, -1, -2)  # aim frames (the ankles' X on the foot), swung, turned back
+    frames = swing_matrix(frames[..., 0], aims) @ frames @ AIM_OFFSETS
     return motion, matrix_to_quat(with_derived(frames))
