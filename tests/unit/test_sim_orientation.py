@@ -123,7 +123,22 @@ def test_views_report_truth_through_their_pose_with_the_modelled_noise(take):
     )
     exact = views_to_world(observe_orientations(obs, truth, seed=7, noise=quiet), obs.world_from_sensor)
     clean = obs.tracked & ~obs.mirrored
-    assert np.nanmax(quat_angle_deg(exact, truth[:, None])[clean]) < 0.01  # float32 rounding
+    ankles = np.array([J["ANKLE_LEFT"], J["ANKLE_RIGHT"]])
+    others = np.setdiff1d(np.arange(32), [*ankles, J["FOOT_LEFT"], J["FOOT_RIGHT"]])  # feet: copies of ankles
+    assert np.nanmax(quat_angle_deg(exact, truth[:, None])[clean][:, others]) < 0.01  # float32 rounding
+    # The ankles hold the view's own reported foot bone at the measured angle, as the real tracker's do: their
+    # error is that foot bone's direction error (the positions' noise), nothing else.
+    local = quat_rotate(exact[..., ankles, :], AIM_AXES[ankles])  # where the frame puts the foot, world
+    feet = [J["FOOT_LEFT"], J["FOOT_RIGHT"]]
+    bones = obs.positions[..., feet, :].astype(np.float64) - obs.positions[..., ankles, :]  # each sensor's frame
+    foot = np.einsum("sij,tskj->tski", obs.world_from_sensor[:, :3, :3], bones)
+    foot /= np.linalg.norm(foot, axis=-1, keepdims=True)
+    assert np.abs(local - foot)[clean].max() < 1e-5
+    assert np.median(quat_angle_deg(exact, truth[:, None])[clean][:, ankles]) > 5.0  # the feet's position error
+    # Derived joints copy their source's reported frame with the schema's offset, as the SDK's do.
+    for joint, (source, offset) in ORIENTATION_DERIVED.items():
+        turn = quat_angle_deg(views[..., joint, :], views[..., source, :])[obs.tracked]
+        assert np.allclose(turn, quat_angle_deg(np.array([1.0, 0, 0, 0]), np.array(offset)), atol=0.05)
 
 
 CMU = Path(__file__).resolve().parents[3] / "shared" / "data" / "cmu-mocap"
