@@ -147,6 +147,20 @@ def test_t_pose_frames_by_hand():
     assert abs(shin_tilt - (ANKLE_FOOT_ANGLE_DEG["ANKLE_LEFT"] - 90.0 - pitch)) < 1e-6
 
 
+def test_aim_frames_put_x_on_the_aim_bone_and_turn_back():
+    """An aim frame's X is where the joint's frame holds its aim bone (the ankles: the foot at the measured angle
+    about Z, by scipy here); the conversion is exact both ways and leaves every other joint as it is."""
+    q = _wxyz(Rotation.random(N_JOINTS, random_state=11))
+    aimed = orient.to_aim_frames(q)
+    np.testing.assert_allclose(orient.quat_rotate(aimed, [1.0, 0.0, 0.0]), orient.quat_rotate(q, AIM_AXES), atol=1e-12)
+    np.testing.assert_allclose(
+        orient.quat_rotate(aimed, [0.0, 0.0, 1.0]), orient.quat_rotate(q, [0.0, 0.0, 1.0]), atol=1e-12
+    )
+    others = np.setdiff1d(np.arange(N_JOINTS), [J[name] for name in ANKLE_FOOT_ANGLE_DEG])
+    np.testing.assert_array_equal(aimed[others], q[others])
+    assert np.allclose(orient.quat_angle_deg(orient.from_aim_frames(aimed), q), 0.0, atol=1e-6)
+
+
 def test_body_turned_90_deg_turns_every_frame():
     turn = Rotation.from_euler("z", 90, degrees=True)
     base = orient.apply_derived(orient.body_hint_frames(t_pose()))
