@@ -17,7 +17,7 @@ prediction there.
 
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
 option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
-full smoother.
+full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
 Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.
@@ -72,22 +72,48 @@ def forward_pass(
         raise ValueError(f"the RTS smoother needs the cv_kalman filter's motion model, got filter={params.filter!r}")
     z = np.asarray(z, dtype=np.float64)
     T, N, _ = z.shape
-    x, P, coast = init_filter_state(N)
-    shape = (T, N)
-    out = np.full((T, N, 3), np.nan)
-    xs, Ps = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
-    x_pred, P_pred = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
-    linked = np.zeros(shape, dtype=bool)
-    n_agree = np.asarray(n_agree).astype(np.int16)
-    for t in range(T):
-        dt = float(dt_s[t]) if t else 1.0 / 30.0
-        coast_in = np.where(restart[t], -1, coast)
+    track = _TrackFilter(*init_filter_state(N))
+    rows = [
+        track.step(z[t], n_agree[t], bool(restart[t]), float(dt_s[t]) if t else FIRST_DT_S, params) for t in range(T)
+    ]
+    return _stacked(rows, N)
+
+
+def _stacked(rows: list[tuple[np.ndarray, ...]], n_joints: int) -> ForwardPass:
+    """The :class:`ForwardPass` of ``rows`` ((out, x, P, x_pred, P_pred, linked) per frame)."""
+    if not rows:
+        vectors, triangles = np.zeros((0, n_joints, 2, 3)), np.zeros((0, n_joints, 3))
+        return ForwardPass(triangles, vectors, triangles, vectors, triangles, np.zeros((0, n_joints), bool))
+    out, x, P, x_pred, P_pred, linked = (np.stack(column) for column in zip(*rows, strict=True))
+    return ForwardPass(out=out, x=x, P=P, x_pred=x_pred, P_pred=P_pred, linked=linked)
+
+
+FIRST_DT_S = 1.0 / 30.0
+"""The time step given to a track's first frame (the filter starts there: it predicts nothing with it)."""
+
+
+@dataclass
+class _TrackFilter:
+    """The live filter's state of one track: position/velocity ``x`` (N, 2, 3), covariance ``P`` (N, 3) and
+    ``coast`` (N,), as :func:`filter_step` carries them."""
+
+    x: np.ndarray
+    P: np.ndarray
+    coast: np.ndarray
+
+    def step(
+        self, z: np.ndarray, n_agree: np.ndarray, restart: bool, dt: float, params: FusionParams
+    ) -> tuple[np.ndarray, ...]:
+        """One frame: the row (out, x, P, x_pred, P_pred, linked) of :class:`ForwardPass` it adds."""
+        coast_in = np.where(restart, -1, self.coast)
         cov_map, q_vec, state_map = _cv_model(dt, params.cv_accel_sigma_mm_s2)
-        x_pred[t], P_pred[t] = state_map @ x, P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
-        out[t], x, P, coast = filter_step(x, P, coast_in, z[t], n_agree[t], params, dt)
-        linked[t] = (coast_in >= 0) & (coast >= 0)
-        xs[t], Ps[t] = x, P
-    return ForwardPass(out=out, x=xs, P=Ps, x_pred=x_pred, P_pred=P_pred, linked=linked)
+        x_pred, P_pred = state_map @ self.x, self.P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
+        z = np.asarray(z, dtype=np.float64)
+        out, self.x, self.P, self.coast = filter_step(
+            self.x, self.P, coast_in, z, np.asarray(n_agree).astype(np.int16), params, dt
+        )
+        linked = (coast_in >= 0) & (self.coast >= 0)
+        return out, self.x, self.P, x_pred, P_pred, linked
 
 
 def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
@@ -140,12 +166,16 @@ def fixed_lag_smooth(
     T = fwd.out.shape[0]
     result = fwd.x[:, :, 0].copy()
     for t in range(T):
-        end = min(t + int(lag), T - 1)
-        state = fwd.x[end]
-        for k in range(end - 1, t - 1, -1):
-            state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
-        result[t] = state[:, 0]
+        result[t] = _smoothed_from(fwd, dt_s, t, min(t + int(lag), T - 1))
     return np.where(np.isfinite(fwd.out), result, np.nan)
+
+
+def _smoothed_from(fwd: ForwardPass, dt_s: np.ndarray, t: int, end: int) -> np.ndarray:
+    """(N, 3) the position of frame ``t`` smoothed backward from the filtered state of frame ``end``."""
+    state = fwd.x[end]
+    for k in range(end - 1, t - 1, -1):
+        state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
+    return state[:, 0]
 
 
 def smooth_tracks(
@@ -199,3 +229,93 @@ def smooth_tracks(
 def _restarted_at(restarted: np.ndarray | None, row: int) -> bool:
     """Whether the follow rule restarted row ``row``'s filter at this instant (None: no plausibility stage)."""
     return restarted is not None and bool(restarted[row])
+
+
+@dataclass
+class _TrackWindow:
+    """One live track for :class:`FixedLagSmoother`: its filter and its last frames' :class:`ForwardPass` rows."""
+
+    filter: _TrackFilter
+    last_time_s: float
+    instants: list[int]  # the instant of each kept row, increasing
+    rows: list[tuple[np.ndarray, ...]]  # (out, x, P, x_pred, P_pred, linked) per kept row
+    dt_s: list[float]
+
+
+class FixedLagSmoother:
+    """Fixed-lag smoothing of the live tracks, instant by instant: the live fusion's instants in, each one
+    back ``lag`` instants later, smoothed by the frames up to then.
+
+    Per track it runs the live filter over the merged measurements (:func:`forward_pass`'s step, so the
+    filtered states are the live output's) and keeps the last ``lag`` + 1 frames; an instant is released once
+    ``lag`` more instants arrived, each of its tracks smoothed backward from its newest frame. The result is
+    :func:`fixed_lag_smooth` (through :func:`smooth_tracks`) over the same stream, frame for frame:
+
+    - a new track starts its own window (the backward pass never crosses a track start or a restart);
+    - a track that ends (absent from an instant: ids are never reused) has its last frames smoothed from
+      what there is, its last frame included: its tail is flushed, not dropped;
+    - frames inside a track without a measurement (coasting, up to ``max_coast_frames``) get the smoothed
+      interpolation, as offline; a gap between instants only lengthens the time step;
+    - :meth:`flush` releases the instants still held (the end of the stream), smoothed from what there is.
+    """
+
+    def __init__(self, params: FusionParams, lag: int) -> None:
+        if params.filter != "cv_kalman":
+            raise ValueError(f"fixed-lag smoothing needs the cv_kalman filter's motion model, got {params.filter!r}")
+        if int(lag) < 1:
+            raise ValueError(f"the fixed lag must be at least 1 frame, got {lag!r}")
+        self.params = params
+        self.lag = int(lag)
+        self._tracks: dict[int, _TrackWindow] = {}
+        self._held: list[tuple[int, np.ndarray, tuple[int, ...]]] = []  # (instant, track ids, positions' shape)
+        self._count = 0
+
+    def push(
+        self,
+        time_s: float,
+        track_ids: np.ndarray,
+        merged: np.ndarray,
+        n_agree: np.ndarray,
+        restarted: np.ndarray | None,
+    ) -> np.ndarray | None:
+        """Add one instant (as :func:`smooth_tracks` takes it); return the smoothed (P, J, 3) positions of the
+        instant ``lag`` instants back, in its track order, or None while fewer have arrived."""
+        instant = self._count
+        self._count += 1
+        ids = np.asarray(track_ids).tolist()
+        for row, track_id in enumerate(ids):
+            self._add(int(track_id), instant, float(time_s), merged[row], n_agree[row], _restarted_at(restarted, row))
+        self._held.append((instant, np.asarray(track_ids), np.shape(merged)))
+        return self._release() if len(self._held) > self.lag else None
+
+    def flush(self) -> list[np.ndarray]:
+        """The instants still held, oldest first, each smoothed from what there is."""
+        return [self._release() for _ in range(len(self._held))]
+
+    def _add(self, track_id: int, instant: int, time_s: float, z: np.ndarray, agree: np.ndarray, restart: bool) -> None:
+        window = self._tracks.get(track_id)
+        if window is None:
+            window = _TrackWindow(_TrackFilter(*init_filter_state(z.shape[0])), time_s, [], [], [])
+            self._tracks[track_id] = window
+            dt = FIRST_DT_S
+        else:
+            dt = time_s - window.last_time_s
+        window.rows.append(window.filter.step(z, agree, restart, dt, self.params))
+        window.instants.append(instant)
+        window.dt_s.append(dt)
+        window.last_time_s = time_s
+
+    def _release(self) -> np.ndarray:
+        instant, ids, shape = self._held.pop(0)
+        out = np.full(shape, np.nan)
+        for row, track_id in enumerate(ids.tolist()):
+            window = self._tracks[int(track_id)]
+            fwd = _stacked(window.rows, shape[1])
+            t = window.instants.index(instant)
+            smoothed = _smoothed_from(fwd, np.asarray(window.dt_s), t, len(window.rows) - 1)
+            out[row] = np.where(np.isfinite(fwd.out[t]), smoothed, np.nan)
+            del window.instants[: t + 1], window.rows[: t + 1], window.dt_s[: t + 1]  # never needed again
+        # A track without frames left ended at or before this instant (a live one has a frame in every later one).
+        for track_id in [k for k, w in self._tracks.items() if not w.instants]:
+            del self._tracks[track_id]
+        return out
