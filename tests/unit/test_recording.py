@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
-from test_orientation import AIM_AXES
 
 import skelfuse
 from skelfuse.config import FusionConfig, RigConfig, SensorConfig
@@ -490,6 +489,8 @@ def test_replay_paces_by_log_time(tmp_path: Path) -> None:
 
 
 def test_offline_smoothing_lowers_the_jitter_and_the_error(tmp_path: Path) -> None:
+    from test_orientation import AIM_AXES  # here: a child process imports this module without the tests' path
+
     path = tmp_path / "synthetic.mcap"
     write_synthetic(path, rig_poses(), 120, store_calibration=True, drop={(0, 60), (1, 60)})
     live = list(fuse_recording(path, progress=False, smoother="none"))
