@@ -11,7 +11,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -71,10 +71,11 @@ class Processes:
         self.log_dir = log_dir
         self.started: list[subprocess.Popen[bytes]] = []
 
-    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+    def start(self, name: str, *args: str, via: Sequence[str] = ("-m", "skelfuse")) -> subprocess.Popen[bytes]:
+        """``python -m skelfuse ARGS`` (``via``: what runs instead of ``-m skelfuse``, e.g. a test's launcher)."""
         log = open(self.log_dir / f"{name}.log", "ab")
         process = subprocess.Popen(
-            [sys.executable, "-m", "skelfuse", *args],
+            [sys.executable, *via, *args],
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -172,9 +173,12 @@ def worker_args(config: Path, port: int, sensor_id: str, *extra: str, listener: 
     ]
 
 
-def start_node(processes: Processes, config: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Listener]:
-    """The node as a subprocess, and a listener that has seen its first status (so it is subscribed)."""
-    node = processes.start("node", *node_args(config, port, *extra))
+def start_node(
+    processes: Processes, config: Path, port: int, *extra: str, via: Sequence[str] = ("-m", "skelfuse")
+) -> tuple[subprocess.Popen[bytes], Listener]:
+    """The node as a subprocess (``via``: see :meth:`Processes.start`), and a listener that has seen its first
+    status (so it is subscribed)."""
+    node = processes.start("node", *node_args(config, port, *extra), via=via)
     assert wait_for_port(port, timeout_s=60.0), f"the node never listened on {port}:\n{processes.log(node)}"
     listener = Listener(port)
     listener.wait_for(
