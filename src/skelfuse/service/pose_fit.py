@@ -120,26 +120,27 @@ class PoseFitMonitor:
             return distance
         if contributors is None or contributors.shape != (n_people, n_sensors):  # depth mode fuses other views
             contributors, held_out = np.ones((n_people, n_sensors), dtype=bool), None
+        # The rules that need no geometry first: most instants of a small rig stop here or skip the rest.
+        counts = contributors.sum(axis=1)  # (P,)
+        supported = counts >= 2  # persons two sensors or more agree on
+        usable = (counts[None, :] - contributors.T >= self.min_other_sensors) & supported[None, :]  # (S, P)
+        if held_out is not None:
+            held = held_out.T
+            usable &= (held != UPSIDE_DOWN) & (held != BONES)
+        if not usable.any():
+            return distance
         people = fused[:, TORSO_TRACKING_JOINTS]  # (P, J, 3)
         gaps = _torso_gaps(sensors_world[:, :, TORSO_TRACKING_JOINTS], people)  # (S, B, P)
-        supported = contributors.sum(axis=1) >= 2  # (P,) persons two sensors or more agree on
-        between = _torso_gaps(people[None], people)[0]  # (P, P)
-        np.fill_diagonal(between, np.inf)
-        isolated = np.where(supported[None, :], between, np.inf).min(axis=1) >= self.isolation_mm  # (P,)
-        others = contributors.sum(axis=1)[None, :] - contributors.T  # (S, P) other sensors behind each person
-        usable = (others >= self.min_other_sensors) & (isolated & supported)[None, :]
-        if held_out is not None:
-            usable &= ~np.isin(held_out.T, (UPSIDE_DOWN, BONES))
-        nearest_body = gaps.argmin(axis=1)  # (S, P) each sensor's body nearest to each person
-        gap = np.take_along_axis(gaps, nearest_body[:, None, :], axis=1)[:, 0, :]  # (S, P)
-        # ... and that body must be nearest to this person among the supported ones (whose body is whose).
-        to_supported = np.where(supported[None, None, :], gaps, np.inf)  # (S, B, P)
-        body_owner = to_supported.argmin(axis=2)  # (S, B)
-        owner = np.take_along_axis(body_owner, nearest_body, axis=1)  # (S, P)
-        usable &= (owner == np.arange(n_people)[None, :]) & np.isfinite(gap)
+        if n_people == 1:  # alone: nobody to mistake them for
+            gap = gaps.min(axis=1)  # (S, 1)
+        else:
+            nearest_body = gaps.argmin(axis=1)  # (S, P) each sensor's body nearest to each person
+            gap = np.take_along_axis(gaps, nearest_body[:, None, :], axis=1)[:, 0, :]  # (S, P)
+            usable &= _unambiguous(people, supported, gaps, nearest_body, self.isolation_mm)
+        usable &= np.isfinite(gap)
         values = np.where(usable, gap, np.nan)
         seen = usable.any(axis=1)
-        distance[seen] = nanmedian_axis(values[seen], 1)
+        distance[seen] = values[seen, 0] if n_people == 1 else nanmedian_axis(values[seen], 1)
         return distance
 
     def _medians(self) -> tuple[np.ndarray, np.ndarray]:
@@ -181,3 +182,17 @@ def _torso_gaps(bodies: np.ndarray, people: np.ndarray) -> np.ndarray:
     gaps = np.sqrt((offsets * offsets).sum(axis=-1)).mean(axis=-1)
     gaps[np.isnan(gaps)] = np.inf
     return gaps
+
+
+def _unambiguous(
+    people: np.ndarray, supported: np.ndarray, gaps: np.ndarray, nearest_body: np.ndarray, isolation_mm: float
+) -> np.ndarray:
+    """(S, P): the person stands ``isolation_mm`` or more from every other supported person, and the sensor's body
+    nearest to them is nearer to them than to any other supported person (whose body is whose is not in doubt).
+    ``people`` (P, J, 3) torso joints, ``supported`` (P,), ``gaps`` (S, B, P), ``nearest_body`` (S, P)."""
+    between = _torso_gaps(people[None], people)[0]  # (P, P)
+    np.fill_diagonal(between, np.inf)
+    isolated = np.where(supported[None, :], between, np.inf).min(axis=1) >= isolation_mm  # (P,)
+    body_owner = np.where(supported[None, None, :], gaps, np.inf).argmin(axis=2)  # (S, B)
+    owner = np.take_along_axis(body_owner, nearest_body, axis=1)  # (S, P)
+    return (owner == np.arange(people.shape[0])[None, :]) & isolated[None, :]
