@@ -20,7 +20,7 @@ from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
-from waiting import wait_until
+from waiting import SCHEDULING_ALLOWANCE_S, wait_until
 
 RIG = "svc"
 
@@ -34,8 +34,11 @@ def write_rig(
     status_period_s: float = 0.25,
     n_sensors: int = 4,
     sim_clocks: dict[int, tuple[float, float]] | None = None,
+    max_lag_s: float = SCHEDULING_ALLOWANCE_S,
 ) -> Path:
-    """A sim rig; ``sim_clocks``: sensor index -> (clock offset ms, clock jitter ms) of its emulated PC."""
+    """A sim rig; ``sim_clocks``: sensor index -> (clock offset ms, clock jitter ms) of its emulated PC.
+    ``max_lag_s``: the node's lag bound; by default as long as a starved machine may hold a thread, so tests
+    that count every instant lose none to a stall (the overload test passes the product's default)."""
     tolerance = tolerance_ms if tolerance_ms is not None else (10.0 if by == "device" else 13.0)
     lines = [
         "[rig]",
@@ -49,6 +52,7 @@ def write_rig(
         "",
         "[node]",
         f"status_period_s = {status_period_s}",
+        f"max_lag_s = {max_lag_s}",
         "",
         "[zenoh]",
         "multicast_scouting = false",

@@ -20,7 +20,7 @@ import pytest
 from service_helpers import Processes, start_node, write_rig
 
 from skelfuse.bench.latency import synthetic_frames
-from skelfuse.config import load_rig_config
+from skelfuse.config import NodeConfig, load_rig_config
 from skelfuse.service.node import NodeOptions
 from skelfuse.service.zenoh_io import free_port, loopback_config
 from skelfuse.wire import keys
@@ -40,7 +40,7 @@ def test_an_overloaded_node_sheds_the_oldest_instants_and_stays_within_its_lag_b
 ) -> None:
     import zenoh
 
-    config = write_rig(tmp_path)
+    config = write_rig(tmp_path, max_lag_s=NodeConfig().max_lag_s)  # the product's default bound
     cfg = load_rig_config(config)
     bound_s = cfg.node.max_lag_s + 2 * COST_MS / 1000 + cfg.sync.deadline_ms / 1000 + cfg.node.status_period_s
     port = free_port()
