@@ -141,9 +141,12 @@ def test_a_stopped_subscriber_holds_the_publisher_once_for_at_most_the_bound(tmp
     received, report = run_subscriber(tmp_path, [], STOPPED_PUTS + 45, [(0.0, STOPPED_PUTS / 30.0)])
     assert report["congestion_control"] == "drop" and report["bound_ms"] == 250
     assert report["reached_bound"] >= 1, f"the stop never congested the link: {report}"
-    # The caller (the node's loop) is held the bound, plus what a loaded machine adds to one wait, and
-    # not again and again: while the link stays full, frames drop without waiting.
-    assert report["held_max_ms"] < 250 + 150, report
+    # The caller (the node's loop) is held about the bound once, not for the stop: a put that blocked until
+    # the link drained would be held the whole stop, so the line between the two lies halfway between the
+    # bound and the stop's length (scheduling on a loaded machine only lengthens one wait, by far less).
+    # And not again and again: while the link stays full, frames drop without waiting.
+    stop_ms = 1000.0 * STOPPED_PUTS / 30.0
+    assert report["held_max_ms"] < report["bound_ms"] + (stop_ms - report["bound_ms"]) / 2, report
     assert report["reached_bound"] <= 3, report
     lost_while_stopped = STOPPED_PUTS - len([k for k in received if k < STOPPED_PUTS])
     assert lost_while_stopped > 0

@@ -215,6 +215,10 @@ class FusionConfig:
     """What the node outputs: "skeleton" (skeleton fusion), "depth" (the skeleton a body tracker finds on each
     person's fused virtual depth image, ``docs/depth-fusion.md``) or "hybrid" (that skeleton enters skeleton
     fusion as one more, virtual, sensor). Settings of the depth path: ``[depth]`` (:class:`DepthConfig`)."""
+    fixed_lag_frames: int = 0
+    """Above 0, the live node publishes each instant this many frames later, smoothed by the fixed-lag smoother
+    over the filter's motion model (``skelfuse.rig.smoothing.LiveFixedLag``); 0 publishes the live filter's
+    output at once."""
 
     def fusion_params(self) -> FusionParams:
         """The :class:`skelfuse.fusion.presets.FusionParams` this section describes.

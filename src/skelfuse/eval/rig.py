@@ -40,6 +40,10 @@ The metrics (all in mm unless said; docs/evaluation.md says what each can and ca
     a preset with the constant-velocity filter is reported three ways: the live filter's output (its name),
     the fixed-lag smoother at 3 instants (100 ms at 30 fps) and the fixed-interval RTS smoother of offline
     fusion and exports (:mod:`skelfuse.fusion.smoother`).
+``orientation``
+    per group, the median twist about the bone between each view's joint orientations and the fused ones; per
+    aimed joint, the median full angle between them (pooled over the views and per view), beside the median
+    angle between the views' own frames (no fused frame can be close to views that disagree with each other).
 ``track_ids``
     distinct track ids the fused person had over the take (1 = never lost).
 ``leave-one-out`` (N >= 3)
@@ -67,13 +71,13 @@ from skelfuse.eval.metrics import view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
 from skelfuse.eval.view_mirroring import view_mirroring
 from skelfuse.fusion import presets
-from skelfuse.fusion.orientation import views_to_world
+from skelfuse.fusion.orientation import quat_angle_deg, views_to_world
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES, N_JOINTS, Confidence, J
+from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES, N_JOINTS, ORIENTATION_AIMED, Confidence, J
 
 REPORT_GROUPS: dict[str, np.ndarray] = {
     name: np.concatenate([BODY_REGIONS[r] for r in regions])
@@ -106,17 +110,22 @@ def median_jitter(positions: np.ndarray, joints: np.ndarray) -> float:
     return float(np.median(second)) if second.size else math.nan
 
 
-def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES) -> float:
+def velocity_lag(
+    fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES, subframe: bool = False
+) -> float:
     """The shift (frames) maximizing the correlation of fused and view velocities; + = fused is late.
 
     Velocities are first differences of the group's joints, pooled over joints and axes; frames with a NaN
-    are left out per shift. NaN when fewer than 20 frames overlap at every shift.
+    are left out per shift. NaN when fewer than 20 frames overlap at every shift. ``subframe``: the peak is
+    refined by a parabola through the correlations at the best shift and its two neighbours (a timing
+    measure that slow offsets between the two cannot move: they hardly change the velocities).
     """
     vf = np.diff(np.asarray(fused, dtype=np.float64)[:, joints], axis=0).reshape(len(fused) - 1, -1)
     vv = np.diff(np.asarray(view, dtype=np.float64)[:, joints], axis=0).reshape(len(view) - 1, -1)
-    best, best_r = math.nan, -math.inf
     n = len(vf)
-    for shift in range(-max_lag, max_lag + 1):
+    shifts = np.arange(-max_lag, max_lag + 1)
+    r = np.full(len(shifts), -np.inf)
+    for k, shift in enumerate(shifts.tolist()):
         # fused[t + shift] against view[t]: a late fused output matches at a positive shift
         a = vf[max(shift, 0) : n + min(shift, 0)]
         b = vv[max(-shift, 0) : n + min(-shift, 0)]
@@ -125,10 +134,17 @@ def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_la
             continue
         x, y = a[ok], b[ok]
         denom = math.sqrt(float(np.sum(x * x)) * float(np.sum(y * y)))
-        r = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
-        if r > best_r:
-            best, best_r = float(shift), r
-    return best
+        r[k] = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
+    if not np.isfinite(r).any():
+        return math.nan
+    best = int(np.argmax(r))
+    lag = float(shifts[best])
+    if subframe and 0 < best < len(r) - 1 and np.isfinite(r[best - 1 : best + 2]).all():
+        left, mid, right = r[best - 1 : best + 2]
+        curvature = left - 2.0 * mid + right
+        if curvature < 0:
+            lag += float(0.5 * (left - right) / curvature)
+    return lag
 
 
 def gross_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray, limit_mm: float = GROSS_MM) -> float:
@@ -189,6 +205,7 @@ class RigEvalResult:
     continuity: dict[str, dict[str, int]] = field(default_factory=dict)
     leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     orientation_agreement: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    orientation_by_joint: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     view_mirroring: dict[str, dict[str, float]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
 
@@ -385,6 +402,9 @@ def run_rig_eval(
             result.orientation_agreement[name] = _orientation_agreement(
                 quats, fused_by_preset[name], view_quats, views, ids
             )
+            result.orientation_by_joint[name] = _orientation_by_joint(
+                quats, fused_by_preset[name], view_quats, views, ids
+            )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
     result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated], seen_views))
     for label, seq in candidates.items():
@@ -454,6 +474,16 @@ def _leave_one_out(
     return out
 
 
+def _unmirrored(view_quats: np.ndarray, views: np.ndarray, fused: np.ndarray) -> np.ndarray:
+    """(T, S, 32, 4) the views' orientations, NaN in the frames where that view is left/right mirrored against the
+    fused skeleton (its frames then face the other way)."""
+    out = view_quats.copy()
+    for i in range(views.shape[1]):
+        flipped, _ = mirrored_frames(views[:, i], fused[None])
+        out[flipped, i] = np.nan
+    return out
+
+
 def _orientation_agreement(
     fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
 ) -> dict[str, dict[str, float]]:
@@ -461,10 +491,7 @@ def _orientation_agreement(
     ones, leaving out the frames where that view is left/right mirrored against the fused skeleton (its frames
     then face the other way). Only the twist about the bone is compared: the swing follows the fused positions
     by construction (:func:`skelfuse.eval.metrics.view_orientation_agreement`)."""
-    views_quats = view_quats.copy()
-    for i in range(len(ids)):
-        flipped, _ = mirrored_frames(views[:, i], fused[None])
-        views_quats[flipped, i] = np.nan
+    views_quats = _unmirrored(view_quats, views, fused)
     angles = view_orientation_agreement(fused_quats, fused, views_quats, twist_only=True)  # (T, S, 32)
     out: dict[str, dict[str, float]] = {}
     for group, joints in REPORT_GROUPS.items():
@@ -473,6 +500,33 @@ def _orientation_agreement(
             values = angles[:, i][:, joints]
             values = values[np.isfinite(values)]
             out[group][sid] = float(np.median(values)) if values.size else math.nan
+    return out
+
+
+def _nanmedian(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else math.nan
+
+
+def _orientation_by_joint(
+    fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """Per aimed joint: the median full angle (degrees) between the fused orientation and the views' (``"views"``:
+    pooled over the views; one key per view), and ``"between views"``: the median angle between every two views'
+    own frames. Mirrored frames are left out as in :func:`_orientation_agreement`."""
+    views_quats = _unmirrored(view_quats, views, fused)
+    angles = view_orientation_agreement(fused_quats, fused, views_quats)  # (T, S, 32), full angle
+    n_views = views_quats.shape[1]
+    pairs = [
+        quat_angle_deg(views_quats[:, a], views_quats[:, b]) for a in range(n_views) for b in range(a + 1, n_views)
+    ]
+    between = np.stack(pairs, axis=1)  # (T, pairs, 32)
+    out: dict[str, dict[str, float]] = {}
+    for joint in np.flatnonzero(ORIENTATION_AIMED):
+        row = {"views": _nanmedian(angles[:, :, joint])}
+        row.update({sid: _nanmedian(angles[:, i, joint]) for i, sid in enumerate(ids)})
+        row["between views"] = _nanmedian(between[:, :, joint])
+        out[JOINT_NAMES[joint]] = row
     return out
 
 
@@ -552,6 +606,7 @@ def format_markdown(result: RigEvalResult) -> str:
             for group, per_view in per_group.items():
                 cells = " | ".join(_f(per_view.get(s, math.nan)) for s in result.sensors)
                 lines.append(f"| {name} | {group} | {cells} |")
+    lines += _orientation_by_joint_lines(result)
     if result.leave_one_out:
         lines += ["", "## Leave-one-out (median distance to the held-out view, mm)", ""]
         for name, per_held in result.leave_one_out.items():
@@ -561,6 +616,24 @@ def format_markdown(result: RigEvalResult) -> str:
     if result.plots:
         lines += ["", "## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in result.plots]
     return "\n".join(lines)
+
+
+def _orientation_by_joint_lines(result: RigEvalResult) -> list[str]:
+    """Per preset and aimed joint, the median full angle of the fused orientation to the views (docs/orientations.md
+    says how to read it)."""
+    lines: list[str] = []
+    for name, per_joint in result.orientation_by_joint.items():
+        lines += [
+            "",
+            f"## Orientation per joint, {name} (median angle between the fused and the views' frames, degrees)",
+            "",
+            "| joint | to the views | " + " | ".join(result.sensors) + " | between the views |",
+            "|---|---|" + "---|" * len(result.sensors) + "---|",
+        ]
+        for joint, row in per_joint.items():
+            cells = " | ".join(_f(row.get(s, math.nan)) for s in result.sensors)
+            lines.append(f"| {joint} | {_f(row['views'])} | {cells} | {_f(row['between views'])} |")
+    return lines
 
 
 def _view_mirroring_lines(result: RigEvalResult) -> list[str]:

@@ -23,6 +23,7 @@ from skelfuse.fusion.plausibility import HOLD_REASONS
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
+from skelfuse.rig.smoothing import LiveFixedLag
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.service.shedding import LagShedder
 from skelfuse.wire import keys
@@ -121,6 +122,16 @@ class FusedOutput:
         return people.positions, people.contributors, people.held_out
 
 
+@dataclass(frozen=True)
+class _Beside:
+    """What is published beside a fused frame, held with it while a fixed lag delays it."""
+
+    sensors_world: np.ndarray
+    complete: bool
+    clouds: tuple[Any, ...]
+    people: PeopleResult | None = None
+
+
 @dataclass
 class _SensorWindow:
     received: int = 0
@@ -144,6 +155,9 @@ class FusionCore:
         The first track id (the live node passes :func:`time_based_first_track_id`).
     depth : DepthStage, optional
         ``[fusion] mode`` depth / hybrid: fuses each instant instead of the plain GroupFuser step.
+    fixed_lag_frames : int, optional
+        Overrides ``cfg.fusion.fixed_lag_frames``: above 0, each instant is published that many instants later,
+        smoothed by the fixed-lag smoother (:class:`skelfuse.rig.smoothing.LiveFixedLag`).
 
     An instant is shed instead of fused when it is older than ``[node] max_lag_s`` at its turn
     (:class:`~skelfuse.service.shedding.LagShedder`); its age is measured from the clock the caller passes as
@@ -170,6 +184,7 @@ class FusionCore:
         poses: np.ndarray | None = None,
         first_track_id: int = 1,
         depth: DepthStage | None = None,
+        fixed_lag_frames: int | None = None,
     ) -> None:
         self.cfg = cfg
         self.sensor_ids = cfg.sensor_ids
@@ -191,6 +206,8 @@ class FusionCore:
             max_persons=self.intake.max_persons,
             first_track_id=first_track_id,
         )
+        lag = cfg.fusion.fixed_lag_frames if fixed_lag_frames is None else int(fixed_lag_frames)
+        self.fixed_lag: LiveFixedLag[_Beside] | None = LiveFixedLag(self.params, lag) if lag > 0 else None
         self.frames_in = 0
         self.frames_out = 0
         self.groups_complete = 0
@@ -202,6 +219,11 @@ class FusionCore:
         self._logged_rejects: Counter[tuple[str, str]] = Counter()
         self.shedder = LagShedder(cfg.node.max_lag_s, what=f"fusion node {cfg.node.name or 'fusion'}")
         self._last_fusion_ms: float | None = None
+
+    @property
+    def fixed_lag_frames(self) -> int:
+        """Instants each fused frame is held back for fixed-lag smoothing (0: published at once)."""
+        return 0 if self.fixed_lag is None else self.fixed_lag.lag
 
     # -- input --------------------------------------------------------------------------------------------
 
@@ -267,8 +289,13 @@ class FusionCore:
         return self._fuse_groups(groups, trigger_arrival_ns=None, now_ns=now_ns)
 
     def flush(self, now_ns: int | None = None) -> list[FusedOutput]:
-        """Every open instant (shutdown); with ``now_ns``, those older than the bound are shed."""
-        return self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None, now_ns=now_ns)
+        """Every open instant (shutdown; with ``now_ns``, those older than the bound are shed), then, with a fixed
+        lag, every instant it still holds."""
+        out = self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None, now_ns=now_ns)
+        if self.fixed_lag is not None:
+            tick = time.perf_counter_ns()
+            out += [self._output(frame, beside, tick, None) for beside, frame in self.fixed_lag.flush()]
+        return out
 
     def _reject(self, sensor_id: str, reason: str, message: str) -> None:
         self.rejects.setdefault(sensor_id, Counter())[reason] += 1
@@ -303,9 +330,11 @@ class FusionCore:
                     continue
                 self.shedder.fused(now)
             try:
-                out.append(self._fuse(group, trigger))
+                out += self._fuse(group, trigger)
             except Exception as exc:  # never expected (caps keep frames encodable): a daemon must not die of it
                 self.fuser.reset()  # the tracks start afresh; the next instant is fused as usual
+                if self.fixed_lag is not None:  # the instants it held are lost with the tracks
+                    self.fixed_lag = LiveFixedLag(self.params, self.fixed_lag.lag)
                 if not isinstance(exc, ValueError):  # a bug in the core: its trace once per kind, for the report
                     first = not any(FUSION_ERROR in counter for counter in self.rejects.values())
                     log.error("the fusion step raised %s: a bug, please report it", type(exc).__name__, exc_info=first)
@@ -316,30 +345,40 @@ class FusionCore:
                 )
         return out
 
-    def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> FusedOutput:
+    def _fuse(self, group: FrameGroup, trigger_arrival_ns: int | None) -> list[FusedOutput]:
+        """The instant's output; with a fixed lag, the one ``lag`` instants back instead (none at first)."""
         tick = time.perf_counter_ns()
         depth = self.depth
         instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
-        fused = instant.frame
         if instant.people.held_out is not None:
-            count_held_out(self.held_out, instant.people.held_out, fused.sensor_ids)
-        payload = encode_fused_frame(fused)
-        self.frames_out += 1
-        fusion_ns = time.perf_counter_ns() - tick
-        self._last_fusion_ms = fusion_ns / 1e6
+            count_held_out(self.held_out, instant.people.held_out, instant.frame.sensor_ids)
+        beside = _Beside(
+            instant.sensors_world, group.complete, () if depth is None else depth.last_clouds, instant.people
+        )
+        if self.fixed_lag is None:
+            out = [self._output(instant.frame, beside, tick, trigger_arrival_ns)]
+        else:
+            out = [self._output(f, b, tick, trigger_arrival_ns) for b, f in self.fixed_lag.push(instant, beside)]
+        self._last_fusion_ms = (time.perf_counter_ns() - tick) / 1e6
         if group.complete:
             self.groups_complete += 1
         else:
             self.groups_partial += 1
+        return out
+
+    def _output(self, frame: FusedFrame, beside: _Beside, tick: int, trigger_arrival_ns: int | None) -> FusedOutput:
+        payload = encode_fused_frame(frame)
+        self.frames_out += 1
+        elapsed = time.perf_counter_ns() - tick
         return FusedOutput(
-            fused,
+            frame,
             payload,
-            instant.sensors_world,
-            fusion_ns,
+            beside.sensors_world,
+            elapsed,
             trigger_arrival_ns,
-            group.complete,
-            () if depth is None else depth.last_clouds,
-            instant.people,
+            beside.complete,
+            beside.clouds,
+            beside.people,
         )
 
     # -- status -------------------------------------------------------------------------------------------

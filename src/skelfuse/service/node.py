@@ -178,6 +178,14 @@ class _Declared:
     clouds: Any  # the person-cloud subscriber (depth / hybrid mode), else None
 
 
+def fixed_lag_line(lag_frames: int, fps: float) -> str:
+    """What the node says at start about ``[fusion] fixed_lag_frames``: the latency it adds."""
+    return (
+        f"fixed-lag smoothing over {lag_frames} frames adds {1000.0 * lag_frames / fps:.1f} ms of latency "
+        f"({lag_frames} frames at {fps:g} fps): each fused frame is published {lag_frames} instants later, smoothed"
+    )
+
+
 class FusionNode:
     """The fusion node's zenoh shell around :class:`FusionCore` (see the module docstring).
 
@@ -337,6 +345,8 @@ class FusionNode:
             keys.fused_skeletons(rig),
         )
         log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
+        if self.core.fixed_lag_frames:
+            log.info("fusion node %s: %s", self.name, fixed_lag_line(self.core.fixed_lag_frames, self.cfg.sync.fps))
         if self.depth is not None:
             log.info("fusion node %s: depth-level fusion, %s", self.name, self.depth.describe())
 
@@ -461,6 +471,7 @@ class FusionNode:
                     fusion_ms,
                     added_ms,
                     self._rates,
+                    agreement_mm=out.frame.agreement_mm,
                 )
                 if out.clouds:
                     view.log_clouds((out.frame.time_us - self._first_time_us) / 1e6, out.clouds)
@@ -545,6 +556,7 @@ class FusionNode:
             "shed_episodes": shedder.episodes,
             "window_s": round(window_s, 4),
             "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
+            "fixed_lag_ms": round(1000.0 * core.fixed_lag_frames / self.cfg.sync.fps, 3),
             "sensors": sensors,
             "pose_fit": pose_fit,
             "unknown_ids": stats.unknown_ids,
