@@ -42,7 +42,6 @@ ALLOWED: dict[str, int] = {
     "src/skelfuse/fusion/orientation.py": 1,
     "src/skelfuse/profiles/azure_kinect.toml": 7,
     "src/skelfuse/rig/grouping.py": 1,
-    "src/skelfuse/service/pose_fit.py": 1,
     "src/skelfuse/service/zenoh_io.py": 1,
     "src/skelfuse/service/zenoh_log.py": 1,
     "tests/export/test_export_armature.py": 1,
@@ -57,7 +56,6 @@ ALLOWED: dict[str, int] = {
     "tests/unit/test_inputs.py": 1,
     "tests/unit/test_node_intake.py": 1,
     "tests/unit/test_node_loop.py": 2,
-    "tests/unit/test_pose_fit.py": 1,
     "tests/unit/test_realism.py": 1,
     "tests/unit/test_session_close.py": 1,
 }
