@@ -15,9 +15,16 @@ plausibility stage's follow rule): a segment is smoothed on its own. Frames with
 segment (a gap of at most ``max_coast_frames``) get the smoothed interpolation; the live filter had only a
 prediction there.
 
+The white-noise acceleration of the live model suits everyday motion but rounds off a jump's take-off and
+landing (smoothed in both directions, the error's second difference grows as the view noise's falls). The
+offline default therefore runs a second, adaptive pass: per axis, with the process noise raised where the
+first pass saw hard acceleration (:func:`adaptive_accel_sigma`); elsewhere the model is the live one.
+
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
 option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
-full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node.
+full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node. The offline
+form can run a causal version of the adaptive pass (:func:`causal_accel_sigma`: the live filter's own
+velocity changes in the frames before), off by default.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
 Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.
@@ -31,6 +38,12 @@ import numpy as np
 
 from skelfuse.fusion.filters import _cv_model, filter_step, init_filter_state
 from skelfuse.fusion.presets import FusionParams
+
+ADAPTIVE_GAIN = 1.5
+"""Process noise per unit of first-pass acceleration (see :func:`adaptive_accel_sigma`; chosen on the training
+seeds of ``scripts/smoothing_targets.py``)."""
+ADAPTIVE_SPREAD = 5
+"""Frames on either side over which a first-pass acceleration sets the process noise."""
 
 SMOOTHERS: tuple[str, ...] = ("rts", "none")
 """Offline smoother names: the fixed-interval RTS smoother, or the live filter's own output."""
@@ -57,7 +70,13 @@ class ForwardPass:
 
 
 def forward_pass(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    *,
+    accel_sigma: np.ndarray | None = None,
 ) -> ForwardPass:
     """Run :func:`filter_step` frame by frame over one track's merged measurements.
 
@@ -67,6 +86,9 @@ def forward_pass(
     dt_s : (T,) seconds since the previous frame (dt_s[0] is not used).
     restart : (T,) bool, the live fusion restarted the track's filter at frame t (plausibility follow rule).
     params : FusionParams with ``filter == "cv_kalman"``.
+    accel_sigma : None for the live filter exactly; else (T, N) the white-noise acceleration of the step into
+        frame t per joint, mm/s^2; below ``params.cv_accel_sigma_mm_s2`` counts as it (see
+        :func:`adaptive_accel_sigma`).
     """
     if params.filter != "cv_kalman":
         raise ValueError(f"the RTS smoother needs the cv_kalman filter's motion model, got filter={params.filter!r}")
@@ -74,7 +96,15 @@ def forward_pass(
     T, N, _ = z.shape
     track = _TrackFilter(*init_filter_state(N))
     rows = [
-        track.step(z[t], n_agree[t], bool(restart[t]), float(dt_s[t]) if t else FIRST_DT_S, params) for t in range(T)
+        track.step(
+            z[t],
+            n_agree[t],
+            bool(restart[t]),
+            float(dt_s[t]) if t else FIRST_DT_S,
+            params,
+            None if accel_sigma is None else accel_sigma[t],
+        )
+        for t in range(T)
     ]
     return _stacked(rows, N)
 
@@ -102,10 +132,19 @@ class _TrackFilter:
     coast: np.ndarray
 
     def step(
-        self, z: np.ndarray, n_agree: np.ndarray, restart: bool, dt: float, params: FusionParams
+        self,
+        z: np.ndarray,
+        n_agree: np.ndarray,
+        restart: bool,
+        dt: float,
+        params: FusionParams,
+        accel_sigma: np.ndarray | None = None,
     ) -> tuple[np.ndarray, ...]:
-        """One frame: the row (out, x, P, x_pred, P_pred, linked) of :class:`ForwardPass` it adds."""
+        """One frame: the row (out, x, P, x_pred, P_pred, linked) of :class:`ForwardPass` it adds;
+        ``accel_sigma`` (N,): the step's process noise per joint where it is not the live model's."""
         coast_in = np.where(restart, -1, self.coast)
+        if accel_sigma is not None:
+            self.P = self.P + _extra_process_noise(accel_sigma, params.cv_accel_sigma_mm_s2, dt)
         cov_map, q_vec, state_map = _cv_model(dt, params.cv_accel_sigma_mm_s2)
         x_pred, P_pred = state_map @ self.x, self.P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
         z = np.asarray(z, dtype=np.float64)
@@ -114,6 +153,49 @@ class _TrackFilter:
         )
         linked = (coast_in >= 0) & (self.coast >= 0)
         return out, self.x, self.P, x_pred, P_pred, linked
+
+
+def _extra_process_noise(accel_sigma: np.ndarray, base: float, dt: float) -> np.ndarray:
+    """(N, 3) covariance triangle E with F E F' = Q(sigma) - Q(base): added to P before the live filter's own
+    prediction, it turns that prediction's Q into the white-noise acceleration Q of ``accel_sigma`` per joint.
+
+    Q(s) = s^2 [dt^4/4, dt^3/2, dt^2] and F^-1 Q F'^-1 = s^2 [dt^4/4, -dt^3/2, dt^2] (rank one, positive
+    semi-definite), so E is that with s^2 the difference of the variances.
+    """
+    extra = np.maximum(np.asarray(accel_sigma, dtype=np.float64) ** 2 - base**2, 0.0)
+    return extra[:, None] * np.array([dt**4 / 4.0, -(dt**3) / 2.0, dt * dt])
+
+
+def adaptive_accel_sigma(
+    states: np.ndarray,
+    linked: np.ndarray,
+    dt_s: np.ndarray,
+    base: float,
+    gain: float = ADAPTIVE_GAIN,
+    spread: int = ADAPTIVE_SPREAD,
+) -> np.ndarray:
+    """(T, N, 3) per-frame, per-axis process noise from a first smoothing pass, mm/s^2.
+
+    Where the motion accelerates hard (a jump's take-off, flight and landing), the white-noise acceleration
+    rises to ``gain`` times the acceleration the first pass saw on that axis, so the second pass follows the
+    motion instead of rounding it off; in still and slow motion it stays ``base`` and smooths as before.
+
+    ``states`` : (T, N, 2, 3) smoothed position and velocity (mm, mm/s); ``linked`` : (T, N) frame t continues
+    frame t - 1's track (:class:`ForwardPass`). The acceleration of frame t is the velocity change into it (0 at
+    a track's start); each frame takes the largest within ``spread`` frames (the first pass spreads a sharp
+    change over its neighbours, and the noise must cover the whole span of the change).
+    """
+    padded = np.pad(_velocity_changes(states, linked, dt_s), ((spread, spread), (0, 0), (0, 0)), mode="edge")
+    nearby = np.lib.stride_tricks.sliding_window_view(padded, 2 * spread + 1, axis=0).max(axis=-1)
+    return np.maximum(base, gain * nearby)
+
+
+def _velocity_changes(states: np.ndarray, linked: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """(T, N, 3) |velocity change into frame t| / dt per axis, mm/s^2; 0 at a track's start and where unknown."""
+    accel = np.zeros((*states.shape[:2], 3))
+    dt = np.asarray(dt_s, dtype=np.float64)[1:, None, None]
+    accel[1:] = np.where(linked[1:, :, None], np.abs(np.diff(states[:, :, 1], axis=0)) / dt, 0.0)
+    return np.nan_to_num(accel, nan=0.0)
 
 
 def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
@@ -135,39 +217,113 @@ def _backward_step(fwd: ForwardPass, t: int, later: np.ndarray, dt: float) -> np
 
 
 def rts_smooth(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    *,
+    adaptive: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fixed-interval smoothing of one track (see the module docstring).
+
+    ``adaptive``: a second pass, per axis, whose process noise follows the first pass's accelerations
+    (:func:`adaptive_accel_sigma`): a jump or a foot strike is followed, not rounded off, while still and slow
+    motion is smoothed as hard as before.
 
     Returns
     -------
     smoothed : (T, N, 3) mm, NaN where the live filter had no estimate.
-    causal : (T, N, 3) mm, the live filter's own output (the forward pass), for comparison.
+    causal : (T, N, 3) mm, the live filter's own output (the first forward pass), for comparison.
     """
     fwd = forward_pass(z, n_agree, dt_s, restart, params)
-    T = fwd.out.shape[0]
+    states = backward_pass(fwd, dt_s)
+    positions = states[:, :, 0]
+    if adaptive:
+        sigma = adaptive_accel_sigma(states, fwd.linked, dt_s, params.cv_accel_sigma_mm_s2)
+        positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma)
+    return np.where(np.isfinite(fwd.out), positions, np.nan), fwd.out
+
+
+def smooth_per_axis(
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    accel_sigma: np.ndarray,
+    lag: int | None = None,
+) -> np.ndarray:
+    """(T, N, 3) smoothed positions with the process noise ``accel_sigma`` (T, N, 3, mm/s^2) of each step into
+    frame t, per joint and axis (NaN where the filter had no estimate): fixed-interval (``lag`` None) or from
+    the frames up to t + ``lag``."""
+    fwd = _per_axis_forward(z, n_agree, dt_s, restart, params, accel_sigma)
+    smoothed = backward_pass(fwd, dt_s)[:, :, 0] if lag is None else _fixed_lag_positions(fwd, dt_s, int(lag))
+    positions = np.where(np.isfinite(fwd.out[:, :, 0]), smoothed[:, :, 0], np.nan)
+    return positions.reshape(np.shape(z))
+
+
+def _per_axis_forward(
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    accel_sigma: np.ndarray,
+) -> ForwardPass:
+    """The forward pass over (T, 3N) pseudo-joints, one per coordinate, with ``accel_sigma`` (T, N, 3).
+
+    The live filter shares one covariance by the three axes of a joint; a jump accelerates up and down, not
+    sideways, so here each coordinate is a joint of its own (its value in all three columns; column 0 read).
+    """
+    z = np.asarray(z, dtype=np.float64)
+    T, N, _ = z.shape
+    coords = np.repeat(z.reshape(T, 3 * N, 1), 3, axis=2)
+    agree = np.repeat(np.asarray(n_agree), 3, axis=1)
+    return forward_pass(coords, agree, dt_s, restart, params, accel_sigma=np.reshape(accel_sigma, (T, 3 * N)))
+
+
+def backward_pass(fwd: ForwardPass, dt_s: np.ndarray) -> np.ndarray:
+    """(T, N, 2, 3) the smoothed states of a whole forward pass."""
     states = fwd.x.copy()
-    for t in range(T - 2, -1, -1):
+    for t in range(len(states) - 2, -1, -1):
         states[t] = _backward_step(fwd, t, states[t + 1], float(dt_s[t + 1]))
-    alive = np.isfinite(fwd.out)
-    return np.where(alive, states[:, :, 0], np.nan), fwd.out
+    return states
 
 
 def fixed_lag_smooth(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams, lag: int
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    lag: int,
+    *,
+    adaptive: bool = False,
 ) -> np.ndarray:
     """(T, N, 3) the estimate of each frame t from the frames up to t + ``lag`` (NaN where no estimate).
 
     Frames within ``lag`` of the end use what there is (the end of a take is the end of the data).
+    ``adaptive``: per axis, with the process noise of :func:`causal_accel_sigma` (still from the frames up to
+    t + ``lag`` only: no added latency).
     """
     if int(lag) < 0:
         raise ValueError(f"lag must be >= 0 frames, got {lag!r}")
     fwd = forward_pass(z, n_agree, dt_s, restart, params)
+    if not adaptive:
+        return np.where(np.isfinite(fwd.out), _fixed_lag_positions(fwd, dt_s, int(lag)), np.nan)
+    sigma = causal_accel_sigma(fwd, dt_s, params.cv_accel_sigma_mm_s2)
+    positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma, int(lag))
+    return np.where(np.isfinite(fwd.out), positions, np.nan)
+
+
+def _fixed_lag_positions(fwd: ForwardPass, dt_s: np.ndarray, lag: int) -> np.ndarray:
+    """(T, N, 3) the position of each frame t smoothed from the frames up to t + ``lag``."""
     T = fwd.out.shape[0]
     result = fwd.x[:, :, 0].copy()
     for t in range(T):
-        result[t] = _smoothed_from(fwd, dt_s, t, min(t + int(lag), T - 1))
-    return np.where(np.isfinite(fwd.out), result, np.nan)
+        result[t] = _smoothed_from(fwd, dt_s, t, min(t + lag, T - 1))
+    return result
 
 
 def _smoothed_from(fwd: ForwardPass, dt_s: np.ndarray, t: int, end: int) -> np.ndarray:
@@ -178,6 +334,17 @@ def _smoothed_from(fwd: ForwardPass, dt_s: np.ndarray, t: int, end: int) -> np.n
     return state[:, 0]
 
 
+def causal_accel_sigma(
+    fwd: ForwardPass, dt_s: np.ndarray, base: float, gain: float = ADAPTIVE_GAIN, spread: int = ADAPTIVE_SPREAD
+) -> np.ndarray:
+    """(T, N, 3) the process noise of :func:`adaptive_accel_sigma` from the live filter's own velocities, and
+    for each frame from the ``spread`` frames before it only: what a live fixed-lag smoother knows in time."""
+    accel = _velocity_changes(fwd.x, fwd.linked, dt_s)
+    padded = np.pad(accel, ((spread, 0), (0, 0), (0, 0)), mode="edge")
+    before = np.lib.stride_tricks.sliding_window_view(padded, spread + 1, axis=0).max(axis=-1)
+    return np.maximum(base, gain * before)
+
+
 def smooth_tracks(
     times_s: np.ndarray,
     track_ids: list[np.ndarray],
@@ -186,6 +353,8 @@ def smooth_tracks(
     restarted: list[np.ndarray | None],
     params: FusionParams,
     lag: int | None = None,
+    *,
+    adaptive: bool | None = None,
 ) -> list[np.ndarray]:
     """Smooth every track of a fused take, instant by instant as the live fusion gave them.
 
@@ -199,6 +368,8 @@ def smooth_tracks(
     restarted : per instant, (P_t,) bool or None, the follow rule restarted the person's filter.
     params : the FusionParams of the live fusion ("cv_kalman").
     lag : None for the fixed-interval smoother, else the fixed lag in frames.
+    adaptive : the adaptive pass (:func:`rts_smooth`, :func:`fixed_lag_smooth`); None: on for the
+        fixed-interval smoother, off for a fixed lag (what the live option gives).
 
     Returns
     -------
@@ -218,9 +389,9 @@ def smooth_tracks(
         restart = np.array([_restarted_at(restarted[t], row) for t, row in where])
         dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
         if lag is None:
-            smoothed, _ = rts_smooth(z, agree, dt, restart, params)
+            smoothed, _ = rts_smooth(z, agree, dt, restart, params, adaptive=adaptive is not False)
         else:
-            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag)
+            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag, adaptive=bool(adaptive))
         for k, (t, row) in enumerate(where):
             out[t][row] = smoothed[k]
     return out

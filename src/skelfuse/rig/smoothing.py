@@ -29,8 +29,9 @@ Item = TypeVar("Item")
 
 
 def follow_bones(orientations: np.ndarray | None, positions: np.ndarray) -> np.ndarray | None:
-    """The fused orientations swung onto the smoothed bones (their twist kept): every aimed joint's X axis lies
-    on its bone of the smoothed positions, as the live fusion's lies on the live positions' (docs/orientations.md)."""
+    """The fused orientations swung onto the smoothed bones (their twist kept): every aimed joint's aim axis (X;
+    the ankles' foot axis) lies on its bone of the smoothed positions, as the live fusion's lies on the live
+    positions' (docs/orientations.md)."""
     if orientations is None:
         return None
     swung = apply_derived(swing_onto_aims(orientations, aim_directions(positions)))
