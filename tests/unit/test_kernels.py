@@ -7,6 +7,7 @@ counts, confidences, hold-out reasons, coasting counters; within 1e-9: positions
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 
@@ -29,6 +30,7 @@ from skelfuse.fusion.reference import realign as realign_reference
 from skelfuse.fusion.reference import tracks as tracks_reference
 from skelfuse.fusion.tracks import TrackParams
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS
+from skelfuse.service.node import prepare_kernels
 
 ATOL = 1e-9
 
@@ -232,3 +234,18 @@ def test_tracks_motion_kernel_equals_the_numpy_reference(seed, n_tracks, missing
     for got_array, want_array in zip(got, want, strict=True):
         np.testing.assert_allclose(got_array, want_array, rtol=1e-12, atol=ATOL)
     np.testing.assert_array_equal(descriptor, arguments[0])  # the inputs are left as they were
+
+
+def test_a_first_start_says_it_is_compiling_and_a_later_one_does_not(caplog, monkeypatch, tmp_path):
+    kernels.warm_up()  # compiled (or loaded) into the cache directory numba was set up with
+    cached = str(kernels.cache_dir())
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # an empty cache: what a first start finds
+    with caplog.at_level(logging.INFO, logger="skelfuse.service.node"):
+        prepare_kernels("first")
+    assert f"compiling the fusion kernels (first start; cached in {tmp_path}" in caplog.text
+    caplog.clear()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", cached)
+    assert kernels.is_cached()
+    with caplog.at_level(logging.INFO, logger="skelfuse.service.node"):
+        prepare_kernels("later")
+    assert "compiling" not in caplog.text

@@ -70,19 +70,23 @@ def is_cached() -> bool:
     return all(any(cached.glob(f"{name}.*.nbi")) for name in KERNEL_MODULES)
 
 
-@cache
-def load() -> Kernels:
-    """Import numba (cache directory set first) and the kernel modules; the kernels compile on first call.
+def use_user_cache_dir() -> None:
+    """Point numba's cache at :func:`cache_dir`: ``NUMBA_CACHE_DIR`` unless the user set it, and numba's own
+    setting where numba was imported before (it reads the environment once, into a module attribute).
 
-    Sets ``NUMBA_CACHE_DIR`` to :func:`cache_dir` unless the user set it, before numba reads its configuration.
+    Runs when this package is imported, so before any kernel module is (a kernel's cache location is fixed when
+    its module defines it), and again in :func:`load`. Loads no numba.
     """
     os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
-    import numba.core.config
+    config = sys.modules.get("numba.core.config")
+    if config is not None and not getattr(config, "CACHE_DIR", ""):
+        config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]  # numba's run-time setting
 
-    # numba was imported before the variable was set (it reads the environment once, into module attributes
-    # that its stubs do not declare): point it at the directory now, before the kernels' caches are made.
-    if not numba.core.config.CACHE_DIR:  # type: ignore[attr-defined]  # set from the environment at run time
-        numba.core.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]  # as above
+
+@cache
+def load() -> Kernels:
+    """Import numba (its cache directory set first) and the kernel modules; the kernels compile on first call."""
+    use_user_cache_dir()
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
     import skelfuse.fusion.kernels.plausibility
@@ -103,3 +107,6 @@ def warm_up() -> None:
     kernels = load()
     for module in kernels:
         module.warm_up()
+
+
+use_user_cache_dir()
