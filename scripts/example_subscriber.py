@@ -31,9 +31,10 @@ from typing import Any
 
 MAGIC = b"SKLF"
 SUPPORTED_MAJOR = 1
-KNOWN_MINOR = 1  # 1.1 adds optional orientations and position_std after the sensor id table
+KNOWN_MINOR = 2  # 1.1 adds optional orientations and position_std after the sensor id table, 1.2 agreement_mm
 SECTION_ORIENTATIONS = 1  # bits of the header's `sections` field (version 1.1; `reserved` in 1.0)
 SECTION_POSITION_STD = 2
+SECTION_AGREEMENT = 4  # version 1.2
 KIND_FUSED_FRAME = 2
 N_JOINTS = 32
 PELVIS = 0
@@ -58,7 +59,8 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
         estimate), ``n_agree`` (32 ints), ``confidence`` (32 ints 0..3), ``contributors`` (list of the
         sensor ids that contributed), and from a 1.1 payload that carries them ``orientations`` (32 [w, x, y, z]
         lists, world frame, k4abt joint axes, NaN = unknown) and ``position_std`` (32 floats, mm, one sigma per
-        axis, NaN = no estimate); absent keys mean the sender did not compute them.
+        axis, NaN = no estimate), and from a 1.2 payload ``agreement_mm`` (float, mm, how far the views lie from
+        the fused torso, NaN = fewer than two views); absent keys mean the sender did not compute them.
     """
     if len(payload) < FUSED_HEADER.size:
         raise PayloadError(f"{len(payload)} bytes, shorter than the {FUSED_HEADER.size}-byte header")
@@ -84,11 +86,13 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
     contributors_at = confidence_at + per_person * n_persons
     table_at = contributors_at + n_sensors * n_persons
     table_end = table_at + table_size
-    # Version 1.1: the `sections` bits name optional sections after the table, in bit order (1.0: ignore).
-    sections = sections if minor >= 1 else 0
+    # Version 1.1: the `sections` bits name optional sections after the table, in bit order (1.0: ignore);
+    # 1.2 adds bit 2. Bits of a newer minor name sections after these: skip them.
+    sections = 0 if minor < 1 else sections & (SECTION_ORIENTATIONS | SECTION_POSITION_STD | SECTION_AGREEMENT)
     orientations_at = table_end
     std_at = orientations_at + (8 * 4 * per_person * n_persons if sections & SECTION_ORIENTATIONS else 0)
-    end = std_at + (8 * per_person * n_persons if sections & SECTION_POSITION_STD else 0)
+    agreement_at = std_at + (8 * per_person * n_persons if sections & SECTION_POSITION_STD else 0)
+    end = agreement_at + (8 * n_persons if sections & SECTION_AGREEMENT else 0)
     if len(payload) < end or (minor <= KNOWN_MINOR and len(payload) != end):
         raise PayloadError(f"{len(payload)} bytes, the header's counts need {end}")
 
@@ -112,6 +116,7 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
         else ()
     )
     std = struct.unpack_from(f"<{per_person * n_persons}d", payload, std_at) if sections & SECTION_POSITION_STD else ()
+    agreement = struct.unpack_from(f"<{n_persons}d", payload, agreement_at) if sections & SECTION_AGREEMENT else ()
 
     persons = []
     for p in range(n_persons):
@@ -127,6 +132,8 @@ def decode_fused(payload: bytes) -> dict[str, Any]:
             person["orientations"] = [list(quats[4 * (first + j) : 4 * (first + j) + 4]) for j in range(per_person)]
         if std:
             person["position_std"] = list(std[first : first + per_person])
+        if agreement:
+            person["agreement_mm"] = agreement[p]
         persons.append(person)
     return {"version": (major, minor), "time_us": time_us, "sensor_ids": sensor_ids, "persons": persons}
 

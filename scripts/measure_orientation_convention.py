@@ -4,7 +4,8 @@
 For every joint: how far the SDK's own local X axis is from the bone skelfuse aims it along
 (``skelfuse.schema.skeleton.ORIENTATION_AIM``): the angle of the smallest rotation that puts it there
 ("swing"), and how far the SDK frame is from the frame built from the bones and the body alone (the fallback
-used without any view, ``ORIENTATION_HINT``). Also which quaternion component order the files really hold.
+used without any view, ``ORIENTATION_HINT``). Also which quaternion component order the files really hold, and
+where the foot bone lies in the SDK's ankle frame (``ANKLE_FOOT_ANGLE_DEG``), per file.
 
     python scripts/measure_orientation_convention.py [DATA_DIR]
 
@@ -24,10 +25,11 @@ from skelfuse.fusion.orientation import (
     apply_derived,
     body_hint_frames,
     quat_angle_deg,
+    quat_conjugate,
     quat_rotate,
     swing_onto_aims,
 )
-from skelfuse.schema.skeleton import JOINT_NAMES, ORIENTATION_AIMED, Confidence
+from skelfuse.schema.skeleton import ANKLE_FOOT_ANGLE_DEG, JOINT_NAMES, ORIENTATION_AIMED, Confidence, J
 from skelfuse.sources.recorded import load_andyj1_csv
 
 FILES = (
@@ -89,7 +91,31 @@ def main(argv: list[str]) -> int:
             f"{name:14s} {seen.sum():5d}   {np.median(s):6.1f} {np.percentile(s, 90):6.1f}"
             f"          {np.median(h):6.1f} {np.percentile(h, 90):6.1f}"
         )
+    print_ankle_frames(data)
     return 0
+
+
+def print_ankle_frames(data: Path) -> None:
+    """Per file and ankle: the foot bone's angle about the SDK ankle frame's Z from its X (median, range), how far
+    the foot leaves the frame's XY plane, and how far the frame's X lies off the shin (the ankle's flexion)."""
+    print(f"\nThe foot bone in the SDK's ankle frame (schema ANKLE_FOOT_ANGLE_DEG: {ANKLE_FOOT_ANGLE_DEG}):")
+    print("file                                      ankle   angle about Z (median, min..max)  |z| max  X off shin")
+    for name in FILES:
+        rec = load_andyj1_csv(data / name)
+        p = rec.positions[:, 0].astype(np.float64)
+        q = rec.orientations[:, 0].astype(np.float64)
+        for side, sign in (("LEFT", -1.0), ("RIGHT", 1.0)):  # sign: X points up the left leg, down the right
+            ankle, foot, knee = J[f"ANKLE_{side}"], J[f"FOOT_{side}"], J[f"KNEE_{side}"]
+            bone = p[:, foot] - p[:, ankle]
+            local = quat_rotate(quat_conjugate(q[:, ankle]), bone / np.linalg.norm(bone, axis=-1, keepdims=True))
+            angle = np.degrees(np.arctan2(local[:, 1], local[:, 0]))
+            shin = sign * (p[:, ankle] - p[:, knee])
+            shin /= np.linalg.norm(shin, axis=-1, keepdims=True)
+            off = np.degrees(np.arccos(np.clip(np.sum(quat_rotate(q[:, ankle], [1.0, 0, 0]) * shin, -1), -1, 1)))
+            print(
+                f"{name:41s} {side:6s} {np.median(angle):8.2f} ({angle.min():7.2f}..{angle.max():7.2f})"
+                f"          {np.abs(local[:, 2]).max():5.3f}   {np.median(off):4.1f} ({off.min():.1f}..{off.max():.1f})"
+            )
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
-"""Fused orientation error per arm joint against the simulator's truth, split into its swing, beside one view.
+"""Fused orientation error per joint against the simulator's truth, split into its swing, beside one view.
 
-    python scripts/orientation_error_by_joint.py [--seed 1] [--duration 4]
+    python scripts/orientation_error_by_joint.py [--seed 1] [--duration 4] [--regions arm hand]
 
 The takes of ``skelfuse eval paper --quick``'s ``paper`` scenario (hands_up_down and squat, facing 0 and 180
 deg, 4 capture sensors, no mirroring), fused with the ``skelfuse`` preset. Per joint, median / p90 in degrees:
-the fused orientation's angle to the truth; its swing alone (the angle between the fused and the true local X
-axes, i.e. the fused bone's direction error); and capture view 0's angle to the truth. Where the swing is
+the fused orientation's angle to the truth; its swing alone (the angle between the fused and the true aim axes:
+local X, the foot bone at the ankles; i.e. the fused bone's direction error); and capture view 0's angle to the
+truth. ``--regions`` picks the joints (the schema's body regions; default the arms and hands). Where the swing is
 nearly all of the error, the fused bone (a position error) and not the views' twist makes it.
 """
 
@@ -17,7 +18,7 @@ import argparse
 import numpy as np
 
 from skelfuse.eval import paper
-from skelfuse.fusion.orientation import quat_angle_deg, quat_rotate, views_to_world
+from skelfuse.fusion.orientation import quat_angle_deg, quat_rotate, to_aim_frames, views_to_world
 from skelfuse.schema.skeleton import BODY_REGIONS, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
@@ -37,7 +38,7 @@ def take_errors(gesture: str, facing: float, seed: int, duration_s: float) -> tu
     run = paper.FusionRun("skelfuse", "skelfuse", None, tuple(range(paper.N_CAPTURE)))
     sensor_positions = obs.world_from_sensor_calibrated[: paper.N_CAPTURE, :3, 3]
     _, fused = paper.fuse_take_oriented(run, paper._world_skeletons(obs), obs.confidence, views, 30.0, sensor_positions)
-    cos = np.sum(quat_rotate(fused, _LOCAL_X) * quat_rotate(truth, _LOCAL_X), axis=-1)
+    cos = np.sum(quat_rotate(to_aim_frames(fused), _LOCAL_X) * quat_rotate(to_aim_frames(truth), _LOCAL_X), axis=-1)
     swing = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
     return quat_angle_deg(fused, truth), swing, quat_angle_deg(views[:, 0], truth)
 
@@ -46,6 +47,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--duration", type=float, default=4.0, help="seconds per take")
+    parser.add_argument("--regions", nargs="+", default=["arm", "hand"], choices=sorted(BODY_REGIONS))
     args = parser.parse_args()
     parts = [
         take_errors(gesture, facing, args.seed, args.duration)
@@ -55,7 +57,7 @@ def main() -> None:
     fused, swing, view = (np.concatenate([p[k] for p in parts]) for k in range(3))
     names = {index: name for name, index in J.items()}
     print("| joint | fused | its swing | view 0 |\n|---|---|---|---|")
-    for joint in np.concatenate([BODY_REGIONS["arm"], BODY_REGIONS["hand"]]):
+    for joint in np.concatenate([BODY_REGIONS[region] for region in args.regions]):
         cells = [
             f"{np.nanmedian(e[:, joint]):.1f} / {np.nanpercentile(e[:, joint], 90):.1f}" for e in (fused, swing, view)
         ]

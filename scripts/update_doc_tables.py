@@ -56,6 +56,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
         "speed-instant-positions": [*_INSTANT, "--positions-only"],
         "speed-latency": [*_LATENCY, "--sensors", "4", "8", "16"],
         "speed-latency-people": [*_LATENCY, "--sensors", "8", "--people", "6"],
+        "speed-latency-crowd": [*_LATENCY, "--sensors", "8", "--people", "16", "--no-sweep"],  # a classroom: overload
     },
     "soak": {"soak": ["--minutes", "60", "--nice", "-10", "--json", "{out}"]},
 }
@@ -262,10 +263,10 @@ def render_sim_check(result: dict[str, Any]) -> str:
 
 def render_real(result: dict[str, Any]) -> str:
     """``skelfuse eval real``'s report, its headings moved under the page's section."""
-    from skelfuse.eval import rig
+    from skelfuse.eval import rig, rig_report
 
     fields = {k: v for k, v in result.items() if k != "stamp"}
-    text = rig.format_markdown(rig.RigEvalResult.from_dict(fields))
+    text = rig_report.format_markdown(rig.RigEvalResult.from_dict(fields))
     lines = [("#" + line if line.startswith("#") else line) for line in text.splitlines()]
     if lines[:2] == ["## Real-data report", ""]:  # the page's section is its title
         lines = lines[2:]
@@ -319,6 +320,7 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     "bench-instant-positions": ("speed", "speed-instant-positions", render_instant),
     "bench-latency": ("speed", "speed-latency", render_latency),
     "bench-latency-people": ("speed", "speed-latency-people", render_latency),
+    "bench-latency-crowd": ("speed", "speed-latency-crowd", render_latency),
     "soak": ("soak", "soak", render_soak),
 }
 """Block name on the page -> (record NAME, stored file stem, renderer)."""

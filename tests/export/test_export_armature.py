@@ -212,6 +212,41 @@ def test_the_real_three_view_take_meets_the_body_target() -> None:
     np.testing.assert_allclose(fit.armature.bone_lengths[BONES[:, 1]], np.nanmedian(lengths, axis=0), rtol=1e-9)
 
 
+def _offset_spread_deg(given: np.ndarray, fitted: np.ndarray) -> np.ndarray:
+    """(F,) angle of each frame's offset ``given^T fitted`` from their chordal mean, degrees."""
+    offsets = np.swapaxes(given, -1, -2) @ fitted
+    u, _, vt = np.linalg.svd(offsets.mean(axis=0))
+    cos = (np.trace(np.swapaxes(offsets, -1, -2) @ (u @ vt), axis1=-2, axis2=-1) - 1) / 2
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+@pytest.mark.skipif(
+    not (DATA_DIR / "cmu-mocap" / "131_01.bvh").is_file(), reason=f"the CMU BVH take 131_01 is not in {DATA_DIR}"
+)
+def test_the_ankle_orientation_turns_with_the_exported_foot() -> None:
+    # The retarget takes a joint's twist from its orientation where that orientation turns rigidly with the
+    # segment to its child. The tracker's ankle frame is rigid to the foot (docs/orientations.md): on a recorded
+    # walk, whose ankles flex, the ankle frames of that convention (the simulator's truth) keep one offset to the
+    # exported foot segment (p90 0.8-1.4 deg, the knees' 0.4-0.6: resampling); frames aimed along the shin
+    # instead drift by the ankle's flexion (p90 18-22 deg).
+    from skelfuse.sim.orientation import load_bvh_with_orientations
+
+    motion, truth = load_bvh_with_orientations(DATA_DIR / "cmu-mocap" / "131_01.bvh")
+    fit = fit_motion(_times(motion.n_frames), motion.positions, orientations=truth)
+    given = quaternion_to_matrix(truth)
+    for side in ("LEFT", "RIGHT"):
+        ankle, knee = J[f"ANKLE_{side}"], J[f"KNEE_{side}"]
+        assert np.percentile(_offset_spread_deg(given[:, ankle], fit.global_rotations[:, ankle]), 90) < 2.0, side
+        shin = motion.positions[:, ankle] - motion.positions[:, knee]
+        shin /= np.linalg.norm(shin, axis=-1, keepdims=True)
+        x_axes = given[:, ankle, :, 0]
+        swing = Rotation.align_vectors  # per frame: the smallest rotation of the frame's X onto the shin
+        along_shin = np.stack(
+            [swing(shin[f][None], x_axes[f][None])[0].as_matrix() @ given[f, ankle] for f in range(motion.n_frames)]
+        )
+        assert np.percentile(_offset_spread_deg(along_shin, fit.global_rotations[:, ankle]), 90) > 10.0, side
+
+
 def test_quaternion_tracks_are_made_continuous() -> None:
     rng = np.random.default_rng(2)
     track = Rotation.from_rotvec(np.linspace(0, 1, 20)[:, None] * rng.normal(size=3)).as_quat()[:, None, :]

@@ -8,10 +8,14 @@ python-osc UDP server in the test (one rig for both, to keep the suite short).
 
 from __future__ import annotations
 
+import json
 import signal
+import socket
+import subprocess
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,6 +28,7 @@ from skelfuse.schema.skeleton import JOINT_NAMES
 from skelfuse.service.zenoh_io import loopback_args
 from skelfuse.wire import keys
 from skelfuse.wire.codec import encode_fused_frame
+from waiting import SCHEDULING_ALLOWANCE_S
 
 pytestmark = pytest.mark.live
 
@@ -36,6 +41,29 @@ def _alive(session, node: str) -> bool:
     return any(getattr(reply, "ok", None) is not None for reply in replies)
 
 
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  # Linux; the constant is missing from some builds
+RECEIVE_BUFFER_BYTES = 32 << 20
+"""Far more than the whole take's datagrams (about a megabyte): a receiving thread starved of CPU by a loaded
+machine then delays them but loses none, so every datagram a daemon sends is checked, not a share of them."""
+
+
+def widen_receive_buffer(sock: socket.socket) -> None:
+    """Set the UDP receive buffer to :data:`RECEIVE_BUFFER_BYTES` (as root past ``net.core.rmem_max``)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECEIVE_BUFFER_BYTES)
+    except PermissionError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+
+
+def stream_summary(processes: Processes, daemon: subprocess.Popen[bytes]) -> dict[str, Any]:
+    """The ``--json`` summary a stream daemon printed at exit (the last JSON object in its output)."""
+    text = Path(daemon.log_path).read_text()  # type: ignore[attr-defined]
+    start = text.rfind('{\n  "protocol"')
+    assert start >= 0, processes.log(daemon)
+    summary, _ = json.JSONDecoder().raw_decode(text[start:])
+    return dict(summary)
+
+
 class VmcBundles:
     """A python-osc server that keeps each VMC bundle's bones under its ``/VMC/Ext/T`` time."""
 
@@ -43,10 +71,12 @@ class VmcBundles:
         self.lock = threading.Lock()
         self.bones: dict[float, dict[str, list]] = {}
         self._pending: dict[str, list] = {}
+        self.received = 0  # bundles (each ends with its /VMC/Ext/T)
         dispatcher = Dispatcher()
         dispatcher.map("/VMC/Ext/Bone/Pos", self._bone)
         dispatcher.map("/VMC/Ext/T", self._time)
         self.server = BlockingOSCUDPServer(("127.0.0.1", 0), dispatcher)
+        widen_receive_buffer(self.server.socket)
         self.port = self.server.server_address[1]
         self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
         self.thread.start()
@@ -58,6 +88,7 @@ class VmcBundles:
     def _time(self, _address: str, time_s: float) -> None:  # the bundle's last message
         with self.lock:
             self.bones[float(time_s)], self._pending = self._pending, {}
+            self.received += 1
 
     def close(self) -> None:
         self.server.shutdown()
@@ -74,6 +105,7 @@ class OscFrames:
         dispatcher = Dispatcher()
         dispatcher.set_default_handler(self._on_message)
         self.server = BlockingOSCUDPServer(("127.0.0.1", 0), dispatcher)  # one thread: datagrams stay in order
+        widen_receive_buffer(self.server.socket)
         self.port = self.server.server_address[1]
         self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
         self.thread.start()
@@ -157,11 +189,15 @@ def test_recorder_and_osc_stream_carry_the_fused_skeletons(
     assert abs(len(list(rec.frames())) - len(sensor_frames)) <= max(3, 0.02 * len(sensor_frames))
 
     # --- the OSC stream -----------------------------------------------------------------------------------
-    assert stop_s < DRAIN_S + 5.0, f"SIGTERM took {stop_s:.1f} s"  # drain timeout + teardown on a busy host
+    assert stop_s < DRAIN_S + SCHEDULING_ALLOWANCE_S, f"SIGTERM took {stop_s:.1f} s"
     with osc.lock:
         osc_frames = dict(osc.frames)
-    # UDP on loopback: every frame should arrive; allow a few lost on a loaded machine.
-    assert len(osc_frames) >= 0.95 * len(received), (len(osc_frames), len(received))
+    # The daemon subscribed a moment after this session did, and it drops the oldest queued frame rather than
+    # fall behind (counted in its summary): every frame it sent arrived (loopback UDP into a buffer larger than
+    # the take).
+    osc_summary = stream_summary(processes, daemon)
+    assert len(osc_frames) == osc_summary["frames_out"], (len(osc_frames), osc_summary)
+    assert len(osc_frames) >= 0.5 * len(received), (len(osc_frames), len(received), osc_summary)
     checked = 0
     for frame in received:
         messages = osc_frames.get(int(frame.time_us))
@@ -184,6 +220,7 @@ def test_recorder_and_osc_stream_carry_the_fused_skeletons(
     # --- the VMC stream (same rig, one more daemon) -------------------------------------------------------
     with vmc.lock:
         bundles = list(vmc.bones.values())
+        vmc_received = vmc.received
     # Hips carries the fused pelvis in Unity's axes (x = -x, y = z, z = -y), metres, float32 on the wire
     pelvises = np.array([f.positions[int(np.argmin(f.track_ids)), 0] for f in received if f.n_persons]) / 1000.0
     unity = np.stack([-pelvises[:, 0], pelvises[:, 2], -pelvises[:, 1]], axis=1)
@@ -191,6 +228,7 @@ def test_recorder_and_osc_stream_carry_the_fused_skeletons(
         assert {"Hips", "Spine", "Head", "LeftUpperArm", "RightLowerLeg"} <= set(bones)
         assert np.abs(unity - np.array(bones["Hips"][:3])).max(axis=1).min() < 1e-5  # one of the fused frames
     # A person's armature is built from its first 30 frames; then every frame is sent. The daemon drops the
-    # oldest queued frame rather than fall behind, so a CPU-starved machine loses some (measured: all arrive
-    # on a quiet one, 50 of 78 while a full test suite ran beside it).
-    assert len(bundles) >= 0.5 * (len(pelvises) - 30), (len(bundles), len(pelvises), processes.log(vmc_daemon))
+    # oldest queued frame rather than fall behind (counted): every bundle (one datagram) it sent arrived.
+    vmc_summary = stream_summary(processes, vmc_daemon)
+    assert vmc_received == vmc_summary["sender"]["datagrams"] > 0, (vmc_received, vmc_summary)
+    assert vmc_received >= 0.5 * (len(pelvises) - 30), (vmc_received, len(pelvises), vmc_summary)

@@ -13,7 +13,15 @@ from scipy.spatial.transform import Rotation
 from skelfuse.fusion import orientation as orient
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
-from skelfuse.schema.skeleton import MIRROR, N_JOINTS, ORIENTATION_AIM, ORIENTATION_AIMED, PARENTS, J
+from skelfuse.schema.skeleton import (
+    ANKLE_FOOT_ANGLE_DEG,
+    MIRROR,
+    N_JOINTS,
+    ORIENTATION_AIM,
+    ORIENTATION_AIMED,
+    PARENTS,
+    J,
+)
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "azure-kinect-andyj1"
 
@@ -48,6 +56,12 @@ def _matrix(q: np.ndarray) -> np.ndarray:
 
 
 LEFT, FORWARD, UP = np.array([1.0, 0, 0]), np.array([0, -1.0, 0]), np.array([0, 0, 1.0])
+
+AIM_AXES = np.tile([1.0, 0.0, 0.0], (N_JOINTS, 1))
+"""(32, 3) each joint's aim bone in its own frame: X, except the ankles, whose foot bone lies at the measured
+angle about local Z (the tracker's convention, docs/orientations.md), computed here by scipy."""
+for _name, _deg in ANKLE_FOOT_ANGLE_DEG.items():
+    AIM_AXES[J[_name]] = Rotation.from_euler("z", _deg, degrees=True).apply([1.0, 0.0, 0.0])
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -109,16 +123,42 @@ def test_t_pose_frames_by_hand():
         "KNEE_LEFT": (UP, FORWARD, LEFT),
         "HIP_RIGHT": (-UP, -FORWARD, LEFT),  # X down the leg
         "KNEE_RIGHT": (-UP, -FORWARD, LEFT),
-        "FOOT_LEFT": (FORWARD, -UP, LEFT),  # ANKLE turned +90 deg about Z
-        "FOOT_RIGHT": (-FORWARD, UP, LEFT),
         "NOSE": (UP, FORWARD, LEFT),
         "EYE_LEFT": (FORWARD, -UP, LEFT),  # HEAD turned +90 deg about Z
         "EAR_LEFT": (-UP, -FORWARD, LEFT),  # HEAD turned 180 deg about Z
         "HANDTIP_RIGHT": (LEFT, -FORWARD, UP),
     }
+    pose = t_pose()
+    for side in ("LEFT", "RIGHT"):
+        # The ankle's frame is rigid to the foot: Z the body's left, the foot bone at the measured angle from X
+        # about Z; so X is the foot bone turned back by that angle about the left, and the foot's X its Y.
+        foot = pose[J[f"FOOT_{side}"]] - pose[J[f"ANKLE_{side}"]]
+        foot /= np.linalg.norm(foot)
+        x = Rotation.from_rotvec(-np.radians(ANKLE_FOOT_ANGLE_DEG[f"ANKLE_{side}"]) * LEFT).apply(foot)
+        expected[f"ANKLE_{side}"] = (x, np.cross(LEFT, x), LEFT)
+        expected[f"FOOT_{side}"] = (np.cross(LEFT, x), -x, LEFT)  # ANKLE turned +90 deg about Z
     for name, axes in expected.items():
         assert np.allclose(R[J[name]], np.stack(axes, axis=-1), atol=1e-9), name
     assert np.allclose(np.linalg.det(R), 1.0)
+    # The ankle's X leans off the (vertical) shin by the measured angle less 90 deg and the foot's pitch (21.8 deg
+    # below the horizontal here): 15.3 deg.
+    shin_tilt = np.degrees(np.arccos(R[J["ANKLE_LEFT"]][:, 0] @ UP))
+    pitch = np.degrees(np.arctan2(60.0, 150.0))
+    assert abs(shin_tilt - (ANKLE_FOOT_ANGLE_DEG["ANKLE_LEFT"] - 90.0 - pitch)) < 1e-6
+
+
+def test_aim_frames_put_x_on_the_aim_bone_and_turn_back():
+    """An aim frame's X is where the joint's frame holds its aim bone (the ankles: the foot at the measured angle
+    about Z, by scipy here); the conversion is exact both ways and leaves every other joint as it is."""
+    q = _wxyz(Rotation.random(N_JOINTS, random_state=11))
+    aimed = orient.to_aim_frames(q)
+    np.testing.assert_allclose(orient.quat_rotate(aimed, [1.0, 0.0, 0.0]), orient.quat_rotate(q, AIM_AXES), atol=1e-12)
+    np.testing.assert_allclose(
+        orient.quat_rotate(aimed, [0.0, 0.0, 1.0]), orient.quat_rotate(q, [0.0, 0.0, 1.0]), atol=1e-12
+    )
+    others = np.setdiff1d(np.arange(N_JOINTS), [J[name] for name in ANKLE_FOOT_ANGLE_DEG])
+    np.testing.assert_array_equal(aimed[others], q[others])
+    assert np.allclose(orient.quat_angle_deg(orient.from_aim_frames(aimed), q), 0.0, atol=1e-6)
 
 
 def test_body_turned_90_deg_turns_every_frame():
@@ -152,8 +192,8 @@ def test_views_to_world_applies_the_calibration_rotation():
 
 
 def _twisted(quats: np.ndarray, twist_deg: float) -> np.ndarray:
-    """Each joint's frame turned by twist_deg about its own X axis (the bone)."""
-    return orient.quat_multiply(quats, _wxyz(Rotation.from_euler("x", twist_deg, degrees=True)))
+    """Each joint's frame turned by twist_deg about its aim bone (its X; the ankles' foot bone)."""
+    return orient.quat_multiply(quats, _wxyz(Rotation.from_rotvec(np.radians(twist_deg) * AIM_AXES)))
 
 
 def _run(frames, views_per_frame, *, S=3, noise_mm=0.0, seed=0, confidence=None):
@@ -173,9 +213,9 @@ def test_swing_matches_fused_bones_and_twist_comes_from_the_views():
     views = np.repeat(_twisted(base, 30.0)[None], 3, axis=0)  # every view: 30 deg twist about each bone
     result = _run([pose] * 5, lambda t: views, noise_mm=3.0)[-1]
     fused = result.orientations[0]
-    x_axes = orient.quat_rotate(fused, [1.0, 0.0, 0.0])
+    aim_axes = orient.quat_rotate(fused, AIM_AXES)  # X; the ankles' foot bone at its measured angle
     aims = orient.aim_directions(result.positions[0])
-    assert np.allclose(x_axes[ORIENTATION_AIMED], aims[ORIENTATION_AIMED], atol=1e-9)
+    assert np.allclose(aim_axes[ORIENTATION_AIMED], aims[ORIENTATION_AIMED], atol=1e-9)
     # The views' frames (30 deg twist), swung by the smallest rotation onto the fused bones: the answer.
     reference = orient.swing_onto_aims(views[0], aims)
     err = orient.quat_angle_deg(fused, reference)[ORIENTATION_AIMED]
@@ -322,6 +362,36 @@ def test_real_sdk_frames_lie_along_our_bones():
     assert np.allclose(
         orient.quat_angle_deg(sdk[:, derived_from_parent], sdk[:, PARENTS[derived_from_parent]]), 0, atol=0.5
     )
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"real andyj1 recordings not found at {DATA}")
+@pytest.mark.parametrize(
+    "name",
+    [
+        "extrinsic_calculation/joints_sync_1.csv",
+        "extrinsic_calculation/joints_sync_2.csv",
+        "saved_data_2_3dev/joints_gen_master.csv",
+    ],
+)
+def test_real_sdk_ankle_frames_are_rigid_to_the_foot(name):
+    """The tracker's ankle frame holds the foot bone at the measured angle about its Z in every frame of every
+    file written in its own camera frame (two sensors, two takes), while its X wanders 4-23 deg off the shin:
+    the product's aim (the foot) and offset reproduce the SDK's ankle frames to within a degree."""
+    from skelfuse.sources.recorded import load_andyj1_csv
+
+    rec = load_andyj1_csv(DATA / name)
+    positions = rec.positions[:, 0].astype(np.float64)
+    sdk = rec.orientations[:, 0].astype(np.float64)
+    ankles = [J["ANKLE_LEFT"], J["ANKLE_RIGHT"]]
+    foot = positions[:, [J["FOOT_LEFT"], J["FOOT_RIGHT"]]] - positions[:, ankles]
+    local = orient.quat_rotate(orient.quat_conjugate(sdk[:, ankles]), foot / np.linalg.norm(foot, axis=-1)[..., None])
+    assert np.abs(local - AIM_AXES[ankles]).max() < 0.01  # the foot where the measured angle puts it
+    swing = orient.quat_angle_deg(sdk, orient.swing_onto_aims(sdk, orient.aim_directions(positions)))
+    assert swing[:, ankles].max() < 1.0
+    shin = positions[:, ankles] - positions[:, [J["KNEE_LEFT"], J["KNEE_RIGHT"]]]
+    x_axes = orient.quat_rotate(sdk[:, ankles], [1.0, 0.0, 0.0]) * np.array([-1.0, 1.0])[:, None]  # left: to knee
+    off_shin = np.degrees(np.arccos(np.sum(x_axes * shin / np.linalg.norm(shin, axis=-1)[..., None], axis=-1)))
+    assert np.median(off_shin) > 3.0  # the old aim (X along the shin) would be this far off
 
 
 def test_view_orientation_agreement_by_hand():

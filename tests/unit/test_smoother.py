@@ -8,7 +8,13 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from skelfuse.fusion import preset
-from skelfuse.fusion.smoother import fixed_lag_smooth, forward_pass, rts_smooth
+from skelfuse.fusion.smoother import (
+    causal_accel_sigma,
+    fixed_lag_smooth,
+    forward_pass,
+    rts_smooth,
+    smooth_per_axis,
+)
 
 SEED = 1965
 PARAMS = preset("skelfuse")
@@ -105,3 +111,124 @@ def test_the_command_line_offers_the_smoothers_there_are():
     from skelfuse.fusion.smoother import SMOOTHERS
 
     assert tuple(OFFLINE_SMOOTHERS) == tuple(SMOOTHERS)
+
+
+def _filterpy_rts_varying_q(z: np.ndarray, r: float, sigmas: np.ndarray, params) -> np.ndarray:
+    """One axis through filterpy with the white-noise acceleration ``sigmas[t]`` for the step into frame t."""
+    kf = KalmanFilter(dim_x=2, dim_z=1)
+    kf.F = np.array([[1.0, DT], [0.0, 1.0]])
+    kf.H = np.array([[1.0, 0.0]])
+    kf.R = np.array([[r]])
+    kf.x = np.array([[z[0]], [0.0]])
+    kf.P = np.diag([params.cv_meas_sigma_mm**2, params.cv_velocity0_sigma_mm_s**2])
+    qs = np.stack([Q_discrete_white_noise(2, DT, s**2) for s in sigmas])
+    means, covs = [kf.x.copy()], [kf.P.copy()]
+    for t in range(1, len(z)):
+        kf.predict(Q=qs[t])
+        kf.update(np.array([[z[t]]]))
+        means.append(kf.x.copy())
+        covs.append(kf.P.copy())
+    smoothed, _, _, _ = kf.rts_smoother(np.array(means), np.array(covs), Qs=qs)
+    return smoothed[:, 0, 0]
+
+
+def test_per_axis_process_noise_equals_filterpy():
+    # Each axis with its own process noise, changing frame by frame: filterpy's filter and smoother with the
+    # same per-step Q are the reference.
+    rng = np.random.default_rng(SEED + 4)
+    T = 80
+    z = np.cumsum(rng.normal(0.0, 20.0, (T, 2, 3)), axis=0)
+    sigma = rng.uniform(0.5, 8.0, (T, 2, 3)) * PARAMS.cv_accel_sigma_mm_s2
+    smoothed = smooth_per_axis(z, np.ones((T, 2)), np.full(T, DT), np.zeros(T, bool), PARAMS, sigma)
+    for joint in range(2):
+        for axis in range(3):
+            # below the live model's noise counts as it
+            want_sigma = np.maximum(sigma[:, joint, axis], PARAMS.cv_accel_sigma_mm_s2)
+            want = _filterpy_rts_varying_q(z[:, joint, axis], PARAMS.cv_meas_sigma_mm**2, want_sigma, PARAMS)
+            np.testing.assert_allclose(smoothed[:, joint, axis], want, rtol=0, atol=1e-7)
+
+
+def _response(smoother, T: int, at: int) -> np.ndarray:
+    """The output over frames of a unit measurement at frame ``at`` (all others 0): one column of the linear map."""
+    z = np.zeros((T, 1, 3))
+    z[at] = 1.0
+    return smoother(z)[:, 0, 0]
+
+
+def _delay_frames(response: np.ndarray, offsets: np.ndarray, hz: float) -> float:
+    """The phase delay of a filter's response at ``hz``, frames (a response delta(d - D) gives D)."""
+    omega = 2.0 * np.pi * hz * DT
+    return float(-np.angle(np.sum(response * np.exp(-1j * omega * offsets))) / omega)
+
+
+def test_rts_is_zero_lag_by_construction():
+    # Over a linear model the fixed-interval smoother weighs the frames before and after an instant alike: its
+    # response to one measurement is symmetric about it, so it delays no frequency; the causal filter's
+    # response is one-sided (late at every frequency it passes), the fixed lag's reaches 3 frames back.
+    T, at = 301, 150
+    args = (np.ones((T, 1)), np.full(T, DT), np.zeros(T, bool), PARAMS)
+    rts = _response(lambda z: rts_smooth(z, *args)[0], T, at)
+    causal = _response(lambda z: rts_smooth(z, *args)[1], T, at)
+    lag3 = _response(lambda z: fixed_lag_smooth(z, *args, lag=3), T, at)
+    offsets = np.arange(T) - at
+    np.testing.assert_allclose(rts[at + 1 : at + 61], rts[at - 1 : at - 61 : -1], rtol=0, atol=1e-9 * rts[at])
+    assert rts.sum() == pytest.approx(1.0, abs=1e-6)  # a constant passes unchanged
+    assert np.all(causal[:at] == 0.0) and np.all(lag3[: at - 3] == 0.0) and lag3[at - 3] != 0.0
+    for hz in (0.5, 1.0, 2.0, 4.0):
+        assert _delay_frames(rts, offsets, hz) == pytest.approx(0.0, abs=1e-6)
+        assert 0.0 < _delay_frames(lag3, offsets, hz) < _delay_frames(causal, offsets, hz)
+    assert _delay_frames(causal, offsets, 2.0) > 0.5  # a 2 Hz gesture: the live filter half a frame late
+
+
+def _hops(T: int) -> np.ndarray:
+    """(T, 1, 3) a joint hopping in place: 0.45 s ballistic flights (take-off and landing within a frame)."""
+    t = np.arange(T) * DT
+    flight = 0.45
+    phase = (t % 1.6 - 0.55) / flight
+    height = np.where((phase > 0) & (phase < 1), 4.0 * 250.0 * phase * (1.0 - phase), 0.0)
+    truth = np.zeros((T, 1, 3))
+    truth[:, 0, 2] = 900.0 + height
+    return truth
+
+
+def test_the_adaptive_pass_follows_a_hop_and_keeps_still_motion_smooth():
+    rng = np.random.default_rng(SEED + 5)
+    T = 300
+    args = (np.ones((T, 1)), np.full(T, DT), np.zeros(T, bool), PARAMS)
+    jitter = lambda e: float(np.median(np.linalg.norm(np.diff(e, 2, axis=0), axis=-1)))  # noqa: E731
+    truth = _hops(T)
+    z = truth + rng.normal(0.0, 6.0, truth.shape)
+    fixed, _ = rts_smooth(z, *args)
+    adaptive, _ = rts_smooth(z, *args, adaptive=True)
+    error = lambda x: float(np.mean(np.linalg.norm(x - truth, axis=-1)))  # noqa: E731
+    assert error(adaptive) < 0.7 * error(fixed)
+    peak = lambda x: float(np.abs(x - truth).max())  # noqa: E731  # the landing, rounded off in time
+    assert peak(adaptive) < 0.7 * peak(fixed)
+    still = 900.0 + rng.normal(0.0, 6.0, (T, 1, 3))
+    fixed, _ = rts_smooth(still, *args)
+    adaptive, _ = rts_smooth(still, *args, adaptive=True)
+    assert jitter(adaptive - 900.0) < 1.3 * jitter(fixed - 900.0)
+
+
+def test_the_adaptive_fixed_lag_uses_no_frame_beyond_its_lag():
+    # What a live fixed-lag smoother can give: the estimate of frame t is the same whatever comes after t + lag,
+    # its process noise included; over a lag as long as the take it is the fixed-interval smoother with that
+    # noise.
+    rng = np.random.default_rng(SEED + 6)
+    T, lag = 120, 3
+    truth = _hops(T)
+    z = truth + rng.normal(0.0, 6.0, truth.shape)
+    args = (np.ones((T, 1)), np.full(T, DT), np.zeros(T, bool), PARAMS)
+    out = fixed_lag_smooth(z, *args, lag, adaptive=True)
+    for t in (20, 60, 100):
+        changed = z.copy()
+        changed[t + lag + 1 :] += rng.normal(0.0, 300.0, changed[t + lag + 1 :].shape)
+        again = fixed_lag_smooth(changed, *args, lag, adaptive=True)
+        np.testing.assert_allclose(again[: t + 1], out[: t + 1], rtol=0, atol=1e-9)
+        assert not np.allclose(again[t + 1 :], out[t + 1 :])
+    sigma = causal_accel_sigma(forward_pass(z, *args), np.full(T, DT), PARAMS.cv_accel_sigma_mm_s2)
+    full = smooth_per_axis(z, *args, sigma)
+    np.testing.assert_allclose(fixed_lag_smooth(z, *args, T, adaptive=True), full, rtol=0, atol=1e-9)
+    plain = fixed_lag_smooth(z, *args, lag)
+    error = lambda x: float(np.mean(np.linalg.norm(x - truth, axis=-1)))  # noqa: E731
+    assert error(out) < error(plain)

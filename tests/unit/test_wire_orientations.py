@@ -166,8 +166,8 @@ def test_truncated_or_padded_sections_are_rejected():
     with pytest.raises(codec.DecodeError) as info:
         codec.decode_fused_frame(payload + b"\x00")
     assert info.value.reason == "bad_length"
-    newer = bytearray(payload + b"\xee" * 5)  # a 1.2 writer may append more sections: read what 1.1 knows
-    newer[5] = 2
+    newer = bytearray(payload + b"\xee" * 5)  # a newer writer may append more sections: read what this reader knows
+    newer[5] = codec.FUSED_MINOR_WITH_AGREEMENT + 1
     assert codec.decode_fused_frame(bytes(newer)).orientations.shape == (1, N_JOINTS, 4)
 
 

@@ -114,7 +114,7 @@ def _select(frames: Iterator[FusedFrame], person: int | None, bar: Progress | No
             "confidence": frame.confidence[keep],
             "contributors": frame.contributors[keep],
         }
-        for optional in ("orientations", "position_std"):
+        for optional in ("orientations", "position_std", "agreement_mm"):
             if getattr(frame, optional, None) is not None:
                 fields[optional] = getattr(frame, optional)[keep]
         yield type(frame)(time_us=frame.time_us, sensor_ids=frame.sensor_ids, **fields)

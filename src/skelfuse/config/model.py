@@ -215,6 +215,10 @@ class FusionConfig:
     """What the node outputs: "skeleton" (skeleton fusion), "depth" (the skeleton a body tracker finds on each
     person's fused virtual depth image, ``docs/depth-fusion.md``) or "hybrid" (that skeleton enters skeleton
     fusion as one more, virtual, sensor). Settings of the depth path: ``[depth]`` (:class:`DepthConfig`)."""
+    fixed_lag_frames: int = 0
+    """Above 0, the live node publishes each instant this many frames later, smoothed by the fixed-lag smoother
+    over the filter's motion model (``skelfuse.rig.smoothing.LiveFixedLag``); 0 publishes the live filter's
+    output at once."""
 
     def fusion_params(self) -> FusionParams:
         """The :class:`skelfuse.fusion.presets.FusionParams` this section describes.
@@ -334,10 +338,21 @@ class ZenohTls:
 
 @dataclass(frozen=True)
 class NodeConfig:
-    """``[node]``: settings shared by the rig's long-running nodes."""
+    """``[node]``: settings shared by the rig's long-running nodes.
+
+    Attributes
+    ----------
+    status_period_s : float
+    name : str or None
+    max_lag_s : float
+        The fusion node's bound on how far it may fall behind: an instant whose first frame arrived longer ago
+        than this when its turn to be fused comes is shed (counted ``shed.behind``), not fused, so a node that
+        cannot keep up skips its oldest instants instead of drifting ever later.
+    """
 
     status_period_s: float = 1.0
     name: str | None = None
+    max_lag_s: float = 0.5
 
 
 @dataclass(frozen=True)

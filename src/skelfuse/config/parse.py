@@ -119,6 +119,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         node = NodeConfig(
             status_period_s=t.number("status_period_s", 1.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
             name=t.string("name", None, check=lambda v: validate_name(v, "node")),
+            max_lag_s=t.number("max_lag_s", 0.5, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
         )
         t.done()
     capture = CaptureConfig()
@@ -360,6 +361,10 @@ def _check_rig(sensors: tuple[SensorConfig, ...], sync: SyncConfig, source: str)
             )
 
 
+MAX_FIXED_LAG_FRAMES = 30
+"""The longest ``[fusion] fixed_lag_frames`` (1 s at 30 fps): past it, smooth the recording offline instead."""
+
+
 def _parse_fusion(t: Table | None) -> FusionConfig:
     if t is None:
         return FusionConfig()
@@ -375,6 +380,7 @@ def _parse_fusion(t: Table | None) -> FusionConfig:
     preset = canonical[preset.strip().upper()]
     eps_mm = t.number("eps_mm", None, lo=0.0, lo_open=True, hi=10_000.0, unit="mm")
     mode = t.string("mode", "skeleton", choices=FUSION_MODES)
+    fixed_lag_frames = t.integer("fixed_lag_frames", 0, lo=0, hi=MAX_FIXED_LAG_FRAMES, unit="frames")
     params: dict[str, Any] = {}
     p = t.table("params")
     if p is not None:
@@ -393,11 +399,23 @@ def _parse_fusion(t: Table | None) -> FusionConfig:
                 )
             params[name] = _fusion_value(value, fields.get(name), key, p.source)
         p.done()
-    fusion = FusionConfig(preset=preset, eps_mm=eps_mm, params=tuple(sorted(params.items())), mode=mode)
+    fusion = FusionConfig(
+        preset=preset,
+        eps_mm=eps_mm,
+        params=tuple(sorted(params.items())),
+        mode=mode,
+        fixed_lag_frames=fixed_lag_frames,
+    )
     try:  # FusionParams' own range checks, reported at load time
-        dataclasses.replace(presets.preset(fusion.preset, eps_mm), **params)
+        fusion_params = dataclasses.replace(presets.preset(fusion.preset, eps_mm), **params)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{t.source}: key {t.key('params')}: {exc}") from None
+    if fixed_lag_frames and (fusion_params.filter != "cv_kalman" or mode == "depth"):
+        why = f"fusion mode {mode!r}" if mode == "depth" else f"the {fusion_params.filter!r} filter"
+        raise ConfigError(
+            f"{t.source}: key {t.key('fixed_lag_frames')}: the fixed-lag smoother needs the cv_kalman filter's "
+            f"motion model over skeleton fusion (the skelfuse preset; mode skeleton or hybrid), not {why}"
+        )
     t.done()
     return fusion
 

@@ -40,6 +40,10 @@ The metrics (all in mm unless said; docs/evaluation.md says what each can and ca
     a preset with the constant-velocity filter is reported three ways: the live filter's output (its name),
     the fixed-lag smoother at 3 instants (100 ms at 30 fps) and the fixed-interval RTS smoother of offline
     fusion and exports (:mod:`skelfuse.fusion.smoother`).
+``orientation``
+    per group, the median twist about the bone between each view's joint orientations and the fused ones; per
+    aimed joint, the median full angle between them (pooled over the views and per view), beside the median
+    angle between the views' own frames (no fused frame can be close to views that disagree with each other).
 ``track_ids``
     distinct track ids the fused person had over the take (1 = never lost).
 ``leave-one-out`` (N >= 3)
@@ -67,13 +71,13 @@ from skelfuse.eval.metrics import nan_for_none, view_orientation_agreement
 from skelfuse.eval.real import fuse_views, mirrored_frames
 from skelfuse.eval.view_mirroring import view_mirroring
 from skelfuse.fusion import presets
-from skelfuse.fusion.orientation import views_to_world
+from skelfuse.fusion.orientation import quat_angle_deg, views_to_world
 from skelfuse.fusion.presets import preset
 from skelfuse.fusion.transform import apply_transform
 from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.offline import fuse_recording
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES, N_JOINTS, Confidence, J
+from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES, N_JOINTS, ORIENTATION_AIMED, Confidence, J
 
 REPORT_GROUPS: dict[str, np.ndarray] = {
     name: np.concatenate([BODY_REGIONS[r] for r in regions])
@@ -106,17 +110,22 @@ def median_jitter(positions: np.ndarray, joints: np.ndarray) -> float:
     return float(np.median(second)) if second.size else math.nan
 
 
-def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES) -> float:
+def velocity_lag(
+    fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_lag: int = MAX_LAG_FRAMES, subframe: bool = False
+) -> float:
     """The shift (frames) maximizing the correlation of fused and view velocities; + = fused is late.
 
     Velocities are first differences of the group's joints, pooled over joints and axes; frames with a NaN
-    are left out per shift. NaN when fewer than 20 frames overlap at every shift.
+    are left out per shift. NaN when fewer than 20 frames overlap at every shift. ``subframe``: the peak is
+    refined by a parabola through the correlations at the best shift and its two neighbours (a timing
+    measure that slow offsets between the two cannot move: they hardly change the velocities).
     """
     vf = np.diff(np.asarray(fused, dtype=np.float64)[:, joints], axis=0).reshape(len(fused) - 1, -1)
     vv = np.diff(np.asarray(view, dtype=np.float64)[:, joints], axis=0).reshape(len(view) - 1, -1)
-    best, best_r = math.nan, -math.inf
     n = len(vf)
-    for shift in range(-max_lag, max_lag + 1):
+    shifts = np.arange(-max_lag, max_lag + 1)
+    r = np.full(len(shifts), -np.inf)
+    for k, shift in enumerate(shifts.tolist()):
         # fused[t + shift] against view[t]: a late fused output matches at a positive shift
         a = vf[max(shift, 0) : n + min(shift, 0)]
         b = vv[max(-shift, 0) : n + min(-shift, 0)]
@@ -125,10 +134,17 @@ def velocity_lag(fused: np.ndarray, view: np.ndarray, joints: np.ndarray, max_la
             continue
         x, y = a[ok], b[ok]
         denom = math.sqrt(float(np.sum(x * x)) * float(np.sum(y * y)))
-        r = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
-        if r > best_r:
-            best, best_r = float(shift), r
-    return best
+        r[k] = float(np.sum(x * y)) / denom if denom > 0 else -math.inf
+    if not np.isfinite(r).any():
+        return math.nan
+    best = int(np.argmax(r))
+    lag = float(shifts[best])
+    if subframe and 0 < best < len(r) - 1 and np.isfinite(r[best - 1 : best + 2]).all():
+        left, mid, right = r[best - 1 : best + 2]
+        curvature = left - 2.0 * mid + right
+        if curvature < 0:
+            lag += float(0.5 * (left - right) / curvature)
+    return lag
 
 
 def gross_share(fused: np.ndarray, views: np.ndarray, joints: np.ndarray, limit_mm: float = GROSS_MM) -> float:
@@ -189,6 +205,7 @@ class RigEvalResult:
     continuity: dict[str, dict[str, int]] = field(default_factory=dict)
     leave_one_out: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     orientation_agreement: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    orientation_by_joint: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     view_mirroring: dict[str, dict[str, float]] = field(default_factory=dict)
     plots: list[str] = field(default_factory=list)
 
@@ -393,6 +410,9 @@ def run_rig_eval(
             result.orientation_agreement[name] = _orientation_agreement(
                 quats, fused_by_preset[name], view_quats, views, ids
             )
+            result.orientation_by_joint[name] = _orientation_by_joint(
+                quats, fused_by_preset[name], view_quats, views, ids
+            )
     candidates = {**fused_by_preset, **{f"view {s}": views[:, i] for i, s in enumerate(ids)}}
     result.groups.update(_agreement_groups(candidates, ids, views, medium[evaluated], seen_views))
     for label, seq in candidates.items():
@@ -462,6 +482,16 @@ def _leave_one_out(
     return out
 
 
+def _unmirrored(view_quats: np.ndarray, views: np.ndarray, fused: np.ndarray) -> np.ndarray:
+    """(T, S, 32, 4) the views' orientations, NaN in the frames where that view is left/right mirrored against the
+    fused skeleton (its frames then face the other way)."""
+    out = view_quats.copy()
+    for i in range(views.shape[1]):
+        flipped, _ = mirrored_frames(views[:, i], fused[None])
+        out[flipped, i] = np.nan
+    return out
+
+
 def _orientation_agreement(
     fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
 ) -> dict[str, dict[str, float]]:
@@ -469,10 +499,7 @@ def _orientation_agreement(
     ones, leaving out the frames where that view is left/right mirrored against the fused skeleton (its frames
     then face the other way). Only the twist about the bone is compared: the swing follows the fused positions
     by construction (:func:`skelfuse.eval.metrics.view_orientation_agreement`)."""
-    views_quats = view_quats.copy()
-    for i in range(len(ids)):
-        flipped, _ = mirrored_frames(views[:, i], fused[None])
-        views_quats[flipped, i] = np.nan
+    views_quats = _unmirrored(view_quats, views, fused)
     angles = view_orientation_agreement(fused_quats, fused, views_quats, twist_only=True)  # (T, S, 32)
     out: dict[str, dict[str, float]] = {}
     for group, joints in REPORT_GROUPS.items():
@@ -484,116 +511,40 @@ def _orientation_agreement(
     return out
 
 
+def _nanmedian(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else math.nan
+
+
+def _orientation_by_joint(
+    fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """Per aimed joint: the median full angle (degrees) between the fused orientation and the views' (``"views"``:
+    pooled over the views; one key per view), and ``"between views"``: the median angle between every two views'
+    own frames. Mirrored frames are left out as in :func:`_orientation_agreement`."""
+    views_quats = _unmirrored(view_quats, views, fused)
+    angles = view_orientation_agreement(fused_quats, fused, views_quats)  # (T, S, 32), full angle
+    n_views = views_quats.shape[1]
+    pairs = [
+        quat_angle_deg(views_quats[:, a], views_quats[:, b]) for a in range(n_views) for b in range(a + 1, n_views)
+    ]
+    between = np.stack(pairs, axis=1)  # (T, pairs, 32)
+    out: dict[str, dict[str, float]] = {}
+    for joint in np.flatnonzero(ORIENTATION_AIMED):
+        row = {"views": _nanmedian(angles[:, :, joint])}
+        row.update({sid: _nanmedian(angles[:, i, joint]) for i, sid in enumerate(ids)})
+        row["between views"] = _nanmedian(between[:, :, joint])
+        out[JOINT_NAMES[joint]] = row
+    return out
+
+
 # ----------------------------------------------------------------------------------------------- output
 
 
-def _median(values: Any) -> float:
+def finite_median(values: Any) -> float:
+    """The median of the finite numbers among ``values`` (NaN where there is none)."""
     finite = [v for v in values if isinstance(v, float | int) and math.isfinite(v)]
     return float(np.median(finite)) if finite else math.nan
-
-
-def _f(value: float, digits: int = 1) -> str:
-    return "n/a" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
-
-
-def format_markdown(result: RigEvalResult) -> str:
-    """The report as markdown: inputs, how they were matched and calibrated, one table per group."""
-    sensors = ", ".join(f"{s} ({result.formats.get(s, '?')})" for s in result.sensors)
-    lines = [
-        "# Real-data report",
-        "",
-        f"Sensors: {sensors}; frames matched by {result.time_matching} time; poses: {result.calibration}.",
-        f"Instants: {result.n_instants}, evaluated {result.evaluated[0]}..{result.evaluated[1]}.",
-        "",
-    ]
-    lines += [f"- {n}" for n in result.notes]
-    if not result.confidence_meaningful:
-        lines += [
-            "",
-            "**Confidence was assumed, not read:** 'agreement' is the distance to every view's joint, not to its "
-            "MEDIUM joints only, and leave-one-out uses every joint of the held-out view.",
-        ]
-    lines += [
-        "",
-        "Cross-view metrics are lower bounds: errors every view shares are invisible. Definitions and limits: "
-        "docs/evaluation.md.",
-        "",
-    ]
-    for group, rows in result.groups.items():
-        lines += [
-            f"## {group}",
-            "",
-            "| output | jitter mm/f² | agreement mm (median over views) | lag frames (median) | gross % | dropouts % |",
-            "|---|---|---|---|---|---|",
-        ]
-        for label, row in rows.items():
-            lines.append(
-                f"| {label} | {_f(row['jitter'])} | {_f(_median(row['agreement'].values()))} | "
-                f"{_f(_median(row['lag'].values()), 0) if row['lag'] else '-'} | {_f(100 * row['gross'])} | "
-                f"{_f(100 * row['dropouts']) if math.isfinite(row['dropouts']) else '-'} |"
-            )
-        lines.append("")
-    lines += [
-        "## Whole skeleton",
-        "",
-        "| output | mirrored frames | track ids | pelvis steps > 3 m/s | one-view episodes (instants) |",
-        "|---|---|---|---|---|",
-    ]
-    for label, count in result.mirrored.items():
-        breaks = result.continuity.get(label)
-        cells = (
-            "- | -"
-            if breaks is None
-            else (f"{breaks['steps']} | {breaks['one_view_episodes']} ({breaks['one_view_frames']})")
-        )
-        lines.append(f"| {label} | {count} | {result.track_ids.get(label, '-')} | {cells} |")
-    lines += _view_mirroring_lines(result)
-    if result.orientation_agreement:
-        lines += [
-            "",
-            "## Orientation agreement (median twist about the bone between each view and the fused joint, degrees)",
-            "",
-            "| preset | group | " + " | ".join(result.sensors) + " |",
-            "|---|---|" + "---|" * len(result.sensors),
-        ]
-        for name, per_group in result.orientation_agreement.items():
-            for group, per_view in per_group.items():
-                cells = " | ".join(_f(per_view.get(s, math.nan)) for s in result.sensors)
-                lines.append(f"| {name} | {group} | {cells} |")
-    if result.leave_one_out:
-        lines += ["", "## Leave-one-out (median distance to the held-out view, mm)", ""]
-        for name, per_held in result.leave_one_out.items():
-            for held, row in per_held.items():
-                cells = ", ".join(f"{k} {_f(v)}" for k, v in row.items())
-                lines.append(f"- {name}, held out {held}: {cells}")
-    if result.plots:
-        lines += ["", "## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in result.plots]
-    return "\n".join(lines)
-
-
-def _view_mirroring_lines(result: RigEvalResult) -> list[str]:
-    """Each view's mirrored share (eval/view_mirroring.py): the rig's own rate, to set against the simulator's
-    rear-view mirroring sweep."""
-    if not result.view_mirroring:
-        return []
-    lines = [
-        "",
-        "## Mirrored share per view (this rig's mirroring rate)",
-        "",
-        "Share of the view's instants that skelfuse's realignment found left/right mirrored, and (3+ views) that "
-        "point against the majority of the other views. Set it against the simulator's assumption and the "
-        "break-even shares of `skelfuse eval robustness --mirroring-sweep` (docs/simulator.md).",
-        "",
-        "| view | instants | realigned as mirrored % | against the majority % |",
-        "|---|---|---|---|",
-    ]
-    for view, row in result.view_mirroring.items():
-        majority = row.get("against_majority")
-        lines.append(
-            f"| {view} | {int(row['instants'])} | {_f(100 * row['realigned'])} | "
-            f"{'-' if majority is None else _f(100 * majority)} |"
-        )
-    return lines
 
 
 def write_plots(
@@ -630,7 +581,7 @@ def write_plots(
     labels = list(next(iter(result.groups.values())))
     width = 0.8 / len(labels)
     for k, label in enumerate(labels):
-        values = [_median(result.groups[g][label]["agreement"].values()) for g in groups]
+        values = [finite_median(result.groups[g][label]["agreement"].values()) for g in groups]
         ax.bar(np.arange(len(groups)) + k * width, values, width, label=label)
     ax.set_xticks(np.arange(len(groups)) + 0.4 - width / 2, groups)
     ax.set_ylabel("median distance to the views, mm")

@@ -5,6 +5,12 @@ Every fused joint gets a quaternion (w, x, y, z) in the world frame, in the k4ab
 bone, the other two axes turn with the body. A bone direction fixes two of the three degrees of freedom of that
 frame (the *swing*); the third, the rotation about the bone (the *twist*), is what the views add.
 
+The ankles are the exception the convention measured: the tracker's ankle frame is rigid to the foot, its X
+off the shin by the ankle's flexion, the foot bone at a fixed angle about its Z
+(:data:`~skelfuse.schema.skeleton.ORIENTATION_AIM_OFFSET`). The stage works on *aim frames* (local X on the
+aim bone, the foot for the ankles): the views enter through :func:`to_aim_frames`, the filter carries aim
+frames, and the output leaves through :func:`from_aim_frames`, in the tracker's convention.
+
 One step (:func:`fuse_orientations`), for B bodies, S views and the 32 joints at once, no loop over joints:
 
 1. Aim: for every joint with a bone of its own, the unit direction of that bone in the *fused* positions
@@ -45,6 +51,7 @@ from skelfuse.schema.skeleton import (
     BODY_UP,
     N_JOINTS,
     ORIENTATION_AIM,
+    ORIENTATION_AIM_OFFSET,
     ORIENTATION_AIMED,
     ORIENTATION_DERIVED_OFFSET,
     ORIENTATION_DERIVED_SOURCE,
@@ -60,6 +67,7 @@ _LOCAL_X = np.array([1.0, 0.0, 0.0])
 _HINT_LOCAL = np.eye(3)[ORIENTATION_HINT[:, 0]] * ORIENTATION_HINT[:, 1:2]  # (J, 3) local hint axis
 _HINT_BODY = ORIENTATION_HINT[:, 2]
 _DERIVED = np.flatnonzero(~ORIENTATION_AIMED)
+_OFFSET = np.flatnonzero(np.abs(ORIENTATION_AIM_OFFSET[:, 0]) < 1.0 - 1e-12)  # joints whose aim is not their X
 
 
 def _product_table(terms: dict[int, list[tuple[int, int, float]]], n_out: int, n_a: int, n_b: int) -> np.ndarray:
@@ -289,13 +297,31 @@ def quat_from_matrix_nan(R: np.ndarray) -> np.ndarray:
     return np.where(finite[..., None], q, np.nan)
 
 
+def to_aim_frames(quats: np.ndarray) -> np.ndarray:
+    """(..., 32, 4) k4abt joint frames -> aim frames (local X on the aim bone): ``q * conj(offset)``
+    (:data:`skelfuse.schema.skeleton.ORIENTATION_AIM_OFFSET`; only the ankles differ)."""
+    q = np.array(quats, dtype=np.float64, copy=True)
+    q[..., _OFFSET, :] = quat_multiply(q[..., _OFFSET, :], quat_conjugate(ORIENTATION_AIM_OFFSET[_OFFSET]))
+    return q
+
+
+def from_aim_frames(quats: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`to_aim_frames`: aim frames -> k4abt joint frames, ``q * offset``."""
+    q = np.array(quats, dtype=np.float64, copy=True)
+    q[..., _OFFSET, :] = quat_multiply(q[..., _OFFSET, :], ORIENTATION_AIM_OFFSET[_OFFSET])
+    return q
+
+
+def _aim_hint_frames(positions: np.ndarray) -> np.ndarray:
+    """:func:`body_hint_frames` as aim frames (what the orientation filter carries)."""
+    body = body_directions(positions)  # (..., 3, 3)
+    return frames_from_bones(aim_directions(positions), body[..., _HINT_BODY, :])
+
+
 def body_hint_frames(positions: np.ndarray) -> np.ndarray:
     """(..., 32, 4) orientations from the bones alone, the twist from the body's left/forward (ORIENTATION_HINT);
     derived joints NaN (see :func:`apply_derived`)."""
-    aims = aim_directions(positions)
-    body = body_directions(positions)  # (..., 3, 3)
-    hints = body[..., _HINT_BODY, :]  # (..., 32, 3)
-    return frames_from_bones(aims, hints)
+    return from_aim_frames(_aim_hint_frames(positions))
 
 
 def apply_derived(quats: np.ndarray) -> np.ndarray:
@@ -308,14 +334,16 @@ def apply_derived(quats: np.ndarray) -> np.ndarray:
 
 
 def swing_onto_aims(quats: np.ndarray, aims: np.ndarray) -> np.ndarray:
-    """Turn each orientation by the smallest rotation that puts its local X axis on ``aims`` (keeps its twist).
+    """Turn each orientation by the smallest rotation that puts its aim axis (local X; the ankles' foot direction)
+    on ``aims`` (keeps its twist).
 
     NaN where either is NaN. The plain formulation (swing, then product): the fusion's hot path computes the
     same rotation in one bilinear step (``_rows_swing_onto``), and tests/unit/test_orientation.py checks that
     one against this one.
     """
-    current = quat_rotate(quats, _LOCAL_X)
-    return quat_normalize(quat_multiply(swing_between(current, aims), quats))
+    aimed = to_aim_frames(quats)  # the ankles' X is not on their aim bone: swing their aim frames
+    current = quat_rotate(aimed, _LOCAL_X)
+    return from_aim_frames(quat_normalize(quat_multiply(swing_between(current, aims), aimed)))
 
 
 def views_to_world(orientations: np.ndarray, world_from_sensor: np.ndarray) -> np.ndarray:
@@ -390,6 +418,8 @@ _SWING_ROWS = _table_rows(
     )
 )
 _DERIVED_OFFSETS_ROWS = np.ascontiguousarray(ORIENTATION_DERIVED_OFFSET[_DERIVED].T)[:, None, :]  # (4, 1, n_derived)
+_AIM_OFFSET_ROWS = np.ascontiguousarray(ORIENTATION_AIM_OFFSET[_OFFSET].T)[:, None, :]  # (4, 1, n_offset)
+_AIM_OFFSET_CONJ_ROWS = _AIM_OFFSET_ROWS * np.array([1.0, -1.0, -1.0, -1.0])[:, None, None]
 _AIM_SIGN_AIMED = np.where(ORIENTATION_AIMED, _AIM_SIGN, np.nan)  # a derived joint's aim comes out NaN
 
 
@@ -548,10 +578,26 @@ def view_consensus(
     """
     aims = _rows_aims(np.asarray(positions, dtype=np.float64).transpose(2, 0, 1))
     aims_one = np.concatenate([np.ones((1, *aims.shape[1:])), aims])[:, None]  # (4, 1, B, J)
-    views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)  # (4, S, B, J)
-    swung = _rows_swing_onto(views, aims_one)
+    swung = _rows_swing_onto(_rows_view_aim_frames(view_quats), aims_one)
     quats, n_views = _rows_consensus(swung, np.asarray(usable, dtype=bool).transpose(1, 0, 2), agree_deg)
-    return quats.transpose(1, 2, 0), n_views
+    return _rows_from_aim_frames(quats).transpose(1, 2, 0), n_views
+
+
+def _rows_view_aim_frames(view_quats: np.ndarray) -> np.ndarray:
+    """(B, S, 32, 4) views' k4abt frames -> (4, S, B, J) component-major aim frames (what the filter carries)."""
+    views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)
+    if _OFFSET.size:
+        views = views.copy()
+        views[..., _OFFSET] = _rows_bilinear(views[..., _OFFSET], _AIM_OFFSET_CONJ_ROWS[:, None], _QMUL_ROWS)
+    return views
+
+
+def _rows_from_aim_frames(quats: np.ndarray) -> np.ndarray:
+    """(4, ..., J) component-major aim frames -> k4abt frames (a copy; only the ankles change)."""
+    out = np.array(quats, dtype=np.float64, copy=True)
+    if _OFFSET.size:
+        out[..., _OFFSET] = _rows_bilinear(out[..., _OFFSET], _AIM_OFFSET_ROWS, _QMUL_ROWS)
+    return out
 
 
 def _rows_measure(
@@ -570,7 +616,7 @@ def _rows_measure(
     else:
         # The views and the prediction swung onto this frame's bones in one call: (4, S + 1, B, J); the views'
         # axis ahead of the bodies' so that the aims (4, 1, B, J) broadcast over a leading axis.
-        views = np.asarray(view_quats, dtype=np.float64).transpose(3, 1, 0, 2)
+        views = _rows_view_aim_frames(view_quats)
         swung = _rows_swing_onto(np.concatenate([views, predicted[:, None]], axis=1), aims_one[:, None])
         usable_rows = np.asarray(usable, dtype=bool).transpose(1, 0, 2)  # (S, B, J)
         measured, n_views = _rows_consensus(swung[:, :-1], usable_rows, agree_deg)
@@ -631,17 +677,19 @@ def fuse_orientations(
     need_hint = ~has_meas & ~has_prev & has_aim
     both = has_meas & has_prev
     if need_hint.any():
-        fallback = np.where(has_prev, predicted, body_hint_frames(positions).transpose(2, 0, 1))
+        fallback = np.where(has_prev, predicted, _aim_hint_frames(positions).transpose(2, 0, 1))
     else:
         fallback = predicted  # where has_prev is False here, has_aim is too (or has_meas): masked below
     out = np.where(both, corrected, np.where(has_meas, measured, fallback))
     omega_out = np.where(both, omega + (params.beta / dt_s) * residual, np.where(has_prev & ~has_meas, omega, 0.0))
     # Nothing to aim and nothing to coast on, or no fused position: unknown (and the history is dropped).
     out = np.where(has_aim | has_prev, out, np.nan)
-    out[:, :, _DERIVED] = _rows_bilinear(out[:, :, _DERIVED_SOURCE], _DERIVED_OFFSETS_ROWS, _QMUL_ROWS)
     # The sum of the three coordinates is finite exactly when all three are (mm-sized values cannot overflow).
-    out = np.where(np.isfinite(position_rows.sum(axis=0)), out, np.nan)
-    state_quats = np.where(out == out, out, 0.0)
+    located = np.isfinite(position_rows.sum(axis=0))
+    state_quats = np.where(located & (out == out), out, 0.0)  # the filter carries aim frames
+    out = _rows_from_aim_frames(out)
+    out[:, :, _DERIVED] = _rows_bilinear(out[:, :, _DERIVED_SOURCE], _DERIVED_OFFSETS_ROWS, _QMUL_ROWS)
+    out = np.where(located, out, np.nan)
     omega_out = np.where(np.isfinite(omega_out), omega_out, 0.0)
     n_views = np.where(has_meas, n_views, 0).astype(np.int16)
     return (

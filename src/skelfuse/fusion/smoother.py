@@ -15,9 +15,16 @@ plausibility stage's follow rule): a segment is smoothed on its own. Frames with
 segment (a gap of at most ``max_coast_frames``) get the smoothed interpolation; the live filter had only a
 prediction there.
 
+The white-noise acceleration of the live model suits everyday motion but rounds off a jump's take-off and
+landing (smoothed in both directions, the error's second difference grows as the view noise's falls). The
+offline default therefore runs a second, adaptive pass: per axis, with the process noise raised where the
+first pass saw hard acceleration (:func:`adaptive_accel_sigma`); elsewhere the model is the live one.
+
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
 option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
-full smoother.
+full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node. The offline
+form can run a causal version of the adaptive pass (:func:`causal_accel_sigma`: the live filter's own
+velocity changes in the frames before), off by default.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
 Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.
@@ -31,6 +38,12 @@ import numpy as np
 
 from skelfuse.fusion.filters import _cv_model, filter_step, init_filter_state
 from skelfuse.fusion.presets import FusionParams
+
+ADAPTIVE_GAIN = 1.5
+"""Process noise per unit of first-pass acceleration (see :func:`adaptive_accel_sigma`; chosen on the training
+seeds of ``scripts/smoothing_targets.py``)."""
+ADAPTIVE_SPREAD = 5
+"""Frames on either side over which a first-pass acceleration sets the process noise."""
 
 SMOOTHERS: tuple[str, ...] = ("rts", "none")
 """Offline smoother names: the fixed-interval RTS smoother, or the live filter's own output."""
@@ -57,7 +70,13 @@ class ForwardPass:
 
 
 def forward_pass(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    *,
+    accel_sigma: np.ndarray | None = None,
 ) -> ForwardPass:
     """Run :func:`filter_step` frame by frame over one track's merged measurements.
 
@@ -67,27 +86,116 @@ def forward_pass(
     dt_s : (T,) seconds since the previous frame (dt_s[0] is not used).
     restart : (T,) bool, the live fusion restarted the track's filter at frame t (plausibility follow rule).
     params : FusionParams with ``filter == "cv_kalman"``.
+    accel_sigma : None for the live filter exactly; else (T, N) the white-noise acceleration of the step into
+        frame t per joint, mm/s^2; below ``params.cv_accel_sigma_mm_s2`` counts as it (see
+        :func:`adaptive_accel_sigma`).
     """
     if params.filter != "cv_kalman":
         raise ValueError(f"the RTS smoother needs the cv_kalman filter's motion model, got filter={params.filter!r}")
     z = np.asarray(z, dtype=np.float64)
     T, N, _ = z.shape
-    x, P, coast = init_filter_state(N)
-    shape = (T, N)
-    out = np.full((T, N, 3), np.nan)
-    xs, Ps = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
-    x_pred, P_pred = np.zeros((*shape, 2, 3)), np.zeros((*shape, 3))
-    linked = np.zeros(shape, dtype=bool)
-    n_agree = np.asarray(n_agree).astype(np.int16)
-    for t in range(T):
-        dt = float(dt_s[t]) if t else 1.0 / 30.0
-        coast_in = np.where(restart[t], -1, coast)
+    track = _TrackFilter(*init_filter_state(N))
+    rows = [
+        track.step(
+            z[t],
+            n_agree[t],
+            bool(restart[t]),
+            float(dt_s[t]) if t else FIRST_DT_S,
+            params,
+            None if accel_sigma is None else accel_sigma[t],
+        )
+        for t in range(T)
+    ]
+    return _stacked(rows, N)
+
+
+def _stacked(rows: list[tuple[np.ndarray, ...]], n_joints: int) -> ForwardPass:
+    """The :class:`ForwardPass` of ``rows`` ((out, x, P, x_pred, P_pred, linked) per frame)."""
+    if not rows:
+        vectors, triangles = np.zeros((0, n_joints, 2, 3)), np.zeros((0, n_joints, 3))
+        return ForwardPass(triangles, vectors, triangles, vectors, triangles, np.zeros((0, n_joints), bool))
+    out, x, P, x_pred, P_pred, linked = (np.stack(column) for column in zip(*rows, strict=True))
+    return ForwardPass(out=out, x=x, P=P, x_pred=x_pred, P_pred=P_pred, linked=linked)
+
+
+FIRST_DT_S = 1.0 / 30.0
+"""The time step given to a track's first frame (the filter starts there: it predicts nothing with it)."""
+
+
+@dataclass
+class _TrackFilter:
+    """The live filter's state of one track: position/velocity ``x`` (N, 2, 3), covariance ``P`` (N, 3) and
+    ``coast`` (N,), as :func:`filter_step` carries them."""
+
+    x: np.ndarray
+    P: np.ndarray
+    coast: np.ndarray
+
+    def step(
+        self,
+        z: np.ndarray,
+        n_agree: np.ndarray,
+        restart: bool,
+        dt: float,
+        params: FusionParams,
+        accel_sigma: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, ...]:
+        """One frame: the row (out, x, P, x_pred, P_pred, linked) of :class:`ForwardPass` it adds;
+        ``accel_sigma`` (N,): the step's process noise per joint where it is not the live model's."""
+        coast_in = np.where(restart, -1, self.coast)
+        if accel_sigma is not None:
+            self.P = self.P + _extra_process_noise(accel_sigma, params.cv_accel_sigma_mm_s2, dt)
         cov_map, q_vec, state_map = _cv_model(dt, params.cv_accel_sigma_mm_s2)
-        x_pred[t], P_pred[t] = state_map @ x, P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
-        out[t], x, P, coast = filter_step(x, P, coast_in, z[t], n_agree[t], params, dt)
-        linked[t] = (coast_in >= 0) & (coast >= 0)
-        xs[t], Ps[t] = x, P
-    return ForwardPass(out=out, x=xs, P=Ps, x_pred=x_pred, P_pred=P_pred, linked=linked)
+        x_pred, P_pred = state_map @ self.x, self.P @ cov_map + q_vec  # x~ = F x;  P~ = F P F' + Q
+        z = np.asarray(z, dtype=np.float64)
+        out, self.x, self.P, self.coast = filter_step(
+            self.x, self.P, coast_in, z, np.asarray(n_agree).astype(np.int16), params, dt
+        )
+        linked = (coast_in >= 0) & (self.coast >= 0)
+        return out, self.x, self.P, x_pred, P_pred, linked
+
+
+def _extra_process_noise(accel_sigma: np.ndarray, base: float, dt: float) -> np.ndarray:
+    """(N, 3) covariance triangle E with F E F' = Q(sigma) - Q(base): added to P before the live filter's own
+    prediction, it turns that prediction's Q into the white-noise acceleration Q of ``accel_sigma`` per joint.
+
+    Q(s) = s^2 [dt^4/4, dt^3/2, dt^2] and F^-1 Q F'^-1 = s^2 [dt^4/4, -dt^3/2, dt^2] (rank one, positive
+    semi-definite), so E is that with s^2 the difference of the variances.
+    """
+    extra = np.maximum(np.asarray(accel_sigma, dtype=np.float64) ** 2 - base**2, 0.0)
+    return extra[:, None] * np.array([dt**4 / 4.0, -(dt**3) / 2.0, dt * dt])
+
+
+def adaptive_accel_sigma(
+    states: np.ndarray,
+    linked: np.ndarray,
+    dt_s: np.ndarray,
+    base: float,
+    gain: float = ADAPTIVE_GAIN,
+    spread: int = ADAPTIVE_SPREAD,
+) -> np.ndarray:
+    """(T, N, 3) per-frame, per-axis process noise from a first smoothing pass, mm/s^2.
+
+    Where the motion accelerates hard (a jump's take-off, flight and landing), the white-noise acceleration
+    rises to ``gain`` times the acceleration the first pass saw on that axis, so the second pass follows the
+    motion instead of rounding it off; in still and slow motion it stays ``base`` and smooths as before.
+
+    ``states`` : (T, N, 2, 3) smoothed position and velocity (mm, mm/s); ``linked`` : (T, N) frame t continues
+    frame t - 1's track (:class:`ForwardPass`). The acceleration of frame t is the velocity change into it (0 at
+    a track's start); each frame takes the largest within ``spread`` frames (the first pass spreads a sharp
+    change over its neighbours, and the noise must cover the whole span of the change).
+    """
+    padded = np.pad(_velocity_changes(states, linked, dt_s), ((spread, spread), (0, 0), (0, 0)), mode="edge")
+    nearby = np.lib.stride_tricks.sliding_window_view(padded, 2 * spread + 1, axis=0).max(axis=-1)
+    return np.maximum(base, gain * nearby)
+
+
+def _velocity_changes(states: np.ndarray, linked: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """(T, N, 3) |velocity change into frame t| / dt per axis, mm/s^2; 0 at a track's start and where unknown."""
+    accel = np.zeros((*states.shape[:2], 3))
+    dt = np.asarray(dt_s, dtype=np.float64)[1:, None, None]
+    accel[1:] = np.where(linked[1:, :, None], np.abs(np.diff(states[:, :, 1], axis=0)) / dt, 0.0)
+    return np.nan_to_num(accel, nan=0.0)
 
 
 def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
@@ -109,43 +217,132 @@ def _backward_step(fwd: ForwardPass, t: int, later: np.ndarray, dt: float) -> np
 
 
 def rts_smooth(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    *,
+    adaptive: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fixed-interval smoothing of one track (see the module docstring).
+
+    ``adaptive``: a second pass, per axis, whose process noise follows the first pass's accelerations
+    (:func:`adaptive_accel_sigma`): a jump or a foot strike is followed, not rounded off, while still and slow
+    motion is smoothed as hard as before.
 
     Returns
     -------
     smoothed : (T, N, 3) mm, NaN where the live filter had no estimate.
-    causal : (T, N, 3) mm, the live filter's own output (the forward pass), for comparison.
+    causal : (T, N, 3) mm, the live filter's own output (the first forward pass), for comparison.
     """
     fwd = forward_pass(z, n_agree, dt_s, restart, params)
-    T = fwd.out.shape[0]
+    states = backward_pass(fwd, dt_s)
+    positions = states[:, :, 0]
+    if adaptive:
+        sigma = adaptive_accel_sigma(states, fwd.linked, dt_s, params.cv_accel_sigma_mm_s2)
+        positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma)
+    return np.where(np.isfinite(fwd.out), positions, np.nan), fwd.out
+
+
+def smooth_per_axis(
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    accel_sigma: np.ndarray,
+    lag: int | None = None,
+) -> np.ndarray:
+    """(T, N, 3) smoothed positions with the process noise ``accel_sigma`` (T, N, 3, mm/s^2) of each step into
+    frame t, per joint and axis (NaN where the filter had no estimate): fixed-interval (``lag`` None) or from
+    the frames up to t + ``lag``."""
+    fwd = _per_axis_forward(z, n_agree, dt_s, restart, params, accel_sigma)
+    smoothed = backward_pass(fwd, dt_s)[:, :, 0] if lag is None else _fixed_lag_positions(fwd, dt_s, int(lag))
+    positions = np.where(np.isfinite(fwd.out[:, :, 0]), smoothed[:, :, 0], np.nan)
+    return positions.reshape(np.shape(z))
+
+
+def _per_axis_forward(
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    accel_sigma: np.ndarray,
+) -> ForwardPass:
+    """The forward pass over (T, 3N) pseudo-joints, one per coordinate, with ``accel_sigma`` (T, N, 3).
+
+    The live filter shares one covariance by the three axes of a joint; a jump accelerates up and down, not
+    sideways, so here each coordinate is a joint of its own (its value in all three columns; column 0 read).
+    """
+    z = np.asarray(z, dtype=np.float64)
+    T, N, _ = z.shape
+    coords = np.repeat(z.reshape(T, 3 * N, 1), 3, axis=2)
+    agree = np.repeat(np.asarray(n_agree), 3, axis=1)
+    return forward_pass(coords, agree, dt_s, restart, params, accel_sigma=np.reshape(accel_sigma, (T, 3 * N)))
+
+
+def backward_pass(fwd: ForwardPass, dt_s: np.ndarray) -> np.ndarray:
+    """(T, N, 2, 3) the smoothed states of a whole forward pass."""
     states = fwd.x.copy()
-    for t in range(T - 2, -1, -1):
+    for t in range(len(states) - 2, -1, -1):
         states[t] = _backward_step(fwd, t, states[t + 1], float(dt_s[t + 1]))
-    alive = np.isfinite(fwd.out)
-    return np.where(alive, states[:, :, 0], np.nan), fwd.out
+    return states
 
 
 def fixed_lag_smooth(
-    z: np.ndarray, n_agree: np.ndarray, dt_s: np.ndarray, restart: np.ndarray, params: FusionParams, lag: int
+    z: np.ndarray,
+    n_agree: np.ndarray,
+    dt_s: np.ndarray,
+    restart: np.ndarray,
+    params: FusionParams,
+    lag: int,
+    *,
+    adaptive: bool = False,
 ) -> np.ndarray:
     """(T, N, 3) the estimate of each frame t from the frames up to t + ``lag`` (NaN where no estimate).
 
     Frames within ``lag`` of the end use what there is (the end of a take is the end of the data).
+    ``adaptive``: per axis, with the process noise of :func:`causal_accel_sigma` (still from the frames up to
+    t + ``lag`` only: no added latency).
     """
     if int(lag) < 0:
         raise ValueError(f"lag must be >= 0 frames, got {lag!r}")
     fwd = forward_pass(z, n_agree, dt_s, restart, params)
+    if not adaptive:
+        return np.where(np.isfinite(fwd.out), _fixed_lag_positions(fwd, dt_s, int(lag)), np.nan)
+    sigma = causal_accel_sigma(fwd, dt_s, params.cv_accel_sigma_mm_s2)
+    positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma, int(lag))
+    return np.where(np.isfinite(fwd.out), positions, np.nan)
+
+
+def _fixed_lag_positions(fwd: ForwardPass, dt_s: np.ndarray, lag: int) -> np.ndarray:
+    """(T, N, 3) the position of each frame t smoothed from the frames up to t + ``lag``."""
     T = fwd.out.shape[0]
     result = fwd.x[:, :, 0].copy()
     for t in range(T):
-        end = min(t + int(lag), T - 1)
-        state = fwd.x[end]
-        for k in range(end - 1, t - 1, -1):
-            state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
-        result[t] = state[:, 0]
-    return np.where(np.isfinite(fwd.out), result, np.nan)
+        result[t] = _smoothed_from(fwd, dt_s, t, min(t + lag, T - 1))
+    return result
+
+
+def _smoothed_from(fwd: ForwardPass, dt_s: np.ndarray, t: int, end: int) -> np.ndarray:
+    """(N, 3) the position of frame ``t`` smoothed backward from the filtered state of frame ``end``."""
+    state = fwd.x[end]
+    for k in range(end - 1, t - 1, -1):
+        state = _backward_step(fwd, k, state, float(dt_s[k + 1]))
+    return state[:, 0]
+
+
+def causal_accel_sigma(
+    fwd: ForwardPass, dt_s: np.ndarray, base: float, gain: float = ADAPTIVE_GAIN, spread: int = ADAPTIVE_SPREAD
+) -> np.ndarray:
+    """(T, N, 3) the process noise of :func:`adaptive_accel_sigma` from the live filter's own velocities, and
+    for each frame from the ``spread`` frames before it only: what a live fixed-lag smoother knows in time."""
+    accel = _velocity_changes(fwd.x, fwd.linked, dt_s)
+    padded = np.pad(accel, ((spread, 0), (0, 0), (0, 0)), mode="edge")
+    before = np.lib.stride_tricks.sliding_window_view(padded, spread + 1, axis=0).max(axis=-1)
+    return np.maximum(base, gain * before)
 
 
 def smooth_tracks(
@@ -156,6 +353,8 @@ def smooth_tracks(
     restarted: list[np.ndarray | None],
     params: FusionParams,
     lag: int | None = None,
+    *,
+    adaptive: bool | None = None,
 ) -> list[np.ndarray]:
     """Smooth every track of a fused take, instant by instant as the live fusion gave them.
 
@@ -169,6 +368,8 @@ def smooth_tracks(
     restarted : per instant, (P_t,) bool or None, the follow rule restarted the person's filter.
     params : the FusionParams of the live fusion ("cv_kalman").
     lag : None for the fixed-interval smoother, else the fixed lag in frames.
+    adaptive : the adaptive pass (:func:`rts_smooth`, :func:`fixed_lag_smooth`); None: on for the
+        fixed-interval smoother, off for a fixed lag (what the live option gives).
 
     Returns
     -------
@@ -188,9 +389,9 @@ def smooth_tracks(
         restart = np.array([_restarted_at(restarted[t], row) for t, row in where])
         dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
         if lag is None:
-            smoothed, _ = rts_smooth(z, agree, dt, restart, params)
+            smoothed, _ = rts_smooth(z, agree, dt, restart, params, adaptive=adaptive is not False)
         else:
-            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag)
+            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag, adaptive=bool(adaptive))
         for k, (t, row) in enumerate(where):
             out[t][row] = smoothed[k]
     return out
@@ -199,3 +400,93 @@ def smooth_tracks(
 def _restarted_at(restarted: np.ndarray | None, row: int) -> bool:
     """Whether the follow rule restarted row ``row``'s filter at this instant (None: no plausibility stage)."""
     return restarted is not None and bool(restarted[row])
+
+
+@dataclass
+class _TrackWindow:
+    """One live track for :class:`FixedLagSmoother`: its filter and its last frames' :class:`ForwardPass` rows."""
+
+    filter: _TrackFilter
+    last_time_s: float
+    instants: list[int]  # the instant of each kept row, increasing
+    rows: list[tuple[np.ndarray, ...]]  # (out, x, P, x_pred, P_pred, linked) per kept row
+    dt_s: list[float]
+
+
+class FixedLagSmoother:
+    """Fixed-lag smoothing of the live tracks, instant by instant: the live fusion's instants in, each one
+    back ``lag`` instants later, smoothed by the frames up to then.
+
+    Per track it runs the live filter over the merged measurements (:func:`forward_pass`'s step, so the
+    filtered states are the live output's) and keeps the last ``lag`` + 1 frames; an instant is released once
+    ``lag`` more instants arrived, each of its tracks smoothed backward from its newest frame. The result is
+    :func:`fixed_lag_smooth` (through :func:`smooth_tracks`) over the same stream, frame for frame:
+
+    - a new track starts its own window (the backward pass never crosses a track start or a restart);
+    - a track that ends (absent from an instant: ids are never reused) has its last frames smoothed from
+      what there is, its last frame included: its tail is flushed, not dropped;
+    - frames inside a track without a measurement (coasting, up to ``max_coast_frames``) get the smoothed
+      interpolation, as offline; a gap between instants only lengthens the time step;
+    - :meth:`flush` releases the instants still held (the end of the stream), smoothed from what there is.
+    """
+
+    def __init__(self, params: FusionParams, lag: int) -> None:
+        if params.filter != "cv_kalman":
+            raise ValueError(f"fixed-lag smoothing needs the cv_kalman filter's motion model, got {params.filter!r}")
+        if int(lag) < 1:
+            raise ValueError(f"the fixed lag must be at least 1 frame, got {lag!r}")
+        self.params = params
+        self.lag = int(lag)
+        self._tracks: dict[int, _TrackWindow] = {}
+        self._held: list[tuple[int, np.ndarray, tuple[int, ...]]] = []  # (instant, track ids, positions' shape)
+        self._count = 0
+
+    def push(
+        self,
+        time_s: float,
+        track_ids: np.ndarray,
+        merged: np.ndarray,
+        n_agree: np.ndarray,
+        restarted: np.ndarray | None,
+    ) -> np.ndarray | None:
+        """Add one instant (as :func:`smooth_tracks` takes it); return the smoothed (P, J, 3) positions of the
+        instant ``lag`` instants back, in its track order, or None while fewer have arrived."""
+        instant = self._count
+        self._count += 1
+        ids = np.asarray(track_ids).tolist()
+        for row, track_id in enumerate(ids):
+            self._add(int(track_id), instant, float(time_s), merged[row], n_agree[row], _restarted_at(restarted, row))
+        self._held.append((instant, np.asarray(track_ids), np.shape(merged)))
+        return self._release() if len(self._held) > self.lag else None
+
+    def flush(self) -> list[np.ndarray]:
+        """The instants still held, oldest first, each smoothed from what there is."""
+        return [self._release() for _ in range(len(self._held))]
+
+    def _add(self, track_id: int, instant: int, time_s: float, z: np.ndarray, agree: np.ndarray, restart: bool) -> None:
+        window = self._tracks.get(track_id)
+        if window is None:
+            window = _TrackWindow(_TrackFilter(*init_filter_state(z.shape[0])), time_s, [], [], [])
+            self._tracks[track_id] = window
+            dt = FIRST_DT_S
+        else:
+            dt = time_s - window.last_time_s
+        window.rows.append(window.filter.step(z, agree, restart, dt, self.params))
+        window.instants.append(instant)
+        window.dt_s.append(dt)
+        window.last_time_s = time_s
+
+    def _release(self) -> np.ndarray:
+        instant, ids, shape = self._held.pop(0)
+        out = np.full(shape, np.nan)
+        for row, track_id in enumerate(ids.tolist()):
+            window = self._tracks[int(track_id)]
+            fwd = _stacked(window.rows, shape[1])
+            t = window.instants.index(instant)
+            smoothed = _smoothed_from(fwd, np.asarray(window.dt_s), t, len(window.rows) - 1)
+            out[row] = np.where(np.isfinite(fwd.out[t]), smoothed, np.nan)
+            del window.instants[: t + 1], window.rows[: t + 1], window.dt_s[: t + 1]  # never needed again
+        # A track without frames left ended at or before this instant (a live one has a frame in every later one).
+        for track_id in [k for k, w in self._tracks.items() if not w.instants]:
+            del self._tracks[track_id]
+        return out

@@ -39,7 +39,8 @@ FUSED_SCHEMA_TEXT = (
     "reference implementation: skelfuse.wire.codec.decode_fused_frame.\n"
     "Little-endian; prefix 'SKLF', major, minor, kind, flags, header_size; then time (us), track ids, "
     "positions f64[P][32][3] mm world, n_agree i16[P][32], confidence u8[P][32], contributors u8[P][S], "
-    "sensor id table.\n"
+    "sensor id table; then the optional sections the header's 'sections' bits name (1.1: orientations "
+    "f64[P][32][4] wxyz, position_std f64[P][32] mm; 1.2: agreement_mm f64[P]).\n"
 )
 CLOUDS_MESSAGE_ENCODING = "skelfuse-person-clouds/1"
 """MCAP message encoding of person-cloud channels (depth / hybrid mode): the wire payload of kind 4."""

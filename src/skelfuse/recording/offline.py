@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from skelfuse.config import DEFAULT_PRESET, RigConfig, SyncConfig
-from skelfuse.fusion.orientation import aim_directions, apply_derived, swing_onto_aims
 from skelfuse.fusion.presets import FusionParams, preset
 from skelfuse.fusion.smoother import SMOOTHERS, smooth_tracks
 from skelfuse.progress import Progress
@@ -37,6 +36,7 @@ from skelfuse.recording.inputs import InputTake
 from skelfuse.recording.mcap_io import RecordedFrame, RecordingReader
 from skelfuse.rig.grouping import FrameGrouper
 from skelfuse.rig.instant import RESET_GAP_S, FusedInstant, GroupFuser
+from skelfuse.rig.smoothing import merged_or_nan, smoothed_frame
 from skelfuse.schema.errors import DataError
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 
@@ -279,23 +279,12 @@ def _smooth_take(instants: Iterator[FusedInstant], params: FusionParams, lag: in
         frames.append(instant.frame)
         times.append(people.time_s)
         ids.append(people.track_ids)
-        # the merge before the filter; a path without one gives the smoother no measurement there
-        merged.append(people.merged if people.merged is not None else np.full_like(people.positions, np.nan))
+        merged.append(merged_or_nan(people))
         agree.append(people.n_agree)
         restarted.append(people.restarted)
     smoothed = smooth_tracks(np.asarray(times), ids, merged, agree, restarted, params, lag)
     for frame, people_ids, positions in zip(frames, ids, smoothed, strict=True):
-        rows = np.searchsorted(people_ids, frame.track_ids)  # both ascending; the frame's are a subset
-        yield replace(frame, positions=positions[rows], orientations=follow_bones(frame.orientations, positions[rows]))
-
-
-def follow_bones(orientations: np.ndarray | None, positions: np.ndarray) -> np.ndarray | None:
-    """The fused orientations swung onto the smoothed bones (their twist kept): every aimed joint's X axis lies
-    on its bone of the smoothed positions, as the live fusion's lies on the live positions' (docs/orientations.md)."""
-    if orientations is None:
-        return None
-    swung = apply_derived(swing_onto_aims(orientations, aim_directions(positions)))
-    return np.where(np.isfinite(swung).all(axis=-1, keepdims=True), swung, orientations)
+        yield smoothed_frame(frame, people_ids, positions)
 
 
 def _fuse_take(

@@ -122,6 +122,7 @@ def fused_frame(people: PeopleResult, time_us: int, sensor_ids: tuple[str, ...])
         sensor_ids=sensor_ids,
         orientations=None if people.orientations is None else people.orientations[keep],
         position_std=None if people.position_std is None else people.position_std[keep],
+        agreement_mm=None if people.agreement_mm is None else people.agreement_mm[keep],
     )
 
 

@@ -92,6 +92,9 @@ class FusedFrame:
     position_std : (P, 32) float64 or None
         One-sigma position uncertainty per joint and axis, mm, from the data (docs/orientations.md); NaN where
         no estimate. None: the producer does not compute it.
+    agreement_mm : (P,) float64 or None
+        How far the views merged into each person lie from the fused torso, mm (docs/plausibility.md); NaN where
+        fewer than two views carry the person. None: the producer does not compute it.
     """
 
     time_us: int
@@ -103,6 +106,7 @@ class FusedFrame:
     sensor_ids: tuple[str, ...] = field(default=())
     orientations: np.ndarray | None = None
     position_std: np.ndarray | None = None
+    agreement_mm: np.ndarray | None = None
 
     @property
     def n_persons(self) -> int:

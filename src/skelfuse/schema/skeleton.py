@@ -223,11 +223,11 @@ ORIENTATION_AIM = np.array(
         [14, 17, -1],  # THUMB_RIGHT
         [18, 19, -1],  # HIP_LEFT: X up the left leg (towards the parent)
         [19, 20, -1],  # KNEE_LEFT
-        [19, 20, -1],  # ANKLE_LEFT: the shin (its own bone, to the foot, is not along any axis)
+        [20, 21, 1],  # ANKLE_LEFT: the foot bone, at a fixed angle from X (ORIENTATION_AIM_OFFSET)
         [-1, -1, 0],  # FOOT_LEFT = ANKLE_LEFT turned 90 deg about Z
         [22, 23, 1],  # HIP_RIGHT: X down the right leg (towards the child)
         [23, 24, 1],  # KNEE_RIGHT
-        [23, 24, 1],  # ANKLE_RIGHT: the shin
+        [24, 25, 1],  # ANKLE_RIGHT: the foot bone, at a fixed angle from X (ORIENTATION_AIM_OFFSET)
         [-1, -1, 0],  # FOOT_RIGHT = ANKLE_RIGHT turned 90 deg about Z
         [3, 26, 1],  # HEAD: X along neck -> head
         [-1, -1, 0],  # NOSE = HEAD
@@ -239,6 +239,26 @@ ORIENTATION_AIM = np.array(
     dtype=np.int64,
 )
 """(32, 3) per joint: the bone (from, to) its local X axis follows and the sign (+1: X points from -> to)."""
+
+ANKLE_FOOT_ANGLE_DEG = {"ANKLE_LEFT": 127.15, "ANKLE_RIGHT": -53.29}
+"""Where the foot bone (ankle -> foot) lies in the SDK's ankle frame: this angle about local Z from X towards Y.
+Measured on the real recordings in their own camera frames (``scripts/measure_orientation_convention.py``):
+127.15 / -53.29 deg in every frame of every such file, the foot at local z = 0.00. The ankle frame is rigid to
+the foot, not to the shin: its X lies 2-23 deg off the shin, by the ankle's flexion (docs/orientations.md)."""
+
+
+def _about_z(angle_deg: float) -> tuple[float, float, float, float]:
+    half = np.radians(angle_deg) / 2.0
+    return (float(np.cos(half)), 0.0, 0.0, float(np.sin(half)))
+
+
+ORIENTATION_AIM_OFFSET = np.array(
+    [_about_z(-ANKLE_FOOT_ANGLE_DEG.get(name, 0.0)) for name in JOINT_NAMES],
+    dtype=np.float64,
+)
+"""(32, 4) per joint, the fixed rotation from its aim frame (local X on the aim bone) to the SDK's frame:
+``q_sdk = q_aim * offset``. Identity except the ankles, whose aim bone (the foot) lies at
+:data:`ANKLE_FOOT_ANGLE_DEG` about local Z from the SDK's X."""
 
 ORIENTATION_AIMED = ORIENTATION_AIM[:, 2] != 0
 """(32,) bool: the joint's frame follows a bone of its own (False: a rigid copy, see ORIENTATION_DERIVED)."""

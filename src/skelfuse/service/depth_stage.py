@@ -430,6 +430,7 @@ class DepthStage:
             contributors=used,
             orientations=None,
             position_std=None,
+            agreement_mm=None,
         )
         self.tracker.retire({int(i) for i in people.track_ids})
         return dataclasses.replace(instant, frame=fused_frame(out, group.time_us, fuser.sensor_ids))

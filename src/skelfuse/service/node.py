@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.fusion import kernels
 from skelfuse.service.fusion_core import (
     BAD_KEY,
     FUSION_ERROR,
@@ -80,6 +81,23 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from skelfuse.service.depth_stage import DepthStage
 
 log = logging.getLogger("skelfuse.service.node")
+
+
+def prepare_kernels(name: str) -> None:
+    """Compile the fusion kernels now, or load them from the user cache; a first start says it is compiling."""
+    started = time.monotonic()
+    if kernels.is_cached():
+        kernels.warm_up()
+        log.debug("fusion node %s: fusion kernels loaded in %.2f s", name, time.monotonic() - started)
+        return
+    log.info(
+        "fusion node %s: compiling the fusion kernels (first start; cached in %s for the next ones) ...",
+        name,
+        kernels.cache_dir(),
+    )
+    kernels.warm_up()
+    log.info("fusion node %s: fusion kernels compiled in %.1f s", name, time.monotonic() - started)
+
 
 # The core lives in skelfuse.service.fusion_core; its names are re-exported here for the node's users.
 __all__ = [
@@ -178,6 +196,14 @@ class _Declared:
     clouds: Any  # the person-cloud subscriber (depth / hybrid mode), else None
 
 
+def fixed_lag_line(lag_frames: int, fps: float) -> str:
+    """What the node says at start about ``[fusion] fixed_lag_frames``: the latency it adds."""
+    return (
+        f"fixed-lag smoothing over {lag_frames} frames adds {1000.0 * lag_frames / fps:.1f} ms of latency "
+        f"({lag_frames} frames at {fps:g} fps): each fused frame is published {lag_frames} instants later, smoothed"
+    )
+
+
 class FusionNode:
     """The fusion node's zenoh shell around :class:`FusionCore` (see the module docstring).
 
@@ -214,6 +240,8 @@ class FusionNode:
         self.lifecycle = lifecycle or Lifecycle(self.name)
         self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
+        self.core.shedder.what = f"fusion node {self.name}"
+        prepare_kernels(self.name)  # before the first instant: a first start compiles them (seconds)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf
@@ -336,6 +364,8 @@ class FusionNode:
             keys.fused_skeletons(rig),
         )
         log.info("fusion node %s: poses: %s", self.name, self.pose_origin)
+        if self.core.fixed_lag_frames:
+            log.info("fusion node %s: %s", self.name, fixed_lag_line(self.core.fixed_lag_frames, self.cfg.sync.fps))
         if self.depth is not None:
             log.info("fusion node %s: depth-level fusion, %s", self.name, self.depth.describe())
 
@@ -353,10 +383,12 @@ class FusionNode:
             item = samples.get_nowait()
             if item is None:
                 break
-            self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+            self._publish(
+                self.core.receive(item.key, item.payload, item.arrival_ns, time.monotonic_ns()), publisher, view
+            )
             drained += 1
         drained_s = time.monotonic() - budget.began
-        self._publish(self.core.flush(), publisher, view)
+        self._publish(self.core.flush(time.monotonic_ns()), publisher, view)
         self._publish_status(status_pub, "stopped", time.monotonic_ns())
         declared.token.undeclare()
         declared.queryable.undeclare()
@@ -406,7 +438,8 @@ class FusionNode:
                 # now), but a stop is seen between any two samples (a starved node's backlog never hides it),
                 # and so is an overdue status: a node a little behind for long (its queue never quite empty)
                 # published none for over 10 s.
-                self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+                outputs = self.core.receive(item.key, item.payload, item.arrival_ns, time.monotonic_ns())
+                self._publish(outputs, publisher, view)
                 if self.lifecycle.should_exit:
                     break
                 if time.monotonic_ns() >= next_status + period_ns:
@@ -436,7 +469,7 @@ class FusionNode:
         for out in outputs:
             publisher.put(out.payload)
             done_ns = time.monotonic_ns()
-            for change in self.pose_fit.update(out.sensors_world, out.frame.positions):
+            for change in self.pose_fit.update(out.sensors_world, *out.fit_inputs()):
                 self._log_fit(change)
             fusion_ms = out.fusion_ns / 1e6
             self._window_fusion.append(fusion_ms)
@@ -457,6 +490,7 @@ class FusionNode:
                     fusion_ms,
                     added_ms,
                     self._rates,
+                    agreement_mm=out.frame.agreement_mm,
                 )
                 if out.clouds:
                     view.log_clouds((out.frame.time_us - self._first_time_us) / 1e6, out.clouds)
@@ -504,8 +538,10 @@ class FusionNode:
         self._rates = {sid: s["rate_hz"] for sid, s in sensors.items() if s["rate_hz"] is not None}
         queue = {} if self._samples is None else self._samples.counts()  # the intake queue, per sensor key
         no_drops = {"queued": 0, "dropped": 0, "oversized": 0}
+        shedder = core.shedder
         for sid, report in sensors.items():
             report["queue"] = queue.get(sid, no_drops)
+            report["shed"] = shedder.frames_by_sensor[sid]
         stats = core.grouper.stats
         totals = stats.totals
         reject_totals: Counter[str] = Counter()
@@ -528,13 +564,18 @@ class FusionNode:
             "samples_dropped": 0 if self._samples is None else self._samples.dropped,
             "samples_oversized": 0 if self._samples is None else self._samples.oversized,
             "invalid": sum(reject_totals.values()),
+            "instants_shed": shedder.total,
         } | {f"rejects.{reason}": n for reason, n in sorted(reject_totals.items())}
+        counters |= {f"shed.{reason}": n for reason, n in sorted(shedder.by_reason.items())}
         info = {
             "rig": self.cfg.name,
             "preset": self.cfg.fusion.preset,
             "sync_by": self.cfg.sync.by,
+            "max_lag_s": shedder.max_lag_s,
+            "shed_episodes": shedder.episodes,
             "window_s": round(window_s, 4),
             "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
+            "fixed_lag_ms": round(1000.0 * core.fixed_lag_frames / self.cfg.sync.fps, 3),
             "sensors": sensors,
             "pose_fit": pose_fit,
             "unknown_ids": stats.unknown_ids,

@@ -288,11 +288,13 @@ class RerunView:
         fusion_ms: float | None,
         latency_ms: float | None,
         rate_hz: dict[str, float] | None,
+        agreement_mm: np.ndarray | None = None,
     ) -> None:
         """Queue one instant: (S, B, 32, 3) raw skeletons (every body) in the world, (P, 32, 3) fused persons
-        with their (P,) track ids (one colour per id), metrics."""
+        with their (P,) track ids (one colour per id) and agreement (mm, labelled), metrics."""
+        item = (time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz, agreement_mm)
         try:
-            self._queue.put_nowait((time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz))
+            self._queue.put_nowait(item)
         except queue.Full:
             self.dropped += 1
 
@@ -328,11 +330,11 @@ class RerunView:
                     self.sink.set_time(time_s)
                     self.sink.log_person_clouds([c for _, c in clouds], [t for t, _ in clouds])
                     continue
-                time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz = item
+                time_s, sensors_world, fused, track_ids, fusion_ms, latency_ms, rate_hz, agreement_mm = item
                 self.sink.set_time(time_s)
                 if self.log_sensors and sensors_world is not None:
                     self.sink.log_sensor_skeletons(sensors_world)
-                self.sink.log_fused(fused, track_ids)
+                self.sink.log_fused(fused, track_ids, agreement_mm)
                 self.sink.log_metrics(fusion_ms=fusion_ms, rate_hz=rate_hz)
                 if latency_ms is not None:
                     self.recording.log("metrics/fusion_ms/node_latency", rr.Scalars(latency_ms))

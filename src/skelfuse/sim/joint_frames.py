@@ -3,6 +3,9 @@
 The k4abt convention (docs/orientations.md) is stated once here as the frames of a T-pose facing +x
 (:data:`TPOSE_AXES`), and every true frame is that T-pose frame carried by the motion's own segments:
 
+* every joint is first built as its aim frame (local X on the schema's aim bone) and turned by the schema's
+  fixed ``ORIENTATION_AIM_OFFSET`` at the end: the identity except at the ankles, whose frame is rigid to the
+  foot bone (the foot at a measured angle about local Z), not aimed along the shin;
 * a joint whose segment holds a line across the body rigidly (the pelvis: the hips; the chest: the
   clavicles; the neck and head: the ears) takes its X from its bone and its lateral axis from that line;
 * every other joint rides on its parent: the parent's frame times the two joints' fixed T-pose relation,
@@ -23,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from skelfuse.schema.skeleton import (
     N_JOINTS,
     ORIENTATION_AIM,
+    ORIENTATION_AIM_OFFSET,
     ORIENTATION_AIMED,
     ORIENTATION_DERIVED_OFFSET,
     ORIENTATION_DERIVED_SOURCE,
@@ -54,6 +58,13 @@ def _tpose_axes() -> np.ndarray:
 TPOSE_AXES = _tpose_axes()
 """(32, 3, 3) the k4abt convention (docs/orientations.md's table): each aimed joint's local axes as columns,
 world = body axes of a T-pose facing +x (x forward, y left, z up); NaN rows for the derived joints."""
+
+AIM_OFFSETS = Rotation.from_quat(ORIENTATION_AIM_OFFSET, scalar_first=True).as_matrix()
+"""(32, 3, 3) the schema's aim-frame -> k4abt-frame offsets as matrices: ``R_k4abt = R_aim @ offset``."""
+
+_TPOSE_AIM_AXES = TPOSE_AXES @ np.swapaxes(AIM_OFFSETS, -1, -2)
+"""(32, 3, 3) the T-pose's aim frames (the ankles' X on the foot bone the measured angle puts there)."""
+
 
 _LATERAL_LINE = {
     J["PELVIS"]: (J["HIP_RIGHT"], J["HIP_LEFT"]),
@@ -102,7 +113,7 @@ def true_joint_frames(positions: np.ndarray) -> np.ndarray:
     """(T, 32, 3, 3) the true frames of a take's (T, 32, 3) true positions (module docstring); derived filled."""
     p = np.asarray(positions, dtype=np.float64)
     aims = bone_directions(p)
-    frames = np.full((*p.shape[:-1], 3, 3), np.nan)
+    frames = np.full((*p.shape[:-1], 3, 3), np.nan)  # aim frames until the offsets are applied below
     for joint in range(N_JOINTS):  # PARENTS[j] < j: every parent's frame is ready before its children's
         if not ORIENTATION_AIMED[joint]:
             continue
@@ -111,10 +122,10 @@ def true_joint_frames(positions: np.ndarray) -> np.ndarray:
             frames[:, joint] = frame_from_line(aims[:, joint], p[:, left] - p[:, right])
             continue
         parent = PARENTS[joint]
-        relation = TPOSE_AXES[parent].T @ TPOSE_AXES[joint]
+        relation = _TPOSE_AIM_AXES[parent].T @ _TPOSE_AIM_AXES[joint]
         carried = frames[:, parent] @ relation
         frames[:, joint] = swing_matrix(carried[..., 0], aims[:, joint]) @ carried
-    return with_derived(frames)
+    return with_derived(frames @ AIM_OFFSETS)
 
 
 def with_derived(frames: np.ndarray) -> np.ndarray:

@@ -22,7 +22,12 @@ knees 3.5-10, arms 10-21, head 10-24; frame-to-frame change 1-2 deg, hands 4 deg
 view: a rough model of one short take, not a measurement of the tracker in general. Occluded joints get
 ``occluded_factor`` times more. A mirrored view (``Observations.mirrored``) reports the frames of a body
 facing the other way: the true frames of the mirror joints turned 180 deg about the vertical (an ASSUMED
-model of the tracker's flip). Where a view tracked nothing the orientation is NaN.
+model of the tracker's flip). A view's ankle frames then hold the view's own reported foot bone where the
+convention puts it (turned by the smallest rotation): the real tracker's ankle frame is rigid to the foot it
+reports (measured: the same angle in every frame, docs/orientations.md), so its ankle error is its foot's
+position error; mirrored frames are left as they are. The derived joints (hand tips, feet, face) copy their
+source joint's reported frame with the schema's offsets, as the SDK's do (measured). Where a view tracked
+nothing the orientation is NaN.
 
 Nothing here changes the positions the simulator draws: orientations use their own random streams.
 """
@@ -35,10 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from skelfuse.schema.errors import DataError
-from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, J
+from skelfuse.schema.skeleton import BODY_REGIONS, MIRROR, N_JOINTS, ORIENTATION_AIM_OFFSET, J
 from skelfuse.sim.body_model import ar1
 from skelfuse.sim.bvh import CMU_UNIT_MM, _roles, bvh_to_k4abt, forward_kinematics, load_bvh, parse_bvh
 from skelfuse.sim.joint_frames import (
+    AIM_OFFSETS,
     bone_directions,
     matrix_to_quat,
     quat_to_matrix,
@@ -54,6 +60,7 @@ ARM_TWIST_DEG = 35.0
 """Largest simulated roll of an arm or hand bone about itself, deg (assumed)."""
 
 _TWIST_REGIONS = ("arm", "hand")
+_HELD_ON_OWN_BONE = np.flatnonzero(np.abs(ORIENTATION_AIM_OFFSET[:, 0]) < 1.0 - 1e-12)  # the ankles
 _TURN_180_Z = np.diag([-1.0, -1.0, 1.0])
 
 
@@ -161,9 +168,24 @@ def observe_orientations(
         factor = np.where(np.asarray(obs.occluded)[:, s, :, None], noise.occluded_factor, 1.0)
         error = rotvec_to_matrix(factor * (slow + white))
         world = np.where(np.asarray(obs.mirrored)[:, s, None, None, None], mirrored_frames, true_frames)
-        seen = matrix_to_quat(sensor_from_world[s] @ world @ error)
+        seen_frames = sensor_from_world[s] @ world @ error
+        held = ~np.asarray(obs.mirrored)[:, s]
+        seen = matrix_to_quat(with_derived(_held_on_own_bones(seen_frames, np.asarray(obs.positions)[:, s], held)))
         tracked = np.asarray(obs.tracked)[:, s] & np.isfinite(np.asarray(obs.positions)[:, s]).all(axis=(-1, -2))
         out[:, s] = np.where(tracked[:, None, None], seen, np.nan)
+    return out
+
+
+def _held_on_own_bones(frames: np.ndarray, positions: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """(T, 32, 3, 3) a view's frames with its ankles turned by the smallest rotation that puts their aim axis on
+    the view's own (T, 32, 3) foot bone, in the frames where ``held`` (T,) and the bone is known."""
+    joints = _HELD_ON_OWN_BONE
+    aim = frames[:, joints] @ np.swapaxes(AIM_OFFSETS[joints], -1, -2)  # the aim frames: X on the foot
+    bone = bone_directions(np.asarray(positions, dtype=np.float64))[:, joints]
+    swung = swing_matrix(aim[..., 0], bone) @ aim @ AIM_OFFSETS[joints]
+    use = held[:, None] & np.isfinite(bone).all(axis=-1) & np.isfinite(swung).all(axis=(-1, -2))
+    out = frames.copy()
+    out[:, joints] = np.where(use[..., None, None], swung, frames[:, joints])
     return out
 
 
@@ -247,5 +269,6 @@ def load_bvh_with_orientations(
     frames = np.full((motion.n_frames, N_JOINTS, 3, 3), np.nan)
     frames[:, joints] = axis_rotation("z", turn) @ segment_frames[source] @ offset
     aims = bone_directions(motion.positions)
-    frames = swing_matrix(frames[..., 0], aims) @ frames
+    frames = frames @ np.swapaxes(AIM_OFFSETS, -1, -2)  # aim frames (the ankles' X on the foot), swung, turned back
+    frames = swing_matrix(frames[..., 0], aims) @ frames @ AIM_OFFSETS
     return motion, matrix_to_quat(with_derived(frames))

@@ -69,6 +69,17 @@ def _bone_segments(skeletons_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return segments[drawable], np.nonzero(drawable)[0]
 
 
+def _person_labels(track_ids: np.ndarray, agreement_mm: np.ndarray | None) -> np.ndarray:
+    """ "person 7", or with the agreement figure "person 7 · views ±12 mm" ("· one view" where it is NaN)."""
+    labels = [f"person {int(t)}" for t in track_ids]
+    if agreement_mm is not None:
+        labels = [
+            f"{label} · views ±{figure:.0f} mm" if np.isfinite(figure) else f"{label} · one view"
+            for label, figure in zip(labels, np.asarray(agreement_mm, dtype=np.float64).tolist(), strict=True)
+        ]
+    return np.array(labels, dtype=object)
+
+
 def rig_eye(world_from_sensor: np.ndarray | None) -> rrb.EyeControls3D:
     """A camera that frames the people: it looks at the middle of the sensors at chest height from a corner,
     above and outside the rig (the sensors look inwards, so that is where people walk)."""
@@ -210,8 +221,11 @@ class RerunSink:
             bones, _ = _bone_segments(skeletons)
             self.recording.log(f"{path}/bones", rr.LineStrips3D(bones, colors=color, radii=SENSOR_BONE_RADIUS_M))
 
-    def log_fused(self, positions_mm: np.ndarray, track_ids: np.ndarray) -> None:
-        """All fused persons in one entity: (P, 32, 3) mm world, one colour per track id."""
+    def log_fused(
+        self, positions_mm: np.ndarray, track_ids: np.ndarray, agreement_mm: np.ndarray | None = None
+    ) -> None:
+        """All fused persons in one entity: (P, 32, 3) mm world, one colour per track id; the label above each
+        head names the track and, given the (P,) agreement figures, how far the views lie from it."""
         skeletons = positions_mm * MM_TO_M
         colors = TRACK_COLORS[np.asarray(track_ids, dtype=np.int64) % len(TRACK_COLORS)]
         finite = np.isfinite(skeletons).all(axis=-1)
@@ -236,7 +250,7 @@ class RerunSink:
             "world/fused/labels",
             rr.Points3D(
                 heads[labelled] + [0.0, 0.0, LABEL_ABOVE_HEAD_M],
-                labels=[f"person {int(t)}" for t in np.asarray(track_ids)[labelled]],
+                labels=_person_labels(np.asarray(track_ids), agreement_mm)[labelled].tolist(),
                 colors=colors[labelled],
                 radii=0.001,
                 show_labels=True,

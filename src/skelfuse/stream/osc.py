@@ -8,6 +8,7 @@ bundle per fused frame (time tag "immediately")::
     <prefix>/person/<track_id>/<joint>/position     f x, f y, f z        world frame, z up, in [stream] units
     <prefix>/person/<track_id>/<joint>/orientation  f w, f x, f y, f z   only where the fused frame carries one
     <prefix>/person/<track_id>/<joint>/confidence   i confidence (0..3), i n_agree, f position_std (mm; -1: none)
+    <prefix>/person/<track_id>/agreement            f agreement_mm (-1: one view)  where the fused frame carries it
 
 ``<joint>`` is the k4abt joint name in lower case (``pelvis``, ``wrist_left``, ... ``ear_right``). A joint
 without an estimate sends no ``position`` (a receiver keeps its last value) but still its ``confidence``
@@ -25,6 +26,7 @@ counted drop, never a wait.
 
 from __future__ import annotations
 
+import functools
 import socket
 import struct
 from dataclasses import dataclass
@@ -53,6 +55,7 @@ _HEAD_CACHE_MAX = 100_000
 _TAGS = {"position": ",fff", "orientation": ",ffff", "confidence": ",iif"}
 _ARGS = {"position": struct.Struct(">fff"), "orientation": struct.Struct(">ffff"), "confidence": struct.Struct(">iif")}
 _FRAME_ARGS = struct.Struct(">qii")
+_AGREEMENT_ARGS = struct.Struct(">f")
 _SIZE = struct.Struct(">i")
 
 
@@ -75,6 +78,12 @@ class _Heads:
 
 
 _heads = _Heads()
+
+
+@functools.lru_cache(maxsize=4096)
+def _agreement_head(prefix: str, track: int) -> bytes:
+    """Encoded address + type tag of a person's agreement message (track ids are never reused: old ones age out)."""
+    return osc_types.write_string(f"{prefix}/person/{track}/agreement") + osc_types.write_string(",f")
 
 
 def _bundle(messages: list[bytes]) -> bytes:
@@ -100,6 +109,10 @@ def person_messages(frame: FusedFrame, p: int, *, prefix: str = DEFAULT_PREFIX, 
     n_agree = np.asarray(frame.n_agree[p]).tolist()
     xyz = positions.tolist()
     out = []
+    agreement = getattr(frame, "agreement_mm", None)
+    if agreement is not None:
+        figure = float(agreement[p])
+        out.append(_agreement_head(prefix, track) + _AGREEMENT_ARGS.pack(figure if np.isfinite(figure) else -1.0))
     for j in range(len(JOINT_ADDRESS_NAMES)):
         if has_position[j]:
             out.append(_heads(prefix, track, j, "position") + _ARGS["position"].pack(*xyz[j]))

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import functools
 import json
+import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -41,9 +43,12 @@ from skelfuse.wire.layout import (
     _U64,
     FUSED_BYTES_PER_PERSON,
     FUSED_HEADER_SIZE,
+    FUSED_MINOR_WITH_AGREEMENT,
     FUSED_MINOR_WITH_SECTIONS,
+    FUSED_SECTION_AGREEMENT,
     FUSED_SECTION_ORIENTATIONS,
     FUSED_SECTION_POSITION_STD,
+    FUSED_SECTIONS_BY_MINOR,
     MAGIC,
     MAX_BODIES,
     MAX_ID_BYTES,
@@ -67,6 +72,7 @@ from skelfuse.wire.rules import (
     _as_wire,
     _buffer,
     _cap,
+    _check_agreement,
     _check_confidence,
     _check_contributors,
     _check_fused_positions,
@@ -193,8 +199,8 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
     Positions are sent as float64 (NaN = no estimate, whole joints only), track ids as int64, n_agree as
     int16, confidence as uint8, contributors as uint8 0/1, sensor ids as a table of u16-length-prefixed
     UTF-8 strings. A frame with ``orientations`` and/or ``position_std`` is written as version 1.1: the header's
-    ``sections`` bits name them and they follow the sensor id table as float64 (NaN = unknown); a frame with
-    neither is written as 1.0.
+    ``sections`` bits name them and they follow the sensor id table as float64 (NaN = unknown); one with
+    ``agreement_mm`` too is written as 1.2 (the per-person figure after them); a frame with none is written as 1.0.
 
     Raises
     ------
@@ -231,7 +237,7 @@ def encode_fused_frame(frame: FusedFrame) -> bytes:
     header = _FUSED_HEADER.pack(
         MAGIC,
         VERSION_MAJOR,
-        FUSED_MINOR_WITH_SECTIONS if sections else VERSION_MINOR,
+        _fused_minor(sections),
         MessageKind.FUSED_FRAME,
         0,
         FUSED_HEADER_SIZE,
@@ -256,26 +262,46 @@ _sensor_id_table = functools.lru_cache(maxsize=16)(_id_table)
 """:func:`_id_table`, cached: a rig's ids repeat frame after frame (an error is never cached)."""
 
 
+def _fused_minor(sections: int) -> int:
+    """The oldest fused minor that defines every bit of ``sections`` (older readers see no change)."""
+    if not sections:
+        return VERSION_MINOR
+    return min(minor for minor, bits in FUSED_SECTIONS_BY_MINOR.items() if sections & ~bits == 0)
+
+
+_FUSED_SECTIONS: tuple[tuple[int, str, tuple[int, ...], Callable[[np.ndarray], None]], ...] = (
+    (FUSED_SECTION_ORIENTATIONS, "orientations", (N_JOINTS, 4), _check_orientations),
+    (FUSED_SECTION_POSITION_STD, "position_std", (N_JOINTS,), _check_position_std),
+    (FUSED_SECTION_AGREEMENT, "agreement_mm", (), _check_agreement),
+)
+"""The optional float64 sections of a fused frame, in bit order: bit, FusedFrame field, shape per person, rule."""
+
+
 def _fused_sections(frame: FusedFrame, n: int) -> tuple[int, list[memoryview]]:
-    """The 1.1 sections of a fused frame: the ``sections`` bits and their bytes, in bit order."""
+    """The optional sections of a fused frame (1.1, 1.2): the ``sections`` bits and their bytes, in bit order."""
     sections = 0
     extra: list[memoryview] = []
-    orientations = getattr(frame, "orientations", None)
-    position_std = getattr(frame, "position_std", None)
     try:
-        if orientations is not None:
-            quats = _as_wire(orientations, _F8, (n, N_JOINTS, 4), "orientations", "f")
-            _check_orientations(quats)
-            sections |= FUSED_SECTION_ORIENTATIONS
-            extra.append(quats.data)
-        if position_std is not None:
-            std = _as_wire(position_std, _F8, (n, N_JOINTS), "position_std", "f")
-            _check_position_std(std)
-            sections |= FUSED_SECTION_POSITION_STD
-            extra.append(std.data)
+        for bit, field, shape, check in _FUSED_SECTIONS:
+            if (value := getattr(frame, field, None)) is not None:
+                array = _as_wire(value, _F8, (n, *shape), field, "f")
+                check(array)
+                sections |= bit
+                extra.append(array.data)
     except _Invalid as exc:
         raise ValueError(f"fused frame cannot be sent: {exc}") from None
     return sections, extra
+
+
+def _section_spans(sections: int, n: int, start: int) -> tuple[list[tuple[str, int, int, tuple[int, ...]]], int]:
+    """Where the sections ``sections`` names lie from byte ``start``: (field, begin, end, shape) each, and the end."""
+    spans = []
+    for bit, field, shape, _ in _FUSED_SECTIONS:
+        if sections & bit:
+            size = 8 * n * math.prod(shape)
+            spans.append((field, start, start + size, (n, *shape)))
+            start += size
+    return spans, start
 
 
 def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
@@ -284,7 +310,8 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     Returns a :class:`~skelfuse.schema.frames.FusedFrame` owning fresh writable arrays: track_ids (P,) int64,
     positions (P, 32, 3) float64 mm world (NaN = no estimate), n_agree (P, 32) int16, confidence (P, 32)
     uint8, contributors (P, S) bool, sensor_ids tuple of S str; from a 1.1 payload also orientations (P, 32, 4)
-    float64 and/or position_std (P, 32) float64 mm where its ``sections`` bits say so (else None).
+    float64 and/or position_std (P, 32) float64 mm where its ``sections`` bits say so (else None), from a 1.2
+    payload also agreement_mm (P,) float64 mm. Sections of a newer minor are skipped.
 
     Raises
     ------
@@ -303,12 +330,8 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     _cap(table_size, n_sensors * (2 + MAX_ID_BYTES), "bytes of sensor id table", name)
     table_at = offset + n * FUSED_BYTES_PER_PERSON + n * n_sensors
     table_end = table_at + table_size
-    # 1.0 readers ignore the reserved field; from 1.1 on its low bits name the sections after the table.
-    sections = sections if minor >= FUSED_MINOR_WITH_SECTIONS else 0
-    orientations_at = table_end
-    std_at = orientations_at + (32 * N_JOINTS * n if sections & FUSED_SECTION_ORIENTATIONS else 0)
-    end = std_at + (8 * N_JOINTS * n if sections & FUSED_SECTION_POSITION_STD else 0)
-    _check_length(view, end, minor, name, FUSED_MINOR_WITH_SECTIONS)
+    spans, end = _section_spans(_known_sections(sections, minor, name), n, table_end)
+    _check_length(view, end, minor, name, FUSED_MINOR_WITH_AGREEMENT)
     table = view[:table_end]  # an id must not run past the declared table
     sensor_ids = []
     at = table_at
@@ -329,16 +352,11 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
     n_agree = np.frombuffer(owned, _I2, rows, n_agree_at).reshape(n, N_JOINTS)
     confidence_at = n_agree_at + 2 * rows
     contributors_at = confidence_at + rows
-    orientations = position_std = None
-    if sections & FUSED_SECTION_ORIENTATIONS:
-        orientations = np.frombuffer(bytearray(view[orientations_at:std_at]), _F8).reshape(n, N_JOINTS, 4)
-    if sections & FUSED_SECTION_POSITION_STD:
-        position_std = np.frombuffer(bytearray(view[std_at:end]), _F8).reshape(n, N_JOINTS)
+    extra = {f: np.frombuffer(bytearray(view[a:b]), _F8).reshape(shape) for f, a, b, shape in spans}
     try:
-        if orientations is not None:
-            _check_orientations(orientations)
-        if position_std is not None:
-            _check_position_std(position_std)
+        for _, field, _, check in _FUSED_SECTIONS:
+            if field in extra:
+                check(extra[field])
         _check_fused_positions(positions)
         _check_n_agree(n_agree)
         _check_confidence(bytes(owned[confidence_at:contributors_at]))
@@ -355,9 +373,23 @@ def decode_fused_frame(data: bytes | bytearray | memoryview) -> FusedFrame:
         confidence=np.frombuffer(owned, _U1, rows, confidence_at).reshape(n, N_JOINTS),
         contributors=np.frombuffer(owned, np.bool_, n * n_sensors, contributors_at).reshape(n, n_sensors),
         sensor_ids=tuple(sensor_ids),
-        orientations=None if orientations is None else orientations.astype(np.float64, copy=False),
-        position_std=None if position_std is None else position_std.astype(np.float64, copy=False),
+        **{field: array.astype(np.float64, copy=False) for field, array in extra.items()},
     )
+
+
+def _known_sections(sections: int, minor: int, name: str) -> int:
+    """The ``sections`` bits this reader reads: none before 1.1 (the field was ``reserved``), the bits of the
+    frame's minor, or, from a newer minor, the bits this reader knows (the newer sections follow them)."""
+    if minor < FUSED_MINOR_WITH_SECTIONS:
+        return 0
+    known = FUSED_SECTIONS_BY_MINOR[min(minor, FUSED_MINOR_WITH_AGREEMENT)]
+    if minor <= FUSED_MINOR_WITH_AGREEMENT and sections & ~known:
+        raise DecodeError(
+            "bad_header",
+            f"{name} payload rejected (bad_header): sections bits {sections:#x} for version 1.{minor}, "
+            f"which defines only {known:#x}",
+        )
+    return sections & known
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -506,7 +538,9 @@ def decode(data: bytes | bytearray | memoryview) -> SensorFrame | FusedFrame | N
 __all__ = [
     "FUSED_BYTES_PER_PERSON",
     "FUSED_HEADER_SIZE",
+    "FUSED_MINOR_WITH_AGREEMENT",
     "FUSED_MINOR_WITH_SECTIONS",
+    "FUSED_SECTION_AGREEMENT",
     "FUSED_SECTION_ORIENTATIONS",
     "FUSED_SECTION_POSITION_STD",
     "MAGIC",

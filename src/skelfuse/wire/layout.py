@@ -29,7 +29,17 @@ FUSED_SECTION_ORIENTATIONS = 1
 """Bit of the fused header's ``sections`` field (the 1.0 ``reserved`` u32): f64[P][32][4] orientations follow."""
 FUSED_SECTION_POSITION_STD = 2
 """Bit of ``sections``: f64[P][32] position_std (mm) follow (after the orientations, when both are present)."""
-_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_SECTIONS, 3: VERSION_MINOR, 4: 0}  # by message kind byte
+FUSED_MINOR_WITH_AGREEMENT = 2
+"""Minor version of a fused frame that carries the per-person agreement figure (schema 1.2). A frame without it
+is written as 1.1 or 1.0 as before; a 1.1 reader reads a 1.2 frame and skips the section (docs/wire-format.md §7)."""
+FUSED_SECTION_AGREEMENT = 4
+"""Bit of ``sections`` (1.2): f64[P] agreement_mm follow, after the position_std section."""
+FUSED_SECTIONS_BY_MINOR = {
+    FUSED_MINOR_WITH_SECTIONS: FUSED_SECTION_ORIENTATIONS | FUSED_SECTION_POSITION_STD,
+    FUSED_MINOR_WITH_AGREEMENT: FUSED_SECTION_ORIENTATIONS | FUSED_SECTION_POSITION_STD | FUSED_SECTION_AGREEMENT,
+}
+"""The ``sections`` bits each fused minor defines; a frame of a minor this reader knows sets no other bit."""
+_KNOWN_MINOR = {1: VERSION_MINOR, 2: FUSED_MINOR_WITH_AGREEMENT, 3: VERSION_MINOR, 4: 0}  # by message kind byte
 PERSON_CLOUDS_HEADER_SIZE = 46
 """Header size of a person-cloud payload (kind 4; its codec is :mod:`skelfuse.wire.clouds`)."""
 _UNIT_TOLERANCE = 1e-3

@@ -82,6 +82,14 @@ def _check_position_std(std: np.ndarray) -> None:
         raise _Invalid("bad_value", "position_std holds a negative value")
 
 
+def _check_agreement(figure: np.ndarray) -> None:
+    """``figure``: (P,) mm, NaN (fewer than two views) or finite and >= 0."""
+    if np.isinf(figure).any():
+        raise _Invalid("non_finite", "agreement_mm holds Inf; only NaN (no figure) is allowed")
+    if (figure < 0).any():
+        raise _Invalid("bad_value", "agreement_mm holds a negative value")
+
+
 def _check_fused_positions(positions: np.ndarray) -> None:
     """``positions``: (P, 32, 3). NaN means "no estimate" for a whole joint; Inf is never valid."""
     if np.isfinite(positions).all():
