@@ -9,9 +9,9 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py write                   # render every block from the stored JSON
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
-``record`` runs nothing but the commands listed in RECORDS (NAME: paper, robustness, mirroring, sim-check, real,
-speed, soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as ``check``
-does, so a hand edit of a block fails. ``--quick`` records a tiny configuration under --store (to try the
+``record`` runs nothing but the commands listed in RECORDS (NAME: demo, paper, robustness, mirroring, sim-check,
+real, speed, soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as
+``check`` does, so a hand edit of a block fails. ``--quick`` records a tiny configuration under --store (to try the
 plumbing; never into docs/evidence/). Paths under the repository root are stored relative to it, so the stored
 results do not depend on where the checkout lives.
 """
@@ -42,6 +42,7 @@ _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 # The two-bases run is recorded at a reduced size (3 seeds of 5 s takes instead of 6 of 10 s, a quarter of the
 # CPU time); every other run at the command's default size.
 RECORDS: dict[str, dict[str, list[str]]] = {
+    "demo": {"demo": ["demo", "--duration", "10", "--json"]},
     "paper": {"paper": ["eval", "paper", "--json", "--no-files", "-q"]},
     "robustness": {"robustness": ["eval", "robustness", "--json", "-q"]},
     "mirroring": {
@@ -63,6 +64,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
 """NAME -> stored file stem -> the command's arguments (skelfuse's, or the soak script's for ``soak``)."""
 
 QUICK: dict[str, dict[str, list[str]]] = {
+    "demo": {"demo": ["demo", "--duration", "3", "--json"]},
     "paper": {"paper": ["eval", "paper", "--quick", "--duration", "2", "--json", "--no-files", "-q"]},
     "robustness": {"robustness": ["eval", "robustness", "--quick", "--families", "baseline", "--json", "-q"]},
     "mirroring": {
@@ -233,6 +235,12 @@ def _paper_table(
     return [*lines, ""]
 
 
+def render_demo(result: dict[str, Any]) -> str:
+    from skelfuse.apps.demo.summary import DemoSummary, format_summary
+
+    return format_summary(DemoSummary(**{k: v for k, v in result.items() if k != "stamp"}))
+
+
 def render_robustness(result: dict[str, Any]) -> str:
     from skelfuse.eval import robustness
 
@@ -309,6 +317,7 @@ def render_soak(result: dict[str, Any]) -> str:
 
 
 BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
+    "demo": ("demo", "demo", render_demo),
     "paper": ("paper", "paper", render_paper),
     "robustness": ("robustness", "robustness", render_robustness),
     "mirroring-sweep": ("mirroring", "mirroring-sweep", render_mirroring_sweep),

@@ -54,7 +54,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print("skelfuse demo: stopped before the first fused frame; nothing to summarize", file=sys.stderr)
         return EXIT_OK
     if args.json:
-        print_json(summary.to_dict())
+        print_json(summary.to_dict(), args)
     else:
         print(demo.format_summary(summary))
     return EXIT_OK
