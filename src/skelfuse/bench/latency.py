@@ -123,7 +123,7 @@ class LatencyResult:
         """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON)."""
 
         def case(fields: dict[str, Any]) -> LatencyCase:
-            tuples = {k: tuple(fields[k]) for k in ("load_before", "load_after") if k in fields}
+            tuples: dict[str, Any] = {k: tuple(fields[k]) for k in ("load_before", "load_after") if k in fields}
             return LatencyCase(**{**fields, **tuples})
 
         return cls(
