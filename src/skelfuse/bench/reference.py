@@ -414,14 +414,19 @@ def _realign_temporal(
         views_seen = n_views
     else:
         confirmed = rear_for > rear_against
-        clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight and not confirmed else 0
+        if weight > 0 and against >= params.recovery_share * weight and not confirmed:
+            clear += 1
+        elif any(decided) and not any(flipped):  # every view vouches for the anchor: credit, down to -recovery
+            clear = max(min(clear, 0) - 1, -params.recovery_frames)
+        else:
+            clear = min(clear, 0)
         simple = simple + 1 if against > weight - against and not confirmed else 0
         rear_streak = rear_streak + 1 if rear_against > rear_for else 0
         slow = params.majority_recovery_frames
         if (
             clear >= params.recovery_frames
             or (slow is not None and simple >= slow)
-            or rear_streak >= params.rear_view_frames
+            or rear_streak >= params.rear_view_frames + max(-clear, 0)
         ):
             invert = True
             clear = simple = rear_streak = 0

@@ -70,7 +70,8 @@ class FusionParams:
         from the previous pass's realigned candidates (a mirrored view contaminates the first reference).
     recovery_frames : int
         "temporal" only: frames in a row a clear majority of views must disagree with the anchor before the
-        body follows the majority (see :func:`skelfuse.fusion.realign.realign_temporal`).
+        body follows the majority, after spending the credit of up to as many frames in which every view
+        agreed with it (see :func:`skelfuse.fusion.realign.realign_temporal`).
     recovery_share : float
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
     majority_recovery_frames : int or None

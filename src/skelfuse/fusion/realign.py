@@ -73,6 +73,15 @@ Two modes:
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
+        Credit: each frame in which every decided view agrees with the anchor banks one frame of credit, up to
+        ``recovery_frames``; a run of disagreement spends the credit before it counts, and the rear-view rule
+        waits that many frames more too (:func:`recovery_count`). Per instant, views mirrored together
+        and a mirrored anchor look exactly alike: a person side-on between two facing sensors, both views
+        mirrored for 10 frames, turned a right anchor round, and it stayed wrong until 10 frames after both
+        views were right again; a front view 31 deg off the front mirrored for 3 frames faces away from its
+        sensor and turned two agreeing views round. The history tells them apart: views that have just
+        vouched for the anchor outweigh as long a run against it. The price: a wrong start that every view
+        vouched for (all views mirrored at the cold start) is undone up to ``recovery_frames`` frames later.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -287,7 +296,8 @@ def realign_temporal(
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
     streak : (B, 4) int
         Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
-        ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
+        ``recovery_share`` of the evidence, negative: the anchor's credit (:func:`recovery_count`), and
+        (column 1) more than half of it; (column 2) the most views
         that have seen the body's left/right pairs since its last cold start; (column 3) frames in a row in
         which rear views facing away disproved the anchor. All 0 for a new body (three columns are read
         as the first three, the fourth 0).
@@ -369,8 +379,9 @@ def realign_temporal(
     decidable = pair_delta == pair_delta
     margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
     flips = margin < 0.0
-    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
+    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
+        counters[:, 0] = recovery_count(streak[:, 0], False, decidable.any(axis=(1, 2)), recovery_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     decided = decidable.any(axis=2)
@@ -397,16 +408,20 @@ def realign_temporal(
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
+    unanimous = decided.any(axis=1) & ~flips.any(axis=1)  # every decided view agrees with the anchor
+    count = recovery_count(streak[:, 0], majority, unanimous, recovery_frames)
     new_streak = np.stack(
         [
-            (streak[:, 0] + 1) * majority,
+            count if has_prev is None else count * has_prev,  # a cold start starts without credit
             (streak[:, 1] + 1) * simple,
             views_seen,
             (streak[:, 3] + 1) * disproved,
         ],
         axis=1,
     ).astype(np.int32)
-    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames)
+    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more.
+    credit = -np.minimum(new_streak[:, 0], 0)
+    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames + credit)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
     new_streak[follow, :2] = 0
@@ -421,6 +436,16 @@ def realign_temporal(
         return positions, confidence, mirrored, new_streak
     out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
+
+
+def recovery_count(count: np.ndarray, majority: np.ndarray, unanimous: np.ndarray, credit_frames: int) -> np.ndarray:
+    """The recovery rule's counter (B,) after one frame: +1 for a frame in which a clear ``majority`` of the
+    evidence disagreed with the anchor, -1 down to ``-credit_frames`` for a frame in which every decided view
+    agreed with it (``unanimous``); any other frame ends a run of disagreement (a positive count drops to 0)
+    and keeps the credit. The body follows the majority once the count reaches the recovery frames, so an
+    anchor that every view vouched for recently outlasts that many more frames of disagreement."""
+    kept = np.minimum(count, 0)
+    return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
 
 
 def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.ndarray:
