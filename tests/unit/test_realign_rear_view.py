@@ -230,9 +230,9 @@ def test_two_side_views_mirrored_together_do_not_overturn_an_anchor_both_vouched
     # A person side-on to two sensors facing each other (both about 90 deg off its front, as a person walking
     # between them): 30 frames both views right, 15 frames both mirrored (longer than the recovery frames), 30
     # frames both right again. Neither mirrored skeleton faces away from its sensor, so nothing but the anchor
-    # can tell; the 30 frames every view agreed with it outlast the 15 of disagreement, and the output is right
-    # throughout. Before the credit, the body followed the mirrored pair on frame 39 and stayed mirrored until 9
-    # frames after both views were right again.
+    # can tell; the frames every view agreed with it outlast the 15 of disagreement, and the output is right
+    # throughout. Without the credit the body follows the mirrored pair on frame 39 and stays mirrored until 9
+    # frames after both views are right again.
     rng = np.random.default_rng(RNG_SEED + 5)
     truth = _skeleton(rng, 0.0)
     sensors = _ring([90.0, 270.0])
@@ -244,10 +244,14 @@ def test_two_side_views_mirrored_together_do_not_overturn_an_anchor_both_vouched
     no_gate = replace(SKELFUSE, plausibility_gate_mm=None)
     reference, _ = _run(no_gate, frames, sensors, reference=True)
     np.testing.assert_allclose(np.array(_run(no_gate, frames, sensors)[0]), np.array(reference), rtol=0, atol=1e-6)
-    # Control: mirrored for longer than the credit plus the recovery frames, the body follows the two views.
-    pattern = [False] * 30 + [True] * (2 * SKELFUSE.recovery_frames + 5)
+    # Control: without the credit the body follows the mirrored pair after the recovery frames, as it did.
+    outputs, _ = _run(replace(SKELFUSE, recovery_credit_frames=0), frames, sensors)
+    assert [_right(o, truth) for o in outputs].count(False) == 15
+    # Mirrored for longer than the credit plus the recovery frames, the body follows the two views.
+    credit = SKELFUSE.recovery_credit_frames
+    pattern = [False] * (credit + 1) + [True] * (credit + SKELFUSE.recovery_frames + 5)
     outputs, _ = _run(SKELFUSE, [_views(truth, [m, m], rng) for m in pattern], sensors)
-    assert _right(outputs[30 + 2 * SKELFUSE.recovery_frames - 2], truth)
+    assert _right(outputs[2 * credit + SKELFUSE.recovery_frames - 2], truth)
     assert not _right(outputs[-1], truth)
 
 
@@ -257,7 +261,7 @@ def test_a_front_view_mirrored_for_a_few_frames_does_not_overturn_two_agreeing_v
     # Three views of a person facing +x, the third 31 deg off its front: that view mirrored from frame 10 faces
     # away from its sensor (cosine about -0.88) and so looks like a rear view that is not mirrored. Frames 1-9,
     # in which every view agreed with the anchor, hold the rear-view rule off for 9 frames more: the output
-    # stays right. Before the credit, 3 such frames mirrored the two agreeing views for 9 frames. Without the
+    # stays right. Without the credit, 3 such frames mirror the two agreeing views for 9 frames. Without the
     # plausibility gate (which may hold the view out) the realignment alone decides, as the reference does.
     rng = np.random.default_rng(RNG_SEED + 6)
     truth = _skeleton(rng, 0.0)
@@ -267,6 +271,8 @@ def test_a_front_view_mirrored_for_a_few_frames_does_not_overturn_two_agreeing_v
     params = SKELFUSE if gate else replace(SKELFUSE, plausibility_gate_mm=None)
     outputs, _ = _run(params, frames, sensors)
     assert all(_right(o, truth) for o in outputs)
+    without_credit, _ = _run(replace(params, recovery_credit_frames=0), frames, sensors)
+    assert not _right(without_credit[12], truth), "control: without the credit the rear-view rule follows the view"
     if not gate:
         reference, _ = _run(params, frames, sensors, reference=True)
         np.testing.assert_allclose(np.array(outputs), np.array(reference), rtol=0, atol=1e-6)

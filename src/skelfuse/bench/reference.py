@@ -416,8 +416,8 @@ def _realign_temporal(
         confirmed = rear_for > rear_against
         if weight > 0 and against >= params.recovery_share * weight and not confirmed:
             clear += 1
-        elif any(decided) and not any(flipped):  # every view vouches for the anchor: credit, down to -recovery
-            clear = max(min(clear, 0) - 1, -params.recovery_frames)
+        elif any(decided) and not any(flipped):  # every view vouches for the anchor: credit
+            clear = max(min(clear, 0) - 1, -params.recovery_credit_frames)
         else:
             clear = min(clear, 0)
         simple = simple + 1 if against > weight - against and not confirmed else 0
@@ -426,7 +426,7 @@ def _realign_temporal(
         if (
             clear >= params.recovery_frames
             or (slow is not None and simple >= slow)
-            or rear_streak >= params.rear_view_frames + max(-clear, 0)
+            or rear_streak >= params.rear_view_frames + min(max(-clear, 0), params.recovery_frames)
         ):
             invert = True
             clear = simple = rear_streak = 0

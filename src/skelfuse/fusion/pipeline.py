@@ -484,6 +484,7 @@ def _realign(
             sensor_positions=sensor_positions,
             rear_view_cos=params.rear_view_cos,
             rear_view_frames=params.rear_view_frames,
+            credit_frames=params.recovery_credit_frames,
         )
         return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)

@@ -74,14 +74,14 @@ Two modes:
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
         Credit: each frame in which every decided view agrees with the anchor banks one frame of credit, up to
-        ``recovery_frames``; a run of disagreement spends the credit before it counts, and the rear-view rule
-        waits that many frames more too (:func:`recovery_count`). Per instant, views mirrored together
-        and a mirrored anchor look exactly alike: a person side-on between two facing sensors, both views
-        mirrored for 10 frames, turned a right anchor round, and it stayed wrong until 10 frames after both
-        views were right again; a front view 31 deg off the front mirrored for 3 frames faces away from its
-        sensor and turned two agreeing views round. The history tells them apart: views that have just
-        vouched for the anchor outweigh as long a run against it. The price: a wrong start that every view
-        vouched for (all views mirrored at the cold start) is undone up to ``recovery_frames`` frames later.
+        ``credit_frames``; a run of disagreement spends the credit before it counts, and the rear-view rule
+        waits as many frames more as the credit holds, at most ``recovery_frames`` (:func:`recovery_count`).
+        Per instant, views mirrored together and a mirrored anchor look exactly alike: a person side-on
+        between two facing sensors with both views mirrored for a while, or a front view 31 deg off the front
+        mirrored for a few frames (it then faces away from its sensor, like a rear view that is not mirrored).
+        The history tells them apart: views that have just vouched for the anchor outweigh as long a run
+        against it. The price: a wrong start that every view vouched for (all views mirrored at the cold
+        start) is undone up to ``credit_frames`` frames later.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -285,6 +285,7 @@ def realign_temporal(
     sensor_positions: np.ndarray | None = None,
     rear_view_cos: float | None = None,
     rear_view_frames: int = 3,
+    credit_frames: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -325,6 +326,10 @@ def realign_temporal(
     rear_view_frames : int
         Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
         before the body follows them (>= 1).
+    credit_frames : int
+        The most credit the anchor banks, one frame for each frame in which every decided view agreed with it
+        (>= 0; 0: none). A run of disagreement spends it before the recovery rule counts, and the rear-view
+        rule waits as many frames more as the credit holds, at most ``recovery_frames``.
 
     Returns
     -------
@@ -381,7 +386,7 @@ def realign_temporal(
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
-        counters[:, 0] = recovery_count(streak[:, 0], False, decidable.any(axis=(1, 2)), recovery_frames)
+        counters[:, 0] = recovery_count(streak[:, 0], False, decidable.any(axis=(1, 2)), credit_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     decided = decidable.any(axis=2)
@@ -409,7 +414,7 @@ def realign_temporal(
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
     unanimous = decided.any(axis=1) & ~flips.any(axis=1)  # every decided view agrees with the anchor
-    count = recovery_count(streak[:, 0], majority, unanimous, recovery_frames)
+    count = recovery_count(streak[:, 0], majority, unanimous, credit_frames)
     new_streak = np.stack(
         [
             count if has_prev is None else count * has_prev,  # a cold start starts without credit
@@ -419,8 +424,9 @@ def realign_temporal(
         ],
         axis=1,
     ).astype(np.int32)
-    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more.
-    credit = -np.minimum(new_streak[:, 0], 0)
+    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more, at
+    # most recovery_frames: a rear view facing away is stronger evidence than a majority.
+    credit = np.minimum(-np.minimum(new_streak[:, 0], 0), recovery_frames)
     follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames + credit)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
