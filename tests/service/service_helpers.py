@@ -11,7 +11,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +20,7 @@ from skelfuse.apps.demo import sim_sensor_tables
 from skelfuse.service.zenoh_io import free_port, loopback_args, loopback_config, wait_for_port
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_sensor_frame, decode_status
-from waiting import wait_until
+from waiting import SCHEDULING_ALLOWANCE_S, wait_until
 
 RIG = "svc"
 
@@ -34,8 +34,11 @@ def write_rig(
     status_period_s: float = 0.25,
     n_sensors: int = 4,
     sim_clocks: dict[int, tuple[float, float]] | None = None,
+    max_lag_s: float = SCHEDULING_ALLOWANCE_S,
 ) -> Path:
-    """A sim rig; ``sim_clocks``: sensor index -> (clock offset ms, clock jitter ms) of its emulated PC."""
+    """A sim rig; ``sim_clocks``: sensor index -> (clock offset ms, clock jitter ms) of its emulated PC.
+    ``max_lag_s``: the node's lag bound; by default as long as a starved machine may hold a thread, so tests
+    that count every instant lose none to a stall (the overload test passes the product's default)."""
     tolerance = tolerance_ms if tolerance_ms is not None else (10.0 if by == "device" else 13.0)
     lines = [
         "[rig]",
@@ -49,6 +52,7 @@ def write_rig(
         "",
         "[node]",
         f"status_period_s = {status_period_s}",
+        f"max_lag_s = {max_lag_s}",
         "",
         "[zenoh]",
         "multicast_scouting = false",
@@ -71,10 +75,11 @@ class Processes:
         self.log_dir = log_dir
         self.started: list[subprocess.Popen[bytes]] = []
 
-    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+    def start(self, name: str, *args: str, via: Sequence[str] = ("-m", "skelfuse")) -> subprocess.Popen[bytes]:
+        """``python -m skelfuse ARGS`` (``via``: what runs instead of ``-m skelfuse``, e.g. a test's launcher)."""
         log = open(self.log_dir / f"{name}.log", "ab")
         process = subprocess.Popen(
-            [sys.executable, "-m", "skelfuse", *args],
+            [sys.executable, *via, *args],
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -172,9 +177,12 @@ def worker_args(config: Path, port: int, sensor_id: str, *extra: str, listener: 
     ]
 
 
-def start_node(processes: Processes, config: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Listener]:
-    """The node as a subprocess, and a listener that has seen its first status (so it is subscribed)."""
-    node = processes.start("node", *node_args(config, port, *extra))
+def start_node(
+    processes: Processes, config: Path, port: int, *extra: str, via: Sequence[str] = ("-m", "skelfuse")
+) -> tuple[subprocess.Popen[bytes], Listener]:
+    """The node as a subprocess (``via``: see :meth:`Processes.start`), and a listener that has seen its first
+    status (so it is subscribed)."""
+    node = processes.start("node", *node_args(config, port, *extra), via=via)
     assert wait_for_port(port, timeout_s=60.0), f"the node never listened on {port}:\n{processes.log(node)}"
     listener = Listener(port)
     listener.wait_for(

@@ -43,7 +43,9 @@ def test_a_flood_on_one_key_costs_no_instant_of_the_other_sensors() -> None:
                     f'[rig]\nname = "{RIG}"\n[sync]\nby = "device"\nfps = 30.0\ntolerance_ms = 10.0',
                     # A generous deadline: this test's own publisher may be held off the CPU between two sensors'
                     # puts on a loaded machine; what is tested is the queue, not the deadline.
-                    "deadline_ms = 250.0\n[node]\nstatus_period_s = 0.25",
+                    # The stall puts the node a second behind; a lag bound above it (none is shed) keeps this a
+                    # test of the queue alone (shedding: tests/unit/test_node_shedding.py).
+                    "deadline_ms = 250.0\n[node]\nstatus_period_s = 0.25\nmax_lag_s = 30.0",
                     "[intake]\nmax_queue = 256\nmax_queue_per_key = 64",
                     *sim_sensor_tables(4),
                 ]

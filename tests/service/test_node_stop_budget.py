@@ -53,9 +53,9 @@ def test_a_starved_node_with_a_backlog_stops_within_its_drain_timeout(caplog: py
     )
     receive = node.core.receive
 
-    def starved_receive(key: str, payload: bytes, arrival_ns: int):  # type: ignore[no-untyped-def]
+    def starved_receive(key: str, payload: bytes, arrival_ns: int, now_ns: int | None = None):  # type: ignore[no-untyped-def]
         time.sleep(SLOW_S)
-        return receive(key, payload, arrival_ns)
+        return receive(key, payload, arrival_ns, now_ns)
 
     node.core.receive = starved_receive  # type: ignore[method-assign]
     thread = threading.Thread(target=node.run, daemon=True)

@@ -78,11 +78,11 @@ def test_json_output_is_strict_json(monkeypatch: pytest.MonkeyPatch, capsys: pyt
     import numpy as np
 
     from skelfuse.cli import evaluate
-    from skelfuse.eval import rig
+    from skelfuse.eval import rig, rig_report
 
     result = SimpleNamespace(to_dict=lambda: {"value": np.float64(1.5), "rows": np.arange(2)})
     monkeypatch.setattr(rig, "run_rig_eval", lambda *_a, **_k: result)
-    monkeypatch.setattr(rig, "format_markdown", lambda *_a: "")
+    monkeypatch.setattr(rig_report, "format_markdown", lambda *_a: "")
     monkeypatch.setattr(evaluate, "open_take", lambda *_a, **_k: None)
     assert cli.main(["eval", "real", "--json"]) == cli.EXIT_OK
     assert json.loads(capsys.readouterr().out) == {"value": 1.5, "rows": [0, 1]}

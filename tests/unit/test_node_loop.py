@@ -7,6 +7,7 @@ watchdog on SIGTERM (exit status 4 after 15 s while still fusing the backlog).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +54,9 @@ def payloads(rig: RigConfig) -> list[tuple[str, bytes]]:
 
 
 def _backlog(rig: RigConfig, payloads: list[tuple[str, bytes]]) -> tuple[FusionNode, SampleQueue]:
-    """A node whose intake queue already holds every payload (a node that fell behind)."""
+    """A node whose intake queue already holds every payload (a node that fell behind). Its lag bound is above any
+    backlog: these tests are about the loop's order and stop; shedding is tests/unit/test_node_shedding.py's."""
+    rig = dataclasses.replace(rig, node=dataclasses.replace(rig.node, max_lag_s=3600.0))
     node = FusionNode(rig, None, options=NodeOptions(status_period_s=3600.0))
     samples = SampleQueue()
     for key, payload in payloads:

@@ -48,7 +48,7 @@ def _run(cfg: object, sources: list[SimSource], poses: np.ndarray, monitor: Pose
                 key = keys.sensor_skeletons(cfg.name, source.sensor_id)  # type: ignore[attr-defined]
                 outputs += core.receive(key, encode_sensor_frame(frame), int(n * period_ns) + 1000)
         for out in outputs:
-            changes += monitor.update(out.sensors_world, out.frame.positions)
+            changes += monitor.update(out.sensors_world, *out.fit_inputs())  # as the node does
     return changes
 
 
@@ -90,7 +90,7 @@ def test_no_verdict_before_enough_instants_saw_the_sensor() -> None:
 
 
 def test_the_medians_are_numpys_nanmedian_and_nan_for_a_sensor_nobody_saw() -> None:
-    # The monitor's medians (a fast path since session 23) against numpy's own nanmedian, odd and even counts.
+    # The monitor's medians (its own fast path) against numpy's own nanmedian, odd and even counts.
     rng = np.random.default_rng(3)
     monitor = PoseFitMonitor(("a", "b", "c", "d"), window=40, min_frames=5, check_every=1000)
     for t in range(57):  # wraps the 40-instant window
@@ -115,3 +115,74 @@ def test_the_node_logs_and_reports_the_alarm(caplog: pytest.LogCaptureFixture) -
     with caplog.at_level(logging.WARNING, logger="skelfuse.service.node"):
         node._log_fit(FitChange("capture_2", False, 251.0, 150))
     assert "sensor capture_2's pose no longer fits" in caplog.text and "calibrate check" in caplog.text
+
+
+# -- a crowd: people pass and occlude each other, association is ambiguous where they stand close -----------
+
+CROWD_SENSORS, CROWD_PEOPLE, CROWD_FRAMES = 6, 10, 120
+
+
+@pytest.fixture(scope="module")
+def crowd() -> object:
+    from skelfuse.sim.crowd import crowd_scenario, simulate_scenario
+    from skelfuse.sim.observe import load_profile
+
+    scenario = crowd_scenario(n_people=CROWD_PEOPLE, n_sensors=CROWD_SENSORS, duration_s=CROWD_FRAMES / 30.0, seed=1)
+    return simulate_scenario(scenario, load_profile(), seed=1)
+
+
+def _fuse_crowd(observations: object, shift_mm: np.ndarray | None, moved: int) -> PoseFitMonitor:
+    """The crowd through the fusion core, as the node fuses it; sensor ``moved``'s bodies land ``shift_mm`` off
+    (its pose moved after calibration: the rig still maps its bodies with the old one)."""
+    from skelfuse.fusion.people import PeopleFuser
+    from skelfuse.fusion.presets import preset
+
+    world = observations.positions_world(calibrated=True).copy()  # type: ignore[attr-defined]
+    if shift_mm is not None:
+        world[:, moved] += shift_mm
+    fuser = PeopleFuser(preset("skelfuse"))
+    monitor = PoseFitMonitor(observations.sensor_ids, window=90, min_frames=30, check_every=10)  # type: ignore[attr-defined]
+    for t in range(world.shape[0]):
+        result = fuser.step(world[t], observations.confidence[t], observations.valid[t], observations.times_s[t])  # type: ignore[attr-defined]
+        monitor.update(world[t], result.positions, result.contributors, result.held_out)
+    return monitor
+
+
+def test_a_crowd_raises_no_sensor_moved_alarm(crowd: object) -> None:
+    report = _fuse_crowd(crowd, None, 0).report()
+    assert all(fit["fits"] is True for fit in report.values()), report  # every sensor judged, none moved
+    assert all(fit["median_mm"] < 60.0 for fit in report.values()), report
+
+
+def test_a_moved_sensor_in_a_crowd_still_raises_the_alarm(crowd: object) -> None:
+    report = _fuse_crowd(crowd, np.array([250.0, 0.0, 0.0]), 2).report()
+    moved = crowd.sensor_ids[2]  # type: ignore[attr-defined]
+    assert report[moved]["fits"] is False and 150.0 < report[moved]["median_mm"] < 350.0, report
+    assert all(fit["fits"] is True for sid, fit in report.items() if sid != moved), report
+
+
+def test_only_confidently_associated_persons_count() -> None:
+    # Hand-made instants, two sensors a and b plus c: each rule leaves a person out on its own.
+    monitor = PoseFitMonitor(("a", "b", "c"), isolation_mm=500.0, min_other_sensors=2)
+    person = np.zeros((32, 3))
+    far = person + np.array([0.0, 3000.0, 0.0])
+    fused = np.stack([person, far])  # two people 3 m apart
+    bodies = np.full((3, 2, 32, 3), np.nan)
+    bodies[:, 0] = person
+    bodies[:, 1] = far
+    bodies[0, 0] += [200.0, 0.0, 0.0]  # sensor a's view of the first person lies 200 mm off
+    everyone = np.ones((2, 3), dtype=bool)
+    assert monitor.instant_distances(bodies, fused, everyone)[0] == pytest.approx(100.0)  # median of 200 and 0
+    # Seen by a and one other sensor only: the person could follow a; it is left out (the other person stays).
+    assert monitor.instant_distances(bodies, fused, np.array([[1, 1, 0], [1, 1, 1]], bool))[0] == 0.0
+    # a's view held out as upside down: a bad skeleton, not a moved sensor; held out for jumping away: kept.
+    held = np.zeros((2, 3), np.uint8)
+    held[0, 0] = 2
+    assert monitor.instant_distances(bodies, fused, everyone, held)[0] == 0.0
+    held[0, 0] = 1
+    assert monitor.instant_distances(bodies, fused, everyone, held)[0] == pytest.approx(100.0)
+    # A second person 400 mm from the first: whose body is whose is in doubt, both are left out.
+    crowded = np.stack([person, person + np.array([400.0, 0.0, 0.0])])
+    crowd_bodies = np.stack([crowded, crowded, crowded])
+    crowd_bodies[0, 0] += [200.0, 0.0, 0.0]
+    assert np.isnan(monitor.instant_distances(crowd_bodies, crowded, everyone)[0])

@@ -13,16 +13,16 @@ machine shared with other work, the CPU time is the fairer comparison (it leaves
 
 By default the instants run back to back, which keeps the processor's caches warm with this path's code and
 data. A live node gets an instant every 1/30 s and idles in between; ``--paced`` times that (the run sleeps to
-each instant's due time). On the 2-core development VMs the same code took about twice the CPU time per
-instant paced, close to the fusion step's time inside a live node (``skelfuse bench latency``): quote the paced
-figure for what a node spends (the measurements: docs/service.md, "Paced costs about twice back to back").
+each instant's due time). Paced, the same code costs about twice the CPU time per instant, close to the
+fusion step's time inside a live node (``skelfuse bench latency``): quote the paced figure for what a node
+spends (why: docs/service.md, "Where the time goes"; the figures: docs/evidence.md, "Speed").
 ``--positions-only`` times the same path with the preset's orientation and uncertainty stages off (a rig whose
 consumers need positions only: ``[fusion.params] orientations = false, position_std = false``); the fused
 positions are the same either way (those stages never change them).
 Each timing runs in a fresh subprocess: this file executed as a script with ``PYTHONPATH`` set to a source tree
-(it imports only interfaces that have been stable since orientations landed), so ``--baseline SRC`` times an
-older checkout of skelfuse (e.g. a worktree at the starting revision) on the same inputs, alternating
-baseline / current run by run, and the ratio is taken per round (then the median over rounds). Every run
+(it imports only interfaces that any checkout with fused orientations has), so ``--baseline SRC`` times another
+checkout of skelfuse (e.g. the revision before a change) on the same inputs, alternating baseline / current
+run by run, and the ratio is taken per round (then the median over rounds). Every run
 records the machine's load (``os.getloadavg``) before and after: on a shared machine, prefer the ratios.
 """
 

@@ -12,7 +12,12 @@ Measured (``time.monotonic_ns``, one process, so no cross-process clock error):
 * ``node_added``: the node's own share, from its status documents of the measured window (each carries its
   window's values, so the percentiles are over every measured instant): arrival of the frame that completed an
   instant (zenoh callback in the node) -> fused frame handed to zenoh;
-* ``fusion``: the fusion step plus encoding, from the same statuses.
+* ``fusion``: the fusion step plus encoding, from the same statuses;
+* ``floor``: the harness's own floor: publish of the last sensor frame of an instant -> that frame received by a
+  second zenoh session of this process (one hop; e2e takes two, harness -> node -> harness). Its publishers,
+  subscriber and the node share the machine's cores, so on a small machine this floor is not zero;
+* ``rate``: fused frames received per second of publishing (30 Hz sustained: every instant fused), and the
+  instants the node shed because it fell more than ``[node] max_lag_s`` behind (its last status).
 
 Shaped like zenoh-python's ``z_ping``: warm-up (1 s, not counted), then every instant of the measured
 window, and the distribution (p50 / p99 / max), never a mean. A sweep doubles N from 16 to 64 (the wire
@@ -44,7 +49,13 @@ from skelfuse.service.zenoh_io import close_session, free_port, loopback_args, l
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.rig import paper_rig
 from skelfuse.wire import keys
-from skelfuse.wire.codec import DecodeError, decode_fused_frame, decode_status, encode_sensor_frame
+from skelfuse.wire.codec import (
+    DecodeError,
+    decode_fused_frame,
+    decode_sensor_frame,
+    decode_status,
+    encode_sensor_frame,
+)
 
 FPS = 30.0
 WARMUP_S = 1.0
@@ -75,6 +86,11 @@ class LatencyCase:
     load_after: tuple[float, float, float] = (0.0, 0.0, 0.0)
     n_people: int = 1
     node_src: str | None = None
+    fused_rate_hz: float | None = None
+    instants_shed: int | None = None
+    floor_p50_ms: float | None = None
+    floor_p99_ms: float | None = None
+    publish_late_p99_ms: float | None = None
 
 
 @dataclass
@@ -196,33 +212,47 @@ def measure(
     collector = _Collector()
     try:
         session = zenoh.open(loopback_config(connect_ports=[port]))
+        probe = zenoh.open(loopback_config(connect_ports=[port]))  # the harness's floor: one hop to a 2nd session
         try:
             session.declare_subscriber(keys.fused_skeletons("bench"), collector.on_fused)
             session.declare_subscriber(keys.status("bench", "fusion"), collector.on_status)
+            probe.declare_subscriber(keys.sensor_skeletons("bench", frames[0][-1].sensor_id), collector.on_probe)
             if not collector.ready.wait(60.0):
                 log = (workdir / f"node-{n_sensors}.log").read_text(errors="replace")[-2000:]
                 raise RuntimeError(f"the fusion node did not come up within 60 s:\n{log}")
-            published, measure_from, measured_until = _publish_instants(session, frames, n_instants)
+            run = _publish_instants(session, frames, n_instants)
             time.sleep(0.6)  # one more status window
             _stop_node(node, workdir / f"node-{n_sensors}.log")
         finally:
+            close_session(probe, what="bench latency probe")
             close_session(session, what="bench latency")
     finally:
         if node.poll() is None:
             os.killpg(node.pid, signal.SIGKILL)
             node.wait(5.0)
+    published = run.published
     with collector.lock:
         e2e = [(collector.received[t] - p) / 1e6 for t, p in published.items() if t in collector.received]
+        floor = [(collector.probed[t] - p) / 1e6 for t, p in published.items() if t in collector.probed]
         n_complete = sum(1 for t in published if t in collector.complete)
         # Status windows (0.5 s) that lie inside the measured window: the node's own latency after warm-up, over
         # every instant of those windows (_merge_windows).
         windows = [
             st.info
             for t, st in collector.statuses
-            if measure_from <= t <= measured_until + 600_000_000 and st.state != "stopped"
+            if run.measure_from <= t <= run.measured_until + 600_000_000 and st.state != "stopped"
         ]
-    sent = len(published)
-    return _case(n_sensors, sent, e2e, n_complete, windows, load_before, n_people, node_src)
+        last = collector.statuses[-1][1] if collector.statuses else None
+    case = _case(n_sensors, len(published), e2e, n_complete, windows, load_before, n_people, node_src)
+    span_s = (max(published.values()) - min(published.values())) / 1e9 + 1 / FPS if published else 0.0
+    return dataclasses.replace(
+        case,
+        fused_rate_hz=round(len(e2e) / span_s, 2) if span_s else None,
+        instants_shed=None if last is None else last.counters.get("instants_shed"),
+        floor_p50_ms=_percentile(floor, 50),
+        floor_p99_ms=_percentile(floor, 99),
+        publish_late_p99_ms=_percentile(run.late_ms, 99),
+    )
 
 
 def _start_node(config: Path, port: int, log_path: Path, node_src: Path | None) -> subprocess.Popen[bytes]:
@@ -268,6 +298,7 @@ class _Collector:
         self.received: dict[int, int] = {}
         self.complete: set[int] = set()
         self.statuses: list[Any] = []
+        self.probed: dict[int, int] = {}  # device time -> the harness's second session received the frame
         self.lock = threading.Lock()
         self.ready = threading.Event()  # the node's first status: it is up and subscribed
 
@@ -282,6 +313,15 @@ class _Collector:
             if frame.contributors.size and frame.contributors[0].all():
                 self.complete.add(int(frame.time_us))
 
+    def on_probe(self, sample: Any) -> None:
+        now = time.monotonic_ns()
+        try:
+            frame = decode_sensor_frame(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with self.lock:
+            self.probed[int(frame.device_time_us)] = now
+
     def on_status(self, sample: Any) -> None:
         try:
             status = decode_status(sample.payload.to_bytes())
@@ -292,16 +332,23 @@ class _Collector:
         self.ready.set()
 
 
-def _publish_instants(
-    session: Any, frames: list[list[SensorFrame]], n_instants: int
-) -> tuple[dict[int, int], int, int]:
-    """Publish ``n_instants`` instants at FPS, every sensor's frame stamped now.
+@dataclass(frozen=True)
+class _Published:
+    """What :func:`_publish_instants` sent: the monotonic time each measured instant's last frame went out (by
+    device time, after the warm-up), when the first whole status window after the warm-up starts, when
+    publishing ended, and how late each measured instant's first put was against its schedule (ms)."""
 
-    Returns the monotonic time each measured instant's last frame went out (by device time, after the
-    warm-up), when the first whole status window after the warm-up starts, and when publishing ended.
-    """
+    published: dict[int, int]
+    measure_from: int
+    measured_until: int
+    late_ms: list[float]
+
+
+def _publish_instants(session: Any, frames: list[list[SensorFrame]], n_instants: int) -> _Published:
+    """Publish ``n_instants`` instants at FPS, every sensor's frame stamped now."""
     period_ns = int(1e9 / FPS)
     published: dict[int, int] = {}
+    late_ms: list[float] = []
     measure_from = 0
     publishers = [
         session.declare_publisher(keys.sensor_skeletons("bench", f.sensor_id), express=True) for f in frames[0]
@@ -315,6 +362,7 @@ def _publish_instants(
         if delay > 0:
             time.sleep(delay / 1e9)
         device_us = base_us + round(k * 1e6 / FPS)
+        began = time.monotonic_ns()
         batch = [
             encode_sensor_frame(
                 dataclasses.replace(f, sequence=k, device_time_us=device_us, host_time_ns=time.time_ns())
@@ -329,7 +377,8 @@ def _publish_instants(
             if not published:
                 measure_from = time.monotonic_ns() + 500_000_000  # first whole status window
             published[device_us] = last
-    return published, measure_from, time.monotonic_ns()
+            late_ms.append((began - due) / 1e6)
+    return _Published(published, measure_from, time.monotonic_ns(), late_ms)
 
 
 def _case(
@@ -383,23 +432,25 @@ def run_latency_bench(
     progress: bool = True,
     n_people: int = 1,
     node_src: Path | None = None,
+    cases: Sequence[tuple[int, int]] = (),
 ) -> LatencyResult:
-    """Measure every sensor count, then (``sweep``) the largest count sustained at 30 Hz."""
-    for n in sensor_counts:
+    """Measure every sensor count (each with ``n_people``), then every (sensors, people) of ``cases``, then
+    (``sweep``) the largest count sustained at 30 Hz."""
+    for n in [*sensor_counts, *(c[0] for c in cases)]:
         if not 1 <= n <= 64:
             raise ValueError(f"--sensors: each count must be in 1..64 (the wire format's cap), got {n}")
     result = LatencyResult(duration_s=duration_s)
     with tempfile.TemporaryDirectory(prefix="skelfuse-bench-") as tmp:
         workdir = Path(tmp)
-        for n in sensor_counts:
+        for n, people in [*((n, n_people) for n in sensor_counts), *cases]:
             if progress:
                 print(
-                    f"bench latency: {n} sensors x {n_people} people x {FPS:g} Hz for {duration_s:g} s ...",
+                    f"bench latency: {n} sensors x {people} people x {FPS:g} Hz for {duration_s:g} s ...",
                     file=sys.stderr,
                     flush=True,
                 )
-            result.cases.append(measure(n, duration_s, workdir=workdir, n_people=n_people, node_src=node_src))
-        sustained = [c.n_sensors for c in result.cases if c.sustained]
+            result.cases.append(measure(n, duration_s, workdir=workdir, n_people=people, node_src=node_src))
+        sustained = [c.n_sensors for c in result.cases if c.sustained and c.n_people == n_people]
         if sweep:
             for n in SWEEP:
                 if n <= max(sensor_counts, default=0):
@@ -422,16 +473,17 @@ def format_table(result: LatencyResult) -> str:
     lines = [
         f"Latency over zenoh on loopback, {FPS:g} Hz, {result.duration_s:g} s per case (ms):",
         "",
-        "| sensors x people | instants | fused | complete | e2e p50 | e2e p99 | e2e max | node p50 | node p99 "
-        "| node max | fusion p50 | fusion p99 | sustained | load 1 min |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|",
+        "| sensors x people | instants | fused | rate Hz | shed | complete | e2e p50 | e2e p99 | e2e max | node p50 "
+        "| node p99 | node max | fusion p50 | fusion p99 | floor p50 | floor p99 | sustained | load 1 min |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|---:|",
     ]
     for c in [*result.cases, *result.sweep]:
         lines.append(
-            f"| {c.n_sensors} x {c.n_people} | {c.instants_sent} | {c.fused_received} | {c.complete_fraction:.1%} "
+            f"| {c.n_sensors} x {c.n_people} | {c.instants_sent} | {c.fused_received} | {f(c.fused_rate_hz, 1)} "
+            f"| {'-' if c.instants_shed is None else c.instants_shed} | {c.complete_fraction:.1%} "
             f"| {f(c.e2e_p50_ms)} | {f(c.e2e_p99_ms)} | {f(c.e2e_max_ms)} | {f(c.node_added_p50_ms, 3)} "
             f"| {f(c.node_added_p99_ms, 3)} | {f(c.node_added_max_ms, 3)} | {f(c.fusion_p50_ms, 3)} "
-            f"| {f(c.fusion_p99_ms, 3)} | {'yes' if c.sustained else 'no'} "
+            f"| {f(c.fusion_p99_ms, 3)} | {f(c.floor_p50_ms)} | {f(c.floor_p99_ms)} | {'yes' if c.sustained else 'no'} "
             f"| {c.load_before[0]:.2f}-{c.load_after[0]:.2f} |"
         )
     lines += [
@@ -439,6 +491,10 @@ def format_table(result: LatencyResult) -> str:
         "e2e: last sensor frame of an instant published -> fused frame received (same process clock).",
         "node: the fusion node's own added latency (completing frame in -> fused frame out), over every measured "
         "instant (from the node's status windows).",
+        "rate: fused frames received per second of publishing; shed: instants the node shed, more than "
+        "[node] max_lag_s behind (its last status).",
+        "floor: the harness's own floor, the last sensor frame published -> received by a second session of the "
+        "harness (one hop; e2e takes two); the harness shares the machine with the node.",
         f"load 1 min: os.getloadavg() before-after each case, on {os.cpu_count()} CPUs (a shared machine inflates "
         "every figure).",
         f"Largest sensor count sustained at {FPS:g} Hz: {result.max_sustained_sensors or 'none measured'}.",

@@ -76,6 +76,7 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
         progress=not args.json,
         n_people=args.people,
         node_src=args.node_src,
+        cases=args.cases,
     )
     if args.json:
         print_json(result.to_dict())
@@ -225,6 +226,14 @@ def _add_latency(bench_commands: argparse._SubParsersAction) -> None:
         help="measured seconds per sensor count (default: %(default)s)",
     )
     latency.add_argument("--people", type=COUNT, default=1, help="people every sensor sees (default: %(default)s)")
+    latency.add_argument(
+        "--cases",
+        type=_sensors_by_people,
+        nargs="+",
+        default=[],
+        metavar="SxP",
+        help="more cases, sensors x people each, after --sensors, e.g. 8x16 64x6 (a crowd, the largest rig)",
+    )
     latency.add_argument(
         "--node-src",
         type=Path,

@@ -55,7 +55,7 @@ def _cmd_eval_paper(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_real(args: argparse.Namespace) -> int:
-    from skelfuse.eval import real, rig
+    from skelfuse.eval import real, rig, rig_report
 
     specs = list(args.inputs)
     if not specs:  # the andyj1 3-sensor take: one input among others, its subordinates already registered
@@ -74,7 +74,7 @@ def _cmd_eval_real(args: argparse.Namespace) -> int:
         out_dir=args.out,
         progress=not args.json,
     )
-    text = rig.format_markdown(result)
+    text = rig_report.format_markdown(result)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "report.md").write_text(text + "\n", encoding="utf-8")

@@ -338,10 +338,21 @@ class ZenohTls:
 
 @dataclass(frozen=True)
 class NodeConfig:
-    """``[node]``: settings shared by the rig's long-running nodes."""
+    """``[node]``: settings shared by the rig's long-running nodes.
+
+    Attributes
+    ----------
+    status_period_s : float
+    name : str or None
+    max_lag_s : float
+        The fusion node's bound on how far it may fall behind: an instant whose first frame arrived longer ago
+        than this when its turn to be fused comes is shed (counted ``shed.behind``), not fused, so a node that
+        cannot keep up skips its oldest instants instead of drifting ever later.
+    """
 
     status_period_s: float = 1.0
     name: str | None = None
+    max_lag_s: float = 0.5
 
 
 @dataclass(frozen=True)

@@ -119,6 +119,7 @@ def _parse_rig(data: Mapping[str, Any], source: str, base_dir: Path | None) -> R
         node = NodeConfig(
             status_period_s=t.number("status_period_s", 1.0, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
             name=t.string("name", None, check=lambda v: validate_name(v, "node")),
+            max_lag_s=t.number("max_lag_s", 0.5, lo=0.0, lo_open=True, hi=3600.0, unit="s"),
         )
         t.done()
     capture = CaptureConfig()

@@ -143,12 +143,16 @@ class FrameGroup:
         Expected sensors without a frame in this group, in expected order.
     complete : bool
         True when ``missing`` is empty.
+    first_arrival_ns : int or None
+        Arrival (the caller's ``now_ns``) of the group's first frame; None for groups not made by a grouper. The
+        fusion node measures how far behind it is from it.
     """
 
     time_us: int
     frames: dict[str, SensorFrame]
     missing: tuple[str, ...]
     complete: bool
+    first_arrival_ns: int | None = None
 
 
 @dataclass
@@ -231,6 +235,7 @@ class GrouperStats:
 class _OpenGroup:
     anchor_us: int
     deadline_ns: int
+    first_arrival_ns: int
     frames: dict[str, SensorFrame] = field(default_factory=dict)
     min_time_us: int = 0
 
@@ -532,7 +537,10 @@ class FrameGrouper:
         group = self._nearest_open(time_us)
         if group is None:
             group = _OpenGroup(
-                anchor_us=time_us, deadline_ns=int(arrival_ns) + self.deadline_us * 1000, min_time_us=time_us
+                anchor_us=time_us,
+                deadline_ns=int(arrival_ns) + self.deadline_us * 1000,
+                first_arrival_ns=int(arrival_ns),
+                min_time_us=time_us,
             )
             anchors = [g.anchor_us for g in self._open]
             self._open.insert(bisect.bisect_right(anchors, time_us), group)
@@ -579,4 +587,10 @@ class FrameGrouper:
             self._stats.complete_groups += 1
         if self._emitted_until_us is None or group.anchor_us > self._emitted_until_us:
             self._emitted_until_us = group.anchor_us
-        return FrameGroup(time_us=group.min_time_us, frames=frames, missing=missing, complete=not missing)
+        return FrameGroup(
+            time_us=group.min_time_us,
+            frames=frames,
+            missing=missing,
+            complete=not missing,
+            first_arrival_ns=group.first_arrival_ns,
+        )

@@ -18,12 +18,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.fusion.people import PeopleResult
 from skelfuse.fusion.plausibility import HOLD_REASONS
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.rig.grouping import FrameGroup, FrameGrouper
 from skelfuse.rig.instant import GroupFuser
 from skelfuse.rig.smoothing import LiveFixedLag
 from skelfuse.schema.frames import FusedFrame
+from skelfuse.service.shedding import LagShedder
 from skelfuse.wire import keys
 from skelfuse.wire.codec import DecodeError, decode_sensor_frame, encode_fused_frame
 
@@ -108,6 +110,16 @@ class FusedOutput:
     complete: bool
     clouds: tuple[Any, ...] = ()
     """Depth / hybrid mode: (track id, MergedCloud) of each person's fused cloud, for the view."""
+    people: PeopleResult | None = None
+    """The fusion core's whole result (association, contributors, held-out views), for the sensor-moved monitor."""
+
+    def fit_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """What the sensor-moved monitor (:meth:`skelfuse.service.pose_fit.PoseFitMonitor.update`) takes after
+        ``sensors_world``: the people (coasting tracks too), who contributed to each, which views were held out."""
+        people = self.people
+        if people is None:
+            return self.frame.positions, self.frame.contributors, None
+        return people.positions, people.contributors, people.held_out
 
 
 @dataclass(frozen=True)
@@ -117,6 +129,7 @@ class _Beside:
     sensors_world: np.ndarray
     complete: bool
     clouds: tuple[Any, ...]
+    people: PeopleResult | None = None
 
 
 @dataclass
@@ -146,6 +159,10 @@ class FusionCore:
         Overrides ``cfg.fusion.fixed_lag_frames``: above 0, each instant is published that many instants later,
         smoothed by the fixed-lag smoother (:class:`skelfuse.rig.smoothing.LiveFixedLag`).
 
+    An instant is shed instead of fused when it is older than ``[node] max_lag_s`` at its turn
+    (:class:`~skelfuse.service.shedding.LagShedder`); its age is measured from the clock the caller passes as
+    ``now_ns`` (a caller that passes none, or only arrival times, never sheds).
+
     Attributes
     ----------
     grouper : FrameGrouper
@@ -155,6 +172,8 @@ class FusionCore:
         Payloads received, fused frames produced.
     rejects : dict[str, Counter]
         Per sensor (from the key), rejects per reason (codec reasons, plus "key_mismatch", "bad_key").
+    shedder : LagShedder
+        Instants shed because the caller fell behind, per reason and per sensor.
     """
 
     def __init__(
@@ -198,6 +217,8 @@ class FusionCore:
         self.held_out: dict[str, Counter[str]] = {}  # views the plausibility stage held out, per sensor and reason
         self._sensors = {sid: _SensorWindow() for sid in self.sensor_ids}
         self._logged_rejects: Counter[tuple[str, str]] = Counter()
+        self.shedder = LagShedder(cfg.node.max_lag_s, what=f"fusion node {cfg.node.name or 'fusion'}")
+        self._last_fusion_ms: float | None = None
 
     @property
     def fixed_lag_frames(self) -> int:
@@ -206,8 +227,12 @@ class FusionCore:
 
     # -- input --------------------------------------------------------------------------------------------
 
-    def receive(self, key: str, payload: bytes, arrival_ns: int) -> list[FusedOutput]:
-        """One sample from the sensor wildcard; returns the fused instants that became due."""
+    def receive(self, key: str, payload: bytes, arrival_ns: int, now_ns: int | None = None) -> list[FusedOutput]:
+        """One sample from the sensor wildcard; returns the fused instants that became due.
+
+        ``now_ns``: the time now on the clock of ``arrival_ns`` (the live node's monotonic clock): instants due now
+        and older than ``[node] max_lag_s`` are shed. Default ``arrival_ns`` (a sample taken as it arrives)."""
+        now_ns = arrival_ns if now_ns is None else now_ns
         self.frames_in += 1
         key_sensor = self._sensor_of_key.get(key) if isinstance(key, str) else None  # the rig's keys, parsed once
         if key_sensor is None:
@@ -215,23 +240,23 @@ class FusionCore:
                 key_sensor = keys.parse_sensor_key(key, self.cfg.name)
             except ValueError as exc:
                 self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
-                return self.poll(arrival_ns)
+                return self.poll(now_ns)
         intake = self.intake
         if len(payload) > intake.max_payload_bytes:
             self._reject(key_sensor, OVERSIZED, f"{len(payload)} bytes, at most {intake.max_payload_bytes} ([intake])")
-            return self.poll(arrival_ns)
+            return self.poll(now_ns)
         try:
             frame = decode_sensor_frame(payload)
         except DecodeError as exc:
             self._reject(key_sensor, exc.reason, str(exc))
-            return self.poll(arrival_ns)
+            return self.poll(now_ns)
         if frame.n_bodies > intake.max_bodies_per_sensor:
             self._reject(
                 key_sensor,
                 TOO_MANY_BODIES,
                 f"{frame.n_bodies} bodies, at most {intake.max_bodies_per_sensor} ([intake] max_bodies_per_sensor)",
             )
-            return self.poll(arrival_ns)
+            return self.poll(now_ns)
         if frame.n_bodies:
             reach = float(np.abs(frame.positions).max())  # finite: the codec rejects NaN and Inf
             if reach > intake.max_range_mm:
@@ -241,31 +266,32 @@ class FusionCore:
                     f"a joint {reach:.4g} mm from the sensor on one axis, at most {intake.max_range_mm:g} mm "
                     f"([intake] max_range_mm)",
                 )
-                return self.poll(arrival_ns)
+                return self.poll(now_ns)
         if frame.sensor_id != key_sensor:
             self._reject(
                 key_sensor,
                 KEY_MISMATCH,
                 f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}",
             )
-            return self.poll(arrival_ns)
+            return self.poll(now_ns)
         window = self._sensors.get(key_sensor)
         if window is not None:
             window.received += 1
             window.window_received += 1
             window.last_seen_ns = arrival_ns
         groups = self.grouper.push(frame, arrival_ns)
-        return self._fuse_groups(groups, trigger_arrival_ns=arrival_ns)
+        return self._fuse_groups(groups, trigger_arrival_ns=arrival_ns, now_ns=now_ns)
 
     def poll(self, now_ns: int) -> list[FusedOutput]:
         """Instants whose deadline passed by ``now_ns``."""
         groups = self.grouper.poll(now_ns)
         self.deadline_emits += sum(1 for g in groups if not g.complete)
-        return self._fuse_groups(groups, trigger_arrival_ns=None)
+        return self._fuse_groups(groups, trigger_arrival_ns=None, now_ns=now_ns)
 
-    def flush(self) -> list[FusedOutput]:
-        """Every open instant (shutdown), then, with a fixed lag, every instant it still holds."""
-        out = self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None)
+    def flush(self, now_ns: int | None = None) -> list[FusedOutput]:
+        """Every open instant (shutdown; with ``now_ns``, those older than the bound are shed), then, with a fixed
+        lag, every instant it still holds."""
+        out = self._fuse_groups(self.grouper.flush(), trigger_arrival_ns=None, now_ns=now_ns)
         if self.fixed_lag is not None:
             tick = time.perf_counter_ns()
             out += [self._output(frame, beside, tick, None) for beside, frame in self.fixed_lag.flush()]
@@ -289,11 +315,20 @@ class FusionCore:
 
     # -- fusion -------------------------------------------------------------------------------------------
 
-    def _fuse_groups(self, groups: list[FrameGroup], trigger_arrival_ns: int | None) -> list[FusedOutput]:
-        out = []
+    def _fuse_groups(
+        self, groups: list[FrameGroup], trigger_arrival_ns: int | None, now_ns: int | None
+    ) -> list[FusedOutput]:
+        out: list[FusedOutput] = []
         for index, group in enumerate(groups):
             # Only the newest group of a push was completed by the pushed frame; older ones were pushed out.
             trigger = trigger_arrival_ns if index == len(groups) - 1 and group.complete else None
+            first_arrival_ns = group.first_arrival_ns
+            if now_ns is not None and first_arrival_ns is not None:
+                now = now_ns + sum(o.fusion_ns for o in out)  # the groups fused before this one took that long
+                if self.shedder.too_old(first_arrival_ns, now):
+                    self.shedder.shed(list(group.frames), now - first_arrival_ns, now, self._last_fusion_ms)
+                    continue
+                self.shedder.fused(now)
             try:
                 out += self._fuse(group, trigger)
             except Exception as exc:  # never expected (caps keep frames encodable): a daemon must not die of it
@@ -317,11 +352,14 @@ class FusionCore:
         instant = self.fuser.step(group) if depth is None else depth.step(self.fuser, group)
         if instant.people.held_out is not None:
             count_held_out(self.held_out, instant.people.held_out, instant.frame.sensor_ids)
-        beside = _Beside(instant.sensors_world, group.complete, () if depth is None else depth.last_clouds)
+        beside = _Beside(
+            instant.sensors_world, group.complete, () if depth is None else depth.last_clouds, instant.people
+        )
         if self.fixed_lag is None:
             out = [self._output(instant.frame, beside, tick, trigger_arrival_ns)]
         else:
             out = [self._output(f, b, tick, trigger_arrival_ns) for b, f in self.fixed_lag.push(instant, beside)]
+        self._last_fusion_ms = (time.perf_counter_ns() - tick) / 1e6
         if group.complete:
             self.groups_complete += 1
         else:
@@ -333,7 +371,14 @@ class FusionCore:
         self.frames_out += 1
         elapsed = time.perf_counter_ns() - tick
         return FusedOutput(
-            frame, payload, beside.sensors_world, elapsed, trigger_arrival_ns, beside.complete, beside.clouds
+            frame,
+            payload,
+            beside.sensors_world,
+            elapsed,
+            trigger_arrival_ns,
+            beside.complete,
+            beside.clouds,
+            beside.people,
         )
 
     # -- status -------------------------------------------------------------------------------------------

@@ -222,6 +222,7 @@ class FusionNode:
         self.lifecycle = lifecycle or Lifecycle(self.name)
         self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
+        self.core.shedder.what = f"fusion node {self.name}"
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf
@@ -363,10 +364,12 @@ class FusionNode:
             item = samples.get_nowait()
             if item is None:
                 break
-            self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+            self._publish(
+                self.core.receive(item.key, item.payload, item.arrival_ns, time.monotonic_ns()), publisher, view
+            )
             drained += 1
         drained_s = time.monotonic() - budget.began
-        self._publish(self.core.flush(), publisher, view)
+        self._publish(self.core.flush(time.monotonic_ns()), publisher, view)
         self._publish_status(status_pub, "stopped", time.monotonic_ns())
         declared.token.undeclare()
         declared.queryable.undeclare()
@@ -416,7 +419,8 @@ class FusionNode:
                 # now), but a stop is seen between any two samples (a starved node's backlog never hides it),
                 # and so is an overdue status: a node a little behind for long (its queue never quite empty)
                 # published none for over 10 s.
-                self._publish(self.core.receive(item.key, item.payload, item.arrival_ns), publisher, view)
+                outputs = self.core.receive(item.key, item.payload, item.arrival_ns, time.monotonic_ns())
+                self._publish(outputs, publisher, view)
                 if self.lifecycle.should_exit:
                     break
                 if time.monotonic_ns() >= next_status + period_ns:
@@ -446,7 +450,7 @@ class FusionNode:
         for out in outputs:
             publisher.put(out.payload)
             done_ns = time.monotonic_ns()
-            for change in self.pose_fit.update(out.sensors_world, out.frame.positions):
+            for change in self.pose_fit.update(out.sensors_world, *out.fit_inputs()):
                 self._log_fit(change)
             fusion_ms = out.fusion_ns / 1e6
             self._window_fusion.append(fusion_ms)
@@ -515,8 +519,10 @@ class FusionNode:
         self._rates = {sid: s["rate_hz"] for sid, s in sensors.items() if s["rate_hz"] is not None}
         queue = {} if self._samples is None else self._samples.counts()  # the intake queue, per sensor key
         no_drops = {"queued": 0, "dropped": 0, "oversized": 0}
+        shedder = core.shedder
         for sid, report in sensors.items():
             report["queue"] = queue.get(sid, no_drops)
+            report["shed"] = shedder.frames_by_sensor[sid]
         stats = core.grouper.stats
         totals = stats.totals
         reject_totals: Counter[str] = Counter()
@@ -539,11 +545,15 @@ class FusionNode:
             "samples_dropped": 0 if self._samples is None else self._samples.dropped,
             "samples_oversized": 0 if self._samples is None else self._samples.oversized,
             "invalid": sum(reject_totals.values()),
+            "instants_shed": shedder.total,
         } | {f"rejects.{reason}": n for reason, n in sorted(reject_totals.items())}
+        counters |= {f"shed.{reason}": n for reason, n in sorted(shedder.by_reason.items())}
         info = {
             "rig": self.cfg.name,
             "preset": self.cfg.fusion.preset,
             "sync_by": self.cfg.sync.by,
+            "max_lag_s": shedder.max_lag_s,
+            "shed_episodes": shedder.episodes,
             "window_s": round(window_s, 4),
             "fused_rate_hz": round(len(self._window_fusion) / window_s, 3),
             "fixed_lag_ms": round(1000.0 * core.fixed_lag_frames / self.cfg.sync.fps, 3),

@@ -50,6 +50,11 @@ def format_status(status: NodeStatus) -> str:
         ]
         if flooded:
             parts.append("intake queue dropped: " + ", ".join(flooded))
+        if c.get("instants_shed"):
+            parts.append(
+                f"BEHIND: {c['instants_shed']} instants shed (older than max_lag_s {info.get('max_lag_s')} s when "
+                "their turn came)"
+            )
         moved = [
             f"{sid} ({fit.get('median_mm')} mm off)"
             for sid, fit in (info.get("pose_fit") or {}).items()
