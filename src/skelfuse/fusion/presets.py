@@ -74,9 +74,10 @@ class FusionParams:
     recovery_credit_frames : int
         "temporal" only: the most credit a body's anchor banks, one frame per frame in which every view agreed
         with it; a run of disagreement spends it before the recovery rule counts, and the rear-view rule waits
-        as many frames more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s): two views
-        mirrored together for up to 27 frames (a person side-on between two facing sensors, simulator) then
-        keep a right anchor; a wrong start that every view vouched for is undone up to 30 frames later.
+        as many frames more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s at 30 fps):
+        after a second in which every view agreed, views mirrored together (a person side-on between two
+        facing sensors) keep a right anchor for up to ``30 + recovery_frames - 1`` frames; the price is that
+        a wrong start every view vouched for (all mirrored) is undone up to 30 frames later.
     recovery_share : float
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
     majority_recovery_frames : int or None
@@ -228,9 +229,7 @@ class FusionParams:
         if int(self.recovery_frames) < 1:
             raise ValueError(f"FusionParams.recovery_frames must be >= 1, got {self.recovery_frames!r}")
         if int(self.recovery_credit_frames) < 0:
-            raise ValueError(
-                f"FusionParams.recovery_credit_frames must be >= 0, got {self.recovery_credit_frames!r}"
-            )
+            raise ValueError(f"FusionParams.recovery_credit_frames must be >= 0, got {self.recovery_credit_frames!r}")
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
             raise ValueError(
                 f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"
