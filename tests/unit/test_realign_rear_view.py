@@ -13,7 +13,7 @@ import pytest
 from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.fusion import Fuser, preset
 from skelfuse.fusion.depth.frontal import body_facing
-from skelfuse.fusion.realign import facing_cosine, realign_temporal
+from skelfuse.fusion.realign import facing_cosine, realign_temporal, teleported
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
@@ -279,3 +279,27 @@ def test_a_front_view_mirrored_for_a_few_frames_does_not_overturn_two_agreeing_v
         # Control: facing away for longer than the credit, the view decides (the rear-view rule is kept).
         longer = [_views(truth, [False, False, t >= 10], rng) for t in range(40)]
         assert not _right(_run(params, longer, sensors)[0][-1], truth)
+
+
+def test_one_of_two_views_jumping_to_someone_else_does_not_restart_the_realignment():
+    # Two views of a person side-on to both; from frame 20 the first view reports someone else 700 mm away,
+    # mirrored and with more MEDIUM joints (a tracker that swapped to a neighbour). The plausibility stage
+    # holds that view out of the merge; the realignment keeps its anchor, since only one view jumped, and the
+    # output stays right. Were the jump judged on the views' mean centre (350 mm: a teleport), the body would
+    # start cold in every frame and the 1-against-1 split would go to the view with more MEDIUM joints.
+    rng = np.random.default_rng(RNG_SEED + 7)
+    truth = make_gesture("hands_up_down", duration_s=40 / 30, seed=0, facing_deg=0.0).positions[:40]
+    sensors = _ring([90.0, 270.0])
+    frames = []
+    for t in range(40):
+        pos, conf = _views(truth[t], [t >= 20, False], rng, [32, 20])
+        if t >= 20:
+            pos[0, 0] += np.array([0.0, 700.0, 0.0])
+        frames.append((pos, conf))
+    max_jump_mm = SKELFUSE.max_body_speed_mm_s / 30.0
+    assert not teleported(frames[25][0], truth[24][None], max_jump_mm).any()
+    centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
+    mean_jump = np.linalg.norm(frames[25][0][0][:, centre].mean(axis=(0, 1)) - truth[24, centre].mean(axis=0))
+    assert mean_jump > max_jump_mm  # the views' mean centre did jump
+    outputs, _ = _run(SKELFUSE, frames, sensors)
+    assert all(_right(o, truth[t]) for t, o in enumerate(outputs))

@@ -330,17 +330,14 @@ def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[
 
 
 def _teleported(pos: list[list], previous: list[np.ndarray | None], max_jump_mm: float) -> bool:
-    """The body centre (mean of both shoulders and hips; per axis the median over the views that have all
-    four) is further than ``max_jump_mm`` from the previous skeleton's."""
+    """The body centre (mean of both shoulders and hips) is further than ``max_jump_mm`` from the previous
+    skeleton's in every view that has all four."""
     centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
     if any(previous[j] is None for j in centre):
         return False
     then = np.mean([p for j in centre if (p := previous[j]) is not None], axis=0)  # all four: checked above
     views = [np.mean([row[j] for j in centre], axis=0) for row in pos if all(row[j] is not None for j in centre)]
-    if not views:
-        return False
-    now = np.median(np.array(views), axis=0)
-    return bool(math.dist(now, then) > max_jump_mm)
+    return bool(views) and all(math.dist(now, then) > max_jump_mm for now in views)
 
 
 def _realign_temporal(

@@ -118,12 +118,15 @@ Two modes:
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
-        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place; per axis the
-        median over the views that have all four) lies more than ``max_jump_mm`` from the anchor's starts
-        cold: nobody moves that far in one frame, so the anchor belongs to another pose (a looped take's
+        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place) lies more than
+        ``max_jump_mm`` from the anchor's in every view that has all four starts cold: nobody moves that far
+        in one frame, so the anchor belongs to another pose (a looped take's
         seam, which also turns the body round in one frame; a track handed to someone else), and deciding
         against it would mirror every view that is right. Without the rule such an anchor stays mirrored
-        wherever the views split 2 against 2, since recovery needs a clear majority.
+        wherever the views split 2 against 2, since recovery needs a clear majority. One view that jumps
+        alone (someone else, a tracker that lost the body, held out by the plausibility stage) is no teleport:
+        with two views, a median (their mean) moved with it, and the body started cold in every such frame,
+        where a 1-against-1 split is decided by the MEDIUM evidence alone.
 
     Returns the flip decisions and the new per-body disagreement counters; the caller keeps the counters.
 
@@ -136,7 +139,6 @@ import math
 
 import numpy as np
 
-from skelfuse.fusion.association import nanmedian_axis
 from skelfuse.fusion.mirror import mirror_views, pair_costs
 from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
@@ -473,14 +475,17 @@ def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.nda
 
 
 def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:
-    """(B,) bool: the body's centre now (mean of shoulders and hips in each view that has all four; per axis
-    the median over those views) lies more than ``max_jump_mm`` from the centre of ``previous`` (B, J, 3).
-    False where either centre is unknown."""
+    """(B,) bool: the body's centre (mean of shoulders and hips) lies more than ``max_jump_mm`` from the centre of
+    ``previous`` (B, J, 3) in every view that has all four: a jump every view makes. One view of someone else (a
+    neighbour, a tracker that lost the body) does not make the body jump. False where either centre is unknown."""
     # np.add.reduce / 4 is ndarray.mean over the four joints, without its Python-level wrapper (hot path).
     then = np.add.reduce(previous[:, _CENTRE_JOINTS], axis=1) / 4  # (B, 3), NaN unless all four are known
-    now = nanmedian_axis(np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4, axis=1)  # (B, S, 3) -> (B, 3)
-    step = now - then
-    return (step * step) @ _ONES3 > max_jump_mm * max_jump_mm  # NaN compares False
+    now = np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4  # (B, S, 3)
+    step = now - then[:, None]
+    d2 = (step * step) @ _ONES3  # (B, S), NaN where a centre is unknown
+    known = d2 == d2
+    far = d2 > max_jump_mm * max_jump_mm  # NaN compares False
+    return known.any(axis=1) & (far == known).all(axis=1)
 
 
 def _swap_pairs(
