@@ -23,6 +23,7 @@ PACKAGE = Path(skelfuse.__file__).resolve().parent
 
 #: Third-party packages a function may import lazily: heavy to load, or optional (an extra).
 LAZY_ALLOWED = {
+    "numba",  # only the fusion path compiles kernels (skelfuse.fusion.kernels.load)
     "zenoh",
     "rerun",
     "cv2",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import time
 from pathlib import Path
 
@@ -16,8 +17,10 @@ from skelfuse.bench.instant import (
     instant_take,
     run_instant_bench,
     time_instants,
+    use_numpy_references,
 )
 from skelfuse.cli.bench import _sensors_by_people
+from skelfuse.fusion.reference import LIVE_STAGES
 
 
 @pytest.mark.live  # bench runs are subprocesses
@@ -30,6 +33,33 @@ def test_runs_alternate_between_baseline_and_current_and_record_the_load() -> No
         assert len(run["load_before"]) == 3 and run["p50_ms"] > 0
     assert case["ratio_p50"] > 0 and case["ratio_cpu_p99"] > 0 and len(case["load_1min"]) == 2
     assert "| 2 x 1 |" in format_instant_bench(result)
+
+
+@pytest.mark.live  # bench runs are subprocesses
+def test_reference_runs_put_the_numpy_references_in_place_of_the_kernels() -> None:
+    result = run_instant_bench([(2, 1)], n_frames=3, rounds=1, reference=True, progress=False)
+    (case,) = result["cases"]
+    assert result["baseline_numpy_references"] and result["baseline_src"] == str(OWN_SRC)
+    assert case["runs"]["baseline"][0]["n_frames"] == 3 and case["ratio_p50"] > 0
+    assert "with the numpy references" in format_instant_bench(result)
+    with pytest.raises(ValueError, match="not both"):
+        run_instant_bench([(2, 1)], n_frames=3, rounds=1, reference=True, baseline=OWN_SRC, progress=False)
+
+
+def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.MonkeyPatch) -> None:
+    for module, name in LIVE_STAGES:
+        monkeypatch.setattr(importlib.import_module(module), name, getattr(importlib.import_module(module), name))
+    use_numpy_references()
+    for (module, name), numpy_form in LIVE_STAGES.items():
+        assert getattr(importlib.import_module(module), name) is numpy_form
+        assert numpy_form.__module__.startswith("skelfuse.fusion.reference.")
+    assert {name for _, name in LIVE_STAGES} == {
+        "merge_dbscan",
+        "filter_step",
+        "check_views",
+        "pair_votes",
+        "seen_motion",
+    }
 
 
 @pytest.mark.live  # bench runs are subprocesses

@@ -6,7 +6,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from sklearn.cluster import DBSCAN
 
-from skelfuse.fusion.merge import cluster_matrix, merge_average, merge_dbscan
+from skelfuse.fusion.merge import merge_average, merge_dbscan
+from skelfuse.fusion.reference.merge import cluster_matrix
 
 EPS = 100.0
 RNG_SEED = 1124

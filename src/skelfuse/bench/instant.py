@@ -22,7 +22,9 @@ positions are the same either way (those stages never change them).
 Each timing runs in a fresh subprocess: this file executed as a script with ``PYTHONPATH`` set to a source tree
 (it imports only interfaces that any checkout with fused orientations has), so ``--baseline SRC`` times another
 checkout of skelfuse (e.g. the revision before a change) on the same inputs, alternating baseline / current
-run by run, and the ratio is taken per round (then the median over rounds). Every run
+run by run, and the ratio is taken per round (then the median over rounds). ``--reference`` does the same
+against this tree with the numpy forms of the compiled stages in place of the kernels
+(:data:`skelfuse.fusion.reference.LIVE_STAGES`): the speed-up of the kernels, measured in the same run. Every run
 records the machine's load (``os.getloadavg``) before and after: on a shared machine, prefer the ratios.
 """
 
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import json
 import os
 import subprocess
@@ -143,14 +146,26 @@ def time_instants(
     }
 
 
+def use_numpy_references() -> None:
+    """Put the numpy references in place of the compiled stages, where the live path looks them up (this process).
+
+    Imported by name here: a worker runs on any tree given with ``--baseline``, and trees without compiled
+    stages have no reference package (nor are they ever asked to use it).
+    """
+    reference = importlib.import_module("skelfuse.fusion.reference")
+    for (module, name), numpy_form in reference.LIVE_STAGES.items():
+        setattr(importlib.import_module(module), name, numpy_form)
+
+
 def _run_worker(
-    src: Path, n_sensors: int, n_people: int, n_frames: int, paced: bool, positions_only: bool
+    src: Path, n_sensors: int, n_people: int, n_frames: int, paced: bool, positions_only: bool, numpy: bool = False
 ) -> dict[str, Any]:
-    """One timing run in a subprocess on the source tree ``src``."""
+    """One timing run in a subprocess on the source tree ``src`` (``numpy``: with the numpy references)."""
     env = dict(os.environ, PYTHONPATH=str(src))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(n_sensors), str(n_people), str(n_frames)]
     cmd += ["--paced"] if paced else []
     cmd += ["--positions-only"] if positions_only else []
+    cmd += ["--reference"] if numpy else []
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False, timeout=600)
     if out.returncode != 0:
         raise RuntimeError(f"bench instant: the run on {src} failed:\n{out.stderr[-2000:]}")
@@ -165,17 +180,24 @@ def run_instant_bench(
     n_frames: int = 300,
     rounds: int = 3,
     baseline: Path | None = None,
+    reference: bool = False,
     paced: bool = False,
     positions_only: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Every (sensors, people) case ``rounds`` times, alternating baseline and current runs (baseline first in
     even rounds, current first in odd ones); ratios = baseline / current per round, median over rounds.
-    ``paced``: instants at the frame rate (see the module docstring), else back to back; ``positions_only``: the
-    orientation and uncertainty stages off."""
+    ``reference``: the baseline is this tree with the numpy references in place of the compiled stages (not
+    with ``baseline``). ``paced``: instants at the frame rate (see the module docstring), else back to back;
+    ``positions_only``: the orientation and uncertainty stages off."""
+    if reference and baseline is not None:
+        raise ValueError("bench instant compares against one baseline: --baseline SRC or --reference, not both")
+    if reference:
+        baseline = OWN_SRC
     out: dict[str, Any] = {
         "current_src": str(OWN_SRC),
         "baseline_src": None if baseline is None else str(baseline),
+        "baseline_numpy_references": reference,
         "paced": paced,
         "positions_only": positions_only,
     }
@@ -197,7 +219,8 @@ def run_instant_bench(
                     )
                 src = OWN_SRC if which == "current" else baseline
                 assert src is not None
-                runs[which].append(_run_worker(src, n_sensors, n_people, n_frames, paced, positions_only))
+                numpy = reference and which == "baseline"
+                runs[which].append(_run_worker(src, n_sensors, n_people, n_frames, paced, positions_only, numpy))
         case: dict[str, Any] = {"n_sensors": n_sensors, "n_people": n_people, "runs": runs}
         for which, items in runs.items():
             if items:
@@ -243,8 +266,11 @@ def format_instant_bench(result: dict[str, Any]) -> str:
                 cells += [f(base, prefix + "p50_ms"), f(base, prefix + "p99_ms")]
                 cells += [ratio(c, "ratio_" + prefix + "p50"), ratio(c, "ratio_" + prefix + "p99")]
             lines.append(f"| {c['n_sensors']} x {c['n_people']} | {clock} | " + " | ".join(cells) + f" | {load} |")
+    baseline = f"{result['baseline_src']}" + (
+        " with the numpy references of the compiled stages" if result.get("baseline_numpy_references") else ""
+    )
     trees = (
-        f"current: {result['current_src']}; baseline: {result['baseline_src']}. Ratio = baseline / current per round "
+        f"current: {result['current_src']}; baseline: {baseline}. Ratio = baseline / current per round "
         "(alternating runs), median over rounds. "
         if compared
         else ""
@@ -262,8 +288,11 @@ def _worker_main(argv: Sequence[str]) -> int:
     parser.add_argument("--worker", action="store_true")
     parser.add_argument("--paced", action="store_true")
     parser.add_argument("--positions-only", action="store_true")
+    parser.add_argument("--reference", action="store_true")
     parser.add_argument("numbers", type=int, nargs=3)
     args = parser.parse_args(argv)
+    if args.reference:
+        use_numpy_references()
     n_sensors, n_people, n_frames = args.numbers
     print(
         json.dumps(time_instants(n_sensors, n_people, n_frames, paced=args.paced, positions_only=args.positions_only))

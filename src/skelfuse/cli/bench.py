@@ -55,6 +55,7 @@ def _cmd_bench_instant(args: argparse.Namespace) -> int:
         n_frames=args.frames,
         rounds=args.rounds,
         baseline=args.baseline,
+        reference=args.reference,
         paced=args.paced,
         positions_only=args.positions_only,
         progress=not args.json,
@@ -161,7 +162,8 @@ def _add_instant(bench_commands: argparse._SubParsersAction) -> None:
         "orientations and position_std) on a simulated crowd, every run in a fresh subprocess with the machine's "
         "load recorded. With --baseline SRC (the src/ folder of another checkout, e.g. a worktree at the starting "
         "revision) the same runs alternate between SRC and this tree and the ratio baseline / current is "
-        "reported per case.",
+        "reported per case; with --reference the baseline is this tree running the numpy references of its "
+        "compiled stages.",
     )
     instant.add_argument(
         "--cases",
@@ -173,8 +175,15 @@ def _add_instant(bench_commands: argparse._SubParsersAction) -> None:
     )
     instant.add_argument("--frames", type=COUNT, default=300, help="timed instants per run (default: %(default)s)")
     instant.add_argument("--rounds", type=COUNT, default=3, help="runs per case and tree (default: %(default)s)")
-    instant.add_argument(
+    baseline = instant.add_mutually_exclusive_group()
+    baseline.add_argument(
         "--baseline", type=Path, default=None, metavar="SRC", help="src/ folder of the checkout to compare against"
+    )
+    baseline.add_argument(
+        "--reference",
+        action="store_true",
+        help="compare against this tree with the numpy references in place of the compiled kernels (the kernels' "
+        "speed-up, measured in the same run)",
     )
     instant.add_argument(
         "--paced",

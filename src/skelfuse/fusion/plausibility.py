@@ -34,7 +34,8 @@ away from the track together (:func:`views_agree_elsewhere`). A body-id change a
 rule here: association matches bodies to tracks by position, so a re-acquired body that fits the track is
 simply checked like any other view.
 
-Pure numpy, batched over bodies B, sensors S and joints J; the caller keeps :class:`PlausibilityState`.
+Batched over bodies B, sensors S and joints J (the view checks in a compiled kernel, the rest numpy); the caller
+keeps :class:`PlausibilityState`.
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skelfuse.schema.skeleton import J
+from skelfuse.fusion import kernels
+from skelfuse.schema.skeleton import N_JOINTS, J
 
 PLAUSIBLE = 0
 TELEPORT = 1
@@ -150,14 +152,6 @@ def bone_lengths(positions: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(diff * diff, axis=-1))
 
 
-def _up(positions: np.ndarray) -> np.ndarray:
-    """(..., J, 3) -> (..., 3) unit pelvis-to-neck direction (NaN where either joint is missing)."""
-    up = positions[..., J["NECK"], :] - positions[..., J["PELVIS"], :]
-    norm = np.sqrt(np.sum(up * up, axis=-1, keepdims=True))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return up / norm
-
-
 def median_of_finite(values: np.ndarray, finite: np.ndarray) -> np.ndarray:
     """Median over the last axis of the entries where ``finite`` (1.0 where none), without numpy's all-NaN
     warning (vectorized: one sort)."""
@@ -188,6 +182,9 @@ def check_views(
 ) -> np.ndarray:
     """The reason each view fails this frame (0 = passes or no evidence), no hysteresis.
 
+    Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.plausibility`); the numpy form is the test reference
+    (:mod:`skelfuse.fusion.reference.plausibility`).
+
     Parameters
     ----------
     candidates : (B, S, J, 3) mm, NaN = missing.
@@ -199,24 +196,31 @@ def check_views(
     -------
     (B, S) uint8 reason (UPSIDE_DOWN before BONES before TELEPORT where several hold).
     """
-    mean_offset = torso_offset(candidates, predicted)
-    teleport = np.sum(mean_offset * mean_offset, axis=-1) > p.gate_mm**2  # NaN compares False
-
-    cos_up = np.sum(_up(candidates) * _up(predicted)[:, None], axis=-1)  # NaN where unknown: compares False
-    upside_down = cos_up < p.up_cos
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = bone_lengths(candidates) / learned_bones[:, None]  # (B, S, NB)
-    known = np.isfinite(ratio)
-    enough = known.sum(axis=-1) >= 3
-    median = median_of_finite(ratio, known)
-    wrong_size = (
-        enough & bones_ready[:, None] & (np.abs(np.log(np.where(enough, median, 1.0))) > math.log1p(p.bone_ratio))
+    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
+    B = candidates.shape[0]
+    if candidates.shape[2:] != (N_JOINTS, 3) or np.shape(predicted) != (B, N_JOINTS, 3):
+        raise ValueError(
+            f"check_views needs candidates (B, S, {N_JOINTS}, 3) and predicted (B, {N_JOINTS}, 3), got "
+            f"{candidates.shape} and {np.shape(predicted)}"
+        )
+    if np.shape(learned_bones) != (B, len(CHECK_BONES)) or np.shape(bones_ready) != (B,):
+        raise ValueError(
+            f"check_views needs learned_bones (B, {len(CHECK_BONES)}) and bones_ready (B,) for B = {B}, got "
+            f"{np.shape(learned_bones)} and {np.shape(bones_ready)}"
+        )
+    return kernels.load().plausibility.check_views(
+        candidates,
+        np.ascontiguousarray(predicted, dtype=np.float64),
+        np.ascontiguousarray(learned_bones, dtype=np.float64),
+        np.ascontiguousarray(bones_ready, dtype=np.bool_),
+        TORSO_JOINTS,
+        CHECK_BONES,
+        J["NECK"],
+        J["PELVIS"],
+        float(p.gate_mm),
+        float(p.up_cos),
+        math.log1p(p.bone_ratio),
     )
-
-    reason = np.where(teleport, TELEPORT, PLAUSIBLE)
-    reason = np.where(wrong_size, BONES, reason)
-    return np.where(upside_down, UPSIDE_DOWN, reason).astype(np.uint8)
 
 
 def plausibility_step(
@@ -244,9 +248,9 @@ def plausibility_step(
     # Every present view failed: count; after follow_frames the track follows the views.
     all_failed = present.any(axis=-1) & ~((present & (failed == PLAUSIBLE)).any(axis=-1))
     follow = np.where(all_failed, state.follow + 1, 0).astype(np.int32)
-    restart = (follow >= p.follow_frames) | (
-        all_failed & views_agree_elsewhere(candidates, predicted, present, failed, p)
-    )
+    restart = follow >= p.follow_frames
+    if all_failed.any():  # the views' agreement matters only for a body every view failed
+        restart |= all_failed & views_agree_elsewhere(candidates, predicted, present, failed, p)
     # Hysteresis: a failing view is held (reason of this frame); a held view passing counts towards release.
     release = np.where((state.held > 0) & present & (failed == PLAUSIBLE), state.release + 1, 0).astype(np.int32)
     released = (release >= p.release_frames) | restart[:, None]

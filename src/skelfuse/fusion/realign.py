@@ -139,6 +139,7 @@ import math
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.mirror import mirror_views, pair_costs
 from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
@@ -150,12 +151,6 @@ _PAIR_RIGHT = PAPER_REALIGN_PAIRS[:, 1]
 _PAIR_JOINTS = np.concatenate([_PAIR_LEFT, _PAIR_RIGHT])  # (2P,) left joints, then right joints
 _PAIR_SWAPPED = np.concatenate([_PAIR_RIGHT, _PAIR_LEFT])
 _N_PAIRS = len(PAPER_REALIGN_PAIRS)
-_PAIR_BOTH = np.concatenate([_PAIR_JOINTS, _PAIR_SWAPPED])  # (4P,) labels as given, then swapped
-_PAIR_ANCHOR = np.concatenate([_PAIR_JOINTS, _PAIR_JOINTS])  # (4P,) the anchor each entry is compared with
-_PAIR_ANCHOR_IN_BOTH = np.concatenate([np.arange(2 * _N_PAIRS), np.arange(2 * _N_PAIRS)])
-# Weights over the four cost blocks (keep left, keep right, swap left, swap right): swap - keep per pair.
-_SWAP_MINUS_KEEP = np.array([-1.0, -1.0, 1.0, 1.0])
-_ONES_P = np.ones(_N_PAIRS)
 _ONES_J = np.ones(N_JOINTS)
 _ONES_2P = np.ones(2 * _N_PAIRS)
 # The body centre of the teleport rule: shoulders and hips, both sides, so that a left/right flip leaves it.
@@ -352,46 +347,37 @@ def realign_temporal(
     # Evidence of a view: its MEDIUM-or-better joints, all 32 (a rear view sees face, hands and arms in
     # front of the chest occluded, LOW or NONE).
     evidence = (confidence >= int(Confidence.MEDIUM)) @ _ONES_J  # (B, S), float: whole counts
-    anchor = previous[:, _PAIR_ANCHOR]  # (B, 4P, 3): the pair joints twice, facing the labels of ``both``
-    both = positions[:, :, _PAIR_BOTH]  # (B, S, 4P, 3): left, right, then the swapped labels
+    anchor = previous[:, _PAIR_JOINTS]  # (B, 2P, 3): the anchor's left joints, then its right joints
     # Views that see at least one whole pair. An anchor only knows the views it was built from: once more
     # views see the body than ever did since its cold start, the body starts cold again, so a start seen
     # by the rear sensors alone is re-decided when the front ones join.
-    n_views = (~np.isnan(both[:, :, :_N_PAIRS, 0] + both[:, :, _N_PAIRS : 2 * _N_PAIRS, 0])).any(axis=2).sum(axis=1)
+    margin, decided, n_views = pair_votes(positions, anchor)
     more_views = n_views > streak[:, 2]
     warm = not (math.isnan(anchor.sum()) or more_views.any())  # usual: every pair anchored, no new view
     if warm:
         has_prev = None
     else:
-        prev_ok = ~np.isnan(anchor[:, :_N_PAIRS, 0] + anchor[:, _N_PAIRS : 2 * _N_PAIRS, 0])  # (B, P)
+        prev_ok = ~np.isnan(anchor[:, :_N_PAIRS, 0] + anchor[:, _N_PAIRS:, 0])  # (B, P)
         prev_ok &= ~more_views[:, None]
         has_prev = prev_ok.any(axis=1)  # (B,)
         if reference is None:
             reference = reference_positions(positions, confidence)
         # Cold-start seed: most MEDIUM joints, then most present pair joints, then the lowest index.
-        present = ~np.isnan(both[:, :, : 2 * _N_PAIRS, 0])
+        pairs = positions[:, :, _PAIR_JOINTS]  # (B, S, 2P, 3)
+        present = ~np.isnan(pairs[..., 0])
         seed = (evidence * (2 * _N_PAIRS + 1) + present @ _ONES_2P).argmax(axis=1)  # (B,)
-        seed_pairs = both[np.arange(B), seed][:, _PAIR_ANCHOR_IN_BOTH]  # (B, 4P, 3)
-        seed_ok = ~np.isnan(seed_pairs[:, :_N_PAIRS, 0] + seed_pairs[:, _N_PAIRS : 2 * _N_PAIRS, 0])
-        use_seed = np.tile(seed_ok & ~has_prev[:, None], 4)[..., None]
-        static = reference[:, _PAIR_ANCHOR]
-        anchor = np.where(np.tile(prev_ok, 4)[..., None], anchor, np.where(use_seed, seed_pairs, static))
-    diff = both - anchor[:, None]
-    cost = np.sqrt((diff * diff) @ _ONES3)  # (B, S, 4P): keep costs, then swap costs
-    pair_delta = _SWAP_MINUS_KEEP @ cost.reshape(*cost.shape[:2], 4, _N_PAIRS)  # (B, S, P) swap - keep
-    width = anchor[:, :_N_PAIRS] - anchor[:, _N_PAIRS : 2 * _N_PAIRS]  # (B, P, 3): anchor left - right
-    width = np.sqrt((width * width) @ _ONES3)
-    pair_delta = pair_delta / np.maximum(2.0 * width, 1.0)[:, None]  # each pair's vote in [-1, 1]
-    # A pair decides only where both of the sensor's joints and both anchors exist: NaN propagates.
-    decidable = pair_delta == pair_delta
-    margin = np.where(decidable, pair_delta, 0.0) @ _ONES_P  # (B, S)
+        seed_pairs = pairs[np.arange(B), seed]  # (B, 2P, 3)
+        seed_ok = ~np.isnan(seed_pairs[:, :_N_PAIRS, 0] + seed_pairs[:, _N_PAIRS:, 0])
+        use_seed = np.tile(seed_ok & ~has_prev[:, None], 2)[..., None]
+        static = reference[:, _PAIR_JOINTS]
+        anchor = np.where(np.tile(prev_ok, 2)[..., None], anchor, np.where(use_seed, seed_pairs, static))
+        margin, decided, _ = pair_votes(positions, anchor)
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
-        counters[:, 0] = recovery_count(streak[:, 0], False, decidable.any(axis=(1, 2)), credit_frames)
+        counters[:, 0] = recovery_count(streak[:, 0], False, decided.any(axis=1), credit_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
-    decided = decidable.any(axis=2)
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
     total = (evidence * decided).sum(axis=1)
     # Rear-view rule: views facing away from their own sensor are not mirrored; count those the anchor would
@@ -454,6 +440,36 @@ def recovery_count(count: np.ndarray, majority: np.ndarray, unanimous: np.ndarra
     anchor that every view vouched for recently outlasts that many more frames of disagreement."""
     kept = np.minimum(count, 0)
     return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
+
+
+def pair_votes(positions: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each view's left/right vote against an anchor, over the pairs of :data:`PAPER_REALIGN_PAIRS`.
+
+    Per view and pair, ``(swap - keep) / max(2 |anchor_L - anchor_R|, 1)`` with ``keep = |L - anchor_L| +
+    |R - anchor_R|`` and ``swap = |R - anchor_L| + |L - anchor_R|``: a vote in [-1, 1] (the triangle inequality),
+    so a pair held wide apart weighs no more than the hips. A pair decides only where both of the view's joints
+    and both anchors exist. Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.realign`); the numpy form is
+    the test reference (:mod:`skelfuse.fusion.reference.realign`).
+
+    Parameters
+    ----------
+    positions : (B, S, J, 3) float mm, NaN = missing.
+    anchor : (B, 2P, 3) float mm, the anchor's left joints of the pairs, then its right joints.
+
+    Returns
+    -------
+    margin : (B, S) float64, the sum of the deciding pairs' votes (< 0: the view is mirrored against the anchor).
+    decided : (B, S) bool, at least one pair decided.
+    n_views : (B,) int64, views that hold both joints of at least one pair.
+    """
+    positions = np.ascontiguousarray(positions, dtype=np.float64)
+    anchor = np.ascontiguousarray(anchor, dtype=np.float64)
+    if positions.ndim != 4 or positions.shape[2:] != (N_JOINTS, 3) or anchor.shape != (len(positions), 2 * _N_PAIRS, 3):
+        raise ValueError(
+            f"pair_votes needs positions (B, S, {N_JOINTS}, 3) and anchor (B, {2 * _N_PAIRS}, 3), got "
+            f"{positions.shape} and {anchor.shape}"
+        )
+    return kernels.load().realign.pair_votes(positions, anchor, _PAIR_LEFT, _PAIR_RIGHT)
 
 
 def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.ndarray:

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.association import DEFAULT_GATE_MM, N_DESCRIPTOR, Association
 from skelfuse.fusion.pipeline import FusionState
 
@@ -288,30 +289,13 @@ class TrackTable:
     def _hit(
         self, hit: np.ndarray, predicted: np.ndarray, measured: np.ndarray, n_seen: np.ndarray, time_s: float
     ) -> None:
-        """Update the tracks that were seen this frame (rows ``hit``): velocity from the mean step of their
-        common descriptor points (smoothed, capped at ``max_speed_mm_s``), the descriptor (a point the sensors
-        miss keeps its prediction), and the counters that confirm a tentative track."""
+        """Update the tracks that were seen this frame (rows ``hit``): their motion (:func:`seen_motion`) and the
+        counters that confirm a tentative track."""
         p = self.params
+        self.descriptor, self.velocity = seen_motion(
+            self.descriptor, self.velocity, self.last_seen_s, self.n_frames_seen, predicted, measured, hit, time_s, p
+        )
         idx = np.flatnonzero(hit)
-        measured = measured[idx]
-        dt = time_s - self.last_seen_s[idx]  # (H,)
-        step = measured - self.descriptor[idx]  # (H, D, 3)
-        ok = np.asarray(np.isfinite(step).all(axis=-1))  # (H, D)
-        count = ok.sum(axis=-1)
-        moved = (dt > 0) & (count > 0)
-        if moved.any():
-            # Sum over the common points in point order (adding exact zeros elsewhere), then / count / dt,
-            # as step[ok].mean(axis=0) / dt does.
-            total = np.where(ok[..., None], step, 0.0).sum(axis=-2)  # (H, 3)
-            v_meas = total / np.maximum(count, 1)[:, None] / np.where(moved, dt, 1.0)[:, None]
-            smoothed = p.velocity_smoothing * v_meas + (1.0 - p.velocity_smoothing) * self.velocity[idx]
-            v = np.where((self.n_frames_seen[idx] < 2)[:, None], v_meas, smoothed)
-            speed = np.sqrt((v * v).sum(axis=-1))
-            # A zero velocity stays zero (its scale is 0 then, not 1: the same product).
-            scale = np.minimum(1.0, p.max_speed_mm_s / np.where(speed > 0, speed, np.inf))
-            self.velocity[idx[moved]] = (v * scale[:, None])[moved]
-        # A point the sensors miss this frame keeps its prediction.
-        self.descriptor[idx] = np.where(np.isfinite(measured), measured, predicted[idx])
         self.last_seen_s[idx] = time_s
         self.hits[idx] += 1
         self.n_frames_seen[idx] += 1
@@ -363,6 +347,55 @@ _ROW_FIELDS = (
     "n_frames_seen",
     "n_sensors_seen",
 )
+
+
+def seen_motion(
+    descriptor: np.ndarray,
+    velocity: np.ndarray,
+    last_seen_s: np.ndarray,
+    n_frames_seen: np.ndarray,
+    predicted: np.ndarray,
+    measured: np.ndarray,
+    hit: np.ndarray,
+    time_s: float,
+    params: TrackParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The K tracks' new descriptors (K, D, 3) and velocities (K, 3) after this frame's matches (new arrays).
+
+    A track seen this frame (``hit``) takes as velocity the mean step of the descriptor points it shares with its
+    measurement, divided by the time since its last match, smoothed (``velocity_smoothing``; the measured one on
+    its first two matches) and capped at ``max_speed_mm_s`` (kept when no point is shared or no time passed); its
+    descriptor becomes the measurement, a point the sensors miss keeping its prediction. Other rows are
+    unchanged. Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.tracks`); the numpy form is the test
+    reference (:mod:`skelfuse.fusion.reference.tracks`).
+
+    Parameters
+    ----------
+    descriptor, predicted, measured : (K, D, 3) mm; velocity : (K, 3) mm/s; last_seen_s : (K,) s;
+    n_frames_seen : (K,) int; hit : (K,) bool; time_s : this frame's time, s; params : TrackParams.
+    """
+    descriptor = np.ascontiguousarray(descriptor, dtype=np.float64)
+    K = len(descriptor)
+    shapes = {np.shape(a) for a in (descriptor, predicted, measured)}
+    if len(shapes) != 1 or descriptor.shape[2:] != (3,) or np.shape(velocity) != (K, 3):
+        raise ValueError(
+            f"seen_motion needs descriptor, predicted, measured (K, D, 3) and velocity (K, 3), got {shapes} and "
+            f"{np.shape(velocity)}"
+        )
+    if np.shape(last_seen_s) != (K,) or np.shape(n_frames_seen) != (K,) or np.shape(hit) != (K,):
+        raise ValueError(f"seen_motion needs last_seen_s, n_frames_seen and hit of shape ({K},)")
+    return kernels.load().tracks.seen_motion(
+        descriptor,
+        np.ascontiguousarray(velocity, dtype=np.float64),
+        np.ascontiguousarray(last_seen_s, dtype=np.float64),
+        np.ascontiguousarray(n_frames_seen, dtype=np.int64),
+        np.ascontiguousarray(predicted, dtype=np.float64),
+        np.ascontiguousarray(measured, dtype=np.float64),
+        np.ascontiguousarray(hit, dtype=np.bool_),
+        float(time_s),
+        float(params.velocity_smoothing),
+        float(params.max_speed_mm_s),
+    )
 
 
 def take_state(state: FusionState, rows: np.ndarray | slice) -> FusionState:

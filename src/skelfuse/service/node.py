@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skelfuse.config import RigConfig
+from skelfuse.fusion import kernels
 from skelfuse.service.fusion_core import (
     BAD_KEY,
     FUSION_ERROR,
@@ -80,6 +81,23 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from skelfuse.service.depth_stage import DepthStage
 
 log = logging.getLogger("skelfuse.service.node")
+
+
+def prepare_kernels(name: str) -> None:
+    """Compile the fusion kernels now, or load them from the user cache; a first start says it is compiling."""
+    started = time.monotonic()
+    if kernels.is_cached():
+        kernels.warm_up()
+        log.debug("fusion node %s: fusion kernels loaded in %.2f s", name, time.monotonic() - started)
+        return
+    log.info(
+        "fusion node %s: compiling the fusion kernels (first start; cached in %s for the next ones) ...",
+        name,
+        kernels.cache_dir(),
+    )
+    kernels.warm_up()
+    log.info("fusion node %s: fusion kernels compiled in %.1f s", name, time.monotonic() - started)
+
 
 # The core lives in skelfuse.service.fusion_core; its names are re-exported here for the node's users.
 __all__ = [
@@ -223,6 +241,7 @@ class FusionNode:
         self.depth = _depth_stage(cfg)  # [fusion] mode depth / hybrid; its tracker opens here or raises
         self.core = FusionCore(cfg, first_track_id=time_based_first_track_id(time.time_ns()), depth=self.depth)
         self.core.shedder.what = f"fusion node {self.name}"
+        prepare_kernels(self.name)  # before the first instant: a first start compiles them (seconds)
         self.pose_origin = cfg.describe_poses()
         self.pose_fit = PoseFitMonitor(cfg.sensor_ids)  # the live "sensor moved" alarm
         self.zenoh_conf = zenoh_conf

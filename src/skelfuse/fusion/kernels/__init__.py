@@ -1,0 +1,112 @@
+"""Compiled kernels of the per-instant path (numba), loaded on first use.
+
+The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
+per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
+(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
+realignment's votes (:mod:`.realign`) and the seen tracks' motion update (:mod:`.tracks`). Their numpy forms live on in
+:mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
+
+How the kernels are built, and why:
+
+* Loaded lazily: importing :mod:`skelfuse.fusion` (or running ``skelfuse --help``, or any command that does not
+  fuse) imports no numba. The first :func:`load` imports numba and the kernel modules.
+* Compiled once, cached on disk (``cache=True``) in a user cache directory, so a read-only install works:
+  ``$NUMBA_CACHE_DIR`` when the user set it, else ``$XDG_CACHE_HOME/skelfuse/numba`` (``~/.cache/skelfuse/numba``;
+  ``%LOCALAPPDATA%\\skelfuse\\numba`` on Windows). numba writes its cache files atomically, so processes that
+  compile at once (test workers, two nodes) share the directory safely.
+* Fixed signatures: float64 / int64 / bool arrays, C-contiguous, so each kernel compiles once.
+* Single-threaded (the capture PC's cores belong to the body trackers) and no fastmath: NaN joints are data, and
+  fastmath may assume they never occur.
+* Debugging: ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (slow, but a debugger steps into them).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+from functools import cache
+from pathlib import Path
+from types import ModuleType
+from typing import NamedTuple
+
+KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks")
+"""The kernel modules of this package (one per compiled stage)."""
+
+
+class Kernels(NamedTuple):
+    """The loaded kernel modules."""
+
+    merge: ModuleType
+    filters: ModuleType
+    plausibility: ModuleType
+    realign: ModuleType
+    tracks: ModuleType
+
+
+def cache_dir() -> Path:
+    """Where numba keeps the compiled kernels: ``$NUMBA_CACHE_DIR``, else the user's cache directory."""
+    configured = os.environ.get("NUMBA_CACHE_DIR")
+    if configured:
+        return Path(configured)
+    if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
+        return Path(os.environ["LOCALAPPDATA"]) / "skelfuse" / "numba"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return base / "skelfuse" / "numba"
+
+
+def is_cached() -> bool:
+    """Whether every kernel module has compiled code in :func:`cache_dir` (else the next :func:`warm_up` compiles).
+
+    numba keeps a source folder's kernels in ``<folder name>_<sha1 of its absolute path>`` and names the index files
+    ``<module>.<function>-<line>.pyXY.nbi``; a kernel module counts as cached when one such file of it exists. (A
+    cache of an older numba or source is still rebuilt by numba on load; this answers "is this the first start".)
+    """
+    folder = os.path.dirname(os.path.abspath(__file__))  # as numba spells it
+    cached = cache_dir() / f"{os.path.basename(folder)}_{hashlib.sha1(folder.encode()).hexdigest()}"
+    if not cached.is_dir():
+        return False
+    return all(any(cached.glob(f"{name}.*.nbi")) for name in KERNEL_MODULES)
+
+
+def use_user_cache_dir() -> None:
+    """Point numba's cache at :func:`cache_dir`: ``NUMBA_CACHE_DIR`` unless the user set it, and numba's own
+    setting where numba was imported before (it reads the environment once, into a module attribute).
+
+    Runs when this package is imported, so before any kernel module is (a kernel's cache location is fixed when
+    its module defines it), and again in :func:`load`. Loads no numba.
+    """
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
+    config = sys.modules.get("numba.core.config")
+    if config is not None and not getattr(config, "CACHE_DIR", ""):
+        config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]  # numba's run-time setting
+
+
+@cache
+def load() -> Kernels:
+    """Import numba (its cache directory set first) and the kernel modules; the kernels compile on first call."""
+    use_user_cache_dir()
+    import skelfuse.fusion.kernels.filters
+    import skelfuse.fusion.kernels.merge
+    import skelfuse.fusion.kernels.plausibility
+    import skelfuse.fusion.kernels.realign
+    import skelfuse.fusion.kernels.tracks
+
+    return Kernels(
+        merge=skelfuse.fusion.kernels.merge,
+        filters=skelfuse.fusion.kernels.filters,
+        plausibility=skelfuse.fusion.kernels.plausibility,
+        realign=skelfuse.fusion.kernels.realign,
+        tracks=skelfuse.fusion.kernels.tracks,
+    )
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel now, on tiny inputs of the fixed signatures."""
+    kernels = load()
+    for module in kernels:
+        module.warm_up()
+
+
+use_user_cache_dir()

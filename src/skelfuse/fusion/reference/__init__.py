@@ -1,0 +1,24 @@
+"""The numpy forms of the stages that run as compiled kernels (:mod:`skelfuse.fusion.kernels`): the test reference.
+
+The live path never imports this package (an import-linter contract in pyproject.toml holds it so). The tests
+compare each kernel with its reference here on random inputs (NaN joints, empty bodies, a single sensor), and
+``skelfuse bench instant --reference`` times the per-instant path with these forms in place of the kernels
+(:data:`LIVE_STAGES`), so a speed-up is measured against them in the same run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from skelfuse.fusion.reference import filters, merge, plausibility, realign, tracks
+
+LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
+    ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
+    ("skelfuse.fusion.pipeline", "filter_step"): filters.filter_step,
+    ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
+    ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
+    ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
+    ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
+}
+"""Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
