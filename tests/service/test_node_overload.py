@@ -100,6 +100,9 @@ def test_an_overloaded_node_sheds_the_oldest_instants_and_stays_within_its_lag_b
     counters, sensors = final.counters, final.info["sensors"]
     shed = counters["instants_shed"]
     assert shed > 0.3 * len(published) and counters["shed.behind"] == shed, counters
-    assert all(report["shed"] == shed for report in sensors.values()), sensors  # whole instants
+    # Whole instants: a sensor is missing from a shed instant only where the instant went out incomplete (its
+    # grouping deadline passed before that sensor's frame came in, as it may when this machine is loaded).
+    incomplete = counters["groups_incomplete"]
+    assert all(shed - incomplete <= report["shed"] <= shed for report in sensors.values()), (counters, sensors)
     assert shed + len(fused) <= len(published)
     assert "cannot keep up" in processes.log(node)

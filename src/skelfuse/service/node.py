@@ -553,6 +553,7 @@ class FusionNode:
             "groups_complete": core.groups_complete,
             "groups_partial": core.groups_partial,
             "deadline_emits": core.deadline_emits,
+            "groups_incomplete": stats.groups - stats.complete_groups,
             "late": totals.late,
             "dropped": totals.dropped,
             "duplicate": totals.duplicate,
