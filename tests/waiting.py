@@ -9,8 +9,11 @@ one session's messages on one link), then checks.
 
 from __future__ import annotations
 
+import re
+import subprocess
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -38,6 +41,22 @@ def wait_until(
         if time.monotonic() >= deadline:
             raise AssertionError(f"timed out after {timeout_s} s waiting for {what}\n{details()}")
         time.sleep(POLL_S)
+
+
+def wait_for_output(
+    log: Path, pattern: str, process: subprocess.Popen[bytes], timeout_s: float = DEFAULT_TIMEOUT_S
+) -> re.Match[str]:
+    """Waits until ``process``'s output file ``log`` matches ``pattern``; fails at once if the process exits first."""
+
+    def found() -> re.Match[str] | None:
+        match = re.search(pattern, log.read_text(errors="replace"))
+        assert match or process.poll() is None, (
+            f"the process exited ({process.returncode}) before printing {pattern!r}:\n"
+            f"{log.read_text(errors='replace')[-3000:]}"
+        )
+        return match
+
+    return wait_until(found, repr(pattern), timeout_s, lambda: log.read_text(errors="replace")[-3000:])
 
 
 def wait_for_subscriber(publisher: Any, what: str = "a subscriber", timeout_s: float = DEFAULT_TIMEOUT_S) -> None:

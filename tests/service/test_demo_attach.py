@@ -5,33 +5,21 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+
+from waiting import wait_for_output
 
 pytestmark = [pytest.mark.live, pytest.mark.service]
 
 REPO = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 120.0
 ATTACH_TIMEOUT_S = 60.0
-
-
-def _wait_for(path: Path, pattern: str, process: subprocess.Popen[bytes], timeout_s: float) -> re.Match[str]:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        text = path.read_text(errors="replace")
-        found = re.search(pattern, text)
-        if found:
-            return found
-        assert process.poll() is None, f"the demo exited ({process.returncode}):\n{text[-3000:]}"
-        assert time.monotonic() < deadline, f"no {pattern!r} within {timeout_s:.0f} s:\n{text[-3000:]}"
-        time.sleep(0.1)
 
 
 def _attach(*command: str) -> subprocess.CompletedProcess[str]:
@@ -51,10 +39,10 @@ def test_apps_attach_to_the_demo_with_the_flags_it_prints(tmp_path: Path) -> Non
             env=env,
         )
     try:
-        printed = _wait_for(err, r'rig "demo", zenoh endpoint (tcp/127\.0\.0\.1:\d+)', demo, START_TIMEOUT_S)
-        config = Path(_wait_for(err, r"skelfuse status --config (\S+)", demo, 5.0).group(1))
+        printed = wait_for_output(err, r'rig "demo", zenoh endpoint (tcp/127\.0\.0\.1:\d+)', demo, START_TIMEOUT_S)
+        config = Path(wait_for_output(err, r"skelfuse status --config (\S+)", demo, 5.0).group(1))
         assert config.is_file() and printed.group(1) in config.read_text()
-        _wait_for(err, r"the run starts|frames fused", demo, START_TIMEOUT_S)  # fused frames are flowing
+        wait_for_output(err, r"the run starts|frames fused", demo, START_TIMEOUT_S)  # fused frames are flowing
 
         status = _attach(
             sys.executable, "-m", "skelfuse", "status", "--config", str(config), "--json", "--max-messages", "12",

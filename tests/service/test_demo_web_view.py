@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from skelfuse.sinks.rerun_sink import TRACK_COLORS
+from waiting import wait_for_output
 
 pytestmark = [pytest.mark.live, pytest.mark.service]
 
@@ -122,20 +123,6 @@ class Browser:
             self.process.wait(10)
 
 
-def _printed_url(err: Path, demo: subprocess.Popen[bytes]) -> str:
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while True:
-        text = err.read_text(errors="replace")
-        found = re.search(r"web viewer: (http\S+)", text)
-        if found:
-            return found.group(1)
-        assert demo.poll() is None, f"the demo exited ({demo.returncode}):\n{text[-3000:]}"
-        assert time.monotonic() < deadline, f"no web viewer URL within {START_TIMEOUT_S:.0f} s:\n{text[-3000:]}"
-        time.sleep(0.2)
-
-
-@pytest.mark.skipif(BROWSER is None, reason="needs Chromium (Debian: apt-get install -y chromium)")
-@pytest.mark.skipif(shutil.which("rerun") is None, reason="needs the rerun executable of rerun-sdk on PATH")
 def test_the_printed_web_viewer_url_shows_the_fused_skeleton(tmp_path: Path) -> None:
     tools = _screenshot_tools()
     web, grpc = tools.free_port(), tools.free_port()
@@ -164,7 +151,7 @@ def test_the_printed_web_viewer_url_shows_the_fused_skeleton(tmp_path: Path) -> 
         )
     browsers: list[Browser] = []
     try:
-        url = _printed_url(err, demo)
+        url = wait_for_output(err, r"web viewer: (http\S+)", demo, START_TIMEOUT_S).group(1)
         assert f"?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy" in url
         config = Path(re.search(r"skelfuse status --config (\S+)", err.read_text()).group(1))
         color = _track_color(config)
