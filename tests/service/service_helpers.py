@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -192,3 +193,33 @@ def start_node(
         lambda: processes.log(node),
     )
     return node, listener
+
+
+def publish_common_stretch(
+    processes: Processes, listener: Listener, config: Path, port: int, sensors: Sequence[str], n_frames: int
+) -> None:
+    """Sim workers for ``sensors`` run until each published ``n_frames`` since the last of them started (their
+    common stretch; on a loaded machine they start seconds apart), then stop; returns once the node's status
+    counts every frame the listener saw (a starved node may still be behind)."""
+
+    def overlap_frames() -> int:
+        frames = listener.sensor_frames()
+        firsts = [min((f.device_time_us for f in frames if f.sensor_id == s), default=None) for s in sensors]
+        if None in firsts:
+            return 0
+        common = max(t for t in firsts if t is not None)
+        return min(sum(1 for f in frames if f.sensor_id == s and f.device_time_us >= common) for s in sensors)
+
+    workers = [
+        processes.start(f"w{i}", *worker_args(config, port, s, listener=listener)) for i, s in enumerate(sensors)
+    ]
+    listener.wait_for(lambda: overlap_frames() >= n_frames, 120.0, f"{n_frames} frames from every sensor at once")
+    for worker in workers:
+        assert processes.stop(worker) == 0, processes.log(worker)
+
+    def node_caught_up() -> bool:
+        status = listener.fusion_status()
+        seen = Counter(f.sensor_id for f in listener.sensor_frames())
+        return status is not None and all(status.info["sensors"][s]["received"] == seen[s] for s in sensors)
+
+    listener.wait_for(node_caught_up, 60.0, "the node to take in every published frame")

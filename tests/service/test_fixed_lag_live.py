@@ -5,16 +5,14 @@ smoother_lag=N)``), and says at start the latency this adds."""
 from __future__ import annotations
 
 import time
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
-from service_helpers import RIG, Processes, start_node, worker_args, write_rig
+from service_helpers import RIG, Processes, publish_common_stretch, start_node, write_rig
 
 from skelfuse.config import load_rig_config
 from skelfuse.recording import RecordingWriter, fuse_recording
-from skelfuse.wire.codec import decode_sensor_frame
 
 pytestmark = [pytest.mark.live, pytest.mark.service]
 
@@ -29,28 +27,8 @@ def test_the_live_node_publishes_the_offline_fixed_lag_smoother(
     config.write_text(config.read_text(encoding="utf-8") + f"\n[fusion]\nfixed_lag_frames = {LAG}\n", encoding="utf-8")
     node, listener = start_node(processes, config, node_port)
 
-    def overlap_frames() -> int:
-        frames = [decode_sensor_frame(p) for p in list(listener.sensor_payloads)]
-        firsts = [min((f.device_time_us for f in frames if f.sensor_id == s), default=None) for s in SENSORS]
-        if None in firsts:
-            return 0
-        return min(sum(1 for f in frames if f.sensor_id == s and f.device_time_us >= max(firsts)) for s in SENSORS)
-
     try:
-        workers = [
-            processes.start(f"w{i}", *worker_args(config, node_port, s, listener=listener))
-            for i, s in enumerate(SENSORS)
-        ]
-        listener.wait_for(lambda: overlap_frames() >= 90, 120.0, "90 frames from both sensors at once")
-        for worker in workers:
-            assert processes.stop(worker) == 0, processes.log(worker)
-
-        def node_caught_up() -> bool:
-            status = listener.fusion_status()
-            seen = Counter(f.sensor_id for f in listener.sensor_frames())
-            return status is not None and all(status.info["sensors"][s]["received"] == seen[s] for s in SENSORS)
-
-        listener.wait_for(node_caught_up, 60.0, "the node to take in every published frame")
+        publish_common_stretch(processes, listener, config, node_port, SENSORS, 90)
         assert listener.fusion_status().info["fixed_lag_ms"] == 100.0
         assert processes.stop(node) == 0, processes.log(node)  # the stop flushes the instants it still holds
         listener.wait_for(

@@ -11,19 +11,18 @@ import random
 import signal
 import struct
 import time
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
-from service_helpers import RIG, Processes, start_node, worker_args, write_rig
+from service_helpers import RIG, Processes, publish_common_stretch, start_node, worker_args, write_rig
 
 from skelfuse.bench.latency import synthetic_frames
 from skelfuse.config import load_rig_config
 from skelfuse.recording import RecordingWriter, fuse_recording
 from skelfuse.schema.frames import FusedFrame
 from skelfuse.wire import keys
-from skelfuse.wire.codec import decode_sensor_frame, encode_sensor_frame
+from skelfuse.wire.codec import encode_sensor_frame
 from waiting import SCHEDULING_ALLOWANCE_S, wait_for_subscriber
 
 pytestmark = pytest.mark.live
@@ -41,35 +40,8 @@ def test_live_rig_equals_offline_fusion_of_the_same_frames(
     config = write_rig(tmp_path, deadline_ms=200.0)
     node, listener = start_node(processes, config, node_port)
 
-    def overlap_frames() -> int:
-        """Frames every sensor published since the last of the four started (their common stretch)."""
-        with listener.lock:
-            payloads = list(listener.sensor_payloads)
-        frames = [decode_sensor_frame(p) for p in payloads]
-        firsts = {sid: min((f.device_time_us for f in frames if f.sensor_id == sid), default=None) for sid in SENSORS}
-        if any(t is None for t in firsts.values()):
-            return 0
-        common = max(firsts.values())
-        return min(sum(1 for f in frames if f.sensor_id == sid and f.device_time_us >= common) for sid in SENSORS)
-
     try:
-        # The workers run until stopped, not for a fixed time: on a loaded machine they start seconds apart,
-        # and what the test needs is a common stretch in which all four publish.
-        workers = [
-            processes.start(f"w{i}", *worker_args(config, node_port, sid, listener=listener))
-            for i, sid in enumerate(SENSORS)
-        ]
-        listener.wait_for(lambda: overlap_frames() >= 100, 120.0, "100 frames from all four sensors at once")
-        for worker in workers:
-            assert processes.stop(worker) == 0, processes.log(worker)
-
-        def node_caught_up() -> bool:
-            """The node's status counts every frame the test saw (a starved node may still be behind)."""
-            status = listener.fusion_status()
-            seen = Counter(f.sensor_id for f in listener.sensor_frames())
-            return status is not None and all(status.info["sensors"][s]["received"] == seen[s] for s in SENSORS)
-
-        listener.wait_for(node_caught_up, 60.0, "the node to take in every published frame")
+        publish_common_stretch(processes, listener, config, node_port, SENSORS, 100)
         listener.wait_for(
             lambda: bool(listener.fused) and time.monotonic() - listener.fused[-1][0] > 0.5,
             30.0,
