@@ -59,6 +59,8 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
         "check_views",
         "pair_votes",
         "seen_motion",
+        "fuse_orientations",
+        "assign_to_tracks",
     }
 
 

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from skelfuse.fusion import orientation as orient
 from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
+from skelfuse.fusion.reference import orientation as orientation_reference
 from skelfuse.schema.skeleton import (
     ANKLE_FOOT_ANGLE_DEG,
     MIRROR,
@@ -225,7 +226,9 @@ def test_swing_matches_fused_bones_and_twist_comes_from_the_views():
 
 def test_a_view_whose_x_axis_points_exactly_away_from_the_bone_is_swung_by_half_a_turn():
     """The swing's rare branch (no unique smallest rotation): the consensus of that single view is the public,
-    axis-last ``swing_onto_aims`` of it, and its X axis lies on the bone; the other joints agree with it too."""
+    axis-last ``swing_onto_aims`` of it, and its X axis lies on the bone; the other joints agree with it too. Both
+    forms of the stage: the live one (a first frame, no history: its output is the consensus) and the numpy
+    reference's steps 1-3."""
     rng = np.random.default_rng(3)
     positions = rng.normal(0.0, 300.0, (1, N_JOINTS, 3))
     j = int(np.flatnonzero(ORIENTATION_AIMED)[3])
@@ -237,11 +240,17 @@ def test_a_view_whose_x_axis_points_exactly_away_from_the_bone_is_swung_by_half_
     views[0, 0, j] = [0.0, 0.0, 0.0, 1.0]  # half a turn about z: its X axis is exactly -x
     usable = np.zeros((1, 2, N_JOINTS), dtype=bool)
     usable[0, 0] = True
-    quats, n_views = orient.view_consensus(positions, views, usable, 45.0)
+    live, _, _ = orient.fuse_orientations(
+        positions, views, usable, *orient.init_orientation_state(1), orient.OrientationParams(), 1.0 / 30.0
+    )
     expected = orient.swing_onto_aims(views[:, 0], aims)
-    assert (n_views[0, ORIENTATION_AIMED] == 1).all()
-    np.testing.assert_allclose(quats[0, ORIENTATION_AIMED], expected[0, ORIENTATION_AIMED], atol=1e-12)
-    np.testing.assert_allclose(orient.quat_rotate(quats[0, j], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0], atol=1e-12)
+    for quats, n_views in (
+        (live.quats, live.n_views),
+        orientation_reference.view_consensus(positions, views, usable, 45.0),
+    ):
+        assert (n_views[0, ORIENTATION_AIMED] == 1).all()
+        np.testing.assert_allclose(quats[0, ORIENTATION_AIMED], expected[0, ORIENTATION_AIMED], atol=1e-12)
+        np.testing.assert_allclose(orient.quat_rotate(quats[0, j], [1.0, 0.0, 0.0]), [1.0, 0.0, 0.0], atol=1e-12)
 
 
 def test_an_outlying_view_is_outvoted():

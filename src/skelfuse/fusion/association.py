@@ -1,4 +1,4 @@
-"""Per-frame association: which bodies of which sensors are the same person (pure numpy + scipy).
+"""Per-frame association: which bodies of which sensors are the same person (pure numpy and a compiled kernel).
 
 Every sensor's body tracker reports its own list of bodies, in its own order, with its own body ids, and
 the SDK changes a body's id when the view flips left/right. The pipeline (:func:`skelfuse.fusion.pipeline.fuse`)
@@ -13,7 +13,8 @@ Cycle of :func:`associate`:
    swaps the shoulders and hips, but not their midpoints, so a mirrored view keeps its descriptor.
 2. Cost between a body and a track's predicted descriptor: the mean distance (mm) over the descriptor
    points both have (at least ``min_common_points``), else no cost (never matched).
-3. Per sensor, Hungarian assignment (``scipy.optimize.linear_sum_assignment``) of the sensor's bodies to
+3. Per sensor, Hungarian assignment (:func:`skelfuse.fusion.kernels.association.linear_sum_assignment`, scipy's
+   method and tie-breaking) of the sensor's bodies to
    the tracks, pairs costlier than the gate rejected. One sensor's bodies are distinct people, so each
    track takes at most one body per sensor. Cascade: confirmed tracks first, then the tentative ones
    with the bodies left over (an established person is never out-bid by a track being born).
@@ -33,7 +34,7 @@ Ambiguity policies
 - Two bodies of one sensor within the gate of one track: the Hungarian step gives the track the one that
   minimises the sensor's total cost (the closer one when no other track competes); the other is a
   leftover: a duplicate if within ``duplicate_mm`` of that track, otherwise a candidate new person.
-- Exact cost ties: ``linear_sum_assignment`` is deterministic; the lower track index wins (tracks are
+- Exact cost ties: the Hungarian solver is deterministic; the lower track index wins (tracks are
   passed oldest first, so the older track wins) and, within a sensor, the lower body index.
 - Clustering ties: pairs are merged in order of distance, then sensor, then body index.
 - A body with fewer than ``min_common_points`` finite descriptor points is ignored (never assigned).
@@ -48,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.schema.skeleton import N_JOINTS, J
 
 DESCRIPTOR_NAMES: tuple[str, ...] = ("PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "HEAD", "MID_SHOULDER", "MID_HIP")
@@ -59,7 +61,6 @@ _PAIRS = np.array([[J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"]], [J["HIP_LEFT"], J[
 DEFAULT_GATE_MM = 450.0
 DEFAULT_DUPLICATE_MM = 250.0
 DEFAULT_MIN_COMMON_POINTS = 3
-_BIG = 1e12  # stands for "no cost" in the assignment matrices; such pairs are rejected afterwards
 
 
 @dataclass(frozen=True)
@@ -128,7 +129,9 @@ def descriptor_distance(a: np.ndarray, b: np.ndarray, min_common_points: int = D
     (...) float64 mean distance, ``inf`` where undecidable.
     """
     diff = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
-    dist = np.sqrt(np.einsum("...k,...k->...", diff, diff))  # NaN where either point is missing
+    # x^2 + y^2 + z^2 in this order, as the compiled assignment sums them: equal costs tie in both (NaN: missing).
+    x, y, z = diff[..., 0], diff[..., 1], diff[..., 2]
+    dist = np.sqrt(x * x + y * y + z * z)
     ok = np.isfinite(dist)
     count = ok.sum(axis=-1)
     total = np.where(ok, dist, 0.0).sum(axis=-1)
@@ -240,35 +243,7 @@ def associate(
 
     body_desc = torso_descriptor(positions)  # (S, B, D, 3)
     usable = valid & (np.isfinite(body_desc).all(axis=-1).sum(axis=-1) >= min_common_points)
-    cost = descriptor_distance(body_desc[:, :, None], tracks[None, None], min_common_points)  # (S, B, K)
-    allowed = usable[:, :, None] & (cost <= gate[None, None, :])
-
-    person = np.full((S, B), -1, dtype=np.int64)
-    assigned_cost = np.full((S, B), np.nan)
-    stages = (confirmed,) if confirmed.all() else (confirmed, ~confirmed)
-    for stage in stages:  # cascade; Python loop over sensors only (a handful)
-        cols = np.nonzero(stage)[0]
-        if cols.size == 0:
-            continue
-        sub = allowed[:, :, cols] if cols.size < K else allowed
-        sub = sub & (person < 0)[:, :, None]  # (S, B, len(cols)): the stage's gated pairs of free bodies
-        # Fast path, exactly the Hungarian result: in a sensor where every body has at most one gated
-        # track and every track at most one gated body, any optimal assignment holds every gated pair
-        # (leaving one out costs _BIG more), and only the gated pairs are kept.
-        simple = (sub.sum(axis=2) <= 1).all(axis=1) & (sub.sum(axis=1) <= 1).all(axis=1)
-        s_idx, b_idx, c_idx = np.nonzero(sub & simple[:, None, None])
-        if s_idx.size:
-            k_idx = cols[c_idx]
-            person[s_idx, b_idx] = k_idx
-            assigned_cost[s_idx, b_idx] = cost[s_idx, b_idx, k_idx]
-        for s in np.nonzero(~simple)[0]:
-            rows = np.nonzero(usable[s] & (person[s] < 0))[0]
-            ok = allowed[s][rows[:, None], cols]
-            matrix = np.where(ok, cost[s][rows[:, None], cols], _BIG)
-            r, c = _linear_sum_assignment(matrix)
-            keep = ok[r, c]
-            person[s, rows[r[keep]]] = cols[c[keep]]
-            assigned_cost[s, rows[r[keep]]] = matrix[r[keep], c[keep]]
+    person, assigned_cost, cost = assign_to_tracks(body_desc, usable, tracks, confirmed, gate, min_common_points)
 
     # Duplicates: a leftover close to a track that already holds a body of the same sensor.
     leftover = usable & (person < 0)
@@ -367,9 +342,43 @@ def _cluster_leftovers(
     return len(roots)
 
 
-def _linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """scipy's Hungarian solver, imported on first use: ``scipy.optimize`` takes a large share of a daemon's
-    start-up to import, and a sensor with one body never needs it."""
-    from scipy.optimize import linear_sum_assignment
+def assign_to_tracks(
+    body_desc: np.ndarray,
+    usable: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 2-3 (module docstring): the body-to-track costs and the cascade of per-sensor Hungarian assignments,
+    in a compiled kernel (:func:`skelfuse.fusion.kernels.association.assign_to_tracks`; its numpy form with scipy's
+    solver, the test reference, is :mod:`skelfuse.fusion.reference.association`).
 
-    return linear_sum_assignment(matrix)
+    Parameters
+    ----------
+    body_desc : (S, B, D, 3) mm; usable : (S, B) bool; tracks : (K, D, 3) mm, predicted descriptors;
+    confirmed : (K,) bool; gate_mm : (K,) mm; min_common_points : int.
+
+    Returns
+    -------
+    person (S, B) int64, track of each body (-1: none); assigned_cost (S, B) mm (NaN: none); cost (S, B, K) mm.
+    """
+    S, B = usable.shape
+    K = tracks.shape[0]
+    return kernels.load().association.assign_to_tracks(
+        _kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
+        _kernel_array(usable, np.bool_, (S, B), "usable"),
+        _kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
+        _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
+        _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
+        int(min_common_points),
+    )
+
+
+def _kernel_array(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """An argument as the kernel reads it (C order, its dtype), its shape checked: the kernel does not check its
+    indices."""
+    out = np.ascontiguousarray(values, dtype=dtype)
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out

@@ -3,8 +3,9 @@
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
 per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
 (:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
-realignment's votes (:mod:`.realign`) and the seen tracks' motion update (:mod:`.tracks`). Their numpy forms live on in
-:mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
+realignment's votes (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the orientation stage
+(:mod:`.orientation`) and the association's costs and Hungarian assignment (:mod:`.association`). Their numpy
+forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
 
@@ -30,7 +31,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
-KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks")
+KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association")
 """The kernel modules of this package (one per compiled stage)."""
 
 
@@ -42,6 +43,8 @@ class Kernels(NamedTuple):
     plausibility: ModuleType
     realign: ModuleType
     tracks: ModuleType
+    orientation: ModuleType
+    association: ModuleType
 
 
 def cache_dir() -> Path:
@@ -87,8 +90,10 @@ def use_user_cache_dir() -> None:
 def load() -> Kernels:
     """Import numba (its cache directory set first) and the kernel modules; the kernels compile on first call."""
     use_user_cache_dir()
+    import skelfuse.fusion.kernels.association
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
+    import skelfuse.fusion.kernels.orientation
     import skelfuse.fusion.kernels.plausibility
     import skelfuse.fusion.kernels.realign
     import skelfuse.fusion.kernels.tracks
@@ -99,6 +104,8 @@ def load() -> Kernels:
         plausibility=skelfuse.fusion.kernels.plausibility,
         realign=skelfuse.fusion.kernels.realign,
         tracks=skelfuse.fusion.kernels.tracks,
+        orientation=skelfuse.fusion.kernels.orientation,
+        association=skelfuse.fusion.kernels.association,
     )
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from skelfuse.fusion.reference import filters, merge, plausibility, realign, tracks
+from skelfuse.fusion.reference import association, filters, merge, orientation, plausibility, realign, tracks
 
 LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
@@ -20,5 +20,7 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
     ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
     ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
+    ("skelfuse.fusion.pipeline", "fuse_orientations"): orientation.fuse_orientations,
+    ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""

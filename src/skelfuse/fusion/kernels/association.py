@@ -1,0 +1,238 @@
+"""The association's cost matrix and track assignment (:func:`skelfuse.fusion.association.associate`, steps 2-3) as
+compiled loops, with a rectangular Hungarian solver.
+
+:func:`linear_sum_assignment` is the shortest augmenting path method (Crouse 2016, "On implementing 2D rectangular
+assignment algorithms", IEEE TAES 52(4), pp. 1685-1686), in the form scipy's ``linear_sum_assignment`` implements
+it, so that ties resolve the same way: rows are augmented in order, the columns scanned from the last, and among
+equally short paths one that ends at a free column wins. A tall matrix is solved transposed. The tests hold it to
+scipy's assignment on random matrices (ties, rectangular, empty, infinite costs).
+
+:func:`assign_to_tracks` is the cascade of :func:`~skelfuse.fusion.association.associate` (confirmed tracks first,
+then the tentative ones with the bodies left), per sensor, with its fast path for sensors where every gated pair
+stands alone; the numpy form is :mod:`skelfuse.fusion.reference.association`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+BIG_COST = 1e12
+"""Stands for "no cost" (a pair outside the gate) in the assignment matrices; such pairs are rejected after."""
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _augmenting_path(
+    cost: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    path: np.ndarray,
+    row4col: np.ndarray,
+    shortest: np.ndarray,
+    row: int,
+    in_rows: np.ndarray,
+    in_cols: np.ndarray,
+    remaining: np.ndarray,
+) -> tuple[int, float]:
+    """The shortest augmenting path from free ``row``: its sink column (-1: infeasible) and its length."""
+    nc = cost.shape[1]
+    min_val = 0.0
+    n_remaining = nc
+    for it in range(nc):
+        remaining[it] = nc - it - 1  # from the last column: a constant matrix gives the identity
+    in_rows[:] = False
+    in_cols[:] = False
+    shortest[:] = np.inf
+    sink = -1
+    i = row
+    while sink == -1:
+        index = -1
+        lowest = np.inf
+        in_rows[i] = True
+        for it in range(n_remaining):
+            j = remaining[it]
+            r = min_val + cost[i, j] - u[i] - v[j]
+            if r < shortest[j]:
+                path[j] = i
+                shortest[j] = r
+            # Among equally short, one that reaches a free column ends the search.
+            if shortest[j] < lowest or (shortest[j] == lowest and row4col[j] == -1):
+                lowest = shortest[j]
+                index = it
+        min_val = lowest
+        if min_val == np.inf:
+            return -1, min_val
+        j = remaining[index]
+        if row4col[j] == -1:
+            sink = j
+        else:
+            i = row4col[j]
+        in_cols[j] = True
+        n_remaining -= 1
+        remaining[index] = remaining[n_remaining]
+    return sink, min_val
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The minimum-cost assignment of a (R, C) cost matrix: row indices (ascending), their columns, and a status.
+
+    Status 0: solved; 1: a NaN or -inf cost (nothing solved); 2: infeasible (some row or column cannot be
+    assigned at a finite cost). min(R, C) pairs.
+    """
+    transpose = matrix.shape[1] < matrix.shape[0]
+    cost = matrix.T.copy() if transpose else matrix
+    nr, nc = cost.shape
+    if nr == 0 or nc == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0
+    for i in range(nr):
+        for j in range(nc):
+            if cost[i, j] != cost[i, j] or cost[i, j] == -np.inf:
+                return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 1
+    u = np.zeros(nr)
+    v = np.zeros(nc)
+    shortest = np.empty(nc)
+    path = np.full(nc, -1, dtype=np.int64)
+    col4row = np.full(nr, -1, dtype=np.int64)
+    row4col = np.full(nc, -1, dtype=np.int64)
+    in_rows = np.zeros(nr, dtype=np.bool_)
+    in_cols = np.zeros(nc, dtype=np.bool_)
+    remaining = np.empty(nc, dtype=np.int64)
+    for current in range(nr):
+        sink, min_val = _augmenting_path(cost, u, v, path, row4col, shortest, current, in_rows, in_cols, remaining)
+        if sink < 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 2
+        # The dual variables.
+        u[current] += min_val
+        for i in range(nr):
+            if in_rows[i] and i != current:
+                u[i] += min_val - shortest[col4row[i]]
+        for j in range(nc):
+            if in_cols[j]:
+                v[j] -= min_val - shortest[j]
+        # Augment along the path.
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            col4row[i], j = j, col4row[i]
+            if i == current:
+                break
+    if transpose:
+        order = np.argsort(col4row)
+        return col4row[order], order.astype(np.int64), 0
+    return np.arange(nr, dtype=np.int64), col4row, 0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_points: int) -> np.ndarray:
+    """(S, B, K) mean distance (mm) over the descriptor points a body (S, B, D, 3) and a track (K, D, 3) both have;
+    inf with fewer than ``min_common_points`` (at least 1) in common."""
+    S, B, D = body_desc.shape[0], body_desc.shape[1], body_desc.shape[2]
+    K = tracks.shape[0]
+    need = max(min_common_points, 1)
+    cost = np.empty((S, B, K))
+    for s in range(S):
+        for b in range(B):
+            for k in range(K):
+                total = 0.0
+                count = 0
+                for d in range(D):
+                    dx = body_desc[s, b, d, 0] - tracks[k, d, 0]
+                    dy = body_desc[s, b, d, 1] - tracks[k, d, 1]
+                    dz = body_desc[s, b, d, 2] - tracks[k, d, 2]
+                    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    if np.isfinite(dist):
+                        total += dist
+                        count += 1
+                cost[s, b, k] = total / count if count >= need else np.inf
+    return cost
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _assign_sensor(
+    cost: np.ndarray,
+    allowed: np.ndarray,
+    usable: np.ndarray,
+    in_stage: np.ndarray,
+    person: np.ndarray,
+    assigned_cost: np.ndarray,
+) -> None:
+    """One cascade stage for one sensor, in place: its free usable bodies (B,) to the stage's tracks (K,)."""
+    B, K = allowed.shape
+    simple = True
+    gated = np.zeros((B, K), dtype=np.bool_)
+    for b in range(B):
+        for k in range(K):
+            gated[b, k] = allowed[b, k] and in_stage[k] and person[b] < 0
+    for b in range(B):
+        simple = simple and gated[b].sum() <= 1
+    for k in range(K):
+        simple = simple and gated[:, k].sum() <= 1
+    if simple:  # every gated pair stands alone: any optimal assignment holds them all (the Hungarian result)
+        for b in range(B):
+            for k in range(K):
+                if gated[b, k]:
+                    person[b] = k
+                    assigned_cost[b] = cost[b, k]
+        return
+    rows = np.flatnonzero(usable & (person < 0))
+    cols = np.flatnonzero(in_stage)
+    matrix = np.empty((rows.size, cols.size))
+    for r in range(rows.size):
+        for c in range(cols.size):
+            matrix[r, c] = cost[rows[r], cols[c]] if allowed[rows[r], cols[c]] else BIG_COST
+    r_idx, c_idx, _ = linear_sum_assignment(matrix)  # finite costs: always solved
+    for n in range(r_idx.size):
+        b, k = rows[r_idx[n]], cols[c_idx[n]]
+        if allowed[b, k]:
+            person[b] = k
+            assigned_cost[b] = matrix[r_idx[n], c_idx[n]]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def assign_to_tracks(
+    body_desc: np.ndarray,
+    usable: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 2-3 of the association: the cost matrix, then per sensor the Hungarian assignment of its bodies to
+    the tracks under the gate, confirmed tracks first, then the tentative ones with the bodies left.
+
+    Parameters
+    ----------
+    body_desc : (S, B, D, 3) float64 mm; usable : (S, B) bool; tracks : (K, D, 3) float64 mm predicted
+    descriptors; confirmed : (K,) bool; gate_mm : (K,) float64; min_common_points : int.
+
+    Returns
+    -------
+    person (S, B) int64 track of each body (-1: none), assigned_cost (S, B) float64 (NaN: none), cost (S, B, K).
+    """
+    S, B = usable.shape
+    K = tracks.shape[0]
+    cost = descriptor_costs(body_desc, tracks, min_common_points)
+    allowed = np.zeros((S, B, K), dtype=np.bool_)
+    for s in range(S):
+        for b in range(B):
+            for k in range(K):
+                allowed[s, b, k] = usable[s, b] and cost[s, b, k] <= gate_mm[k]
+    person = np.full((S, B), -1, dtype=np.int64)
+    assigned_cost = np.full((S, B), np.nan)
+    tentative = ~confirmed
+    for stage in range(2):
+        in_stage = confirmed if stage == 0 else tentative
+        if not in_stage.any():
+            continue
+        for s in range(S):
+            _assign_sensor(cost[s], allowed[s], usable[s], in_stage, person[s], assigned_cost[s])
+    return person, assigned_cost, cost
+
+
+def warm_up() -> None:
+    """Compile (or load) :func:`assign_to_tracks` and :func:`linear_sum_assignment` for their one signature each."""
+    desc = np.zeros((1, 2, 7, 3))
+    assign_to_tracks(desc, np.ones((1, 2), np.bool_), np.zeros((1, 7, 3)), np.ones(1, np.bool_), np.full(1, 450.0), 3)
+    linear_sum_assignment(np.zeros((2, 1)))

@@ -1,0 +1,58 @@
+"""The numpy form of the association's cost matrix and track assignment, with scipy's Hungarian solver: the test
+reference of :func:`skelfuse.fusion.association.assign_to_tracks` (the live path runs
+:mod:`skelfuse.fusion.kernels.association` and never imports this module). The rules are documented in
+:mod:`skelfuse.fusion.association`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from skelfuse.fusion.association import descriptor_distance
+
+BIG_COST = 1e12  # stands for "no cost" in the assignment matrices; such pairs are rejected afterwards
+
+
+def assign_to_tracks(
+    body_desc: np.ndarray,
+    usable: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`skelfuse.fusion.association.assign_to_tracks` in numpy and scipy."""
+    S, B = usable.shape
+    K = tracks.shape[0]
+    gate = np.asarray(gate_mm, dtype=np.float64)
+    confirmed = np.asarray(confirmed, dtype=bool)
+    cost = descriptor_distance(body_desc[:, :, None], tracks[None, None], min_common_points)  # (S, B, K)
+    allowed = usable[:, :, None] & (cost <= gate[None, None, :])
+    person = np.full((S, B), -1, dtype=np.int64)
+    assigned_cost = np.full((S, B), np.nan)
+    stages = (confirmed,) if confirmed.all() else (confirmed, ~confirmed)
+    for stage in stages:  # cascade; Python loop over sensors only (a handful)
+        cols = np.nonzero(stage)[0]
+        if cols.size == 0:
+            continue
+        sub = allowed[:, :, cols] if cols.size < K else allowed
+        sub = sub & (person < 0)[:, :, None]  # (S, B, len(cols)): the stage's gated pairs of free bodies
+        # Fast path, exactly the Hungarian result: in a sensor where every body has at most one gated
+        # track and every track at most one gated body, any optimal assignment holds every gated pair
+        # (leaving one out costs BIG_COST more), and only the gated pairs are kept.
+        simple = (sub.sum(axis=2) <= 1).all(axis=1) & (sub.sum(axis=1) <= 1).all(axis=1)
+        s_idx, b_idx, c_idx = np.nonzero(sub & simple[:, None, None])
+        if s_idx.size:
+            k_idx = cols[c_idx]
+            person[s_idx, b_idx] = k_idx
+            assigned_cost[s_idx, b_idx] = cost[s_idx, b_idx, k_idx]
+        for s in np.nonzero(~simple)[0]:
+            rows = np.nonzero(usable[s] & (person[s] < 0))[0]
+            ok = allowed[s][rows[:, None], cols]
+            matrix = np.where(ok, cost[s][rows[:, None], cols], BIG_COST)
+            r, c = linear_sum_assignment(matrix)
+            keep = ok[r, c]
+            person[s, rows[r[keep]]] = cols[c[keep]]
+            assigned_cost[s, rows[r[keep]]] = matrix[r[keep], c[keep]]
+    return person, assigned_cost, cost
