@@ -7,6 +7,9 @@ it, so that ties resolve the same way: rows are augmented in order, the columns 
 equally short paths one that ends at a free column wins. A tall matrix is solved transposed. The tests hold it to
 scipy's assignment on random matrices (ties, rectangular, empty, infinite costs).
 
+:func:`nanmedian_middle` is :func:`skelfuse.fusion.association.nanmedian_axis` (the persons' descriptors, the
+realignment's body centres), its numpy form in the reference too.
+
 :func:`assign_to_tracks` is the cascade of :func:`~skelfuse.fusion.association.associate` (confirmed tracks first,
 then the tentative ones with the bodies left), per sensor, with its fast path for sensors where every gated pair
 stands alone; the numpy form is :mod:`skelfuse.fusion.reference.association`.
@@ -231,8 +234,36 @@ def assign_to_tracks(
     return person, assigned_cost, cost
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def nanmedian_middle(values: np.ndarray) -> np.ndarray:
+    """(A, C) median over the middle axis of (A, N, C) values, ignoring NaN and +-inf (NaN where none is finite):
+    the mean of the two middle finite values (one when their count is odd), sorted by insertion (N is a handful of
+    sensors)."""
+    A, N, C = values.shape
+    out = np.empty((A, C))
+    finite = np.empty(N)
+    for a in range(A):
+        for c in range(C):
+            count = 0
+            for n in range(N):
+                value = values[a, n, c]
+                if np.isfinite(value):
+                    at = count
+                    while at > 0 and finite[at - 1] > value:
+                        finite[at] = finite[at - 1]
+                        at -= 1
+                    finite[at] = value
+                    count += 1
+            if count == 0:
+                out[a, c] = np.nan
+            else:
+                out[a, c] = 0.5 * (finite[(count - 1) // 2] + finite[count // 2])
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load) :func:`assign_to_tracks` and :func:`linear_sum_assignment` for their one signature each."""
     desc = np.zeros((1, 2, 7, 3))
     assign_to_tracks(desc, np.ones((1, 2), np.bool_), np.zeros((1, 7, 3)), np.ones(1, np.bool_), np.full(1, 450.0), 3)
     linear_sum_assignment(np.zeros((2, 1)))
+    nanmedian_middle(np.zeros((1, 2, 1)))
