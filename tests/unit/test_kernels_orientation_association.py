@@ -18,7 +18,7 @@ from scipy.optimize import linear_sum_assignment
 
 from skelfuse.fusion import kernels
 from skelfuse.fusion import orientation as orient
-from skelfuse.fusion.association import N_DESCRIPTOR, assign_to_tracks, nanmedian_axis
+from skelfuse.fusion.association import N_DESCRIPTOR, assign_to_tracks, nanmedian_axis, person_descriptors
 from skelfuse.fusion.reference import association as association_reference
 from skelfuse.fusion.reference import orientation as orientation_reference
 from skelfuse.schema.skeleton import N_JOINTS
@@ -174,3 +174,28 @@ def test_median_kernel_equals_the_numpy_reference(seed, shape, axis, missing, gr
     want = association_reference.nanmedian_axis(values, axis)
     assert got.shape == want.shape
     np.testing.assert_array_equal(got, want)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_sensors=st.integers(0, 6),
+    n_bodies=st.integers(0, 4),
+    n_persons=st.integers(0, 5),
+    missing=st.sampled_from([0.0, 0.3, 1.0]),
+)
+def test_person_descriptors_kernel_equals_the_numpy_reference(seed, n_sensors, n_bodies, n_persons, missing):
+    """Rows seen by several sensors, by one, by none; at most one body per sensor and row, as the association
+    gives them."""
+    rng = np.random.default_rng(seed)
+    body_desc = rng.integers(-3, 4, (n_sensors, n_bodies, N_DESCRIPTOR, 3)) * 50.0
+    body_desc[rng.random(body_desc.shape[:3]) < missing] = np.nan
+    person = np.full((n_sensors, n_bodies), -1, dtype=np.int64)
+    for s in range(n_sensors):
+        rows = rng.permutation(max(n_persons, n_bodies))[:n_bodies]
+        person[s] = np.where((rows < n_persons) & (rng.random(n_bodies) < 0.8), rows, -1)
+    got = person_descriptors(body_desc, person, n_persons)
+    want = association_reference.person_descriptors(body_desc, person, n_persons)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[1].dtype == want[1].dtype == np.int64

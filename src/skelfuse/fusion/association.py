@@ -253,19 +253,15 @@ def associate(
     n_new = _cluster_leftovers(body_desc, leftover, person, K, float(gate_mm), min_common_points)
     n_persons = K + n_new
     candidates, cand_conf = gather_candidates(positions, confidence, person, n_persons)
-    person_desc = np.full((n_persons, S, N_DESCRIPTOR, 3), np.nan)
-    s_idx, b_idx = np.nonzero(person >= 0)
-    person_desc[person[s_idx, b_idx], s_idx] = body_desc[s_idx, b_idx]
-    seen = np.zeros((n_persons, S), dtype=bool)
-    seen[person[s_idx, b_idx], s_idx] = True
+    descriptors, n_sensors_seen = person_descriptors(body_desc, person, n_persons)
     return Association(
         person_of_body=person,
         n_tracks=K,
         n_new=n_new,
         candidates=candidates,
         confidence=cand_conf,
-        descriptors=nanmedian_axis(person_desc, axis=1),
-        n_sensors_seen=seen.sum(axis=1).astype(np.int64),
+        descriptors=descriptors,
+        n_sensors_seen=n_sensors_seen,
         duplicates=duplicates,
         cost=assigned_cost,
     )
@@ -365,6 +361,19 @@ def assign_to_tracks(
         _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
         _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
         int(min_common_points),
+    )
+
+
+def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per person row, the median over its sensors of their bodies' descriptors (P, D, 3) (NaN where no sensor has
+    the point) and how many sensors see it (P,) int64; ``person`` (S, B) as :attr:`Association.person_of_body`. In
+    a compiled kernel (:func:`skelfuse.fusion.kernels.association.person_descriptors`; the numpy form is the test
+    reference)."""
+    S, B = person.shape
+    return kernels.load().association.person_descriptors(
+        _kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
+        _kernel_array(person, np.int64, (S, B), "person"),
+        int(n_persons),
     )
 
 

@@ -7,8 +7,9 @@ it, so that ties resolve the same way: rows are augmented in order, the columns 
 equally short paths one that ends at a free column wins. A tall matrix is solved transposed. The tests hold it to
 scipy's assignment on random matrices (ties, rectangular, empty, infinite costs).
 
-:func:`nanmedian_middle` is :func:`skelfuse.fusion.association.nanmedian_axis` (the persons' descriptors, the
-realignment's body centres), its numpy form in the reference too.
+:func:`person_descriptors` gathers each person's descriptor (the median over its sensors) and sensor count after
+the assignment. :func:`nanmedian_middle` is :func:`skelfuse.fusion.association.nanmedian_axis` (the persons'
+descriptors, the realignment's body centres); their numpy forms are in the reference too.
 
 :func:`assign_to_tracks` is the cascade of :func:`~skelfuse.fusion.association.associate` (confirmed tracks first,
 then the tentative ones with the bodies left), per sensor, with its fast path for sensors where every gated pair
@@ -261,9 +262,39 @@ def nanmedian_middle(values: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per person, the median over its sensors of their bodies' descriptors, and how many sensors see it.
+
+    Parameters
+    ----------
+    body_desc : (S, B, D, 3) float64 mm; person : (S, B) int64, row of each body (-1: none; at most one body per
+    sensor and row); n_persons : P.
+
+    Returns
+    -------
+    descriptors (P, D, 3) float64 (NaN where no sensor has the point), n_sensors_seen (P,) int64.
+    """
+    S, B, D = body_desc.shape[0], body_desc.shape[1], body_desc.shape[2]
+    rows = np.full((n_persons, S, D, 3), np.nan)
+    seen = np.zeros((n_persons, S), dtype=np.bool_)
+    for s in range(S):
+        for b in range(B):
+            p = person[s, b]
+            if p >= 0:
+                rows[p, s] = body_desc[s, b]
+                seen[p, s] = True
+    n_seen = np.zeros(n_persons, dtype=np.int64)
+    for p in range(n_persons):
+        n_seen[p] = seen[p].sum()
+    median = nanmedian_middle(np.ascontiguousarray(rows.transpose(0, 2, 3, 1)).reshape(n_persons * D * 3, S, 1))
+    return median.reshape(n_persons, D, 3), n_seen
+
+
 def warm_up() -> None:
     """Compile (or load) :func:`assign_to_tracks` and :func:`linear_sum_assignment` for their one signature each."""
     desc = np.zeros((1, 2, 7, 3))
     assign_to_tracks(desc, np.ones((1, 2), np.bool_), np.zeros((1, 7, 3)), np.ones(1, np.bool_), np.full(1, 450.0), 3)
     linear_sum_assignment(np.zeros((2, 1)))
     nanmedian_middle(np.zeros((1, 2, 1)))
+    person_descriptors(desc, np.zeros((1, 2), dtype=np.int64), 1)

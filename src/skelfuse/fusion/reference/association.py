@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion.association import descriptor_distance
+from skelfuse.fusion.association import N_DESCRIPTOR, descriptor_distance
 
 BIG_COST = 1e12  # stands for "no cost" in the assignment matrices; such pairs are rejected afterwards
 
@@ -77,3 +77,14 @@ def nanmedian_axis(values: np.ndarray, axis: int) -> np.ndarray:
     lane = np.arange(ordered.shape[0])
     median = (0.5 * (ordered[lane, lo] + ordered[lane, hi])).reshape(count.shape)
     return np.where(count > 0, median, np.nan)
+
+
+def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`skelfuse.fusion.association.person_descriptors` in numpy."""
+    S = person.shape[0]
+    person_desc = np.full((n_persons, S, N_DESCRIPTOR, 3), np.nan)
+    s_idx, b_idx = np.nonzero(person >= 0)
+    person_desc[person[s_idx, b_idx], s_idx] = body_desc[s_idx, b_idx]
+    seen = np.zeros((n_persons, S), dtype=bool)
+    seen[person[s_idx, b_idx], s_idx] = True
+    return nanmedian_axis(person_desc, axis=1), seen.sum(axis=1).astype(np.int64)
