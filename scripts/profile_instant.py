@@ -55,6 +55,7 @@ STAGES = [  # (module, attribute, label); a class attribute as "Class.method"
     ("skelfuse.fusion.pipeline", "_merge", "  merge"),
     ("skelfuse.fusion.pipeline", "filter_step", "  filter"),
     ("skelfuse.fusion.pipeline", "_orientations", "  orientations"),
+    ("skelfuse.fusion.pipeline", "position_uncertainty", "  uncertainty"),
     ("skelfuse.fusion.pipeline", "measurement_variance", "  uncertainty: variance"),
     ("skelfuse.fusion.pipeline", "uncertainty_step", "  uncertainty: recursion"),
     ("skelfuse.rig.instant", "fused_frame", "fused frame"),

@@ -63,6 +63,7 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
         "assign_to_tracks",
         "nanmedian_axis",
         "person_descriptors",
+        "position_uncertainty",
     }
 
 

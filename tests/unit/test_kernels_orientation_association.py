@@ -1,4 +1,4 @@
-"""The orientation and association kernels against their references on random inputs.
+"""The orientation, association and position uncertainty kernels against their references on random inputs.
 
 The orientation stage (skelfuse.fusion.kernels.orientation) against its numpy form (skelfuse.fusion.reference.
 orientation): NaN joints, NaN views, no bodies, no views, a single sensor, with and without history; identical view
@@ -19,8 +19,11 @@ from scipy.optimize import linear_sum_assignment
 from skelfuse.fusion import kernels
 from skelfuse.fusion import orientation as orient
 from skelfuse.fusion.association import N_DESCRIPTOR, assign_to_tracks, nanmedian_axis, person_descriptors
+from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.reference import association as association_reference
 from skelfuse.fusion.reference import orientation as orientation_reference
+from skelfuse.fusion.reference import uncertainty as uncertainty_reference
+from skelfuse.fusion.uncertainty import position_uncertainty
 from skelfuse.schema.skeleton import N_JOINTS
 
 ATOL = 1e-9
@@ -199,3 +202,34 @@ def test_person_descriptors_kernel_equals_the_numpy_reference(seed, n_sensors, n
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert got[1].dtype == want[1].dtype == np.int64
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_bodies=st.integers(0, 3),
+    n_sensors=st.integers(1, 6),
+    missing=st.sampled_from([0.0, 0.3, 1.0]),
+    with_filter=st.booleans(),
+)
+def test_uncertainty_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensors, missing, with_filter):
+    """Joints seen by several views, one, none; tracks new, measured, coasting and absent."""
+    rng = np.random.default_rng(seed)
+    merged = rng.normal(0.0, 300.0, (n_bodies, N_JOINTS, 3))
+    candidates = merged[:, None] + rng.normal(0.0, 40.0, (n_bodies, n_sensors, N_JOINTS, 3))
+    candidates[rng.random(candidates.shape[:3]) < missing] = np.nan
+    n_agree = rng.integers(0, n_sensors + 1, (n_bodies, N_JOINTS))
+    merged[n_agree == 0] = np.nan
+    fused = np.where(rng.random((n_bodies, N_JOINTS, 1)) < 0.9, merged + 1.0, np.nan)
+    previous_cov = np.abs(rng.normal(0.0, 100.0, (n_bodies, N_JOINTS, 3)))
+    coast_before = rng.integers(-1, 3, n_bodies * N_JOINTS)
+    coast_after = rng.integers(-1, 3, n_bodies * N_JOINTS)
+    params = FusionParams(filter="cv_kalman" if with_filter else None, position_std=True)
+    torso = np.array([0, 1, 2, 3, 18, 22])
+    args = (candidates, merged, n_agree, fused, previous_cov, coast_before, coast_after, torso, params, 1.0 / 30.0)
+    got = position_uncertainty(*args)
+    want = uncertainty_reference.position_uncertainty(*args)
+    for name, a, b in zip(("std", "cov", "agreement"), got, want, strict=True):
+        assert a.shape == b.shape, name
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=ATOL, err_msg=name)

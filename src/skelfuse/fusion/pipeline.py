@@ -59,7 +59,7 @@ from skelfuse.fusion.plausibility import (
 )
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
-from skelfuse.fusion.uncertainty import measurement_variance, uncertainty_step, view_agreement
+from skelfuse.fusion.uncertainty import position_uncertainty
 from skelfuse.schema.skeleton import N_JOINTS
 
 _ONES3 = np.ones(3)
@@ -342,14 +342,19 @@ def _position_uncertainty(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each fused joint's position std (B, J) and covariance state (B, J, 3), and the views' torso agreement."""
     B, J = fused.shape[:2]
-    agreement = view_agreement(positions, merged.positions, TORSO_JOINTS)
-    r = measurement_variance(positions, merged.members, merged.positions, merged.n_agree, params.cv_meas_sigma_mm)
     previous_cov = previous_position_cov if previous_position_cov is not None else np.zeros((B, J, 3))
-    std, position_cov = uncertainty_step(
-        previous_cov.reshape(B * J, 3), state_coast.reshape(B * J), coast, r.reshape(B * J), params, dt_s
+    return position_uncertainty(
+        positions,
+        merged.positions,
+        merged.n_agree,
+        fused,
+        previous_cov,
+        state_coast.reshape(B * J),
+        coast,
+        TORSO_JOINTS,
+        params,
+        dt_s,
     )
-    std = np.where(np.isfinite(fused).all(axis=-1), std.reshape(B, J), np.nan)
-    return std, position_cov.reshape(B, J, 3), agreement
 
 
 def _predicted(state: FusionState, dt_s: float) -> np.ndarray:

@@ -23,13 +23,16 @@ frame's ``sqrt(R)``: most of a view's error is slow (an AR(1) with rho 0.8-0.94 
 so averaging over time cannot lower it the way the recursion's white-noise model assumes; a joint one view
 carries alone stays at about ``sigma0`` however long it is seen. With no position filter the output is
 ``sqrt(R)`` of the frame. Output: the one-sigma uncertainty per axis, mm (a 3D error is about sqrt(3)
-times larger), NaN where the joint has no position. Pure numpy, batched over all joints.
+times larger), NaN where the joint has no position. The fusion step runs the stage as one compiled kernel
+(:func:`position_uncertainty`, :mod:`skelfuse.fusion.kernels.uncertainty`); the numpy functions here are its parts
+and, composed, its test reference (:mod:`skelfuse.fusion.reference.uncertainty`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.filters import _cv_model
 from skelfuse.fusion.plausibility import median_of_finite
 from skelfuse.fusion.presets import FusionParams
@@ -141,3 +144,60 @@ def uncertainty_step(
     # Never below this frame's own measurement variance (the slow part of the error does not average out).
     std = np.sqrt(np.where(np.isfinite(r), np.maximum(new_P[:, 0], r), new_P[:, 0]))
     return np.where(alive, std, np.nan), new_P
+
+
+def position_uncertainty(
+    candidates: np.ndarray,
+    merged: np.ndarray,
+    n_agree: np.ndarray,
+    fused: np.ndarray,
+    previous_cov: np.ndarray,
+    coast_before: np.ndarray,
+    coast_after: np.ndarray,
+    torso: np.ndarray,
+    params: FusionParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole stage for B bodies in one kernel call: :func:`view_agreement`, :func:`measurement_variance` and
+    :func:`uncertainty_step`, the std masked where the fused joint has no position.
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) mm, the candidates the merge was given; merged : (B, J, 3) mm, the merge's output;
+    n_agree : (B, J) members merged; fused : (B, J, 3) mm, the filtered positions; previous_cov : (B, J, 3);
+    coast_before, coast_after : (B * J,) the position filter's coast counters; torso : (K,) joint indices;
+    params : FusionParams; dt_s : float.
+
+    Returns
+    -------
+    std (B, J) mm, cov (B, J, 3), agreement (B,) mm.
+    """
+    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
+    if candidates.ndim != 4 or candidates.shape[3] != 3:
+        raise ValueError(f"candidates must have shape (B, S, J, 3), got {candidates.shape}")
+    B, J = candidates.shape[0], candidates.shape[2]
+    return kernels.load().uncertainty.position_uncertainty(
+        candidates,
+        _checked(merged, np.float64, (B, J, 3), "merged"),
+        _checked(n_agree, np.int64, (B, J), "n_agree"),
+        _checked(fused, np.float64, (B, J, 3), "fused"),
+        _checked(previous_cov, np.float64, (B, J, 3), "previous_cov"),
+        _checked(coast_before, np.int64, (B * J,), "coast_before"),
+        _checked(coast_after, np.int64, (B * J,), "coast_after"),
+        _checked(torso, np.int64, np.shape(torso), "torso"),
+        float(params.cv_meas_sigma_mm),
+        PRIOR_SAMPLES,
+        params.filter is not None,
+        float(dt_s),
+        float(params.cv_accel_sigma_mm_s2),
+        float(params.cv_velocity0_sigma_mm_s),
+    )
+
+
+def _checked(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """An argument as the kernel reads it (C order, its dtype), its shape checked (the kernel does not check
+    indices)."""
+    out = np.ascontiguousarray(values, dtype=dtype)
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out

@@ -4,7 +4,8 @@ The stages whose numpy form spends most of its time in numpy's per-call overhead
 per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
 (:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
 realignment's votes (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the orientation stage
-(:mod:`.orientation`) and the association's costs and Hungarian assignment (:mod:`.association`). Their numpy
+(:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`) and the position
+uncertainty (:mod:`.uncertainty`). Their numpy
 forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
@@ -31,7 +32,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
-KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association")
+KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association", "uncertainty")
 """The kernel modules of this package (one per compiled stage)."""
 
 
@@ -45,6 +46,7 @@ class Kernels(NamedTuple):
     tracks: ModuleType
     orientation: ModuleType
     association: ModuleType
+    uncertainty: ModuleType
 
 
 def cache_dir() -> Path:
@@ -97,6 +99,7 @@ def load() -> Kernels:
     import skelfuse.fusion.kernels.plausibility
     import skelfuse.fusion.kernels.realign
     import skelfuse.fusion.kernels.tracks
+    import skelfuse.fusion.kernels.uncertainty
 
     return Kernels(
         merge=skelfuse.fusion.kernels.merge,
@@ -106,6 +109,7 @@ def load() -> Kernels:
         tracks=skelfuse.fusion.kernels.tracks,
         orientation=skelfuse.fusion.kernels.orientation,
         association=skelfuse.fusion.kernels.association,
+        uncertainty=skelfuse.fusion.kernels.uncertainty,
     )
 
 

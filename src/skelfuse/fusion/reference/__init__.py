@@ -11,7 +11,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from skelfuse.fusion.reference import association, filters, merge, orientation, plausibility, realign, tracks
+from skelfuse.fusion.reference import (
+    association,
+    filters,
+    merge,
+    orientation,
+    plausibility,
+    realign,
+    tracks,
+    uncertainty,
+)
 
 LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
@@ -24,6 +33,7 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
     ("skelfuse.fusion.association", "nanmedian_axis"): association.nanmedian_axis,
     ("skelfuse.fusion.association", "person_descriptors"): association.person_descriptors,
+    ("skelfuse.fusion.pipeline", "position_uncertainty"): uncertainty.position_uncertainty,
     ("skelfuse.fusion.realign", "nanmedian_axis"): association.nanmedian_axis,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
