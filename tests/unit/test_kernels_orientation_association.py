@@ -18,7 +18,14 @@ from scipy.optimize import linear_sum_assignment
 
 from skelfuse.fusion import kernels
 from skelfuse.fusion import orientation as orient
-from skelfuse.fusion.association import N_DESCRIPTOR, assign_to_tracks, nanmedian_axis, person_descriptors
+from skelfuse.fusion.association import (
+    N_DESCRIPTOR,
+    assign_to_tracks,
+    match_tracks,
+    nanmedian_axis,
+    person_descriptors,
+    torso_descriptor,
+)
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.reference import association as association_reference
 from skelfuse.fusion.reference import orientation as orientation_reference
@@ -233,3 +240,32 @@ def test_uncertainty_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensors
         assert a.shape == b.shape, name
         np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=ATOL, err_msg=name)
+
+
+@settings(max_examples=120, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_sensors=st.integers(0, 4),
+    n_bodies=st.integers(0, 4),
+    n_tracks=st.integers(0, 4),
+    missing=st.sampled_from([0.0, 0.2, 0.6]),
+    duplicate_mm=st.sampled_from([None, 100.0, 250.0, 1000.0]),
+)
+def test_track_matching_kernel_equals_the_numpy_reference(seed, n_sensors, n_bodies, n_tracks, missing, duplicate_mm):
+    """Whole skeletons: descriptors, usable bodies, assignment and duplicates (two skeletons of one person in one
+    sensor: the duplicate rule decides)."""
+    rng = np.random.default_rng(seed)
+    people = rng.integers(-3, 4, (n_tracks + 2, 1, 3)) * 150.0 + rng.normal(0.0, 100.0, (1, N_JOINTS, 3))
+    positions = people[rng.integers(0, people.shape[0], (n_sensors, n_bodies))]
+    positions = positions + rng.integers(-1, 2, positions.shape) * 40.0
+    positions[rng.random(positions.shape[:3]) < missing] = np.nan
+    valid = rng.random((n_sensors, n_bodies)) < 0.9
+    tracks = torso_descriptor(people[rng.integers(0, people.shape[0], n_tracks)])
+    confirmed = rng.random(n_tracks) < 0.7
+    gate = rng.choice([200.0, 450.0], n_tracks)
+    args = (positions, valid, tracks, confirmed, gate, 3, duplicate_mm)
+    got = match_tracks(*args)
+    want = association_reference.match_tracks(*args)
+    for a, b in zip(got, want, strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        np.testing.assert_allclose(a, b, rtol=0, atol=ATOL)

@@ -56,8 +56,10 @@ from skelfuse.schema.skeleton import N_JOINTS, J
 DESCRIPTOR_NAMES: tuple[str, ...] = ("PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "HEAD", "MID_SHOULDER", "MID_HIP")
 """The mirror-invariant torso points, in descriptor order."""
 N_DESCRIPTOR = len(DESCRIPTOR_NAMES)
-_CENTRAL = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"], J["HEAD"]])
-_PAIRS = np.array([[J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"]], [J["HIP_LEFT"], J["HIP_RIGHT"]]])
+_CENTRAL = np.array([J["PELVIS"], J["SPINE_NAVEL"], J["SPINE_CHEST"], J["NECK"], J["HEAD"]], dtype=np.int64)
+_PAIRS = np.array([[J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"]], [J["HIP_LEFT"], J["HIP_RIGHT"]]], dtype=np.int64)
+for _table in (_CENTRAL, _PAIRS):
+    _table.setflags(write=False)
 
 DEFAULT_GATE_MM = 450.0
 DEFAULT_DUPLICATE_MM = 250.0
@@ -232,21 +234,9 @@ def associate(
         gate = np.asarray(track_gate_mm, dtype=np.float64)
         if gate.shape != (K,):
             gate = np.broadcast_to(gate, (K,))
-    S, B = valid.shape
-
-    body_desc = torso_descriptor(positions)  # (S, B, D, 3)
-    usable = valid & (np.isfinite(body_desc).all(axis=-1).sum(axis=-1) >= min_common_points)
-    person, assigned_cost, cost = assign_to_tracks(body_desc, usable, tracks, confirmed, gate, min_common_points)
-
-    # Duplicates: a leftover close to a track that already holds a body of the same sensor.
-    leftover = usable & (person < 0)
-    duplicates = np.zeros((S, B), dtype=bool)
-    if duplicate_mm is not None and K and leftover.any():
-        taken = np.zeros((S, K), dtype=bool)
-        s_idx, b_idx = np.nonzero(person >= 0)
-        taken[s_idx, person[s_idx, b_idx]] = True
-        duplicates = leftover & ((cost <= float(duplicate_mm)) & taken[:, None, :]).any(axis=2)
-        leftover &= ~duplicates
+    body_desc, _, person, assigned_cost, _, duplicates, leftover = match_tracks(
+        positions, valid, tracks, confirmed, gate, min_common_points, duplicate_mm
+    )
     if duplicate_mm is not None and K and leftover.any():
         _reacquire(body_desc, tracks, confirmed, leftover, person, float(duplicate_mm))
 
@@ -361,6 +351,39 @@ def assign_to_tracks(
         _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
         _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
         int(min_common_points),
+    )
+
+
+def match_tracks(
+    positions: np.ndarray,
+    valid: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+    duplicate_mm: float | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-4 (module docstring) in one compiled kernel call
+    (:func:`skelfuse.fusion.kernels.association.match_tracks`): the torso descriptors, which bodies can be compared,
+    :func:`assign_to_tracks`, and the duplicates (``duplicate_mm`` None: none).
+
+    Returns
+    -------
+    body_desc (S, B, D, 3) mm, usable (S, B) bool, person (S, B) int64, assigned_cost (S, B) mm, cost (S, B, K) mm,
+    duplicates (S, B) bool, leftover (S, B) bool: usable bodies neither assigned nor dropped.
+    """
+    S, B = valid.shape
+    K = tracks.shape[0]
+    return kernels.load().association.match_tracks(
+        _kernel_array(positions, np.float64, (S, B, N_JOINTS, 3), "positions"),
+        _kernel_array(valid, np.bool_, (S, B), "valid"),
+        _CENTRAL,
+        _PAIRS,
+        _kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
+        _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
+        _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
+        int(min_common_points),
+        np.nan if duplicate_mm is None else float(duplicate_mm),
     )
 
 

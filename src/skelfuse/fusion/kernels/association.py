@@ -7,6 +7,7 @@ it, so that ties resolve the same way: rows are augmented in order, the columns 
 equally short paths one that ends at a free column wins. A tall matrix is solved transposed. The tests hold it to
 scipy's assignment on random matrices (ties, rectangular, empty, infinite costs).
 
+:func:`match_tracks` adds the descriptors before and the duplicates after it (steps 1-4 in one call).
 :func:`person_descriptors` gathers each person's descriptor (the median over its sensors) and sensor count after
 the assignment. :func:`nanmedian_middle` is :func:`skelfuse.fusion.association.nanmedian_axis` (the persons'
 descriptors, the realignment's body centres); their numpy forms are in the reference too.
@@ -236,6 +237,64 @@ def assign_to_tracks(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def match_tracks(
+    positions: np.ndarray,
+    valid: np.ndarray,
+    central: np.ndarray,
+    pairs: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+    duplicate_mm: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-4 of the association: the bodies' torso descriptors, which bodies can be compared,
+    :func:`assign_to_tracks`, and the leftovers dropped as duplicates of a body their sensor gave the same track.
+
+    Parameters
+    ----------
+    positions : (S, B, J, 3) float64 mm; valid : (S, B) bool; central : (C,) int64 joints; pairs : (M, 2) int64
+    joint pairs whose midpoints follow (descriptor order); tracks, confirmed, gate_mm, min_common_points: as
+    :func:`assign_to_tracks`; duplicate_mm : float (NaN: never drop).
+
+    Returns
+    -------
+    body_desc (S, B, D, 3), usable (S, B) bool, person (S, B) int64, assigned_cost (S, B), cost (S, B, K),
+    duplicates (S, B) bool, leftover (S, B) bool (usable, unassigned, not a duplicate).
+    """
+    S, B = valid.shape
+    C, M = central.shape[0], pairs.shape[0]
+    body_desc = np.empty((S, B, C + M, 3))
+    usable = np.zeros((S, B), dtype=np.bool_)
+    for s in range(S):
+        for b in range(B):
+            n_finite = 0
+            for d in range(C + M):
+                for c in range(3):
+                    if d < C:
+                        body_desc[s, b, d, c] = positions[s, b, central[d], c]
+                    else:
+                        pair = pairs[d - C]
+                        body_desc[s, b, d, c] = 0.5 * (positions[s, b, pair[0], c] + positions[s, b, pair[1], c])
+                point = body_desc[s, b, d]
+                n_finite += np.isfinite(point[0]) and np.isfinite(point[1]) and np.isfinite(point[2])
+            usable[s, b] = valid[s, b] and n_finite >= min_common_points
+    person, assigned_cost, cost = assign_to_tracks(body_desc, usable, tracks, confirmed, gate_mm, min_common_points)
+    duplicates = np.zeros((S, B), dtype=np.bool_)
+    leftover = usable & (person < 0)
+    for s in range(S):
+        for b in range(B):
+            if not leftover[s, b]:
+                continue
+            for other in range(B):  # a track that took another body of this sensor, within duplicate_mm
+                k = person[s, other]
+                if k >= 0 and cost[s, b, k] <= duplicate_mm:
+                    duplicates[s, b] = True
+            leftover[s, b] = not duplicates[s, b]
+    return body_desc, usable, person, assigned_cost, cost, duplicates, leftover
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def nanmedian_middle(values: np.ndarray) -> np.ndarray:
     """(A, C) median over the middle axis of (A, N, C) values, ignoring NaN and +-inf (NaN where none is finite):
     the mean of the two middle finite values (one when their count is odd), sorted by insertion (N is a handful of
@@ -298,3 +357,14 @@ def warm_up() -> None:
     linear_sum_assignment(np.zeros((2, 1)))
     nanmedian_middle(np.zeros((1, 2, 1)))
     person_descriptors(desc, np.zeros((1, 2), dtype=np.int64), 1)
+    match_tracks(
+        np.zeros((1, 2, 4, 3)),
+        np.ones((1, 2), np.bool_),
+        np.arange(2, dtype=np.int64),
+        np.array([[2, 3]], dtype=np.int64),
+        np.zeros((1, 3, 3)),
+        np.ones(1, np.bool_),
+        np.full(1, 450.0),
+        3,
+        250.0,
+    )

@@ -31,6 +31,7 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
     ("skelfuse.fusion.pipeline", "fuse_orientations"): orientation.fuse_orientations,
     ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
+    ("skelfuse.fusion.association", "match_tracks"): association.match_tracks,
     ("skelfuse.fusion.association", "nanmedian_axis"): association.nanmedian_axis,
     ("skelfuse.fusion.association", "person_descriptors"): association.person_descriptors,
     ("skelfuse.fusion.pipeline", "position_uncertainty"): uncertainty.position_uncertainty,

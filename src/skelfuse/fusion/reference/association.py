@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion.association import N_DESCRIPTOR, descriptor_distance
+from skelfuse.fusion.association import N_DESCRIPTOR, descriptor_distance, torso_descriptor
 
 BIG_COST = 1e12  # stands for "no cost" in the assignment matrices; such pairs are rejected afterwards
 
@@ -88,3 +88,30 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
     seen = np.zeros((n_persons, S), dtype=bool)
     seen[person[s_idx, b_idx], s_idx] = True
     return nanmedian_axis(person_desc, axis=1), seen.sum(axis=1).astype(np.int64)
+
+
+def match_tracks(
+    positions: np.ndarray,
+    valid: np.ndarray,
+    tracks: np.ndarray,
+    confirmed: np.ndarray,
+    gate_mm: np.ndarray,
+    min_common_points: int,
+    duplicate_mm: float | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`skelfuse.fusion.association.match_tracks` in numpy and scipy."""
+    S, B = valid.shape
+    K = tracks.shape[0]
+    body_desc = torso_descriptor(positions)  # (S, B, D, 3)
+    usable = valid & (np.isfinite(body_desc).all(axis=-1).sum(axis=-1) >= min_common_points)
+    person, assigned_cost, cost = assign_to_tracks(body_desc, usable, tracks, confirmed, gate_mm, min_common_points)
+    # Duplicates: a leftover close to a track that already holds a body of the same sensor.
+    leftover = usable & (person < 0)
+    duplicates = np.zeros((S, B), dtype=bool)
+    if duplicate_mm is not None and K and leftover.any():
+        taken = np.zeros((S, K), dtype=bool)
+        s_idx, b_idx = np.nonzero(person >= 0)
+        taken[s_idx, person[s_idx, b_idx]] = True
+        duplicates = leftover & ((cost <= float(duplicate_mm)) & taken[:, None, :]).any(axis=2)
+        leftover &= ~duplicates
+    return body_desc, usable, person, assigned_cost, cost, duplicates, leftover
