@@ -211,35 +211,39 @@ def _hint_frame(aim: np.ndarray, hint: np.ndarray, axis: int, sign: float, out: 
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _consensus(swung: np.ndarray, valid: np.ndarray, min_cos: float, dots: np.ndarray, out: np.ndarray) -> int:
+def _consensus(
+    swung: np.ndarray, valid: np.ndarray, min_cos: float, dots: np.ndarray, support: np.ndarray, out: np.ndarray
+) -> int:
     """Steps 2-3 on the views swung onto the aim, (S, 4) with ``valid`` (S,): the view with the most others within
     the agreement angle (ties: lowest index) and those views, sign-aligned, summed and normalized into ``out``.
-    Returns the views averaged (0: ``out`` NaN). ``dots`` (S, S): scratch."""
+    Returns the views averaged (0: ``out`` NaN). ``dots`` (S, S), ``support`` (S,): scratch."""
     n = swung.shape[0]
+    support[:] = 0
     for s in range(n):
+        if not valid[s]:
+            continue
         for t in range(s + 1):
-            dot = 0.0
-            if valid[s] and valid[t]:
-                dot = swung[s, 0] * swung[t, 0] + swung[s, 1] * swung[t, 1]
-                dot += swung[s, 2] * swung[t, 2] + swung[s, 3] * swung[t, 3]
+            if not valid[t]:
+                continue
+            dot = swung[s, 0] * swung[t, 0] + swung[s, 1] * swung[t, 1]
+            dot += swung[s, 2] * swung[t, 2] + swung[s, 3] * swung[t, 3]
             dots[s, t] = dots[t, s] = dot
+            if abs(dot) >= min_cos:
+                support[s] += 1
+                if t != s:
+                    support[t] += 1
     best = 0
     best_support = 0
     for s in range(n):
-        support = 0
-        for t in range(n):
-            if valid[s] and valid[t] and abs(dots[s, t]) >= min_cos:
-                support += 1
-        if support > best_support:
-            best, best_support = s, support
+        if support[s] > best_support:
+            best, best_support = s, support[s]
     if best_support == 0:
         out[:] = np.nan
         return 0
     out[:] = 0.0
     for t in range(n):
-        dot = dots[best, t]
-        if valid[t] and abs(dot) >= min_cos:
-            weight = -1.0 if dot < 0.0 else 1.0
+        if valid[t] and abs(dots[best, t]) >= min_cos:
+            weight = -1.0 if dots[best, t] < 0.0 else 1.0
             for c in range(4):
                 out[c] += weight * swung[t, c]
     _normalize(out, 1e-9)
@@ -284,6 +288,7 @@ def fuse_orientations(
     omega_out = np.zeros((B, J, 3))
     swung = np.empty((S, 4))
     dots = np.empty((S, S))
+    support = np.zeros(S, dtype=np.int64)
     scratch = np.empty(4)
     valid = np.zeros(S, dtype=np.bool_)
     aim = np.empty(3)
@@ -321,13 +326,18 @@ def fuse_orientations(
             _multiply(turn, prev, predicted)
             # Steps 2-3: the usable views swung onto the aim, their consensus.
             for s in range(S):
-                view[:] = view_quats[b, s, j]
+                # Without an aim every swing is NaN, and a view that may not contribute is never read: skip both.
+                valid[s] = has_aim and usable[b, s, j]
+                if not valid[s]:
+                    continue
+                for c in range(4):
+                    view[c] = view_quats[b, s, j, c]
                 if joint_index[j, 5]:
                     _multiply_conjugate(view, joint_value[j, 2:6], turn)
                     view[:] = turn
                 _swing_onto(view, aim, scratch, swung[s])
-                valid[s] = usable[b, s, j] and swung[s, 0] == swung[s, 0]
-            n_views = _consensus(swung, valid, min_cos, dots, measured)
+                valid[s] = swung[s, 0] == swung[s, 0]
+            n_views = _consensus(swung, valid, min_cos, dots, support, measured)
             has_meas = measured[0] == measured[0]
             _swing_onto(predicted, aim, scratch, swung_prediction)
             if has_aim:  # the prediction follows this frame's bone; without one it coasts on the rotation
