@@ -124,8 +124,16 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
             if i == current:
                 break
     if transpose:
-        order = np.argsort(col4row)
-        return col4row[order], order.astype(np.int64), 0
+        # Pairs by ascending original row (the transposed matrix's columns; distinct, so no ties to break).
+        rows = np.empty(nr, dtype=np.int64)
+        cols = np.empty(nr, dtype=np.int64)
+        n = 0
+        for original_row in range(nc):
+            for i in range(nr):
+                if col4row[i] == original_row:
+                    rows[n], cols[n] = original_row, i
+                    n += 1
+        return rows, cols, 0
     return np.arange(nr, dtype=np.int64), col4row, 0
 
 
@@ -155,6 +163,18 @@ def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_point
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _indices(mask: np.ndarray) -> np.ndarray:
+    """The indices where a (N,) bool mask holds, ascending (a plain loop: numba's flatnonzero costs compile time)."""
+    out = np.empty(mask.shape[0], dtype=np.int64)
+    n = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            out[n] = i
+            n += 1
+    return out[:n]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _assign_sensor(
     cost: np.ndarray,
     allowed: np.ndarray,
@@ -171,9 +191,15 @@ def _assign_sensor(
         for k in range(K):
             gated[b, k] = allowed[b, k] and in_stage[k] and person[b] < 0
     for b in range(B):
-        simple = simple and gated[b].sum() <= 1
+        n_gated = 0
+        for k in range(K):
+            n_gated += 1 if gated[b, k] else 0
+        simple = simple and n_gated <= 1
     for k in range(K):
-        simple = simple and gated[:, k].sum() <= 1
+        n_gated = 0
+        for b in range(B):
+            n_gated += 1 if gated[b, k] else 0
+        simple = simple and n_gated <= 1
     if simple:  # every gated pair stands alone: any optimal assignment holds them all (the Hungarian result)
         for b in range(B):
             for k in range(K):
@@ -181,8 +207,8 @@ def _assign_sensor(
                     person[b] = k
                     assigned_cost[b] = cost[b, k]
         return
-    rows = np.flatnonzero(usable & (person < 0))
-    cols = np.flatnonzero(in_stage)
+    rows = _indices(usable & (person < 0))
+    cols = _indices(in_stage)
     matrix = np.empty((rows.size, cols.size))
     for r in range(rows.size):
         for c in range(cols.size):
@@ -229,7 +255,7 @@ def assign_to_tracks(
     tentative = ~confirmed
     for stage in range(2):
         in_stage = confirmed if stage == 0 else tentative
-        if not in_stage.any():
+        if _indices(in_stage).size == 0:
             continue
         for s in range(S):
             _assign_sensor(cost[s], allowed[s], usable[s], in_stage, person[s], assigned_cost[s])
@@ -335,19 +361,30 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
     descriptors (P, D, 3) float64 (NaN where no sensor has the point), n_sensors_seen (P,) int64.
     """
     S, B, D = body_desc.shape[0], body_desc.shape[1], body_desc.shape[2]
-    rows = np.full((n_persons, S, D, 3), np.nan)
-    seen = np.zeros((n_persons, S), dtype=np.bool_)
+    descriptors = np.empty((n_persons, D, 3))
+    n_seen = np.zeros(n_persons, dtype=np.int64)
+    seen = np.empty(S)  # one person's values of one coordinate, sorted as they come (a handful of sensors)
     for s in range(S):
         for b in range(B):
-            p = person[s, b]
-            if p >= 0:
-                rows[p, s] = body_desc[s, b]
-                seen[p, s] = True
-    n_seen = np.zeros(n_persons, dtype=np.int64)
+            if person[s, b] >= 0:
+                n_seen[person[s, b]] += 1
     for p in range(n_persons):
-        n_seen[p] = seen[p].sum()
-    median = nanmedian_middle(np.ascontiguousarray(rows.transpose(0, 2, 3, 1)).reshape(n_persons * D * 3, S, 1))
-    return median.reshape(n_persons, D, 3), n_seen
+        for d in range(D):
+            for c in range(3):
+                count = 0
+                for s in range(S):
+                    for b in range(B):
+                        value = body_desc[s, b, d, c]
+                        if person[s, b] != p or not np.isfinite(value):
+                            continue
+                        at = count
+                        while at > 0 and seen[at - 1] > value:
+                            seen[at] = seen[at - 1]
+                            at -= 1
+                        seen[at] = value
+                        count += 1
+                descriptors[p, d, c] = 0.5 * (seen[(count - 1) // 2] + seen[count // 2]) if count else np.nan
+    return descriptors, n_seen
 
 
 def warm_up() -> None:

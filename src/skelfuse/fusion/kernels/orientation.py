@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _multiply(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """Hamilton product ``out = a * b`` of (4,) quaternions (w, x, y, z); ``out`` may not alias a or b."""
     out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
@@ -30,7 +30,7 @@ def _multiply(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _multiply_conjugate(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """``out = a * conj(b)``."""
     out[0] = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
@@ -39,7 +39,7 @@ def _multiply_conjugate(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     out[3] = -a[0] * b[3] - a[1] * b[2] + a[2] * b[1] + a[3] * b[0]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _normalize(q: np.ndarray, min_norm: float) -> None:
     """Scale ``q`` to unit length in place; NaN where its norm is not above ``min_norm`` (NaN: stays NaN)."""
     norm = 0.0
@@ -53,7 +53,7 @@ def _normalize(q: np.ndarray, min_norm: float) -> None:
         q[:] = np.nan
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _rotvec_to_quat(r0: float, r1: float, r2: float, out: np.ndarray) -> None:
     """Unit quaternion of a rotation vector (rad); sin(a/2)/a by its series 1/2 - a^2/48 near 0."""
     angle = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
@@ -65,7 +65,7 @@ def _rotvec_to_quat(r0: float, r1: float, r2: float, out: np.ndarray) -> None:
     out[3] = k * r2
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _quat_to_rotvec(q: np.ndarray, out: np.ndarray) -> None:
     """Rotation vector (rad) of a unit quaternion, the short way round (angle <= pi)."""
     sign = -1.0 if q[0] < 0.0 else 1.0
@@ -77,7 +77,7 @@ def _quat_to_rotvec(q: np.ndarray, out: np.ndarray) -> None:
     out[2] = k * v2
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _swing_onto(q: np.ndarray, aim: np.ndarray, swing: np.ndarray, out: np.ndarray) -> None:
     """``out`` = q turned by the smallest rotation that takes its local X axis onto the unit ``aim`` (normalized).
 
