@@ -13,7 +13,7 @@ import pytest
 from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.fusion import Fuser, preset
 from skelfuse.fusion.depth.frontal import body_facing
-from skelfuse.fusion.realign import facing_cosine, realign_temporal
+from skelfuse.fusion.realign import facing_cosine, realign_temporal, teleported
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
@@ -224,3 +224,82 @@ def test_simulated_wrong_cold_starts_are_repaired_once_a_rear_view_faces_away(n_
     assert not right_new[0] and not right_old[0]
     assert all(right_new[bound:]), (start, bound, right_new)
     assert not right_old[bound], "control: the old rule repaired it too, the case proves nothing"
+
+
+def test_two_side_views_mirrored_together_do_not_overturn_an_anchor_both_vouched_for():
+    # A person side-on to two sensors facing each other (both about 90 deg off its front, as a person walking
+    # between them): 30 frames both views right, 15 frames both mirrored (longer than the recovery frames), 30
+    # frames both right again. Neither mirrored skeleton faces away from its sensor, so nothing but the anchor
+    # can tell; the frames every view agreed with it outlast the 15 of disagreement, and the output is right
+    # throughout. Without the credit the body follows the mirrored pair on frame 39 and stays mirrored until 9
+    # frames after both views are right again.
+    rng = np.random.default_rng(RNG_SEED + 5)
+    truth = _skeleton(rng, 0.0)
+    sensors = _ring([90.0, 270.0])
+    pattern = [False] * 30 + [True] * 15 + [False] * 30
+    frames = [_views(truth, [m, m], rng) for m in pattern]
+    assert (facing_cosine(np.concatenate([f[0] for f in frames]), sensors) > -0.7).all()  # no rear-view vote
+    outputs, _ = _run(SKELFUSE, frames, sensors)
+    assert all(_right(o, truth) for o in outputs)
+    no_gate = replace(SKELFUSE, plausibility_gate_mm=None)
+    reference, _ = _run(no_gate, frames, sensors, reference=True)
+    np.testing.assert_allclose(np.array(_run(no_gate, frames, sensors)[0]), np.array(reference), rtol=0, atol=1e-6)
+    # Control: without the credit the body follows the mirrored pair after the recovery frames, as it did.
+    outputs, _ = _run(replace(SKELFUSE, recovery_credit_frames=0), frames, sensors)
+    assert [_right(o, truth) for o in outputs].count(False) == 15
+    # Mirrored for longer than the credit plus the recovery frames, the body follows the two views.
+    credit = SKELFUSE.recovery_credit_frames
+    pattern = [False] * (credit + 1) + [True] * (credit + SKELFUSE.recovery_frames + 5)
+    outputs, _ = _run(SKELFUSE, [_views(truth, [m, m], rng) for m in pattern], sensors)
+    assert _right(outputs[2 * credit + SKELFUSE.recovery_frames - 2], truth)
+    assert not _right(outputs[-1], truth)
+
+
+@pytest.mark.parametrize("n_mirrored", [3, 11])
+@pytest.mark.parametrize("gate", [True, False], ids=["skelfuse", "without plausibility gate"])
+def test_a_front_view_mirrored_for_a_few_frames_does_not_overturn_two_agreeing_views(n_mirrored, gate):
+    # Three views of a person facing +x, the third 31 deg off its front: that view mirrored from frame 10 faces
+    # away from its sensor (cosine about -0.88) and so looks like a rear view that is not mirrored. Frames 1-9,
+    # in which every view agreed with the anchor, hold the rear-view rule off for 9 frames more: the output
+    # stays right. Without the credit, 3 such frames mirror the two agreeing views for 9 frames. Without the
+    # plausibility gate (which may hold the view out) the realignment alone decides, as the reference does.
+    rng = np.random.default_rng(RNG_SEED + 6)
+    truth = _skeleton(rng, 0.0)
+    sensors = np.array([[3000.0, 0.0, 1000.0], [2500.0, 1500.0, 1000.0], [2500.0, -1500.0, 1000.0]])
+    frames = [_views(truth, [False, False, 10 <= t < 10 + n_mirrored], rng) for t in range(40)]
+    assert facing_cosine(frames[10][0], sensors)[0, 2] < REAR["rear_view_cos"]  # it does vote as a rear view
+    params = SKELFUSE if gate else replace(SKELFUSE, plausibility_gate_mm=None)
+    outputs, _ = _run(params, frames, sensors)
+    assert all(_right(o, truth) for o in outputs)
+    without_credit, _ = _run(replace(params, recovery_credit_frames=0), frames, sensors)
+    assert not _right(without_credit[12], truth), "control: without the credit the rear-view rule follows the view"
+    if not gate:
+        reference, _ = _run(params, frames, sensors, reference=True)
+        np.testing.assert_allclose(np.array(outputs), np.array(reference), rtol=0, atol=1e-6)
+        # Control: facing away for longer than the credit, the view decides (the rear-view rule is kept).
+        longer = [_views(truth, [False, False, t >= 10], rng) for t in range(40)]
+        assert not _right(_run(params, longer, sensors)[0][-1], truth)
+
+
+def test_one_of_two_views_jumping_to_someone_else_does_not_restart_the_realignment():
+    # Two views of a person side-on to both; from frame 20 the first view reports someone else 700 mm away,
+    # mirrored and with more MEDIUM joints (a tracker that swapped to a neighbour). The plausibility stage
+    # holds that view out of the merge; the realignment keeps its anchor, since only one view jumped, and the
+    # output stays right. Were the jump judged on the views' mean centre (350 mm: a teleport), the body would
+    # start cold in every frame and the 1-against-1 split would go to the view with more MEDIUM joints.
+    rng = np.random.default_rng(RNG_SEED + 7)
+    truth = make_gesture("hands_up_down", duration_s=40 / 30, seed=0, facing_deg=0.0).positions[:40]
+    sensors = _ring([90.0, 270.0])
+    frames = []
+    for t in range(40):
+        pos, conf = _views(truth[t], [t >= 20, False], rng, [32, 20])
+        if t >= 20:
+            pos[0, 0] += np.array([0.0, 700.0, 0.0])
+        frames.append((pos, conf))
+    max_jump_mm = SKELFUSE.max_body_speed_mm_s / 30.0
+    assert not teleported(frames[25][0], truth[24][None], max_jump_mm).any()
+    centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
+    mean_jump = np.linalg.norm(frames[25][0][0][:, centre].mean(axis=(0, 1)) - truth[24, centre].mean(axis=0))
+    assert mean_jump > max_jump_mm  # the views' mean centre did jump
+    outputs, _ = _run(SKELFUSE, frames, sensors)
+    assert all(_right(o, truth[t]) for t, o in enumerate(outputs))

@@ -71,6 +71,13 @@ class FusionParams:
     recovery_frames : int
         "temporal" only: frames in a row a clear majority of views must disagree with the anchor before the
         body follows the majority (see :func:`skelfuse.fusion.realign.realign_temporal`).
+    recovery_credit_frames : int
+        "temporal" only: the most credit a body's anchor banks, one frame per frame in which every view agreed
+        with it; a run of disagreement spends it before the recovery rule counts, and the rear-view rule waits
+        as many frames more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s at 30 fps):
+        after a second in which every view agreed, views mirrored together (a person side-on between two
+        facing sensors) keep a right anchor for up to ``30 + recovery_frames - 1`` frames; the price is that
+        a wrong start every view vouched for (all mirrored) is undone up to 30 frames later.
     recovery_share : float
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
     majority_recovery_frames : int or None
@@ -176,6 +183,7 @@ class FusionParams:
     realign: RealignMode | None = "paper"
     realign_passes: int = 2
     recovery_frames: int = 10
+    recovery_credit_frames: int = 30
     recovery_share: float = 0.75
     majority_recovery_frames: int | None = None
     max_body_speed_mm_s: float | None = None
@@ -220,6 +228,8 @@ class FusionParams:
         _one_of("kalman_output", self.kalman_output, ("predicted", "posterior"))
         if int(self.recovery_frames) < 1:
             raise ValueError(f"FusionParams.recovery_frames must be >= 1, got {self.recovery_frames!r}")
+        if int(self.recovery_credit_frames) < 0:
+            raise ValueError(f"FusionParams.recovery_credit_frames must be >= 0, got {self.recovery_credit_frames!r}")
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
             raise ValueError(
                 f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"

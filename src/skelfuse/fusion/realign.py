@@ -73,6 +73,15 @@ Two modes:
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
+        Credit: each frame in which every decided view agrees with the anchor banks one frame of credit, up to
+        ``credit_frames``; a run of disagreement spends the credit before it counts, and the rear-view rule
+        waits as many frames more as the credit holds, at most ``recovery_frames`` (:func:`recovery_count`).
+        Per instant, views mirrored together and a mirrored anchor look exactly alike: a person side-on
+        between two facing sensors with both views mirrored for a while, or a front view 31 deg off the front
+        mirrored for a few frames (it then faces away from its sensor, like a rear view that is not mirrored).
+        The history tells them apart: views that have just vouched for the anchor outweigh as long a run
+        against it. The price: a wrong start that every view vouched for (all views mirrored at the cold
+        start) is undone up to ``credit_frames`` frames later.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -109,12 +118,15 @@ Two modes:
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
-        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place; per axis the
-        median over the views that have all four) lies more than ``max_jump_mm`` from the anchor's starts
-        cold: nobody moves that far in one frame, so the anchor belongs to another pose (a looped take's
+        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place) lies more than
+        ``max_jump_mm`` from the anchor's in every view that has all four starts cold: nobody moves that far
+        in one frame, so the anchor belongs to another pose (a looped take's
         seam, which also turns the body round in one frame; a track handed to someone else), and deciding
         against it would mirror every view that is right. Without the rule such an anchor stays mirrored
-        wherever the views split 2 against 2, since recovery needs a clear majority.
+        wherever the views split 2 against 2, since recovery needs a clear majority. One view that jumps
+        alone (someone else, a tracker that lost the body, held out by the plausibility stage) is no teleport:
+        with two views, a median (their mean) moved with it, and the body started cold in every such frame,
+        where a 1-against-1 split is decided by the MEDIUM evidence alone.
 
     Returns the flip decisions and the new per-body disagreement counters; the caller keeps the counters.
 
@@ -128,7 +140,6 @@ import math
 import numpy as np
 
 from skelfuse.fusion import kernels
-from skelfuse.fusion.association import nanmedian_axis
 from skelfuse.fusion.mirror import mirror_views, pair_costs
 from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
@@ -271,6 +282,7 @@ def realign_temporal(
     sensor_positions: np.ndarray | None = None,
     rear_view_cos: float | None = None,
     rear_view_frames: int = 3,
+    credit_frames: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -282,7 +294,8 @@ def realign_temporal(
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
     streak : (B, 4) int
         Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
-        ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
+        ``recovery_share`` of the evidence, negative: the anchor's credit (:func:`recovery_count`), and
+        (column 1) more than half of it; (column 2) the most views
         that have seen the body's left/right pairs since its last cold start; (column 3) frames in a row in
         which rear views facing away disproved the anchor. All 0 for a new body (three columns are read
         as the first three, the fourth 0).
@@ -310,6 +323,10 @@ def realign_temporal(
     rear_view_frames : int
         Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
         before the body follows them (>= 1).
+    credit_frames : int
+        The most credit the anchor banks, one frame for each frame in which every decided view agreed with it
+        (>= 0; 0: none). A run of disagreement spends it before the recovery rule counts, and the rear-view
+        rule waits as many frames more as the credit holds, at most ``recovery_frames``.
 
     Returns
     -------
@@ -356,8 +373,9 @@ def realign_temporal(
         anchor = np.where(np.tile(prev_ok, 2)[..., None], anchor, np.where(use_seed, seed_pairs, static))
         margin, decided, _ = pair_votes(positions, anchor)
     flips = margin < 0.0
-    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
+    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
+        counters[:, 0] = recovery_count(streak[:, 0], False, decided.any(axis=1), credit_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
@@ -383,16 +401,21 @@ def realign_temporal(
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
+    unanimous = decided.any(axis=1) & ~flips.any(axis=1)  # every decided view agrees with the anchor
+    count = recovery_count(streak[:, 0], majority, unanimous, credit_frames)
     new_streak = np.stack(
         [
-            (streak[:, 0] + 1) * majority,
+            count if has_prev is None else count * has_prev,  # a cold start starts without credit
             (streak[:, 1] + 1) * simple,
             views_seen,
             (streak[:, 3] + 1) * disproved,
         ],
         axis=1,
     ).astype(np.int32)
-    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames)
+    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more, at
+    # most recovery_frames: a rear view facing away is stronger evidence than a majority.
+    credit = np.minimum(-np.minimum(new_streak[:, 0], 0), recovery_frames)
+    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames + credit)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
     new_streak[follow, :2] = 0
@@ -407,6 +430,16 @@ def realign_temporal(
         return positions, confidence, mirrored, new_streak
     out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
+
+
+def recovery_count(count: np.ndarray, majority: np.ndarray, unanimous: np.ndarray, credit_frames: int) -> np.ndarray:
+    """The recovery rule's counter (B,) after one frame: +1 for a frame in which a clear ``majority`` of the
+    evidence disagreed with the anchor, -1 down to ``-credit_frames`` for a frame in which every decided view
+    agreed with it (``unanimous``); any other frame ends a run of disagreement (a positive count drops to 0)
+    and keeps the credit. The body follows the majority once the count reaches the recovery frames, so an
+    anchor that every view vouched for recently outlasts that many more frames of disagreement."""
+    kept = np.minimum(count, 0)
+    return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
 
 
 def pair_votes(positions: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -458,14 +491,17 @@ def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.nda
 
 
 def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:
-    """(B,) bool: the body's centre now (mean of shoulders and hips in each view that has all four; per axis
-    the median over those views) lies more than ``max_jump_mm`` from the centre of ``previous`` (B, J, 3).
-    False where either centre is unknown."""
+    """(B,) bool: the body's centre (mean of shoulders and hips) lies more than ``max_jump_mm`` from the centre of
+    ``previous`` (B, J, 3) in every view that has all four: a jump every view makes. One view of someone else (a
+    neighbour, a tracker that lost the body) does not make the body jump. False where either centre is unknown."""
     # np.add.reduce / 4 is ndarray.mean over the four joints, without its Python-level wrapper (hot path).
     then = np.add.reduce(previous[:, _CENTRE_JOINTS], axis=1) / 4  # (B, 3), NaN unless all four are known
-    now = nanmedian_axis(np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4, axis=1)  # (B, S, 3) -> (B, 3)
-    step = now - then
-    return (step * step) @ _ONES3 > max_jump_mm * max_jump_mm  # NaN compares False
+    now = np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4  # (B, S, 3)
+    step = now - then[:, None]
+    d2 = (step * step) @ _ONES3  # (B, S), NaN where a centre is unknown
+    known = d2 == d2
+    far = d2 > max_jump_mm * max_jump_mm  # NaN compares False
+    return known.any(axis=1) & (far == known).all(axis=1)
 
 
 def _swap_pairs(
