@@ -413,7 +413,7 @@ def _realign_temporal(
         confirmed = rear_for > rear_against
         if weight > 0 and against >= params.recovery_share * weight and not confirmed:
             clear += 1
-        elif any(decided) and not any(flipped):  # every view vouches for the anchor: credit
+        elif sum(decided) >= max(views_seen, 2) and not any(flipped):  # every view vouches for the anchor: credit
             clear = max(min(clear, 0) - 1, -params.recovery_credit_frames)
         else:
             clear = min(clear, 0)

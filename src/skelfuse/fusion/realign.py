@@ -73,8 +73,9 @@ Two modes:
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
-        Credit: each frame in which every decided view agrees with the anchor banks one frame of credit, up to
-        ``credit_frames``; a run of disagreement spends the credit before it counts, and the rear-view rule
+        Credit: each frame in which every view agrees with the anchor banks one frame of credit, up to
+        ``credit_frames``, where at least two views and every view that has seen the body since its cold start
+        decided (:func:`vouched`); a run of disagreement spends the credit before it counts, and the rear-view rule
         waits as many frames more as the credit holds, at most ``recovery_frames`` (:func:`recovery_count`).
         Per instant, views mirrored together and a mirrored anchor look exactly alike: a person side-on
         between two facing sensors with both views mirrored for a while, or a front view 31 deg off the front
@@ -375,7 +376,7 @@ def realign_temporal(
     flips = margin < 0.0
     if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
-        counters[:, 0] = recovery_count(streak[:, 0], False, decided.any(axis=1), credit_frames)
+        counters[:, 0] = recovery_count(streak[:, 0], False, vouched(decided, streak[:, 2]), credit_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
@@ -401,7 +402,7 @@ def realign_temporal(
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
-    unanimous = decided.any(axis=1) & ~flips.any(axis=1)  # every decided view agrees with the anchor
+    unanimous = vouched(decided, views_seen) & ~flips.any(axis=1)
     count = recovery_count(streak[:, 0], majority, unanimous, credit_frames)
     new_streak = np.stack(
         [
@@ -440,6 +441,14 @@ def recovery_count(count: np.ndarray, majority: np.ndarray, unanimous: np.ndarra
     anchor that every view vouched for recently outlasts that many more frames of disagreement."""
     kept = np.minimum(count, 0)
     return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
+
+
+def vouched(decided: np.ndarray, views_seen: np.ndarray) -> np.ndarray:
+    """(B,) bool: enough views decided for their agreement with the anchor to earn it credit: at least two, and
+    every view that has seen the body since its cold start (``views_seen``). The views left of a body that lost
+    one (to someone else, or to the tracker) would otherwise vouch for an anchor they made themselves: a lone
+    rear view that the recovery rule followed earns the mirrored anchor credit against the front view's return."""
+    return decided.sum(axis=1) >= np.maximum(views_seen, 2)
 
 
 def pair_votes(positions: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
