@@ -303,3 +303,36 @@ def test_one_of_two_views_jumping_to_someone_else_does_not_restart_the_realignme
     assert mean_jump > max_jump_mm  # the views' mean centre did jump
     outputs, _ = _run(SKELFUSE, frames, sensors)
     assert all(_right(o, truth[t]) for t, o in enumerate(outputs))
+
+
+@pytest.mark.parametrize("gate", [True, False], ids=["skelfuse", "without plausibility gate"])
+def test_a_lone_view_left_of_a_body_earns_no_credit_for_the_anchor_it_made(gate):
+    # Two sensors, in front of (0 deg) and behind (180 deg) a person facing them: the front view is right, the
+    # rear one mirrored (as the tracker does; it then faces its own sensor, so it casts no rear-view vote), the
+    # front view holding more MEDIUM joints. Frames 20-39: the front view is gone (its tracker took a
+    # neighbour; the live node makes that a person of its own) and the lone mirrored view is followed after the
+    # recovery frames. Frames 40-47: the front view is back and the rear view stops mirroring, so it faces away
+    # from its sensor: the rear-view rule puts the body right within its frames. Were the lone view's agreement
+    # with the anchor it made counted as credit, the rule would wait 10 frames more, past frame 47, after which
+    # the views split 1 against 1 and the body would stay mirrored to the end.
+    rng = np.random.default_rng(RNG_SEED + 8)
+    truth = _skeleton(rng, 0.0)
+    sensors = _ring([0.0, 180.0])
+    frames = []
+    for t in range(70):
+        pos, conf = _views(truth, [False, not 40 <= t < 48], rng, [32, 20])
+        if 20 <= t < 40:
+            pos[0, 0] = np.nan
+            conf[0, 0] = int(Confidence.NONE)
+        frames.append((pos, conf))
+    assert facing_cosine(frames[45][0], sensors)[0, 1] < REAR["rear_view_cos"]  # the rear view votes there
+    params = SKELFUSE if gate else replace(SKELFUSE, plausibility_gate_mm=None)
+    outputs, _ = _run(params, frames, sensors)
+    right = [_right(o, truth) for o in outputs]
+    follow = 20 + params.recovery_frames - 1
+    assert all(right[:follow]) and not any(right[follow:40]), right  # the lone view is followed
+    back = 40 + params.rear_view_frames - 1
+    assert all(right[back:]), right
+    if not gate:
+        reference, _ = _run(params, frames, sensors, reference=True)
+        np.testing.assert_allclose(np.array(outputs), np.array(reference), rtol=0, atol=1e-6)
