@@ -5,7 +5,9 @@ For every joint: how far the SDK's own local X axis is from the bone skelfuse ai
 (``skelfuse.schema.skeleton.ORIENTATION_AIM``): the angle of the smallest rotation that puts it there
 ("swing"), and how far the SDK frame is from the frame built from the bones and the body alone (the fallback
 used without any view, ``ORIENTATION_HINT``). Also which quaternion component order the files really hold, and
-where the foot bone lies in the SDK's ankle frame (``ANKLE_FOOT_ANGLE_DEG``), per file.
+where the foot bone lies in the SDK's ankle frame (``ANKLE_FOOT_ANGLE_DEG``), per file, and per file the one
+rotation that best puts the joints' frames on their own bones (a file whose orientations were mapped into another
+frame by another rotation than its positions shows it as a constant offset).
 
     python scripts/measure_orientation_convention.py [DATA_DIR]
 
@@ -20,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skelfuse.calibration.rigid import fit_rigid, rotation_angle_deg
 from skelfuse.fusion.orientation import (
     aim_directions,
     apply_derived,
@@ -29,6 +32,7 @@ from skelfuse.fusion.orientation import (
     quat_rotate,
     swing_onto_aims,
 )
+from skelfuse.retarget.rotations import kabsch
 from skelfuse.schema.skeleton import ANKLE_FOOT_ANGLE_DEG, JOINT_NAMES, ORIENTATION_AIMED, Confidence, J
 from skelfuse.sources.recorded import load_andyj1_csv
 
@@ -39,6 +43,15 @@ FILES = (
     "extrinsic_calculation/joints_sync_1.csv",
     "extrinsic_calculation/joints_sync_2.csv",
 )
+OFFSET_FILES = (*FILES, "extrinsic_calculation/joints_sync_tf.csv")
+# Joints whose X lies on a bone the tracker holds well (LOW or better in most frames): no hands, thumbs or ankles.
+OFFSET_JOINTS = [
+    J[name]
+    for name in (
+        "PELVIS SPINE_NAVEL SPINE_CHEST NECK CLAVICLE_LEFT SHOULDER_LEFT ELBOW_LEFT CLAVICLE_RIGHT SHOULDER_RIGHT "
+        "ELBOW_RIGHT HIP_LEFT KNEE_LEFT HIP_RIGHT KNEE_RIGHT"
+    ).split()
+]
 
 
 def main(argv: list[str]) -> int:
@@ -92,6 +105,7 @@ def main(argv: list[str]) -> int:
             f"          {np.median(h):6.1f} {np.percentile(h, 90):6.1f}"
         )
     print_ankle_frames(data)
+    print_frame_offsets(data)
     return 0
 
 
@@ -116,6 +130,41 @@ def print_ankle_frames(data: Path) -> None:
                 f"{name:41s} {side:6s} {np.median(angle):8.2f} ({angle.min():7.2f}..{angle.max():7.2f})"
                 f"          {np.abs(local[:, 2]).max():5.3f}   {np.median(off):4.1f} ({off.min():.1f}..{off.max():.1f})"
             )
+
+
+def print_frame_offsets(data: Path) -> None:
+    """Per file: the one rotation R that best puts the bones on the SDK X axes of the torso, arm and leg joints
+    (``x ~ R bone`` over every joint and frame), its angle and axis; the median angle of X off its bone before and
+    after R; and how far each frame's own best rotation lies from R. For the mapped file of the two-camera take,
+    the rotation that maps the subordinate's positions onto it (its orientations are the subordinate's own)."""
+    print("\nOne rotation between each file's joint frames and its bones (torso, arms to the elbow, legs to the knee):")
+    print(f"{'file':41s} angle  axis (file frame)        X off bone: before  after   per frame")
+    offsets = {}
+    for name in OFFSET_FILES:
+        rec = load_andyj1_csv(data / name)
+        p, q = rec.positions[:, 0].astype(np.float64), rec.orientations[:, 0].astype(np.float64)
+        x_axis = quat_rotate(q / np.linalg.norm(q, axis=-1, keepdims=True), np.array([1.0, 0.0, 0.0]))[:, OFFSET_JOINTS]
+        bone = aim_directions(p)[:, OFFSET_JOINTS]
+        ok = np.isfinite(x_axis).all(axis=-1) & np.isfinite(bone).all(axis=-1)
+        R = offsets[name] = kabsch(bone[ok], x_axis[ok], np.ones(int(ok.sum())))
+        per_frame = kabsch(bone, x_axis, ok.astype(float))
+        drift = [rotation_angle_deg(f @ R.T) for f, n in zip(per_frame, ok.sum(axis=1), strict=True) if n >= 6]
+        before = np.degrees(np.arccos(np.clip(np.sum(x_axis * bone, -1)[ok], -1, 1)))
+        after = np.degrees(np.arccos(np.clip(np.sum(x_axis * (bone @ R.T), -1)[ok], -1, 1)))
+        axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+        axis = axis / max(np.linalg.norm(axis), 1e-12)
+        print(
+            f"{name:41s} {rotation_angle_deg(R):5.2f}  ({axis[0]:+.2f}, {axis[1]:+.2f}, {axis[2]:+.2f})"
+            f"          {np.median(before):5.2f}  {np.median(after):5.2f}   {np.median(drift):.2f} median"
+        )
+    own = load_andyj1_csv(data / "extrinsic_calculation/joints_sync_2.csv").positions[:, 0].reshape(-1, 3)
+    mapped = load_andyj1_csv(data / "extrinsic_calculation/joints_sync_tf.csv").positions[:, 0].reshape(-1, 3)
+    fit = fit_rigid(own.astype(np.float64), mapped.astype(np.float64))
+    offset = offsets["extrinsic_calculation/joints_sync_tf.csv"]
+    print(
+        f"joints_sync_2 -> joints_sync_tf: positions rotated {rotation_angle_deg(fit.R):.2f} deg (rigid fit), "
+        f"orientations unchanged; the file's offset undoes it to {rotation_angle_deg(offset @ fit.R):.2f} deg"
+    )
 
 
 if __name__ == "__main__":
