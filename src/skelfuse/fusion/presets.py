@@ -73,8 +73,9 @@ class FusionParams:
         body follows the majority (see :func:`skelfuse.fusion.realign.realign_temporal`).
     recovery_credit_frames : int
         "temporal" only: the most credit a body's anchor banks, one frame per frame in which every view agreed
-        with it; a run of disagreement spends it before the recovery rule counts, and the rear-view rule waits
-        as many frames more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s at 30 fps):
+        with it (at least two views, and every view that has seen the body since its cold start); a run of
+        disagreement spends it before the recovery rule counts, and the rear-view rule waits as many frames
+        more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s at 30 fps):
         after a second in which every view agreed, views mirrored together (a person side-on between two
         facing sensors) keep a right anchor for up to ``30 + recovery_frames - 1`` frames; the price is that
         a wrong start every view vouched for (all mirrored) is undone up to 30 frames later.
