@@ -7,19 +7,24 @@ For every joint: how far the SDK's own local X axis is from the bone skelfuse ai
 used without any view, ``ORIENTATION_HINT``). Also which quaternion component order the files really hold, and
 where the foot bone lies in the SDK's ankle frame (``ANKLE_FOOT_ANGLE_DEG``), per file.
 
-    python scripts/measure_orientation_convention.py [DATA_DIR]
+    python scripts/measure_orientation_convention.py [DATA_DIR] [--json]
 
-DATA_DIR defaults to ../shared/data/azure-kinect-andyj1 (relative to the repository root).
+DATA_DIR defaults to ../shared/data/azure-kinect-andyj1 (relative to the repository root). ``--json`` prints the
+measurements with the run's stamp (docs/evidence.md, "Orientations", renders them with :func:`format_markdown`).
 """
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp
 from skelfuse.fusion.orientation import (
     aim_directions,
     apply_derived,
@@ -41,12 +46,8 @@ FILES = (
 )
 
 
-def main(argv: list[str]) -> int:
-    root = Path(__file__).resolve().parents[1]
-    data = Path(argv[1]) if len(argv) > 1 else root.parent / "shared" / "data" / "azure-kinect-andyj1"
-    if not data.is_dir():
-        print(f"no andyj1 data at {data}; pass its folder as the first argument", file=sys.stderr)
-        return 2
+def measure(data: Path) -> dict[str, Any]:
+    """The component order, each joint's swing and body-hint angles to the SDK frame, and the ankle frames."""
     positions, stored, confidence = [], [], []
     for name in FILES:
         rec = load_andyj1_csv(data / name)
@@ -58,48 +59,38 @@ def main(argv: list[str]) -> int:
     # order this script measures): every permutation of them is tried below.
     columns = np.concatenate(stored)
     conf = np.concatenate(confidence)
-    print(f"{p.shape[0]} frames from {len(FILES)} files in {data}")
-
     aims = aim_directions(p)
-    print("\nWhich component order holds w, x, y, z? Mean |cos| between the SDK X axis and the aim bone:")
-    best = None
+    scores = {}
     for order in itertools.permutations(range(4)):
         q = columns[..., list(order)]
         x_axis = quat_rotate(q / np.linalg.norm(q, axis=-1, keepdims=True), np.array([1.0, 0.0, 0.0]))
-        score = float(np.nanmean(np.abs(np.sum(x_axis * aims, axis=-1))[:, ORIENTATION_AIMED]))
-        if best is None or score > best[0]:
-            best = (score, order)
-        if order in ((0, 1, 2, 3), (3, 0, 1, 2)):
-            label = "file columns read as w,x,y,z" if order == (0, 1, 2, 3) else "as the header says (x,y,z,w)"
-            print(f"  {label}: {score:.3f}")
-    print(f"  best order {best[1]}: {best[0]:.3f}")
-    sdk = columns[..., list(best[1])]
-
-    swung = apply_derived(swing_onto_aims(sdk, aims))
-    hinted = apply_derived(body_hint_frames(p))
-    swing = quat_angle_deg(sdk, swung)
-    hint = quat_angle_deg(sdk, hinted)
-    print("\njoint            n   swing to our bone (deg)   bones + body hint (deg)")
-    print("                     median    p90            median    p90")
+        scores["".join(map(str, order))] = float(
+            np.nanmean(np.abs(np.sum(x_axis * aims, axis=-1))[:, ORIENTATION_AIMED])
+        )
+    best = max(scores, key=scores.__getitem__)
+    sdk = columns[..., [int(c) for c in best]]
+    swing = quat_angle_deg(sdk, apply_derived(swing_onto_aims(sdk, aims)))
+    hint = quat_angle_deg(sdk, apply_derived(body_hint_frames(p)))
+    joints = {}
     for j, name in enumerate(JOINT_NAMES):
         seen = (conf[:, j] >= int(Confidence.LOW)) & np.isfinite(swing[:, j])
-        if not seen.any():
-            print(f"{name:14s} {0:5d}")
-            continue
         s, h = swing[seen, j], hint[seen, j]
-        print(
-            f"{name:14s} {seen.sum():5d}   {np.median(s):6.1f} {np.percentile(s, 90):6.1f}"
-            f"          {np.median(h):6.1f} {np.percentile(h, 90):6.1f}"
+        joints[name] = {"n": int(seen.sum())} | (
+            {"swing": _median_p90(s), "hint": _median_p90(h)} if seen.any() else {}
         )
-    print_ankle_frames(data)
-    return 0
+    return {"data": str(data), "files": list(FILES), "frames": int(p.shape[0]), "order_scores": scores,
+            "best_order": best, "joints": joints, "ankles": ankle_frames(data),
+            "ankle_foot_angle_deg": ANKLE_FOOT_ANGLE_DEG}  # fmt: skip
 
 
-def print_ankle_frames(data: Path) -> None:
+def _median_p90(values: np.ndarray) -> list[float]:
+    return [float(np.median(values)), float(np.percentile(values, 90))]
+
+
+def ankle_frames(data: Path) -> list[dict[str, Any]]:
     """Per file and ankle: the foot bone's angle about the SDK ankle frame's Z from its X (median, range), how far
     the foot leaves the frame's XY plane, and how far the frame's X lies off the shin (the ankle's flexion)."""
-    print(f"\nThe foot bone in the SDK's ankle frame (schema ANKLE_FOOT_ANGLE_DEG: {ANKLE_FOOT_ANGLE_DEG}):")
-    print("file                                      ankle   angle about Z (median, min..max)  |z| max  X off shin")
+    rows = []
     for name in FILES:
         rec = load_andyj1_csv(data / name)
         p = rec.positions[:, 0].astype(np.float64)
@@ -112,11 +103,71 @@ def print_ankle_frames(data: Path) -> None:
             shin = sign * (p[:, ankle] - p[:, knee])
             shin /= np.linalg.norm(shin, axis=-1, keepdims=True)
             off = np.degrees(np.arccos(np.clip(np.sum(quat_rotate(q[:, ankle], [1.0, 0, 0]) * shin, -1), -1, 1)))
-            print(
-                f"{name:41s} {side:6s} {np.median(angle):8.2f} ({angle.min():7.2f}..{angle.max():7.2f})"
-                f"          {np.abs(local[:, 2]).max():5.3f}   {np.median(off):4.1f} ({off.min():.1f}..{off.max():.1f})"
-            )
+            rows.append({"file": name, "ankle": side, "angle_deg": [float(np.median(angle)), float(angle.min()),
+                         float(angle.max())], "off_plane_max": float(np.abs(local[:, 2]).max()),
+                         "off_shin_deg": [float(np.median(off)), float(off.min()), float(off.max())]})  # fmt: skip
+    return rows
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The component order, the per-joint angles and the ankle frames as markdown tables."""
+    scores, best = result["order_scores"], result["best_order"]
+    constant = ", ".join(f"{name.split('_')[1].lower()} {deg}" for name, deg in result["ankle_foot_angle_deg"].items())
+    lines = [
+        f"{result['frames']} frames from {len(result['files'])} files ({', '.join(result['files'])}).",
+        "",
+        "Which quaternion component order holds w, x, y, z (mean |cos| between the SDK's X axis and the bone "
+        f"skelfuse aims it along): the file's columns read as w, x, y, z {scores['0123']:.3f}; as the header says "
+        f"(x, y, z, w) {scores['3012']:.3f}; the best order ({', '.join(best)}) {scores[best]:.3f}.",
+        "",
+        "Each joint's SDK frame against skelfuse's, degrees (median / p90): the smallest rotation that puts its X on "
+        "the bone skelfuse aims it along (swing), and the frame built from the bones and the body alone (hint).",
+        "",
+        "| joint | frames | swing to the bone | bones + body hint |",
+        "|---|---:|---|---|",
+    ]
+    for name, row in result["joints"].items():
+        cells = [f"{row[k][0]:.1f} / {row[k][1]:.1f}" for k in ("swing", "hint")] if "swing" in row else ["—", "—"]
+        lines.append(f"| {name} | {row['n']} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"The foot bone in the SDK's ankle frame (the schema's `ANKLE_FOOT_ANGLE_DEG`: {constant}): its angle "
+        "about Z from X (median, min..max), its largest |z| (off the frame's XY plane, unit bone), and how far the "
+        "frame's X lies off the shin (median, min..max):",
+        "",
+        "| file | ankle | angle about Z, deg | off the plane | X off the shin, deg |",
+        "|---|---|---|---:|---|",
+    ]
+    for row in result["ankles"]:
+        a, o = row["angle_deg"], row["off_shin_deg"]
+        lines.append(
+            f"| {row['file']} | {row['ankle'].lower()} | {a[0]:.2f} ({a[1]:.2f}..{a[2]:.2f}) | "
+            f"{row['off_plane_max']:.3f} | {o[0]:.1f} ({o[1]:.1f}..{o[2]:.1f}) |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    root = Path(__file__).resolve().parents[1]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", nargs="?", type=Path, default=root.parent / "shared" / "data" / "azure-kinect-andyj1")
+    parser.add_argument("--json", action="store_true", help="print the measurements as JSON, stamped")
+    args = parser.parse_args(argv)
+    args.stamp = (
+        RunStamp.begin(sys.argv[1:], program=("python", "scripts/measure_orientation_convention.py"))
+        if args.json
+        else None
+    )
+    if not args.data.is_dir():
+        print(f"no andyj1 data at {args.data}; pass its folder as the first argument", file=sys.stderr)
+        return 2
+    result = measure(args.data)
+    if args.json:
+        print_json(result, args)
+    else:
+        print(format_markdown(result))
+    return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv))
+    raise SystemExit(main())

@@ -10,15 +10,19 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
 ``record`` runs nothing but the commands listed in RECORDS (NAME: demo, paper, robustness, mirroring, sim-check,
-real, speed, soak); ``write`` and ``check`` run no command. tests/unit/test_evidence_page.py checks the page as
-``check`` does, so a hand edit of a block fails. ``--quick`` records a tiny configuration under --store (to try the
-plumbing; never into docs/evidence/). Paths under the repository root are stored relative to it, so the stored
-results do not depend on where the checkout lives.
+real, plausibility, smoothing, orientations, retargeting, speed, soak; a command is skelfuse's, or one of
+scripts/ whose ``--json`` output its own ``format_markdown`` renders); ``write`` and ``check`` run no command.
+tests/unit/test_evidence_page.py checks the page as ``check`` does, so a hand edit of a block fails.
+``--quick`` records a tiny configuration under --store (to try the plumbing; never into docs/evidence/). Paths
+under the repository root are stored relative to it, so the stored results do not depend on where the checkout
+lives.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib.util
 import json
 import re
 import subprocess
@@ -26,21 +30,25 @@ import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "evidence.md"
 STORE = ROOT / "docs" / "evidence"
 SKELFUSE = (sys.executable, "-m", "skelfuse")
-SOAK = (sys.executable, "scripts/soak_hostile.py")
 DATA = "../shared/data"
 """The shared real recordings, named relative to the repository root as the commands' defaults find them."""
 
 _SMALL_ROBUSTNESS = ["--seeds", "3", "--duration", "5", "--json", "-q"]
 _INSTANT = ["bench", "instant", "--cases", "4x1", "16x6", "--rounds", "3", "--json"]
 _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
-# The two-bases run is recorded at a reduced size (3 seeds of 5 s takes instead of 6 of 10 s, a quarter of the
-# CPU time); every other run at the command's default size.
+# A record's arguments are skelfuse's, or a script's (first argument ``scripts/NAME.py``, run by this Python;
+# ``{out}``: the file a script writes its JSON to, where it does not print it). Sizes: the two-bases run is
+# recorded at 3 seeds of 5 s takes instead of 6 of 10 s (a quarter of the CPU time); plausibility at 3 seeds per
+# world and rig size (27 takes of 10 s); smoothing at 6 training and 6 held-out seeds of 10 s (12 takes); the
+# per-joint orientation error at its default 4 takes of 4 s; retargeting at 6 gestures of 10 s plus the real
+# take; the orientation convention reads the five real files once. Every other run has the command's default size.
 RECORDS: dict[str, dict[str, list[str]]] = {
     "demo": {"demo": ["demo", "--duration", "10", "--json"]},
     "paper": {"paper": ["eval", "paper", "--json", "--no-files", "-q"]},
@@ -51,6 +59,28 @@ RECORDS: dict[str, dict[str, list[str]]] = {
     },
     "sim-check": {"sim-check": ["sim", "check", "--data", DATA, "--json", "-q"]},
     "real": {"real": ["eval", "real", "--json"]},
+    "plausibility": {"plausibility": ["scripts/plausibility_rates.py", "--seeds", "1000", "1001", "1002", "--json"]},
+    "smoothing": {
+        "smoothing": [
+            "scripts/smoothing_targets.py",
+            *("--held-out", "1000", "1001", "1002", "1003", "1004", "1005", "--json"),
+        ]
+    },
+    "orientations": {
+        "orientation-convention": ["scripts/measure_orientation_convention.py", "--json"],
+        "orientation-joints": [
+            "scripts/orientation_error_by_joint.py",
+            "--regions",
+            "arm",
+            "hand",
+            "knee",
+            "foot",
+            "--json",
+        ],
+    },
+    "retargeting": {
+        "retargeting": ["scripts/retargeting_error.py", "--data", DATA, "--duration", "10", "--json"],
+    },
     "speed": {
         "speed-instant": _INSTANT,
         "speed-instant-paced": [*_INSTANT, "--paced"],
@@ -59,7 +89,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
         "speed-latency-people": [*_LATENCY, "--sensors", "8", "--people", "6"],
         "speed-latency-crowd": [*_LATENCY, "--sensors", "8", "--people", "16", "--no-sweep"],  # a classroom: overload
     },
-    "soak": {"soak": ["--minutes", "60", "--nice", "-10", "--json", "{out}"]},
+    "soak": {"soak": ["scripts/soak_hostile.py", "--minutes", "60", "--nice", "-10", "--json", "{out}"]},
 }
 """NAME -> stored file stem -> the command's arguments (skelfuse's, or the soak script's for ``soak``)."""
 
@@ -77,7 +107,24 @@ QUICK: dict[str, dict[str, list[str]]] = {
         "speed-instant": ["bench", "instant", "--cases", "2x1", "--frames", "20", "--rounds", "1", "--json"],
         "speed-latency": ["bench", "latency", "--sensors", "2", "--duration", "1", "--no-sweep", "--json"],
     },
-    "soak": {"soak": ["--minutes", "0.5", "--sensors", "3", "--adversary-hz", "50", "--json", "{out}"]},
+    "plausibility": {
+        "plausibility": ["scripts/plausibility_rates.py", "--seeds", "1000", "--sensors", "2", "--json"],
+    },
+    "smoothing": {
+        "smoothing": ["scripts/smoothing_targets.py", "--training", "--held-out", "1002", "--duration", "3", "--json"],
+    },
+    "orientations": {
+        "orientation-convention": RECORDS["orientations"]["orientation-convention"],
+        "orientation-joints": ["scripts/orientation_error_by_joint.py", "--duration", "1", "--json"],
+    },
+    "retargeting": {"retargeting": ["scripts/retargeting_error.py", "--duration", "2", "--json"]},
+    "soak": {
+        "soak": [
+            "scripts/soak_hostile.py",
+            *("--minutes", "0.5", "--sensors", "3", "--adversary-hz", "50", "--json"),
+            "{out}",
+        ],
+    },
 }
 """Tiny configurations of the same commands, to try ``record`` end to end in seconds."""
 
@@ -90,12 +137,26 @@ def record(name: str, store: Path, table: dict[str, dict[str, list[str]]] = RECO
     store.mkdir(parents=True, exist_ok=True)
     written = []
     for stem, args in table[name].items():
-        result = _run_soak(args) if name == "soak" else _run_skelfuse(args)
+        result = _run_to_file(args) if "{out}" in args else _run_printing(args)
         path = store / f"{stem}.json"
         path.write_text(json.dumps(_relative_paths(result), indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
         print(f"stored {path}", file=sys.stderr)
         written.append(path)
     return written
+
+
+def stamped_command(args: list[str]) -> list[str]:
+    """The command line a record's own stamp names: ``skelfuse ARGS`` or ``python scripts/NAME.py ARGS``."""
+    program = ["python"] if _is_script(args) else ["skelfuse"]
+    return [*program, *(a.replace("{out}", "OUT.json") for a in args)]
+
+
+def _is_script(args: list[str]) -> bool:
+    return bool(args) and args[0].startswith("scripts/") and args[0].endswith(".py")
+
+
+def _command(args: list[str]) -> list[str]:
+    return [sys.executable, *args] if _is_script(args) else [*SKELFUSE, *args]
 
 
 def uncommitted_changes() -> list[str]:
@@ -107,22 +168,25 @@ def uncommitted_changes() -> list[str]:
     return [line for line in done.stdout.splitlines() if not line[3:].startswith("docs/evidence")]
 
 
-def _run_skelfuse(args: list[str]) -> dict[str, Any]:
-    command = [*SKELFUSE, *args]
+def _run_printing(args: list[str]) -> dict[str, Any]:
+    """A command that prints its JSON on stdout."""
+    command = _command(args)
     print("running: " + " ".join(command), file=sys.stderr)
     done = subprocess.run(command, check=True, stdout=subprocess.PIPE, text=True, cwd=ROOT)
     return json.loads(done.stdout)
 
 
-def _run_soak(args: list[str]) -> dict[str, Any]:
+def _run_to_file(args: list[str]) -> dict[str, Any]:
+    """A command that writes its JSON to the file ``{out}`` names (the soak: exit 1 = instants lost, still a
+    result)."""
     with tempfile.TemporaryDirectory() as folder:
-        out = Path(folder) / "soak.json"
-        command = [*SOAK, *(a.replace("{out}", str(out)) for a in args)]
+        out = Path(folder) / "result.json"
+        command = [a.replace("{out}", str(out)) for a in _command(args)]
         print("running: " + " ".join(command), file=sys.stderr)
-        subprocess.run(command, check=False, stdout=sys.stderr, cwd=ROOT)  # exit 1 = instants lost: still a result
+        subprocess.run(command, check=False, stdout=sys.stderr, cwd=ROOT)
         result = json.loads(out.read_text(encoding="utf-8"))
     result["stamp"]["command"] = result["stamp"]["command"].replace(str(out), "OUT.json")
-    result.pop("windows", None)  # per-10 s detail: in the script's own output, too long to store
+    result.pop("windows", None)  # the soak's per-10 s detail: in the script's own output, too long to store
     return result
 
 
@@ -293,6 +357,27 @@ def render_latency(result: dict[str, Any]) -> str:
     return latency.format_table(latency.LatencyResult.from_dict({k: v for k, v in result.items() if k != "stamp"}))
 
 
+def render_script(result: dict[str, Any], script: str) -> str:
+    """A script's result, rendered by the script's own ``format_markdown`` (the table it prints without --json)."""
+    return _script_module(script).format_markdown({k: v for k, v in result.items() if k != "stamp"})
+
+
+def _script_module(script: str) -> ModuleType:
+    """``scripts/NAME.py`` imported as a module (scripts are not a package)."""
+    name = "skelfuse_script_" + Path(script).stem
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, ROOT / script)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+def _by_script(script: str) -> Callable[[dict[str, Any]], str]:
+    return functools.partial(render_script, script=script)
+
+
 SOAK_FIGURES = (
     ("sensors", "sensors"),
     ("minutes", "minutes"),
@@ -330,6 +415,15 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     "bench-latency": ("speed", "speed-latency", render_latency),
     "bench-latency-people": ("speed", "speed-latency-people", render_latency),
     "bench-latency-crowd": ("speed", "speed-latency-crowd", render_latency),
+    "plausibility": ("plausibility", "plausibility", _by_script("scripts/plausibility_rates.py")),
+    "smoothing": ("smoothing", "smoothing", _by_script("scripts/smoothing_targets.py")),
+    "orientation-convention": (
+        "orientations",
+        "orientation-convention",
+        _by_script("scripts/measure_orientation_convention.py"),
+    ),
+    "orientation-joints": ("orientations", "orientation-joints", _by_script("scripts/orientation_error_by_joint.py")),
+    "retargeting": ("retargeting", "retargeting", _by_script("scripts/retargeting_error.py")),
     "soak": ("soak", "soak", render_soak),
 }
 """Block name on the page -> (record NAME, stored file stem, renderer)."""
