@@ -270,7 +270,27 @@ def render_paper(paper: dict[str, Any]) -> str:
     for name, result in scenarios.items():
         best = result["best_view_vs_truth"]
         lines.append(f"- {name}: " + " / ".join(fmt(best[g]["rmse_mm"], 0) for g in GROUP_NAMES))
-    return "\n".join(lines)
+    return "\n".join([*lines, *_paper_orientation_table(scenarios)])
+
+
+def _paper_orientation_table(scenarios: dict[str, Any]) -> list[str]:
+    """The fused orientations' angle to the true ones beside each capture view's (``orientation_error_deg``)."""
+    from skelfuse.eval.paper_plan import GROUP_NAMES
+    from skelfuse.eval.report_files import fmt
+
+    lines = [
+        "",
+        "Orientations against the simulator's true ones (angle of the rotation between them, degrees, median / p90, "
+        "torso / upper limb / lower limb; the simulated tracker's orientation noise is a model, docs/orientations.md):",
+        "",
+        "| scenario | output | torso | upper limb | lower limb |",
+        "|---|---|---|---|---|",
+    ]
+    for name, result in scenarios.items():
+        for output, groups in result.get("orientation_error_deg", {}).items():
+            cells = [f"{fmt(groups[g]['median_deg'], 1)} / {fmt(groups[g]['p90_deg'], 1)}" for g in GROUP_NAMES]
+            lines.append(f"| {name} | {output} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _paper_table(
@@ -429,25 +449,52 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
 """Block name on the page -> (record NAME, stored file stem, renderer)."""
 
 
+def render_demo_accuracy(result: dict[str, Any]) -> str:
+    """The README's line of demo figures: the fused error against the best single sensor's, and its command."""
+    fused, best = result["error_fused_mm"], result["error_best_single_sensor_mm"]
+    return (
+        f"**{fused['all16']:.1f} mm** mean error over the 16 evaluation joints, against {best['all16']:.1f} mm for "
+        f"the best single sensor (`{result['stamp']['command']}`)."
+    )
+
+
+GUIDE_BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
+    "demo-accuracy": ("demo", "demo", render_demo_accuracy),
+}
+"""Blocks inside a guide (README.md): a sentence that names its command; the stamp is on docs/evidence.md."""
+
+PAGES: dict[Path, dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]]] = {
+    PAGE: BLOCKS,
+    ROOT / "README.md": GUIDE_BLOCKS,
+}
+"""Every page with generated blocks -> the blocks it holds (each exactly once)."""
+
+
 def render_block(block: str, store: Path = STORE) -> str:
-    """A block's text: the stamp, then the table, or how to record it where nothing is stored."""
-    name, stem, render = BLOCKS[block]
+    """A block's text: the stamp, then the table (a guide's block: its sentence alone), or how to record it where
+    nothing is stored."""
+    name, stem, render = GUIDE_BLOCKS[block] if block in GUIDE_BLOCKS else BLOCKS[block]
     result = load(stem, store)
     if result is None:
         return f"Not recorded: `python scripts/update_doc_tables.py record {name}` stores {stem}.json."
+    if block in GUIDE_BLOCKS:
+        return render(result).rstrip()
     return stamp_line(result) + "\n\n" + render(result).rstrip()
 
 
 MARKERS = re.compile(r"<!-- generated: (?P<name>[\w-]+) -->\n(?P<body>.*?)<!-- end generated: (?P=name) -->\n?", re.S)
 
 
-def render_page(text: str, store: Path = STORE) -> str:
-    """``text`` (docs/evidence.md) with every generated block rendered from the stored results."""
+def render_page(text: str, store: Path = STORE, page: Path = PAGE) -> str:
+    """``text`` (``page``, docs/evidence.md by default) with every generated block rendered from the stored
+    results."""
     found = [m.group("name") for m in MARKERS.finditer(text)]
-    unknown = sorted(set(found) - set(BLOCKS))
-    missing = sorted(set(BLOCKS) - set(found))
+    unknown = sorted(set(found) - set(PAGES[page]))
+    missing = sorted(set(PAGES[page]) - set(found))
     if unknown or missing:
-        raise ValueError(f"docs/evidence.md: blocks without a renderer {unknown}, renderers without a block {missing}")
+        raise ValueError(
+            f"{page.relative_to(ROOT)}: blocks without a renderer {unknown}, renderers without a block {missing}"
+        )
     return MARKERS.sub(
         lambda m: (
             f"<!-- generated: {m['name']} -->\n{render_block(m['name'], store)}\n<!-- end generated: {m['name']} -->\n"
@@ -456,9 +503,9 @@ def render_page(text: str, store: Path = STORE) -> str:
     )
 
 
-def stale_blocks(text: str, store: Path = STORE) -> list[str]:
-    """Names of the blocks in ``text`` that differ from what the stored results render."""
-    expected = {m["name"]: m["body"] for m in MARKERS.finditer(render_page(text, store))}
+def stale_blocks(text: str, store: Path = STORE, page: Path = PAGE) -> list[str]:
+    """Names of the blocks in ``text`` (``page``) that differ from what the stored results render."""
+    expected = {m["name"]: m["body"] for m in MARKERS.finditer(render_page(text, store, page))}
     return [m["name"] for m in MARKERS.finditer(text) if m["body"] != expected[m["name"]]]
 
 
@@ -469,7 +516,7 @@ def main(argv: list[str] | None = None) -> int:
     rec.add_argument("name", choices=list(RECORDS))
     rec.add_argument("--quick", action="store_true", help="a tiny configuration (needs --store outside docs/)")
     rec.add_argument("--store", type=Path, default=STORE, help="where to store the JSON (default: docs/evidence)")
-    write = modes.add_parser("write", help="render every block of docs/evidence.md from the stored JSON")
+    write = modes.add_parser("write", help="render every block (docs/evidence.md, README.md) from the stored JSON")
     check = modes.add_parser("check", help="exit 1 if a block differs from what the stored JSON renders")
     for sub in (write, check):
         sub.add_argument("--store", type=Path, default=STORE, help="the stored JSON (default: docs/evidence)")
@@ -482,15 +529,17 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("commit first: the stamp names the commit, and the tree has uncommitted changes")
         record(args.name, args.store, QUICK if args.quick else RECORDS)
         return 0
-    text = PAGE.read_text(encoding="utf-8")
-    if args.mode == "check":
-        stale = stale_blocks(text, args.store)
-        for name in stale:
-            print(f"docs/evidence.md: block {name!r} differs from its stored result", file=sys.stderr)
-        return 1 if stale else 0
-    PAGE.write_text(render_page(text, args.store), encoding="utf-8")
-    print(f"wrote {PAGE.relative_to(ROOT)}", file=sys.stderr)
-    return 0
+    stale = []
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        if args.mode == "check":
+            stale += [f"{page.relative_to(ROOT)}: block {name!r}" for name in stale_blocks(text, args.store, page)]
+            continue
+        page.write_text(render_page(text, args.store, page), encoding="utf-8")
+        print(f"wrote {page.relative_to(ROOT)}", file=sys.stderr)
+    for block in stale:
+        print(f"{block} differs from its stored result", file=sys.stderr)
+    return 1 if stale else 0
 
 
 if __name__ == "__main__":
