@@ -10,7 +10,7 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
 ``record`` runs nothing but the commands listed in RECORDS (NAME: demo, paper, robustness, mirroring, sim-check,
-real, plausibility, smoothing, orientations, retargeting, speed, soak; a command is skelfuse's, or one of
+real, plausibility, smoothing, orientations, retargeting, rear-views, speed, soak; a command is skelfuse's, or one of
 scripts/ whose ``--json`` output its own ``format_markdown`` renders); ``write`` and ``check`` run no command.
 tests/unit/test_evidence_page.py checks the page as ``check`` does, so a hand edit of a block fails.
 ``--quick`` records a tiny configuration under --store (to try the plumbing; never into docs/evidence/). Paths
@@ -48,7 +48,8 @@ _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 # recorded at 3 seeds of 5 s takes instead of 6 of 10 s (a quarter of the CPU time); plausibility at 3 seeds per
 # world and rig size (27 takes of 10 s); smoothing at 6 training and 6 held-out seeds of 10 s (12 takes); the
 # per-joint orientation error at its default 4 takes of 4 s; retargeting at 6 gestures of 10 s plus the real
-# take; the orientation convention reads the five real files once. Every other run has the command's default size.
+# take; the rear-view signal at 10 seeds (150 takes of 10 s, simulated only, no fusion); the orientation convention
+# reads the five real files once. Every other run has the command's default size.
 RECORDS: dict[str, dict[str, list[str]]] = {
     "demo": {"demo": ["demo", "--duration", "10", "--json"]},
     "paper": {"paper": ["eval", "paper", "--json", "--no-files", "-q"]},
@@ -80,6 +81,12 @@ RECORDS: dict[str, dict[str, list[str]]] = {
     },
     "retargeting": {
         "retargeting": ["scripts/retargeting_error.py", "--data", DATA, "--duration", "10", "--json"],
+    },
+    "rear-views": {
+        "rear-views": [
+            "scripts/measure_rear_view_signal.py",
+            *("baseline", "side_flips", "close_people", "mixture", "lying", "--seeds", "10", "--json"),
+        ],
     },
     "speed": {
         "speed-instant": _INSTANT,
@@ -118,6 +125,7 @@ QUICK: dict[str, dict[str, list[str]]] = {
         "orientation-joints": ["scripts/orientation_error_by_joint.py", "--duration", "1", "--json"],
     },
     "retargeting": {"retargeting": ["scripts/retargeting_error.py", "--duration", "2", "--json"]},
+    "rear-views": {"rear-views": ["scripts/measure_rear_view_signal.py", "baseline", "--seeds", "1", "--json"]},
     "soak": {
         "soak": [
             "scripts/soak_hostile.py",
@@ -444,6 +452,7 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     ),
     "orientation-joints": ("orientations", "orientation-joints", _by_script("scripts/orientation_error_by_joint.py")),
     "retargeting": ("retargeting", "retargeting", _by_script("scripts/retargeting_error.py")),
+    "rear-views": ("rear-views", "rear-views", _by_script("scripts/measure_rear_view_signal.py")),
     "soak": ("soak", "soak", render_soak),
 }
 """Block name on the page -> (record NAME, stored file stem, renderer)."""
