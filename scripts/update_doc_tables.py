@@ -10,9 +10,10 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
 ``record`` runs nothing but the commands listed in RECORDS (NAME: demo, paper, robustness, mirroring, sim-check,
-real, plausibility, smoothing, orientations, retargeting, rear-views, speed, soak; a command is skelfuse's, or one of
-scripts/ whose ``--json`` output its own ``format_markdown`` renders); ``write`` and ``check`` run no command.
-tests/unit/test_evidence_page.py checks the page as ``check`` does, so a hand edit of a block fails.
+real, plausibility, smoothing, orientations, retargeting, rear-views, speed, depth, soak; a command is
+skelfuse's, or one of scripts/ whose ``--json`` output its own ``format_markdown`` renders); ``write`` and
+``check`` run no command. tests/unit/test_evidence_page.py checks the pages as ``check`` does, so a hand edit of
+a block fails.
 ``--quick`` records a tiny configuration under --store (to try the plumbing; never into docs/evidence/). Paths
 under the repository root are stored relative to it, so the stored results do not depend on where the checkout
 lives.
@@ -96,6 +97,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
         "speed-latency-people": [*_LATENCY, "--sensors", "8", "--people", "6"],
         "speed-latency-crowd": [*_LATENCY, "--sensors", "8", "--people", "16", "--no-sweep"],  # a classroom: overload
     },
+    "depth": {"speed-depth": ["bench", "depth", "--frames", "20", "--json"]},
     "soak": {"soak": ["scripts/soak_hostile.py", "--minutes", "60", "--nice", "-10", "--json", "{out}"]},
 }
 """NAME -> stored file stem -> the command's arguments (skelfuse's, or the soak script's for ``soak``)."""
@@ -114,6 +116,7 @@ QUICK: dict[str, dict[str, list[str]]] = {
         "speed-instant": ["bench", "instant", "--cases", "2x1", "--frames", "20", "--rounds", "1", "--json"],
         "speed-latency": ["bench", "latency", "--sensors", "2", "--duration", "1", "--no-sweep", "--json"],
     },
+    "depth": {"speed-depth": ["bench", "depth", "--people", "1", "--frames", "3", "--json"]},
     "plausibility": {
         "plausibility": ["scripts/plausibility_rates.py", "--seeds", "1000", "--sensors", "2", "--json"],
     },
@@ -406,6 +409,14 @@ def _by_script(script: str) -> Callable[[dict[str, Any]], str]:
     return functools.partial(render_script, script=script)
 
 
+def render_depth(result: dict[str, Any]) -> str:
+    """``skelfuse bench depth``'s own table (plain text, so in a code block)."""
+    from skelfuse.bench.depth import format_depth_bench
+
+    table = "\n".join(line.rstrip() for line in format_depth_bench(result).splitlines())
+    return "```text\n" + table + "\n```"
+
+
 SOAK_FIGURES = (
     ("sensors", "sensors"),
     ("minutes", "minutes"),
@@ -443,6 +454,7 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     "bench-latency": ("speed", "speed-latency", render_latency),
     "bench-latency-people": ("speed", "speed-latency-people", render_latency),
     "bench-latency-crowd": ("speed", "speed-latency-crowd", render_latency),
+    "bench-depth": ("depth", "speed-depth", render_depth),
     "plausibility": ("plausibility", "plausibility", _by_script("scripts/plausibility_rates.py")),
     "smoothing": ("smoothing", "smoothing", _by_script("scripts/smoothing_targets.py")),
     "orientation-convention": (
