@@ -10,7 +10,7 @@ run (command line, revision, machine, 1-minute load at start and end; skelfuse/c
     python scripts/update_doc_tables.py check                   # exit 1 if a block differs from the stored JSON
 
 ``record`` runs nothing but the commands listed in RECORDS (NAME: demo, paper, robustness, mirroring, sim-check,
-real, plausibility, smoothing, orientations, retargeting, rear-views, speed, depth, soak; a command is
+real, tracking, plausibility, smoothing, orientations, retargeting, rear-views, speed, depth, soak; a command is
 skelfuse's, or one of scripts/ whose ``--json`` output its own ``format_markdown`` renders); ``write`` and
 ``check`` run no command. tests/unit/test_evidence_page.py checks the pages as ``check`` does, so a hand edit of
 a block fails.
@@ -61,6 +61,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
     },
     "sim-check": {"sim-check": ["sim", "check", "--data", DATA, "--json", "-q"]},
     "real": {"real": ["eval", "real", "--json"]},
+    "tracking": {"tracking": ["eval", "tracking", "--json"]},
     "plausibility": {"plausibility": ["scripts/plausibility_rates.py", "--seeds", "1000", "1001", "1002", "--json"]},
     "smoothing": {
         "smoothing": [
@@ -112,6 +113,7 @@ QUICK: dict[str, dict[str, list[str]]] = {
     },
     "sim-check": {"sim-check": ["sim", "check", "--seeds", "1", "--duration", "3", "--no-real", "--json", "-q"]},
     "real": RECORDS["real"],
+    "tracking": {"tracking": ["eval", "tracking", "--quick", "--json"]},
     "speed": {
         "speed-instant": ["bench", "instant", "--cases", "2x1", "--frames", "20", "--rounds", "1", "--json"],
         "speed-latency": ["bench", "latency", "--sensors", "2", "--duration", "1", "--no-sweep", "--json"],
@@ -376,6 +378,14 @@ def render_real(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def render_tracking(result: dict[str, Any]) -> str:
+    """``skelfuse eval tracking``'s report, its title left to the page's section."""
+    from skelfuse.eval.tracking import TrackingEvalResult
+
+    text = TrackingEvalResult.from_dict({k: v for k, v in result.items() if k != "stamp"}).format_markdown()
+    return "\n".join(text.splitlines()[2:])  # the report's own "## Multi-person tracking" heading and blank line
+
+
 def render_instant(result: dict[str, Any]) -> str:
     from skelfuse.bench.instant import format_instant_bench
 
@@ -448,6 +458,7 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
     "mirroring-bases": ("mirroring", "mirroring-bases", render_mirroring_bases),
     "sim-check": ("sim-check", "sim-check", render_sim_check),
     "real": ("real", "real", render_real),
+    "tracking": ("tracking", "tracking", render_tracking),
     "bench-instant": ("speed", "speed-instant", render_instant),
     "bench-instant-paced": ("speed", "speed-instant-paced", render_instant),
     "bench-instant-positions": ("speed", "speed-instant-positions", render_instant),

@@ -93,11 +93,13 @@ def test_stored_results_read_back_to_what_they_were(generator: ModuleType) -> No
     from skelfuse.eval.realism import SimCheckResult
     from skelfuse.eval.rig import RigEvalResult
     from skelfuse.eval.robustness import RobustnessResult
+    from skelfuse.eval.tracking import TrackingEvalResult
 
     kinds = {
         "robustness": RobustnessResult,
         "sim-check": SimCheckResult,
         "real": RigEvalResult,
+        "tracking": TrackingEvalResult,
         "speed-latency": LatencyResult,
         "speed-latency-people": LatencyResult,
     }
