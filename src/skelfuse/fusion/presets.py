@@ -77,8 +77,8 @@ class FusionParams:
         "temporal" only: frames in a row more than half of the evidence must disagree with the anchor before
         the body follows it: a slow rule that undoes a wrong start in a 2-against-2 split. Off (None) by
         default: wherever rear views outnumber front ones (three sensors, one in front) the mirrored views
-        ARE the majority, and the rule overturned correct anchors (eval paper, 3 sensors with rear
-        mirroring: upper limb 36 -> 379 mm). Wrong starts from too few views are undone by the restart rule
+        ARE the majority, and the rule would overturn correct anchors (``skelfuse eval paper``'s rear-mirroring
+        scenario with 3 sensors shows it). Wrong starts from too few views are undone by the restart rule
         instead (see :func:`skelfuse.fusion.realign.realign_temporal`).
     max_body_speed_mm_s : float or None
         "temporal" only: a body whose centre (shoulders and hips) moved faster than this since the last frame

@@ -94,15 +94,12 @@ Two modes:
         undone ``rear_view_frames`` frames after one rear view stops mirroring, and an instant 180 deg turn
         in place (which no teleport rule sees) within ``rear_view_frames`` of a new rear view that is not
         yet mirrored.
-        Measured (``python scripts/measure_rear_view_signal.py``), simulator (default profile, 20 seeds x 2/3/4
-        sensors): of the (frame, view) samples with a cosine below -0.5, none is mirrored (2497 samples;
-        -0.7: 1941), and 99.7% of the unmirrored rear views (over 110 deg) are below -0.3; with failure
-        families that mirror side views or report a neighbour the share of mirrored views below -0.7 is
-        0.3-1.6%, hence the 3-frame streak. Real data (../shared/data, andyj1 takes: 118 view-frames whose
-        sensor position is known): every view faces its own sensor within 3-36 deg, none faces away; no real
-        rear view was recorded, so the real data neither confirms nor refutes the rule; it rests on the
-        documented tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear
-        frame, it would simply never fire.
+        On the simulator no view below the threshold is mirrored in the base world, and failure families that
+        mirror side views or report a neighbour put only a few there, hence the 3-frame streak
+        (``python scripts/measure_rear_view_signal.py``; docs/evidence.md, "Rear views that face away"). The
+        real takes hold no rear view, so they neither confirm nor refute the rule; it rests on the documented
+        tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear frame, it
+        would simply never fire.
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
