@@ -50,7 +50,8 @@ _LATENCY = ["bench", "latency", "--duration", "10", "--json"]
 # world and rig size (27 takes of 10 s); smoothing at 6 training and 6 held-out seeds of 10 s (12 takes); the
 # per-joint orientation error at its default 4 takes of 4 s; retargeting at 6 gestures of 10 s plus the real
 # take; the rear-view signal at 10 seeds (150 takes of 10 s, simulated only, no fusion); the orientation convention
-# reads the five real files once. Every other run has the command's default size.
+# reads the five real files once; bench depth at 20 frames per case (1, 2, 3 people). Every other run (tracking:
+# its four scenarios) has the command's default size.
 RECORDS: dict[str, dict[str, list[str]]] = {
     "demo": {"demo": ["demo", "--duration", "10", "--json"]},
     "paper": {"paper": ["eval", "paper", "--json", "--no-files", "-q"]},
@@ -101,7 +102,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
     "depth": {"speed-depth": ["bench", "depth", "--frames", "20", "--json"]},
     "soak": {"soak": ["scripts/soak_hostile.py", "--minutes", "60", "--nice", "-10", "--json", "{out}"]},
 }
-"""NAME -> stored file stem -> the command's arguments (skelfuse's, or the soak script's for ``soak``)."""
+"""NAME -> stored file stem -> the command's arguments (skelfuse's, or a script's: ``scripts/NAME.py ...``)."""
 
 QUICK: dict[str, dict[str, list[str]]] = {
     "demo": {"demo": ["demo", "--duration", "3", "--json"]},
