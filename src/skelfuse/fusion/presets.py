@@ -15,14 +15,14 @@ A5        paper      dbscan 100 mm    weight 2.0                      weight 1.0
 skelfuse  temporal   dbscan 75 mm     off                             weight 1.0      cv_kalman 5000/15
 ========  =========  ===============  ==============================  ==============  ==================
 
-"skelfuse" was chosen by ``scripts/tune_fusion.py`` on the simulator (train seed; checked on a held-out
-seed): temporal realignment (recovery after 10 frames at a 3/4 evidence majority) is what removes the
-rear views' mirroring, the error that dominates A1-A5; eps 75 mm is within 1% of the best radius with less
-jitter; the reference candidate adds nothing once the labels are right (within 2%, more jitter, and it
-costs a reference per frame), so it is off; cv_kalman with accel sigma 5000 mm/s^2, measurement sigma
-15 mm and R divided by the number of agreeing views halves the jitter at a lag under 0.1 frame (the
-paper's Kalman lags 8 frames). The filter's prediction as the previous candidate measured no better than
-the merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
+"skelfuse" was chosen by ``scripts/tune_fusion.py`` on the simulator (a training seed, checked on a held-out
+one): temporal realignment (recovery after 10 frames at a 3/4 evidence majority) removes the rear views'
+mirroring, the error that dominates A1-A5; a 75 mm radius is as accurate as the best with less jitter; the
+reference candidate adds nothing once the labels are right (and costs a reference per frame), so it is off;
+cv_kalman (accel sigma 5000 mm/s^2, measurement sigma 15 mm, R divided by the number of agreeing views)
+removes most of the jitter at almost no lag, where the paper's Kalman lags by frames (docs/evidence.md,
+"Accuracy against the paper"). The filter's prediction as the previous candidate does no better than the
+merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
 seam) starts its realignment cold (``max_body_speed_mm_s``). "skelfuse" also outputs fused joint orientations and a
 per-joint position uncertainty (``orientations``, ``position_std``); they do not change the positions.
 """
@@ -85,8 +85,8 @@ class FusionParams:
         "temporal" only: frames in a row more than half of the evidence must disagree with the anchor before
         the body follows it: a slow rule that undoes a wrong start in a 2-against-2 split. Off (None) by
         default: wherever rear views outnumber front ones (three sensors, one in front) the mirrored views
-        ARE the majority, and the rule overturned correct anchors (eval paper, 3 sensors with rear
-        mirroring: upper limb 36 -> 379 mm). Wrong starts from too few views are undone by the restart rule
+        ARE the majority, and the rule would overturn correct anchors (``skelfuse eval paper``'s rear-mirroring
+        scenario with 3 sensors shows it). Wrong starts from too few views are undone by the restart rule
         instead (see :func:`skelfuse.fusion.realign.realign_temporal`).
     max_body_speed_mm_s : float or None
         "temporal" only: a body whose centre (shoulders and hips) moved faster than this since the last frame

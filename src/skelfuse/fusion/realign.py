@@ -42,8 +42,8 @@ Two modes:
         triangle inequality ``|swap - keep|`` never exceeds twice the anchor's width of that pair, so each
         pair votes in [-1, 1] and a pair held wide apart (arms spread) weighs no more than the hips. In
         millimetres, as ``realign_body`` sums them, two arms whose occlusion guesses land on the wrong
-        sides outvoted shoulders, hips, knees and ankles and mirrored a correct view (simulator,
-        ``mixture`` with 3 sensors, seed 1002: 357 mm fused error with millimetres, 42 mm with votes).
+        sides would outvote shoulders, hips, knees and ankles and mirror a correct view
+        (``test_temporal_two_wild_arms_do_not_outvote_shoulders_hips_and_legs``).
     Initialization (no previous pair at all: the first frame, after a reset, after a loss of track)
         A 2-vs-2 split of views is geometrically ambiguous: a mirrored rear view faces "its" sensor just as a
         correct front view does. The *evidence* of a view is its number of MEDIUM-or-better joints (all
@@ -52,19 +52,16 @@ Two modes:
         sensor index); every view is decided against the seed's pair joints (pairs the seed lacks fall
         back to the static reference), which splits the views into the seed's group and the flipped
         group. The group holding more evidence is taken as correct, the seed's group on an exact tie.
-        Measured on the simulator (scripts/tune_fusion.py, cold starts at frames where a view is
-        mirrored): every view right in 92% of cold starts, against 78% for the static "body" vote; all
-        3-vs-1 splits are right, the misses are 2-vs-2 splits in which the mirrored pair happened to hold
-        more MEDIUM joints. That figure predates realistic confidences: rear views now report their hidden
-        torso MEDIUM, as the real tracker does, so the MEDIUM count hardly tells a mirrored rear view from a
-        front view any more. When a view faces away from its sensor (the rear-view rule below) the group
-        holding such views wins instead; otherwise a miss is fixed by the recovery rule (3-vs-1) or, once a
-        rear view stops mirroring, by the rear-view rule.
+        Rear views report their hidden torso MEDIUM, as the real tracker does, so the count alone cannot
+        settle a 2-vs-2 split: when a view faces away from its sensor (the rear-view rule below) the group
+        holding such views wins instead; otherwise a wrong start is fixed by the recovery rule (3-vs-1) or,
+        once a rear view stops mirroring, by the rear-view rule (``scripts/tune_fusion.py`` scores cold
+        starts on the simulator).
     Restart (more views than built the anchor)
         An anchor only knows the views it was built from. When more views see a body's pairs than ever did
         since its cold start (counter column 2), the body starts cold again: a body first seen by the two
-        rear sensors alone, whose anchor is mirrored, is re-decided when the front sensors join. On 24
-        simulated takes starting that way, upper-limb RMSE fell from 219 to 42 mm.
+        rear sensors alone, whose anchor is mirrored, is re-decided when the front sensors join, so it does
+        not keep the mirrored arms it started with.
     Recovery (a mirrored anchor, from a wrong start or a genuinely fast turn)
         Without a rule, a mirrored anchor would realign every view to itself forever. Each view weighs its
         evidence (above). When the views that disagree with the anchor (would be flipped) hold at least
@@ -107,15 +104,12 @@ Two modes:
         undone ``rear_view_frames`` frames after one rear view stops mirroring, and an instant 180 deg turn
         in place (which no teleport rule sees) within ``rear_view_frames`` of a new rear view that is not
         yet mirrored.
-        Measured (``python scripts/measure_rear_view_signal.py``), simulator (default profile, 20 seeds x 2/3/4
-        sensors): of the (frame, view) samples with a cosine below -0.5, none is mirrored (2497 samples;
-        -0.7: 1941), and 99.7% of the unmirrored rear views (over 110 deg) are below -0.3; with failure
-        families that mirror side views or report a neighbour the share of mirrored views below -0.7 is
-        0.3-1.6%, hence the 3-frame streak. Real data (../shared/data, andyj1 takes: 118 view-frames whose
-        sensor position is known): every view faces its own sensor within 3-36 deg, none faces away; no real
-        rear view was recorded, so the real data neither confirms nor refutes the rule; it rests on the
-        documented tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear
-        frame, it would simply never fire.
+        On the simulator no view below the threshold is mirrored in the base world, and failure families that
+        mirror side views or report a neighbour put only a few there, hence the 3-frame streak
+        (``python scripts/measure_rear_view_signal.py``; docs/evidence.md, "Rear views that face away"). The
+        real takes hold no rear view, so they neither confirm nor refute the rule; it rests on the documented
+        tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear frame, it
+        would simply never fire.
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
