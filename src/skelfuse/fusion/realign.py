@@ -319,9 +319,10 @@ def realign_temporal(
         Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
         before the body follows them (>= 1).
     credit_frames : int
-        The most credit the anchor banks, one frame for each frame in which every decided view agreed with it
-        (>= 0; 0: none). A run of disagreement spends it before the recovery rule counts, and the rear-view
-        rule waits as many frames more as the credit holds, at most ``recovery_frames``.
+        The most credit the anchor banks, one frame for each frame in which every view agreed with it and
+        enough of them decided (:func:`vouched`) (>= 0; 0: none). A run of disagreement spends it before the
+        recovery rule counts, and the rear-view rule waits as many frames more as the credit holds, at most
+        ``recovery_frames``.
 
     Returns
     -------
