@@ -133,6 +133,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from skelfuse.fusion import kernels
 from skelfuse.fusion.mirror import mirror_views, pair_costs
@@ -428,7 +429,7 @@ def realign_temporal(
     return out_positions, out_confidence, mirrored, new_streak
 
 
-def recovery_count(count: np.ndarray, majority: np.ndarray, unanimous: np.ndarray, credit_frames: int) -> np.ndarray:
+def recovery_count(count: np.ndarray, majority: ArrayLike, unanimous: ArrayLike, credit_frames: int) -> np.ndarray:
     """The recovery rule's counter (B,) after one frame: +1 for a frame in which a clear ``majority`` of the
     evidence disagreed with the anchor, -1 down to ``-credit_frames`` for a frame in which every decided view
     agreed with it (``unanimous``); any other frame ends a run of disagreement (a positive count drops to 0)
