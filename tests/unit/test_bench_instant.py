@@ -62,7 +62,6 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
         "fuse_orientations",
         "assign_to_tracks",
         "match_tracks",
-        "nanmedian_axis",
         "person_descriptors",
         "position_uncertainty",
     }

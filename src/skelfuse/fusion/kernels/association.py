@@ -9,8 +9,7 @@ scipy's assignment on random matrices (ties, rectangular, empty, infinite costs)
 
 :func:`match_tracks` adds the descriptors before and the duplicates after it (steps 1-4 in one call).
 :func:`person_descriptors` gathers each person's descriptor (the median over its sensors) and sensor count after
-the assignment. :func:`nanmedian_middle` is :func:`skelfuse.fusion.association.nanmedian_axis` (the persons'
-descriptors, the realignment's body centres); their numpy forms are in the reference too.
+the assignment; its numpy form is in the reference too.
 
 :func:`assign_to_tracks` is the cascade of :func:`~skelfuse.fusion.association.associate` (confirmed tracks first,
 then the tentative ones with the bodies left), per sensor, with its fast path for sensors where every gated pair
@@ -321,33 +320,6 @@ def match_tracks(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def nanmedian_middle(values: np.ndarray) -> np.ndarray:
-    """(A, C) median over the middle axis of (A, N, C) values, ignoring NaN and +-inf (NaN where none is finite):
-    the mean of the two middle finite values (one when their count is odd), sorted by insertion (N is a handful of
-    sensors)."""
-    A, N, C = values.shape
-    out = np.empty((A, C))
-    finite = np.empty(N)
-    for a in range(A):
-        for c in range(C):
-            count = 0
-            for n in range(N):
-                value = values[a, n, c]
-                if np.isfinite(value):
-                    at = count
-                    while at > 0 and finite[at - 1] > value:
-                        finite[at] = finite[at - 1]
-                        at -= 1
-                    finite[at] = value
-                    count += 1
-            if count == 0:
-                out[a, c] = np.nan
-            else:
-                out[a, c] = 0.5 * (finite[(count - 1) // 2] + finite[count // 2])
-    return out
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
 def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
     """Per person, the median over its sensors of their bodies' descriptors, and how many sensors see it.
 
@@ -392,7 +364,6 @@ def warm_up() -> None:
     desc = np.zeros((1, 2, 7, 3))
     assign_to_tracks(desc, np.ones((1, 2), np.bool_), np.zeros((1, 7, 3)), np.ones(1, np.bool_), np.full(1, 450.0), 3)
     linear_sum_assignment(np.zeros((2, 1)))
-    nanmedian_middle(np.zeros((1, 2, 1)))
     person_descriptors(desc, np.zeros((1, 2), dtype=np.int64), 1)
     match_tracks(
         np.zeros((1, 2, 4, 3)),

@@ -32,9 +32,7 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "fuse_orientations"): orientation.fuse_orientations,
     ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
     ("skelfuse.fusion.association", "match_tracks"): association.match_tracks,
-    ("skelfuse.fusion.association", "nanmedian_axis"): association.nanmedian_axis,
     ("skelfuse.fusion.association", "person_descriptors"): association.person_descriptors,
     ("skelfuse.fusion.pipeline", "position_uncertainty"): uncertainty.position_uncertainty,
-    ("skelfuse.fusion.realign", "nanmedian_axis"): association.nanmedian_axis,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from skelfuse.fusion.association import N_DESCRIPTOR, descriptor_distance, torso_descriptor
+from skelfuse.fusion.association import N_DESCRIPTOR, descriptor_distance, nanmedian_axis, torso_descriptor
 
 BIG_COST = 1e12  # stands for "no cost" in the assignment matrices; such pairs are rejected afterwards
 
@@ -56,27 +56,6 @@ def assign_to_tracks(
             person[s, rows[r[keep]]] = cols[c[keep]]
             assigned_cost[s, rows[r[keep]]] = matrix[r[keep], c[keep]]
     return person, assigned_cost, cost
-
-
-def nanmedian_axis(values: np.ndarray, axis: int) -> np.ndarray:
-    """:func:`skelfuse.fusion.association.nanmedian_axis` in numpy."""
-    values = np.asarray(values, dtype=np.float64)
-    axis = axis % values.ndim
-    # The axis last by a plain transpose (np.moveaxis costs a dozen Python-level calls on the hot path).
-    values = values.transpose([i for i in range(values.ndim) if i != axis] + [axis])
-    if values.shape[-1] == 0:
-        return np.full(values.shape[:-1], np.nan)
-    n = values.shape[-1]
-    finite = np.isfinite(values)
-    count = finite.sum(axis=-1)
-    ordered = np.where(finite, values, np.inf)  # missing sort last
-    ordered.sort(axis=-1)
-    ordered = ordered.reshape(-1, n)
-    lo = np.maximum((count - 1) // 2, 0).ravel()
-    hi = np.minimum(count // 2, n - 1).ravel()
-    lane = np.arange(ordered.shape[0])
-    median = (0.5 * (ordered[lane, lo] + ordered[lane, hi])).reshape(count.shape)
-    return np.where(count > 0, median, np.nan)
 
 
 def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
