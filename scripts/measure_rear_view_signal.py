@@ -4,25 +4,32 @@ The temporal realignment's rear-view rule (``skelfuse.fusion.realign.realign_tem
 the left/right of a view whose skeleton faces away from its sensor. This script measures that signal:
 
 - simulator: per (frame, view) of simulated takes (the robustness matrix's gestures and facings, the paper's ring
-  of 2/3/4 sensors, seeds 0-19: below the matrix's held-out seeds), the cosine between the view's own facing and
-  the direction to its sensor (:func:`skelfuse.fusion.realign.facing_cosine`), against the simulator's truth of
-  which views are mirrored; per failure family given on the command line;
+  of 2/3/4 sensors, seeds 0-19 by default: below the matrix's held-out seeds), the cosine between the view's own
+  facing and the direction to its sensor (:func:`skelfuse.fusion.realign.facing_cosine`), against the simulator's
+  truth of which views are mirrored; per failure family given on the command line;
 - real data (../shared/data/azure-kinect-andyj1, where present): the same cosine for every view whose sensor
   position is known (each camera's own frame: the 2-camera take's two files and the 3-camera take's master), and
   for the 3-camera take's subordinates (already in the master frame, positions unknown) the angle between their
   facing and the master view's.
 
-    python scripts/measure_rear_view_signal.py [family ...]      # default: baseline
+    python scripts/measure_rear_view_signal.py [family ...] [--seeds 20] [--json]   # default: baseline
+
+``--json`` prints the counts with the run's stamp (docs/evidence.md, "Rear views that face away", renders them
+with :func:`format_markdown`).
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp
 from skelfuse.fusion.depth.frontal import body_facing
 from skelfuse.fusion.realign import facing_cosine
 from skelfuse.sim.failures import family_profile
@@ -37,9 +44,11 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "azure-k
 CAMERA_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
-def simulated(family: str) -> None:
+def simulated(family: str, seeds: int) -> dict[str, Any]:
+    """Per threshold: samples whose cosine lies below it, and how many of them are mirrored; the unmirrored rear
+    views' share below -0.3; the mirrored views' share facing their sensor."""
     cosines, mirrored, angles = [], [], []
-    for seed in range(20):
+    for seed in range(seeds):
         for n_sensors in (2, 3, 4):
             rng = np.random.default_rng([seed, n_sensors])
             motion = make_gesture(
@@ -55,17 +64,16 @@ def simulated(family: str) -> None:
                 mirrored.append(obs.mirrored[seen, s])
                 angles.append(facing_away_deg(obs.truth, sensor.position_mm)[seen])
     cos, mir, angle = np.concatenate(cosines), np.concatenate(mirrored), np.concatenate(angles)
-    print(f"simulator, family {family}: {cos.size} (frame, view) samples, {mir.mean():.1%} mirrored")
-    for threshold in THRESHOLDS:
-        below = cos < threshold
-        print(
-            f"  cos < {threshold:+.1f}: {below.mean():.1%} of samples, {below.sum()} samples, "
-            f"of which mirrored {mir[below].mean() if below.any() else 0:.2%} ({(mir & below).sum()})"
-        )
     rear = (angle > 110.0) & ~mir
-    share = (cos[rear] < -0.3).mean()
-    print(f"  unmirrored rear views (> 110 deg from the facing): {rear.sum()}, cos < -0.3 in {share:.1%}")
-    print(f"  mirrored views facing their sensor (cos > 0.3): {(cos[mir] > 0.3).mean():.1%}")
+    return {
+        "family": family,
+        "samples": int(cos.size),
+        "mirrored": int(mir.sum()),
+        "below": {f"{t:+.1f}": [int((cos < t).sum()), int((mir & (cos < t)).sum())] for t in THRESHOLDS},
+        "rear_unmirrored": int(rear.sum()),
+        "rear_unmirrored_below_-0.3": int((cos[rear] < -0.3).sum()),
+        "mirrored_facing_sensor": int((cos[mir] > 0.3).sum()),
+    }
 
 
 def _read_andyj1(path: Path) -> np.ndarray:
@@ -73,10 +81,12 @@ def _read_andyj1(path: Path) -> np.ndarray:
     return np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows]).reshape(-1, 32, 3) @ CAMERA_TO_Z_UP.T
 
 
-def real() -> None:
+def real() -> list[dict[str, Any]]:
+    """Per real view: the angle between its facing and the direction to its sensor (own-frame views), or to the
+    master view's facing (the 3-camera take's subordinates); none where the data is not there."""
     if not DATA.is_dir():
-        print(f"real data: {DATA} not found, skipped")
-        return
+        return []
+    rows = []
     own_frame = {
         "2-camera take, master": DATA / "extrinsic_calculation" / "joints_sync_1.csv",
         "2-camera take, subordinate": DATA / "extrinsic_calculation" / "joints_sync_2.csv",
@@ -90,24 +100,58 @@ def real() -> None:
             master_facing = body_facing(skeletons)
         cos = facing_cosine(skeletons[:, None], np.zeros((1, 3)))[:, 0]  # the camera at its own origin
         angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        print(
-            f"real, {name} ({len(cos)} frames): facing its own sensor within {angle.min():.0f}-{angle.max():.0f} deg "
-            f"(median {np.median(angle):.0f}); cos < -0.7 in {(cos < -0.7).sum()} frames"
-        )
+        rows.append({"view": name, "against": "its own sensor", "frames": len(cos), "angle_deg": _spread(angle)})
     for sub in ("sub1", "sub2"):
         facing = body_facing(_read_andyj1(DATA / "saved_data_2_3dev" / f"joints_gen_{sub}.csv"))
         n = min(len(facing), len(master_facing))
         angle = np.degrees(np.arccos(np.clip(np.sum(facing[:n] * master_facing[:n], axis=-1), -1.0, 1.0)))
-        print(
-            f"real, 3-camera take, {sub} (master frame, position unknown; {n} frames): its facing within "
-            f"{angle.min():.0f}-{angle.max():.0f} deg of the master view's"
-        )
+        rows.append({"view": f"3-camera take, {sub}", "against": "the master view's facing", "frames": n,
+                     "angle_deg": _spread(angle)})  # fmt: skip
+    return rows
+
+
+def _spread(angle: np.ndarray) -> list[float]:
+    return [float(angle.min()), float(np.median(angle)), float(angle.max())]
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """One row per family (thresholds -0.5 and -0.7, the rear views' share below -0.3), then the real views."""
+    lines = [
+        f"Seeds 0-{result['seeds'] - 1}, 2/3/4 sensors on the paper's ring, 10 s takes; the cosine between a view's "
+        "own facing and the direction to its sensor, against the simulator's truth of which views are mirrored.",
+        "",
+        "| family | (frame, view) samples | below -0.5: mirrored | below -0.7: mirrored "
+        "| unmirrored rear views (>110°) below -0.3 |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for row in result["families"]:
+        cells = [f"{row['below'][t][1]} of {row['below'][t][0]}" for t in ("-0.5", "-0.7")]
+        rear = row["rear_unmirrored_below_-0.3"] / max(row["rear_unmirrored"], 1)
+        lines.append(f"| {row['family']} | {row['samples']} | " + " | ".join(cells) + f" | {rear:.1%} |")
+    if result["real"]:
+        lines += [
+            "",
+            "Real views (../shared/data/azure-kinect-andyj1), facing angle, degrees (min / median / max):",
+            "",
+        ]
+        lines += [f"- {r['view']} ({r['frames']} frames), against {r['against']}: "
+                  + " / ".join(f"{a:.0f}" for a in r["angle_deg"]) for r in result["real"]]  # fmt: skip
+    return "\n".join(lines)
 
 
 def main() -> None:
-    for family in sys.argv[1:] or ["baseline"]:
-        simulated(family)
-    real()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("families", nargs="*", default=["baseline"], help="failure families (default: baseline)")
+    parser.add_argument("--seeds", type=int, default=20, help="seeds 0..N-1 per rig size (20)")
+    parser.add_argument("--json", action="store_true", help="print the counts as JSON, stamped")
+    args = parser.parse_args()
+    program = ("python", "scripts/measure_rear_view_signal.py")
+    args.stamp = RunStamp.begin(sys.argv[1:], program=program) if args.json else None
+    result = {"seeds": args.seeds, "families": [simulated(f, args.seeds) for f in args.families], "real": real()}
+    if args.json:
+        print_json(result, args)
+    else:
+        print(format_markdown(result))
 
 
 if __name__ == "__main__":

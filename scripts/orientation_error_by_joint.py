@@ -1,31 +1,38 @@
 #!/usr/bin/env python3
 """Fused orientation error per joint against the simulator's truth, split into its swing, beside one view.
 
-    python scripts/orientation_error_by_joint.py [--seed 1] [--duration 4] [--regions arm hand]
+    python scripts/orientation_error_by_joint.py [--seed 1] [--duration 4] [--regions arm hand] [--json]
 
 The takes of ``skelfuse eval paper --quick``'s ``paper`` scenario (hands_up_down and squat, facing 0 and 180
 deg, 4 capture sensors, no mirroring), fused with the ``skelfuse`` preset. Per joint, median / p90 in degrees:
 the fused orientation's angle to the truth; its swing alone (the angle between the fused and the true aim axes:
 local X, the foot bone at the ankles; i.e. the fused bone's direction error); and capture view 0's angle to the
 truth. ``--regions`` picks the joints (the schema's body regions; default the arms and hands). Where the swing is
-nearly all of the error, the fused bone (a position error) and not the views' twist makes it.
+nearly all of the error, the fused bone (a position error) and not the views' twist makes it. ``--json`` prints
+the figures with the run's stamp (docs/evidence.md, "Orientations", renders them with :func:`format_markdown`).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from typing import Any
 
 import numpy as np
 
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp
 from skelfuse.eval import paper
 from skelfuse.fusion.orientation import quat_angle_deg, quat_rotate, to_aim_frames, views_to_world
-from skelfuse.schema.skeleton import BODY_REGIONS, J
+from skelfuse.schema.skeleton import BODY_REGIONS, JOINT_NAMES
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate
 from skelfuse.sim.orientation import observe_orientations, truth_orientations
 from skelfuse.sim.rig import paper_rig
 
 _LOCAL_X = np.array([1.0, 0.0, 0.0])
+GESTURES = ("hands_up_down", "squat")
+FACINGS_DEG = (0.0, 180.0)
 
 
 def take_errors(gesture: str, facing: float, seed: int, duration_s: float) -> tuple[np.ndarray, ...]:
@@ -43,25 +50,48 @@ def take_errors(gesture: str, facing: float, seed: int, duration_s: float) -> tu
     return quat_angle_deg(fused, truth), swing, quat_angle_deg(views[:, 0], truth)
 
 
+def measure(seed: int, duration_s: float, regions: list[str]) -> dict[str, Any]:
+    """Per joint of ``regions``: median and p90 of the fused error, its swing and view 0's error, degrees."""
+    parts = [take_errors(gesture, facing, seed, duration_s) for gesture in GESTURES for facing in FACINGS_DEG]
+    fused, swing, view = (np.concatenate([p[k] for p in parts]) for k in range(3))
+    joints = {}
+    for joint in np.concatenate([BODY_REGIONS[region] for region in regions]):
+        joints[JOINT_NAMES[int(joint)]] = {
+            name: [float(np.nanmedian(e[:, joint])), float(np.nanpercentile(e[:, joint], 90))]
+            for name, e in (("fused", fused), ("swing", swing), ("view 0", view))
+        }
+    return {"seed": seed, "duration_s": duration_s, "gestures": list(GESTURES), "facings_deg": list(FACINGS_DEG),
+            "joints": joints}  # fmt: skip
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """One row per joint: fused, its swing, view 0 (median / p90, degrees)."""
+    lines = [
+        f"Gestures {', '.join(result['gestures'])}, facing {' and '.join(f'{f:g}' for f in result['facings_deg'])} "
+        f"deg, {result['duration_s']:g} s each, seed {result['seed']}; median / p90, degrees.",
+        "",
+        "| joint | fused | its swing | view 0 |",
+        "|---|---|---|---|",
+    ]
+    for name, row in result["joints"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{m:.1f} / {p:.1f}" for m, p in row.values()) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--duration", type=float, default=4.0, help="seconds per take")
     parser.add_argument("--regions", nargs="+", default=["arm", "hand"], choices=sorted(BODY_REGIONS))
+    parser.add_argument("--json", action="store_true", help="print the per-joint figures as JSON, stamped")
     args = parser.parse_args()
-    parts = [
-        take_errors(gesture, facing, args.seed, args.duration)
-        for gesture in ("hands_up_down", "squat")
-        for facing in (0.0, 180.0)
-    ]
-    fused, swing, view = (np.concatenate([p[k] for p in parts]) for k in range(3))
-    names = {index: name for name, index in J.items()}
-    print("| joint | fused | its swing | view 0 |\n|---|---|---|---|")
-    for joint in np.concatenate([BODY_REGIONS[region] for region in args.regions]):
-        cells = [
-            f"{np.nanmedian(e[:, joint]):.1f} / {np.nanpercentile(e[:, joint], 90):.1f}" for e in (fused, swing, view)
-        ]
-        print(f"| {names[int(joint)]} | " + " | ".join(cells) + " |")
+    program = ("python", "scripts/orientation_error_by_joint.py")
+    args.stamp = RunStamp.begin(sys.argv[1:], program=program) if args.json else None
+    result = measure(args.seed, args.duration, args.regions)
+    if args.json:
+        print_json(result, args)
+    else:
+        print(format_markdown(result))
 
 
 if __name__ == "__main__":

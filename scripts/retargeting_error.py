@@ -1,27 +1,33 @@
 #!/usr/bin/env python3
 """Measure the armature's retargeting error (FK of the exported skeleton versus the fused positions).
 
-The figures in docs/export.md come from this script. For each of the simulator's six gestures the paper's
-4-sensor rig is simulated (packaged Azure Kinect profile), fused with our preset, and the fused take is fitted
-with :func:`skelfuse.retarget.armature.fit_motion`; the real 3-view andyj1 take (if ``--data`` has it) is fused
-the same way (``eval.real.fuse_views``, preset "skelfuse") and fitted. Prints median and p90 per joint group
-(mm), over every joint-frame the fused data held (filled gaps excluded).
+For each of the simulator's six gestures the paper's 4-sensor rig is simulated (packaged Azure Kinect profile),
+fused with our preset, and the fused take is fitted with :func:`skelfuse.retarget.armature.fit_motion`; the real
+3-view andyj1 take (if ``--data`` has it) is fused the same way (``eval.real.fuse_views``, preset "skelfuse") and
+fitted. Prints median and p90 per joint group (mm), over every joint-frame the fused data held (filled gaps
+excluded). docs/evidence.md, "Retargeting", renders the ``--json`` output with :func:`format_markdown`.
 
 Usage::
 
     python scripts/retargeting_error.py                      # simulator only
     python scripts/retargeting_error.py --data ../shared/data  # plus the real take
     python scripts/retargeting_error.py --blender              # plus Blender's reading of BVH and FBX
+    python scripts/retargeting_error.py --json                 # the figures as JSON, stamped
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp
+from skelfuse.eval.metrics import none_for_nan
 from skelfuse.eval.paper import N_CAPTURE, FusionRun, _world_skeletons, fuse_take
 from skelfuse.eval.real import fuse_views, load_take
 from skelfuse.export.blender import run_blender
@@ -39,11 +45,16 @@ FPS = 30.0
 
 
 def _row(name: str, err: dict) -> str:
-    cells = " | ".join(f"{err[g]['median']:.1f} / {err[g]['p90']:.1f}" for g in GROUPS)
+    cells = " | ".join(f"{_mm(err[g]['median'])} / {_mm(err[g]['p90'])}" for g in GROUPS)
     return f"| {name} | {cells} |"
 
 
-def _blender_comparison(fit) -> list[str]:
+def _mm(value: float | None) -> str:
+    """A figure to 0.1 mm; a group without a joint-frame (None in the JSON, NaN before) as a dash."""
+    return "—" if value is None or not np.isfinite(value) else f"{value:.1f}"
+
+
+def _blender_comparison(fit) -> list[dict[str, Any]]:
     """Max and median |Blender - FK| (mm) of the BVH import and of the FBX round trip."""
     frames = np.linspace(0, fit.n_frames - 1, 10).astype(int).tolist()
     rows = []
@@ -58,8 +69,84 @@ def _blender_comparison(fit) -> list[str]:
             result = run_blender({**request, "frames": frames})
             heads = np.array([result["heads"][n] for n in JOINT_NAMES]).transpose(1, 0, 2) * 1000.0
             gap = np.linalg.norm(heads - fit.positions[frames], axis=-1)
-            rows.append(f"{name} (Blender {result['blender']}): max {gap.max():.4f} mm, median {np.median(gap):.4f} mm")
+            rows.append({"what": name, "blender": result["blender"], "max_mm": float(gap.max()),
+                         "median_mm": float(np.median(gap))})  # fmt: skip
     return rows
+
+
+def _median_p90(values: np.ndarray) -> list[float]:
+    return [float(np.median(values)), float(np.percentile(values, 90))]
+
+
+def simulated_take(gesture: str, duration_s: float, seed: int) -> tuple[Any, dict[str, Any]]:
+    """One gesture fused and fitted: the fit, and its retargeting error and both errors against the truth."""
+    run = FusionRun("skelfuse", "skelfuse", None, tuple(range(N_CAPTURE)))
+    motion = make_gesture(gesture, duration_s=duration_s, fps=FPS, facing_deg=30.0, seed=seed)
+    obs = simulate(motion, list(paper_rig(N_CAPTURE)), load_profile(None), seed=seed + 1)
+    fused = fuse_take(run, _world_skeletons(obs), np.asarray(obs.confidence), FPS)
+    fit = fit_motion(np.arange(len(fused)) / FPS, fused)
+    truth = np.asarray(obs.truth, dtype=np.float64)[: fit.n_frames, EVAL_JOINTS]
+    seen = ~fit.filled[:, EVAL_JOINTS]
+    to_truth = {
+        "fused": _median_p90(np.linalg.norm(fit.targets[:, EVAL_JOINTS] - truth, axis=-1)[seen]),
+        "exported": _median_p90(np.linalg.norm(fit.positions[:, EVAL_JOINTS] - truth, axis=-1)[seen]),
+    }
+    return fit, {"take": gesture, "error": fit.retargeting_error(), "vs_truth": to_truth}
+
+
+def measure(duration_s: float, seed: int, data: Path | None, blender: bool) -> dict[str, Any]:
+    """Every gesture's retargeting error, pooled; Blender's reading of one take; the real take where given."""
+    fits, takes = zip(*(simulated_take(g, duration_s, seed) for g in GESTURES), strict=True)
+    pooled = retargeting_error(
+        *(np.concatenate([getattr(f, k) for f in fits]) for k in ("positions", "targets", "filled"))
+    )
+    result: dict[str, Any] = {"duration_s": duration_s, "seed": seed, "takes": list(takes), "pooled": pooled,
+                              "blender": _blender_comparison(fits[GESTURES.index("random")]) if blender else None,
+                              "real": None}  # fmt: skip
+    if data is not None:
+        try:
+            take = load_take(data)
+        except DataError as exc:
+            result["real"] = {"skipped": str(exc)}
+        else:
+            fused = fuse_views(take.positions, take.confidence, "skelfuse")
+            fit = fit_motion(np.arange(len(fused)) / FPS, fused)
+            result["real"] = {"frames": take.n_frames, "error": fit.retargeting_error()}
+    return result
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The retargeting error per take (median / p90, mm), the body joints against the truth, Blender's reading."""
+    lines = [
+        f"Simulated takes of {result['duration_s']:g} s at {FPS:g} Hz (seed {result['seed']}), fused with the "
+        "skelfuse preset; FK of the exported skeleton against the fused positions, median / p90 mm, over every "
+        "joint-frame the fused data held.",
+        "",
+        "| take | " + " | ".join(f"{g} median / p90 (mm)" for g in GROUPS) + " |",
+        "|---" * (len(GROUPS) + 1) + "|",
+    ]
+    lines += [_row(f"sim {t['take']}", t["error"]) for t in result["takes"]]
+    lines.append(_row(f"sim, all {len(result['takes'])} pooled", result["pooled"]))
+    real = result["real"]
+    if real is not None and "error" in real:
+        lines.append(_row(f"real andyj1 ({real['frames']} frames, 3 views)", real["error"]))
+    lines += [
+        "",
+        "Against the simulator's truth, body joints (median / p90, mm): does the fixed-length skeleton cost accuracy?",
+        "",
+        "| take | fused vs truth | exported (FK) vs truth |",
+        "|---|---|---|",
+    ]
+    for t in result["takes"]:
+        cells = " | ".join(f"{_mm(m)} / {_mm(p)}" for m, p in t["vs_truth"].values())
+        lines.append(f"| sim {t['take']} | {cells} |")
+    if real is not None and "skipped" in real:
+        lines += ["", f"Real take skipped: {real['skipped']}"]
+    if result["blender"]:
+        lines += ["", "Blender's posed joints against our FK, all 32 joints at 10 sampled frames (sim random):", ""]
+        lines += [f"- {r['what']} (Blender {r['blender']}): max {r['max_mm']:.4f} mm, median {r['median_mm']:.4f} mm"
+                  for r in result["blender"]]  # fmt: skip
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -70,60 +157,14 @@ def main() -> None:
     parser.add_argument(
         "--blender", action="store_true", help="also compare Blender's import of the BVH and FBX with our FK"
     )
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON, stamped")
     args = parser.parse_args()
-
-    print("| take | " + " | ".join(f"{g} median / p90 (mm)" for g in GROUPS) + " |")
-    print("|---" * (len(GROUPS) + 1) + "|")
-    pooled = []
-    truth_rows = []
-    run = FusionRun("skelfuse", "skelfuse", None, tuple(range(N_CAPTURE)))
-    for gesture in GESTURES:
-        motion = make_gesture(gesture, duration_s=args.duration, fps=FPS, facing_deg=30.0, seed=args.seed)
-        obs = simulate(motion, list(paper_rig(N_CAPTURE)), load_profile(None), seed=args.seed + 1)
-        fused = fuse_take(run, _world_skeletons(obs), np.asarray(obs.confidence), FPS)
-        fit = fit_motion(np.arange(len(fused)) / FPS, fused)
-        pooled.append(fit)
-        if args.blender and gesture == "random":
-            blender_rows = _blender_comparison(fit)
-        print(_row(f"sim {gesture}", fit.retargeting_error()), flush=True)
-        truth = np.asarray(obs.truth, dtype=np.float64)[: fit.n_frames, EVAL_JOINTS]
-        seen = ~fit.filled[:, EVAL_JOINTS]
-        to_truth = {
-            "fused": np.linalg.norm(fit.targets[:, EVAL_JOINTS] - truth, axis=-1)[seen],
-            "exported": np.linalg.norm(fit.positions[:, EVAL_JOINTS] - truth, axis=-1)[seen],
-        }
-        truth_rows.append(
-            f"| sim {gesture} | "
-            + " | ".join(f"{np.median(d):.1f} / {np.percentile(d, 90):.1f}" for d in to_truth.values())
-            + " |"
-        )
-    print(
-        _row(
-            "sim, all six",
-            retargeting_error(
-                np.concatenate([f.positions for f in pooled]),
-                np.concatenate([f.targets for f in pooled]),
-                np.concatenate([f.filled for f in pooled]),
-            ),
-        )
-    )
-    print(
-        "\nAgainst the simulator's truth, body joints (median / p90, mm): does the fixed-length skeleton cost accuracy?"
-    )
-    print("| take | fused vs truth | exported (FK) vs truth |\n|---|---|---|")
-    print("\n".join(truth_rows))
-    if args.blender:
-        print("\nBlender's posed joints versus our FK, all 32 joints at 10 sampled frames (sim random):")
-        print("\n".join(blender_rows))
-    if args.data is not None:
-        try:
-            take = load_take(args.data)
-        except DataError as exc:
-            print(f"(real take skipped: {exc})")
-            return
-        fused = fuse_views(take.positions, take.confidence, "skelfuse")
-        fit = fit_motion(np.arange(len(fused)) / FPS, fused)
-        print(_row(f"real andyj1 ({take.n_frames} frames, 3 views)", fit.retargeting_error()))
+    args.stamp = RunStamp.begin(sys.argv[1:], program=("python", "scripts/retargeting_error.py")) if args.json else None
+    result = none_for_nan(measure(args.duration, args.seed, args.data, args.blender))
+    if args.json:
+        print_json(result, args)
+    else:
+        print(format_markdown(result))
 
 
 if __name__ == "__main__":

@@ -27,16 +27,24 @@ adaptive pass's constants were chosen on the training seeds (0-5, one take of ea
 (1000 up, those of ``eval robustness``) are reported apart.
 
     PYTHONPATH=src python scripts/smoothing_targets.py [--training 0 1 ...] [--held-out 1000 ...] [--duration 10]
+                                                       [--json]
+
+``--json`` prints every take's figures with the run's stamp (docs/evidence.md, "Smoothing", renders them with
+:func:`format_markdown`).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from skelfuse.eval.metrics import best_lag, lag_error_curve
+from skelfuse.cli.common import print_json
+from skelfuse.cli.stamp import RunStamp
+from skelfuse.eval.metrics import best_lag, lag_error_curve, nan_for_none, none_for_nan
 from skelfuse.eval.rig import velocity_lag
 from skelfuse.fusion import Fuser, preset
 from skelfuse.fusion.smoother import (
@@ -182,11 +190,13 @@ def cell(values: list[float], digits: int) -> str:
     return f"{np.median(a):.{digits}f} [{a.min():.{digits}f}, {a.max():.{digits}f}]"
 
 
-def report(title: str, per_take: list[dict]) -> None:
-    """Print the split's tables (markdown)."""
-    print(f"### {title}: seeds {', '.join(str(r['seed']) for r in per_take)}; median [min, max] over takes\n")
-    print("| output | " + " | ".join(f"{g} jitter (worst take: distortion / noise)" for g in GROUPS) + " | error mm |")
-    print("|---|" + "---|" * (len(GROUPS) + 1))
+def report(title: str, per_take: list[dict]) -> list[str]:
+    """The split's tables (markdown lines)."""
+    out = [f"**{title}**: seeds {', '.join(str(r['seed']) for r in per_take)}; median [min, max] over takes", ""]
+    out.append(
+        "| output | " + " | ".join(f"{g} jitter (worst take: distortion / noise)" for g in GROUPS) + " | error mm |"
+    )
+    out.append("|---|" + "---|" * (len(GROUPS) + 1))
     for name in SMOOTHERS:
         cells = []
         for g in GROUPS:
@@ -195,29 +205,48 @@ def report(title: str, per_take: list[dict]) -> None:
             cells.append(f"{total} ({worst['distortion']:.2f} / {worst['noise']:.2f})")
         excess = [r[name][g]["error"] - r["causal"][g]["error"] for r in per_take for g in GROUPS]
         errors = " / ".join(f"{np.median([r[name][g]['error'] for r in per_take]):.1f}" for g in GROUPS)
-        print(f"| {name} | " + " | ".join(cells) + f" | {errors} (worst vs causal {max(excess):+.1f}) |")
-    print("\nLag, frames (+ = late): best shift against the truth / timing of the smoothing alone / velocity"
-          " correlation against the smoother's input\n")  # fmt: skip
-    print("| output | " + " | ".join(GROUPS) + " |")
-    print("|---|" + "---|" * len(GROUPS))
+        out.append(f"| {name} | " + " | ".join(cells) + f" | {errors} (worst vs causal {max(excess):+.1f}) |")
+    out += ["", "Lag, frames (+ = late): best shift against the truth / timing of the smoothing alone / velocity"
+            " correlation against the smoother's input", ""]  # fmt: skip
+    out.append("| output | " + " | ".join(GROUPS) + " |")
+    out.append("|---|" + "---|" * len(GROUPS))
     for name in ("view 0", "view 1", *SMOOTHERS):
         cells = []
         for g in GROUPS:
             measures = ("shift",) if name.startswith("view") else ("shift", "timing", "vel input")
             cells.append(" / ".join(cell([r[name][g][m] for r in per_take], 2) for m in measures))
-        print(f"| {name} | " + " | ".join(cells) + " |")
+        out.append(f"| {name} | " + " | ".join(cells) + " |")
     squats = [r for r in per_take if "bottom" in r]
     if squats:
-        print("\nSquat depth, mm (output minus truth; negative = too deep), per squat take\n")
+        out += ["", "Squat depth, mm (output minus truth; negative = too deep), per squat take", ""]
         bottom = list(squats[0]["bottom"])
-        print("| seed | " + " | ".join(bottom)
-              + " | " + " | ".join(f"{n} (by smoothing)" for n in SMOOTHERS) + " |")  # fmt: skip
-        print("|---|" + "---|" * (len(bottom) + len(SMOOTHERS)))
+        out.append("| seed | " + " | ".join(bottom)
+                   + " | " + " | ".join(f"{n} (by smoothing)" for n in SMOOTHERS) + " |")  # fmt: skip
+        out.append("|---|" + "---|" * (len(bottom) + len(SMOOTHERS)))
         for r in squats:
             views = " | ".join(f"{r['bottom'][k]:+.1f}" for k in bottom)
             outs = " | ".join(f"{r[n]['depth']:+.1f} ({r[n]['depth by smoothing']:+.1f})" for n in SMOOTHERS)
-            print(f"| {r['seed']} | {views} | {outs} |")
-    print()
+            out.append(f"| {r['seed']} | {views} | {outs} |")
+    return [*out, ""]
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """Every split's tables, from :func:`run`'s result (or its JSON, NaN written as null)."""
+    splits = nan_for_none(result["splits"])
+    lines = [
+        f"{result['duration_s']:g} s takes, 2 sensors; jitter as a share of the better single view's error jitter",
+        "",
+    ]
+    for title, per_take in splits.items():
+        lines += report(title, per_take)
+    return "\n".join(lines).rstrip()
+
+
+def run(training: list[int], held_out: list[int], duration_s: float) -> dict[str, Any]:
+    """Every seed of both splits measured (:func:`measure`); NaN as None, so that it is JSON."""
+    splits = {title: [measure(seed, duration_s) for seed in seeds]
+              for title, seeds in (("Training seeds", training), ("Held-out seeds", held_out)) if seeds}  # fmt: skip
+    return {"duration_s": duration_s, "splits": none_for_nan(splits)}
 
 
 def main() -> None:
@@ -225,11 +254,14 @@ def main() -> None:
     parser.add_argument("--training", type=int, nargs="*", default=list(range(6)))
     parser.add_argument("--held-out", type=int, nargs="*", default=list(range(1000, 1012)))
     parser.add_argument("--duration", type=float, default=10.0)
+    parser.add_argument("--json", action="store_true", help="print the per-take figures as JSON, stamped")
     args = parser.parse_args()
-    print(f"{args.duration:g} s takes, 2 sensors; jitter as a share of the better single view's error jitter\n")
-    for title, seeds in (("Training seeds", args.training), ("Held-out seeds", args.held_out)):
-        if seeds:
-            report(title, [measure(seed, args.duration) for seed in seeds])
+    args.stamp = RunStamp.begin(sys.argv[1:], program=("python", "scripts/smoothing_targets.py")) if args.json else None
+    result = run(args.training, args.held_out, args.duration)
+    if args.json:
+        print_json(result, args)
+    else:
+        print(format_markdown(result))
 
 
 if __name__ == "__main__":

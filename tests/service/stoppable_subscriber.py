@@ -2,10 +2,11 @@
 
     python stoppable_subscriber.py KEY PORT OUT.json [SO_RCVBUF]
 
-Connects to ``tcp/127.0.0.1:PORT`` only (peer mode; no listener, no gossip, no scouting, so nothing else links
-to it or reaches data through it), subscribes to KEY and, on SIGTERM or on receiving ``END`` (a payload whose
-first 8 bytes are all 0xff, sent after the last frame: it arrives after all that was sent before it), writes the
-first 8 bytes of each payload it received (little-endian int: the tests' sequence numbers) to OUT.json.
+Connects to ``tcp/127.0.0.1:PORT`` only (peer mode; no listener, no gossip, no scouting, so nothing else links to
+it or reaches data through it; no shared memory, so every payload comes over that link), subscribes to KEY and, on
+SIGTERM or on receiving ``END`` (a payload whose first 8 bytes are all 0xff, sent after the last frame: it arrives
+after all that was sent before it), writes the first 8 bytes of each payload it received (little-endian int: the
+tests' sequence numbers) to OUT.json.
 ``SO_RCVBUF`` (bytes) shrinks its TCP receive buffer (zenoh ``transport/link/tcp/so_rcvbuf``).
 """
 
@@ -29,6 +30,7 @@ def main() -> int:
     conf = loopback_config(connect_ports=[port])
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     if len(sys.argv) > 4:
         conf.insert_json5("transport/link/tcp/so_rcvbuf", sys.argv[4])
     received: list[int] = []

@@ -37,22 +37,29 @@ def generator() -> ModuleType:
 
 
 def test_every_generated_block_equals_its_rendering_from_the_stored_results(generator: ModuleType) -> None:
-    text = generator.PAGE.read_text(encoding="utf-8")
-    assert generator.stale_blocks(text) == [], (
-        "docs/evidence.md differs from the stored results: run `python scripts/update_doc_tables.py write` "
-        "(or `record NAME` first, to re-measure)"
-    )
+    for page in generator.PAGES:
+        text = page.read_text(encoding="utf-8")
+        assert generator.stale_blocks(text, page=page) == [], (
+            f"{page.name} differs from the stored results: run `python scripts/update_doc_tables.py write` "
+            "(or `record NAME` first, to re-measure)"
+        )
 
 
-def test_a_hand_edited_figure_is_caught(generator: ModuleType) -> None:
-    text = generator.PAGE.read_text(encoding="utf-8")
-    row = re.compile(r"^\|[^\n]*?(\d)", re.M)  # a figure in a table row
-    block = next(m for m in generator.MARKERS.finditer(text) if row.search(m["body"]))
-    figure = row.search(block["body"])
-    assert figure is not None
-    at = block.start("body") + figure.start(1)
-    edited = text[:at] + str((int(text[at]) + 1) % 10) + text[at + 1 :]
-    assert generator.stale_blocks(edited) == [block["name"]]
+def test_a_hand_edited_figure_is_caught_in_every_block(generator: ModuleType) -> None:
+    table_row = re.compile(r"^\|[^\n]*?(\d)", re.M)  # a figure in a table row (the evidence page's tables)
+    any_figure = re.compile(r"(\d)")  # a guide's block is one sentence
+    checked = []
+    for page in generator.PAGES:
+        text = page.read_text(encoding="utf-8")
+        for block in generator.MARKERS.finditer(text):
+            figure = (any_figure if block["name"] in generator.GUIDE_BLOCKS else table_row).search(block["body"])
+            if figure is None or block["body"].startswith("Not recorded"):
+                continue
+            at = block.start("body") + figure.start(1)
+            edited = text[:at] + str((int(text[at]) + 1) % 10) + text[at + 1 :]
+            assert generator.stale_blocks(edited, page=page) == [block["name"]]
+            checked.append(block["name"])
+    assert {"paper", "robustness", "demo-accuracy"} <= set(checked)
 
 
 def test_the_accuracy_results_are_stored(generator: ModuleType) -> None:
@@ -65,15 +72,13 @@ def test_the_accuracy_results_are_stored(generator: ModuleType) -> None:
 
 def test_every_stored_result_carries_the_stamp_of_the_command_that_records_it(generator: ModuleType) -> None:
     stored = 0
-    for name, files in generator.RECORDS.items():
+    for files in generator.RECORDS.values():
         for stem, args in files.items():
             path = generator.STORE / f"{stem}.json"
             if not path.is_file():
                 continue  # the page says "Not recorded" for it (the block test checks that)
             stamp = json.loads(path.read_text(encoding="utf-8"))["stamp"]
-            program = ["python", "scripts/soak_hostile.py"] if name == "soak" else ["skelfuse"]
-            expected = shlex.join([*program, *(a.replace("{out}", "OUT.json") for a in args)])
-            assert stamp["command"] == expected, path
+            assert stamp["command"] == shlex.join(generator.stamped_command(args)), path
             assert re.fullmatch(r"[0-9a-f]{12}(-dirty)?", stamp["revision"]), f"{path}: {stamp['revision']}"
             assert not stamp["revision"].endswith("-dirty"), f"{path}: recorded from an uncommitted tree"
             assert stamp["machine"]["cores"] >= 1 and stamp["machine"]["cpu_model"]
@@ -88,11 +93,13 @@ def test_stored_results_read_back_to_what_they_were(generator: ModuleType) -> No
     from skelfuse.eval.realism import SimCheckResult
     from skelfuse.eval.rig import RigEvalResult
     from skelfuse.eval.robustness import RobustnessResult
+    from skelfuse.eval.tracking import TrackingEvalResult
 
     kinds = {
         "robustness": RobustnessResult,
         "sim-check": SimCheckResult,
         "real": RigEvalResult,
+        "tracking": TrackingEvalResult,
         "speed-latency": LatencyResult,
         "speed-latency-people": LatencyResult,
     }
@@ -179,6 +186,27 @@ def test_record_stores_the_commands_json_and_write_renders_it_with_its_stamp(
     assert block.startswith(f"`{quick}` · revision `{stored['stamp']['revision']}`")
     assert f"**{stored['inside']} of {len(stored['rows'])} statistics inside the real range.**" in block
     assert generator.render_block("paper", tmp_path).startswith("Not recorded: ")
+
+
+@pytest.mark.live  # runs scripts/plausibility_rates.py in a subprocess
+def test_a_scripts_json_is_recorded_with_its_stamp_and_rendered_by_its_own_formatter(
+    generator: ModuleType, tmp_path: Path
+) -> None:
+    args = generator.QUICK["plausibility"]["plausibility"]
+    (path,) = generator.record("plausibility", tmp_path, generator.QUICK)
+    stored = json.loads(path.read_text(encoding="utf-8"))
+    assert stored["stamp"]["command"] == shlex.join(["python", *args])
+    assert [(r["world"], r["sensors"]) for r in stored["rows"]] == [
+        ("clean", 2),
+        ("fast gestures", 2),
+        ("tracker_loss", 2),
+    ]
+    block = generator.render_block("plausibility", tmp_path)
+    assert block.startswith(f"`{shlex.join(['python', *args])}` · revision")
+    loss = stored["rows"][2]
+    assert loss["episode_frames_caught"] <= loss["episode_frames"] > 0  # the simulated losses are there
+    teleport = 100 * loss["held"]["teleport"] / loss["view_frames"]
+    assert f"| tracker_loss | 2 | {loss['view_frames']} | {teleport:.3f} |" in block
 
 
 def test_quick_results_are_refused_as_evidence(generator: ModuleType) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -166,3 +168,14 @@ def test_jitter_of_white_noise_is_sqrt18_sigma() -> None:
     assert jitter_rms(*jitter_sums(noise)) == pytest.approx(2.0 * np.sqrt(18.0), rel=0.02)
     with pytest.raises(ValueError, match="T, J, 3"):
         jitter_sums(np.zeros((5, 3)))
+
+
+def test_none_for_nan_writes_json_and_nan_for_none_reads_it_back() -> None:
+    from skelfuse.eval.metrics import nan_for_none, none_for_nan
+
+    value = {"a": [float("nan"), np.float64(1.5)], "b": (np.int64(2), {"c": np.float32("inf")})}
+    written = none_for_nan(value)
+    assert written == {"a": [None, 1.5], "b": [2, {"c": None}]}
+    assert json.loads(json.dumps(written, allow_nan=False)) == written
+    back = nan_for_none(written)
+    assert np.isnan(back["a"][0]) and back["a"][1] == 1.5 and np.isnan(back["b"][1]["c"])

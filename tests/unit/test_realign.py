@@ -357,12 +357,14 @@ def test_temporal_starts_cold_when_the_body_teleports_and_not_when_it_walks():
     assert mirrored[0].tolist() == away.tolist()
 
 
-def test_teleport_centre_is_the_median_view_and_unknown_centres_never_jump():
+def test_a_teleport_is_a_jump_of_every_view_and_unknown_centres_never_jump():
     rng = np.random.default_rng(RNG_SEED + 16)
     truth = _facing_skeleton(rng, 0.0)
     pos, _, _ = _rig_views(truth, 0.0, rng)
-    pos[0, 0] += 1000.0  # one view of someone else far away: the median of four views ignores it
+    pos[0, 0] += 1000.0  # one view of someone else far away: the other views did not jump
     assert not teleported(pos, truth[None], 200.0).any()
+    assert not teleported(pos[:, :2], truth[None], 200.0).any()  # two views: their mean moved 500 mm, no jump
+    assert teleported(pos[:, :1], truth[None], 200.0).all()  # the only view jumped
     no_hips = truth.copy()
     no_hips[J["HIP_LEFT"]] = np.nan
     assert not teleported(pos + 500.0, no_hips[None], 200.0).any()  # anchor centre unknown

@@ -195,7 +195,7 @@ def _percentile(values: Sequence[float], q: float) -> float | None:
 def _merge_windows(windows: list[dict[str, Any]], name: str) -> dict[str, float | None]:
     """p50 / p99 / max of the status field ``name`` (e.g. ``node_added_ms``) over several status windows.
 
-    Exact over every instant of the windows when they carry ``<name>_samples`` (nodes since 2026-11-28). A node
+    Exact over every instant of the windows when they carry ``<name>_samples`` (this version's node does). A node
     without them (an older ``--node-src``) gives only each window's percentiles, which do not merge: then p50 is
     the median of the windows' p50 and p99 / max the largest window's (a 0.5 s window holds 15 instants, so its
     p99 is about its max: the largest window p99 is about the run's max, not its p99).

@@ -330,17 +330,14 @@ def _realign_body(pos: list[list], conf: list[list[int]], passes: int) -> tuple[
 
 
 def _teleported(pos: list[list], previous: list[np.ndarray | None], max_jump_mm: float) -> bool:
-    """The body centre (mean of both shoulders and hips; per axis the median over the views that have all
-    four) is further than ``max_jump_mm`` from the previous skeleton's."""
+    """The body centre (mean of both shoulders and hips) is further than ``max_jump_mm`` from the previous
+    skeleton's in every view that has all four."""
     centre = [J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]]
     if any(previous[j] is None for j in centre):
         return False
     then = np.mean([p for j in centre if (p := previous[j]) is not None], axis=0)  # all four: checked above
     views = [np.mean([row[j] for j in centre], axis=0) for row in pos if all(row[j] is not None for j in centre)]
-    if not views:
-        return False
-    now = np.median(np.array(views), axis=0)
-    return bool(math.dist(now, then) > max_jump_mm)
+    return bool(views) and all(math.dist(now, then) > max_jump_mm for now in views)
 
 
 def _realign_temporal(
@@ -414,14 +411,19 @@ def _realign_temporal(
         views_seen = n_views
     else:
         confirmed = rear_for > rear_against
-        clear = clear + 1 if weight > 0 and against >= params.recovery_share * weight and not confirmed else 0
+        if weight > 0 and against >= params.recovery_share * weight and not confirmed:
+            clear += 1
+        elif sum(decided) >= max(views_seen, 2) and not any(flipped):  # every view vouches for the anchor: credit
+            clear = max(min(clear, 0) - 1, -params.recovery_credit_frames)
+        else:
+            clear = min(clear, 0)
         simple = simple + 1 if against > weight - against and not confirmed else 0
         rear_streak = rear_streak + 1 if rear_against > rear_for else 0
         slow = params.majority_recovery_frames
         if (
             clear >= params.recovery_frames
             or (slow is not None and simple >= slow)
-            or rear_streak >= params.rear_view_frames
+            or rear_streak >= params.rear_view_frames + min(max(-clear, 0), params.recovery_frames)
         ):
             invert = True
             clear = simple = rear_streak = 0

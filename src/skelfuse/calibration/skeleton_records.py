@@ -129,7 +129,7 @@ class SensorQuality:
     reasons : why the verdict is not "good" (empty when it is).
     inlier_frame_fraction : of the frames in which this sensor and its best partner both saw the torso, the
         share that hold an inlier of their pairwise fit (about 1 for a well paired take; frames paired in
-        time wrongly drop it: 0.13-0.24 in simulated walks shifted by 57 frames).
+        time wrongly drop it far below).
     better_shift_frames, better_shift_rms_mm : where pairing this sensor's frames a few frames off fits much
         better (see :func:`pairing_check`): the shift (frames of this sensor to move later) and the pairwise
         residual there; None when the pairing as given is the best one tried.

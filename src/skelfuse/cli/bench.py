@@ -99,7 +99,7 @@ def _cmd_bench_depth(args: argparse.Namespace) -> int:
         progress=not args.json,
     )
     if args.json:
-        print_json(result)
+        print_json(result, args)  # stamped: docs/evidence.md quotes it
     else:
         print(format_depth_bench(result))
     return EXIT_OK

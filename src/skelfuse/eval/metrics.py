@@ -466,3 +466,17 @@ def nan_for_none(value: Any) -> Any:
     if isinstance(value, list):
         return [nan_for_none(v) for v in value]
     return value
+
+
+def none_for_nan(value: Any) -> Any:
+    """NaN written as ``None`` (JSON has no NaN), numpy scalars as Python ones, in nested dicts and lists: the
+    inverse of :func:`nan_for_none`."""
+    if isinstance(value, dict):
+        return {k: none_for_nan(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [none_for_nan(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

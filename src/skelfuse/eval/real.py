@@ -99,7 +99,7 @@ BONE_CV_NOTE = (
     "so within one view all bones keep fixed proportions and change together through one size factor "
     "per frame (CV about 2-5% per view, the same for every bone), and that scale differs between views "
     "by up to 5%. Averaging views naively therefore does not lower bone-length variation, and it makes "
-    "hand bones worse (8-21%) because the views' hand guesses disagree. Read it next to the cross-view "
+    "hand bones worse because the views' hand guesses disagree. Read it next to the cross-view "
     "distances."
 )
 

@@ -35,8 +35,8 @@ then the whole take, so that the seam moves the body and turns it round in one f
 demo's 20 s loop does;
 scored on the whole take with the demo's rule (the person most views contributed to). Per cell the matrix also
 gives ``skelfuse_live`` minus ``skelfuse`` with its paired interval: the live path must not lose to the offline
-one (it did, 104.7 against 16.9 mm in the demo, before the teleport rule of
-:func:`skelfuse.fusion.realign.realign_temporal`).
+one (a looped take's seam is where it can, which the teleport rule of
+:func:`skelfuse.fusion.realign.realign_temporal` handles; docs/evidence.md, "Robustness").
 """
 
 from __future__ import annotations

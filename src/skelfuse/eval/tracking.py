@@ -286,6 +286,12 @@ class TrackingEvalResult:
             "scenarios": [s.to_dict() for s in self.scenarios],
         }
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrackingEvalResult:
+        """Read back what :meth:`to_dict` wrote (docs/evidence.md is rendered from the stored JSON)."""
+        scenarios = [ScenarioResult(**{**s, "metrics": TrackingMetrics(**s["metrics"])}) for s in data["scenarios"]]
+        return cls(data["preset"], data["seed"], data["quick"], scenarios)
+
     def format_markdown(self) -> str:
         lines = [
             f"## Multi-person tracking (preset {self.preset}, seed {self.seed}{', quick' if self.quick else ''})",

@@ -116,10 +116,11 @@ class FusionState:
     x : (B, J, 2, 3) float64, filter state: position (mm) and velocity (mm/s) per axis.
     P : (B, J, 3) float64, filter covariance per axis (p_pos, p_pos_vel, p_vel), shared by the axes.
     coast : (B, J) int32, -1 = no track, else frames since the joint's last measurement.
-    flip_counters : (B, 4) int32 or None, "temporal" realignment: frames in a row a clear majority (column 0)
-        and a simple majority (column 1) of the evidence disagreed with the anchor, (column 2) the most
-        views that saw the body since its last cold start, and (column 3) frames in a row rear views facing
-        away disagreed with it (None reads as all 0).
+    flip_counters : (B, 4) int32 or None, "temporal" realignment: (column 0) frames in a row a clear majority
+        of the evidence disagreed with the anchor, negative: the anchor's credit
+        (:func:`skelfuse.fusion.realign.recovery_count`), (column 1) frames in a row a simple majority did,
+        (column 2) the most views that saw the body since its last cold start, and (column 3) frames in a row
+        rear views facing away disagreed with it (None reads as all 0).
     orientation : (B, J, 4) float64 or None, last fused orientations (all-zero rows: none).
     angular_velocity : (B, J, 3) float64 or None, rad/s, the rotation filter's rate (None reads as 0).
     position_cov : (B, J, 3) float64 or None, the uncertainty recursion's covariance (None reads as 0).
@@ -483,6 +484,7 @@ def _realign(
             sensor_positions=sensor_positions,
             rear_view_cos=params.rear_view_cos,
             rear_view_frames=params.rear_view_frames,
+            credit_frames=params.recovery_credit_frames,
         )
         return out_positions, out_conf, None, streak, flipped
     reference = reference_positions(positions, conf)

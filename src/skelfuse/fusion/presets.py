@@ -15,14 +15,14 @@ A5        paper      dbscan 100 mm    weight 2.0                      weight 1.0
 skelfuse  temporal   dbscan 75 mm     off                             weight 1.0      cv_kalman 5000/15
 ========  =========  ===============  ==============================  ==============  ==================
 
-"skelfuse" was chosen by ``scripts/tune_fusion.py`` on the simulator (train seed; checked on a held-out
-seed): temporal realignment (recovery after 10 frames at a 3/4 evidence majority) is what removes the
-rear views' mirroring, the error that dominates A1-A5; eps 75 mm is within 1% of the best radius with less
-jitter; the reference candidate adds nothing once the labels are right (within 2%, more jitter, and it
-costs a reference per frame), so it is off; cv_kalman with accel sigma 5000 mm/s^2, measurement sigma
-15 mm and R divided by the number of agreeing views halves the jitter at a lag under 0.1 frame (the
-paper's Kalman lags 8 frames). The filter's prediction as the previous candidate measured no better than
-the merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
+"skelfuse" was chosen by ``scripts/tune_fusion.py`` on the simulator (a training seed, checked on a held-out
+one): temporal realignment (recovery after 10 frames at a 3/4 evidence majority) removes the rear views'
+mirroring, the error that dominates A1-A5; a 75 mm radius is as accurate as the best with less jitter; the
+reference candidate adds nothing once the labels are right (and costs a reference per frame), so it is off;
+cv_kalman (accel sigma 5000 mm/s^2, measurement sigma 15 mm, R divided by the number of agreeing views)
+removes most of the jitter at almost no lag, where the paper's Kalman lags by frames (docs/evidence.md,
+"Accuracy against the paper"). The filter's prediction as the previous candidate does no better than the
+merged position, so trick 2 stays the paper's. A body that moves faster than 6 m/s (a looped take's
 seam) starts its realignment cold (``max_body_speed_mm_s``). "skelfuse" also outputs fused joint orientations and a
 per-joint position uncertainty (``orientations``, ``position_std``); they do not change the positions.
 """
@@ -71,14 +71,22 @@ class FusionParams:
     recovery_frames : int
         "temporal" only: frames in a row a clear majority of views must disagree with the anchor before the
         body follows the majority (see :func:`skelfuse.fusion.realign.realign_temporal`).
+    recovery_credit_frames : int
+        "temporal" only: the most credit a body's anchor banks, one frame per frame in which every view agreed
+        with it (at least two views, and every view that has seen the body since its cold start); a run of
+        disagreement spends it before the recovery rule counts, and the rear-view rule waits as many frames
+        more as it holds, at most ``recovery_frames``. 0: no credit. Default 30 (1 s at 30 fps):
+        after a second in which every view agreed, views mirrored together (a person side-on between two
+        facing sensors) keep a right anchor for up to ``30 + recovery_frames - 1`` frames; the price is that
+        a wrong start every view vouched for (all mirrored) is undone up to 30 frames later.
     recovery_share : float
         "temporal" only: the share of the MEDIUM evidence, in (0.5, 1], that is a clear majority.
     majority_recovery_frames : int or None
         "temporal" only: frames in a row more than half of the evidence must disagree with the anchor before
         the body follows it: a slow rule that undoes a wrong start in a 2-against-2 split. Off (None) by
         default: wherever rear views outnumber front ones (three sensors, one in front) the mirrored views
-        ARE the majority, and the rule overturned correct anchors (eval paper, 3 sensors with rear
-        mirroring: upper limb 36 -> 379 mm). Wrong starts from too few views are undone by the restart rule
+        ARE the majority, and the rule would overturn correct anchors (``skelfuse eval paper``'s rear-mirroring
+        scenario with 3 sensors shows it). Wrong starts from too few views are undone by the restart rule
         instead (see :func:`skelfuse.fusion.realign.realign_temporal`).
     max_body_speed_mm_s : float or None
         "temporal" only: a body whose centre (shoulders and hips) moved faster than this since the last frame
@@ -176,6 +184,7 @@ class FusionParams:
     realign: RealignMode | None = "paper"
     realign_passes: int = 2
     recovery_frames: int = 10
+    recovery_credit_frames: int = 30
     recovery_share: float = 0.75
     majority_recovery_frames: int | None = None
     max_body_speed_mm_s: float | None = None
@@ -220,6 +229,8 @@ class FusionParams:
         _one_of("kalman_output", self.kalman_output, ("predicted", "posterior"))
         if int(self.recovery_frames) < 1:
             raise ValueError(f"FusionParams.recovery_frames must be >= 1, got {self.recovery_frames!r}")
+        if int(self.recovery_credit_frames) < 0:
+            raise ValueError(f"FusionParams.recovery_credit_frames must be >= 0, got {self.recovery_credit_frames!r}")
         if self.majority_recovery_frames is not None and int(self.majority_recovery_frames) < 1:
             raise ValueError(
                 f"FusionParams.majority_recovery_frames must be None or >= 1, got {self.majority_recovery_frames!r}"

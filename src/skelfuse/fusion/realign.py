@@ -42,8 +42,8 @@ Two modes:
         triangle inequality ``|swap - keep|`` never exceeds twice the anchor's width of that pair, so each
         pair votes in [-1, 1] and a pair held wide apart (arms spread) weighs no more than the hips. In
         millimetres, as ``realign_body`` sums them, two arms whose occlusion guesses land on the wrong
-        sides outvoted shoulders, hips, knees and ankles and mirrored a correct view (simulator,
-        ``mixture`` with 3 sensors, seed 1002: 357 mm fused error with millimetres, 42 mm with votes).
+        sides would outvote shoulders, hips, knees and ankles and mirror a correct view
+        (``test_temporal_two_wild_arms_do_not_outvote_shoulders_hips_and_legs``).
     Initialization (no previous pair at all: the first frame, after a reset, after a loss of track)
         A 2-vs-2 split of views is geometrically ambiguous: a mirrored rear view faces "its" sensor just as a
         correct front view does. The *evidence* of a view is its number of MEDIUM-or-better joints (all
@@ -52,19 +52,16 @@ Two modes:
         sensor index); every view is decided against the seed's pair joints (pairs the seed lacks fall
         back to the static reference), which splits the views into the seed's group and the flipped
         group. The group holding more evidence is taken as correct, the seed's group on an exact tie.
-        Measured on the simulator (scripts/tune_fusion.py, cold starts at frames where a view is
-        mirrored): every view right in 92% of cold starts, against 78% for the static "body" vote; all
-        3-vs-1 splits are right, the misses are 2-vs-2 splits in which the mirrored pair happened to hold
-        more MEDIUM joints. That figure predates realistic confidences: rear views now report their hidden
-        torso MEDIUM, as the real tracker does, so the MEDIUM count hardly tells a mirrored rear view from a
-        front view any more. When a view faces away from its sensor (the rear-view rule below) the group
-        holding such views wins instead; otherwise a miss is fixed by the recovery rule (3-vs-1) or, once a
-        rear view stops mirroring, by the rear-view rule.
+        Rear views report their hidden torso MEDIUM, as the real tracker does, so the count alone cannot
+        settle a 2-vs-2 split: when a view faces away from its sensor (the rear-view rule below) the group
+        holding such views wins instead; otherwise a wrong start is fixed by the recovery rule (3-vs-1) or,
+        once a rear view stops mirroring, by the rear-view rule (``scripts/tune_fusion.py`` scores cold
+        starts on the simulator).
     Restart (more views than built the anchor)
         An anchor only knows the views it was built from. When more views see a body's pairs than ever did
         since its cold start (counter column 2), the body starts cold again: a body first seen by the two
-        rear sensors alone, whose anchor is mirrored, is re-decided when the front sensors join. On 24
-        simulated takes starting that way, upper-limb RMSE fell from 219 to 42 mm.
+        rear sensors alone, whose anchor is mirrored, is re-decided when the front sensors join, so it does
+        not keep the mirrored arms it started with.
     Recovery (a mirrored anchor, from a wrong start or a genuinely fast turn)
         Without a rule, a mirrored anchor would realign every view to itself forever. Each view weighs its
         evidence (above). When the views that disagree with the anchor (would be flipped) hold at least
@@ -73,6 +70,16 @@ Two modes:
         was mirrored), and the counter restarts. A 2-vs-2 split (share 1/2) never triggers it, so a correct
         anchor is not overturned by the usual two rear views. Tuned on the simulator: 10 frames at 3/4. A
         frame in which a rear view facing away vouches for the anchor (the rear-view rule) resets the count.
+        Credit: each frame in which every view agrees with the anchor banks one frame of credit, up to
+        ``credit_frames``, where at least two views and every view that has seen the body since its cold start
+        decided (:func:`vouched`); a run of disagreement spends the credit before it counts, and the rear-view rule
+        waits as many frames more as the credit holds, at most ``recovery_frames`` (:func:`recovery_count`).
+        Per instant, views mirrored together and a mirrored anchor look exactly alike: a person side-on
+        between two facing sensors with both views mirrored for a while, or a front view 31 deg off the front
+        mirrored for a few frames (it then faces away from its sensor, like a rear view that is not mirrored).
+        The history tells them apart: views that have just vouched for the anchor outweigh as long a run
+        against it. The price: a wrong start that every view vouched for (all views mirrored at the cold
+        start) is undone up to ``credit_frames`` frames later.
         An optional slow rule (``majority_recovery_frames``, off by default) follows views that hold MORE
         than half of the evidence for that many frames in a row. It repairs 2-vs-2 misses, but wherever
         rear views outnumber front ones the mirrored views are the majority and it overturns correct
@@ -97,24 +104,24 @@ Two modes:
         undone ``rear_view_frames`` frames after one rear view stops mirroring, and an instant 180 deg turn
         in place (which no teleport rule sees) within ``rear_view_frames`` of a new rear view that is not
         yet mirrored.
-        Measured (``python scripts/measure_rear_view_signal.py``), simulator (default profile, 20 seeds x 2/3/4
-        sensors): of the (frame, view) samples with a cosine below -0.5, none is mirrored (2497 samples;
-        -0.7: 1941), and 99.7% of the unmirrored rear views (over 110 deg) are below -0.3; with failure
-        families that mirror side views or report a neighbour the share of mirrored views below -0.7 is
-        0.3-1.6%, hence the 3-frame streak. Real data (../shared/data, andyj1 takes: 118 view-frames whose
-        sensor position is known): every view faces its own sensor within 3-36 deg, none faces away; no real
-        rear view was recorded, so the real data neither confirms nor refutes the rule; it rests on the
-        documented tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear
-        frame, it would simply never fire.
+        On the simulator no view below the threshold is mirrored in the base world, and failure families that
+        mirror side views or report a neighbour put only a few there, hence the 3-frame streak
+        (``python scripts/measure_rear_view_signal.py``; docs/evidence.md, "Rear views that face away"). The
+        real takes hold no rear view, so they neither confirm nor refute the rule; it rests on the documented
+        tracker behaviour (DESIGN "Known behaviour") and, if a real tracker mirrored every rear frame, it
+        would simply never fire.
     Turning
         Nothing special: the anchor turns with the person frame by frame.
     Teleport (``max_jump_mm``, off unless given)
-        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place; per axis the
-        median over the views that have all four) lies more than ``max_jump_mm`` from the anchor's starts
-        cold: nobody moves that far in one frame, so the anchor belongs to another pose (a looped take's
+        A body whose centre (the mean of its shoulders and hips, which a flip leaves in place) lies more than
+        ``max_jump_mm`` from the anchor's in every view that has all four starts cold: nobody moves that far
+        in one frame, so the anchor belongs to another pose (a looped take's
         seam, which also turns the body round in one frame; a track handed to someone else), and deciding
         against it would mirror every view that is right. Without the rule such an anchor stays mirrored
-        wherever the views split 2 against 2, since recovery needs a clear majority.
+        wherever the views split 2 against 2, since recovery needs a clear majority. One view that jumps
+        alone (someone else, a tracker that lost the body, held out by the plausibility stage) is no teleport:
+        with two views, a median (their mean) moved with it, and the body started cold in every such frame,
+        where a 1-against-1 split is decided by the MEDIUM evidence alone.
 
     Returns the flip decisions and the new per-body disagreement counters; the caller keeps the counters.
 
@@ -126,9 +133,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from skelfuse.fusion import kernels
-from skelfuse.fusion.association import nanmedian_axis
 from skelfuse.fusion.mirror import mirror_views, pair_costs
 from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
@@ -271,6 +278,7 @@ def realign_temporal(
     sensor_positions: np.ndarray | None = None,
     rear_view_cos: float | None = None,
     rear_view_frames: int = 3,
+    credit_frames: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Whole-body realignment against the previous merged skeleton; see the module docstring for the policy.
 
@@ -282,7 +290,8 @@ def realign_temporal(
         The temporal anchor: last frame's merged skeleton of each body (NaN = none).
     streak : (B, 4) int
         Per body: frames in a row in which the views disagreeing with the anchor held (column 0)
-        ``recovery_share`` of the evidence and (column 1) more than half of it; (column 2) the most views
+        ``recovery_share`` of the evidence, negative: the anchor's credit (:func:`recovery_count`), and
+        (column 1) more than half of it; (column 2) the most views
         that have seen the body's left/right pairs since its last cold start; (column 3) frames in a row in
         which rear views facing away disproved the anchor. All 0 for a new body (three columns are read
         as the first three, the fourth 0).
@@ -310,6 +319,11 @@ def realign_temporal(
     rear_view_frames : int
         Frames in a row in which such views disagree with the anchor (more of them disagree than agree)
         before the body follows them (>= 1).
+    credit_frames : int
+        The most credit the anchor banks, one frame for each frame in which every view agreed with it and
+        enough of them decided (:func:`vouched`) (>= 0; 0: none). A run of disagreement spends it before the
+        recovery rule counts, and the rear-view rule waits as many frames more as the credit holds, at most
+        ``recovery_frames``.
 
     Returns
     -------
@@ -356,8 +370,9 @@ def realign_temporal(
         anchor = np.where(np.tile(prev_ok, 2)[..., None], anchor, np.where(use_seed, seed_pairs, static))
         margin, decided, _ = pair_votes(positions, anchor)
     flips = margin < 0.0
-    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip or count
+    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
         counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
+        counters[:, 0] = recovery_count(streak[:, 0], False, vouched(decided, streak[:, 2]), credit_frames)
         counters[:, 2] = streak[:, 2]
         return positions, confidence, flips, counters
     against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
@@ -383,16 +398,21 @@ def realign_temporal(
     # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
     # have started cold), this frame's count after a cold start.
     views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
+    unanimous = vouched(decided, views_seen) & ~flips.any(axis=1)
+    count = recovery_count(streak[:, 0], majority, unanimous, credit_frames)
     new_streak = np.stack(
         [
-            (streak[:, 0] + 1) * majority,
+            count if has_prev is None else count * has_prev,  # a cold start starts without credit
             (streak[:, 1] + 1) * simple,
             views_seen,
             (streak[:, 3] + 1) * disproved,
         ],
         axis=1,
     ).astype(np.int32)
-    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames)
+    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more, at
+    # most recovery_frames: a rear view facing away is stronger evidence than a majority.
+    credit = np.minimum(-np.minimum(new_streak[:, 0], 0), recovery_frames)
+    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames + credit)
     if majority_recovery_frames is not None:
         follow |= new_streak[:, 1] >= majority_recovery_frames
     new_streak[follow, :2] = 0
@@ -407,6 +427,24 @@ def realign_temporal(
         return positions, confidence, mirrored, new_streak
     out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
     return out_positions, out_confidence, mirrored, new_streak
+
+
+def recovery_count(count: np.ndarray, majority: ArrayLike, unanimous: ArrayLike, credit_frames: int) -> np.ndarray:
+    """The recovery rule's counter (B,) after one frame: +1 for a frame in which a clear ``majority`` of the
+    evidence disagreed with the anchor, -1 down to ``-credit_frames`` for a frame in which every decided view
+    agreed with it (``unanimous``); any other frame ends a run of disagreement (a positive count drops to 0)
+    and keeps the credit. The body follows the majority once the count reaches the recovery frames, so an
+    anchor that every view vouched for recently outlasts that many more frames of disagreement."""
+    kept = np.minimum(count, 0)
+    return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
+
+
+def vouched(decided: np.ndarray, views_seen: np.ndarray) -> np.ndarray:
+    """(B,) bool: enough views decided for their agreement with the anchor to earn it credit: at least two, and
+    every view that has seen the body since its cold start (``views_seen``). The views left of a body that lost
+    one (to someone else, or to the tracker) would otherwise vouch for an anchor they made themselves: a lone
+    rear view that the recovery rule followed earns the mirrored anchor credit against the front view's return."""
+    return decided.sum(axis=1) >= np.maximum(views_seen, 2)
 
 
 def pair_votes(positions: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -458,14 +496,17 @@ def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.nda
 
 
 def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:
-    """(B,) bool: the body's centre now (mean of shoulders and hips in each view that has all four; per axis
-    the median over those views) lies more than ``max_jump_mm`` from the centre of ``previous`` (B, J, 3).
-    False where either centre is unknown."""
+    """(B,) bool: the body's centre (mean of shoulders and hips) lies more than ``max_jump_mm`` from the centre of
+    ``previous`` (B, J, 3) in every view that has all four: a jump every view makes. One view of someone else (a
+    neighbour, a tracker that lost the body) does not make the body jump. False where either centre is unknown."""
     # np.add.reduce / 4 is ndarray.mean over the four joints, without its Python-level wrapper (hot path).
     then = np.add.reduce(previous[:, _CENTRE_JOINTS], axis=1) / 4  # (B, 3), NaN unless all four are known
-    now = nanmedian_axis(np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4, axis=1)  # (B, S, 3) -> (B, 3)
-    step = now - then
-    return (step * step) @ _ONES3 > max_jump_mm * max_jump_mm  # NaN compares False
+    now = np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4  # (B, S, 3)
+    step = now - then[:, None]
+    d2 = (step * step) @ _ONES3  # (B, S), NaN where a centre is unknown
+    known = d2 == d2
+    far = d2 > max_jump_mm * max_jump_mm  # NaN compares False
+    return known.any(axis=1) & (far == known).all(axis=1)
 
 
 def _swap_pairs(

@@ -242,9 +242,9 @@ ORIENTATION_AIM = np.array(
 
 ANKLE_FOOT_ANGLE_DEG = {"ANKLE_LEFT": 127.15, "ANKLE_RIGHT": -53.29}
 """Where the foot bone (ankle -> foot) lies in the SDK's ankle frame: this angle about local Z from X towards Y.
-Measured on the real recordings in their own camera frames (``scripts/measure_orientation_convention.py``):
-127.15 / -53.29 deg in every frame of every such file, the foot at local z = 0.00. The ankle frame is rigid to
-the foot, not to the shin: its X lies 2-23 deg off the shin, by the ankle's flexion (docs/orientations.md)."""
+The same in every frame of every real recording in its own camera frame, the foot in the frame's XY plane
+(``scripts/measure_orientation_convention.py``; docs/evidence.md, "Orientations"). The ankle frame is rigid to
+the foot, not to the shin: its X leans off the shin by the ankle's flexion (docs/orientations.md)."""
 
 
 def _about_z(angle_deg: float) -> tuple[float, float, float, float]:

@@ -528,8 +528,8 @@ class FusionNode:
 
     def _publish_status(self, status_pub: Any, state: str | None, now_ns: int, window_s: float | None = None) -> None:
         """Build and put the status (``state`` None: judged from the sensors and the pose-fit monitor). It runs
-        on the fusion loop, so a frame arriving meanwhile waits for it: 1.1-1.4 ms p50 at 4-8 sensors, about 2 ms at
-        16 (``scripts/node_latency_breakdown.py``, 2026-11-28), and published at a quiet moment of the loop."""
+        on the fusion loop, so a frame arriving meanwhile waits for it (``scripts/node_latency_breakdown.py``
+        measures how long), and published at a quiet moment of the loop."""
         core = self.core
         pose_fit = self.pose_fit.report()
         state = state or self._state(now_ns, pose_fit)

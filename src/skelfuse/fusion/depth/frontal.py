@@ -67,9 +67,9 @@ CHEST_BAND = (0.65, 0.82)
 taken from: the chest, below the shoulders and above the hanging hands. The paper uses the whole cloud and
 notes that the arms disturb the axis (its Sec. 3.4 names a torso-only cloud as future work); legs in a
 stride, a lunge or a squat disturb it more, since they stretch the floor projection along the facing
-direction. Measured on the simulator's six gestures (4-sensor rig, every 20th frame of 4 s takes): axis
-error p90 61°, max 89° with the whole cloud; p90 3.3°, max 8.3° with this band (``docs/depth-fusion.md``).
-``None`` uses every point, as the paper does."""
+direction: on the simulator's squats, walks and lunges the whole cloud's axis can be off by nearly a right
+angle, the band's by a few degrees (``scripts/measure_frontal_axis.py``). ``None`` uses every point, as the
+paper does."""
 
 
 def principal_axis_deg(

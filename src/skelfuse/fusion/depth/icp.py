@@ -199,7 +199,8 @@ def refine_clouds(
 
     The paper registers each cloud to the reference sensor's. Around a person, a sensor opposite the
     reference shares almost no surface with it (they see front and back), and two sensors 90° apart share
-    only the body's sides, where a pairwise fit is biased (measured: 1-2° off with a perfect calibration). So
+    only the body's sides, where a pairwise fit is biased (off by a degree or two even from a perfect
+    calibration). So
     each cloud is registered to the union of all the others, in turn, for ``passes`` rounds (Gauss-Seidel:
     each registration sees the others' latest corrections), the reference staying put. A sensor whose
     calibration is off is pulled onto the consensus of the others; the others, pulled a little by it in the

@@ -65,9 +65,8 @@ def render_points(
     splat_mm : before Eq. 9, drop the points hidden behind a surface, found by a visibility pass in which
         every point covers a square of this edge (its voxel's footprint at its depth); 0 keeps every point,
         as the paper. Without it the back of the body shows through the gaps between the front's voxel
-        centres (measured: the rendered depth ~200 mm too far in about a tenth of the body's pixels at 15 mm
-        voxels and 2.3 m), and Eq. 10 cannot repair a pixel that has data. The visible points are then
-        rendered one pixel each, so the silhouette grows by no more than ε.
+        centres (such a pixel lies a body's depth too far), and Eq. 10 cannot repair a pixel that has data.
+        The visible points are then rendered one pixel each, so the silhouette grows by no more than ε.
     """
     if not (np.isfinite(fill_radius_px) and fill_radius_px >= 0):
         raise ValueError(f"fill_radius_px must be >= 0, got {fill_radius_px!r}")
