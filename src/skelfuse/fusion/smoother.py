@@ -201,14 +201,20 @@ def _velocity_changes(states: np.ndarray, linked: np.ndarray, dt_s: np.ndarray) 
 
 
 def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
-    """(N, 2, 2) RTS gain C = P F' (P~)^-1 from the covariance triangles (p00, p01, p11)."""
+    """(N, 2, 2) RTS gain C = P F' (P~)^-1 from the covariance triangles (p00, p01, p11), entry by entry (a
+    2 x 2 product: the per-joint arrays are short, so building stacked matrices would cost more than it)."""
     a, b, c = P[:, 0], P[:, 1], P[:, 2]
-    pft = np.stack([np.stack([a + b * dt, b], -1), np.stack([b + c * dt, c], -1)], -2)  # P F'
     p, q, r = P_pred[:, 0], P_pred[:, 1], P_pred[:, 2]
     det = p * r - q * q
     det = np.where(det > 0, det, np.inf)  # a degenerate prediction gives no correction
-    inverse = np.stack([np.stack([r, -q], -1), np.stack([-q, p], -1)], -2) / det[:, None, None]
-    return pft @ inverse
+    i00, i01, i11 = r / det, -q / det, p / det  # (P~)^-1, symmetric
+    f00, f10 = a + b * dt, b + c * dt  # P F' = [[f00, b], [f10, c]]
+    gain = np.empty((len(P), 2, 2))
+    gain[:, 0, 0] = f00 * i00 + b * i01
+    gain[:, 0, 1] = f00 * i01 + b * i11
+    gain[:, 1, 0] = f10 * i00 + c * i01
+    gain[:, 1, 1] = f10 * i01 + c * i11
+    return gain
 
 
 def _backward_step(fwd: ForwardPass, t: int, later: np.ndarray, dt: float) -> np.ndarray:
