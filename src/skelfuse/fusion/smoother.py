@@ -429,7 +429,7 @@ class _AdaptiveTrack:
         previous = self.live.x
         out, x, _, _, _, linked = self.live.step(z, agree, restart, dt, self.params)  # linked: False at the start
         self.velocity_changes.append(
-            _velocity_changes(np.stack([previous, x]), np.stack([linked, linked]), [dt, dt])[1]
+            _velocity_changes(np.stack([previous, x]), np.stack([linked, linked]), np.full(2, dt))[1]
         )
         base = self.params.cv_accel_sigma_mm_s2
         sigma = np.maximum(base, ADAPTIVE_GAIN * np.max(np.stack(self.velocity_changes), axis=0))
