@@ -9,11 +9,13 @@ from filterpy.kalman import KalmanFilter
 
 from skelfuse.fusion import preset
 from skelfuse.fusion.smoother import (
+    FixedLagSmoother,
     causal_accel_sigma,
     fixed_lag_smooth,
     forward_pass,
     rts_smooth,
     smooth_per_axis,
+    smooth_tracks,
 )
 
 SEED = 1965
@@ -245,3 +247,36 @@ def test_the_fixed_lag_uses_no_frame_beyond_its_lag_and_follows_a_hop():
     plain = smooth_per_axis(z, *args, live_model, lag)
     error = lambda x: float(np.mean(np.linalg.norm(x - truth, axis=-1)))  # noqa: E731
     assert error(out) < error(plain)
+
+
+def test_the_live_fixed_lag_smoother_equals_the_offline_one_instant_by_instant():
+    # Two hopping tracks (the process noise rises at every take-off and landing): one restarted by the follow
+    # rule, one coasting through a 3-frame hole and ending early, a third starting late; a silent gap between
+    # instants lengthens the time step. Pushed instant by instant, released lag instants later and flushed at
+    # the end, the live smoother gives the offline fixed lag over the same instants.
+    rng = np.random.default_rng(SEED + 7)
+    T, lag = 90, 3
+    times = np.arange(T) * DT
+    times[50:] += 2 * DT  # two instants missing
+    hops = _hops(T)[:, 0]
+    ids = [np.array([1, 2] if t < 60 else [1]) if t < 70 else np.array([1, 3]) for t in range(T)]
+    merged, agree, restarted = [], [], []
+    for t in range(T):
+        z = np.stack([hops + 300.0 * k for k in range(len(ids[t]))])[:, t] + rng.normal(0.0, 6.0, (len(ids[t]), 3))
+        z = np.repeat(z[:, None], 4, axis=1)  # 4 joints per person
+        if t in (30, 31, 32) and len(ids[t]) > 1:
+            z[1, 2] = np.nan  # the second person's joint 2 coasts
+        merged.append(z)
+        agree.append(np.full(z.shape[:2], 2))
+        restarted.append(np.array([t == 40] + [False] * (len(ids[t]) - 1)))
+    smoother = FixedLagSmoother(PARAMS, lag)
+    live = [smoother.push(times[t], ids[t], merged[t], agree[t], restarted[t]) for t in range(T)]
+    assert all(out is None for out in live[:lag])
+    live = [out for out in live if out is not None] + smoother.flush()
+    expected = smooth_tracks(times, ids, merged, agree, restarted, PARAMS, lag)
+    assert len(live) == T
+    for got, want in zip(live, expected, strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    fwd = forward_pass(np.stack([m[0] for m in merged]), np.full((T, 4), 2), np.diff(times, prepend=-DT),
+                       np.arange(T) == 40, PARAMS)  # fmt: skip
+    assert (causal_accel_sigma(fwd, np.diff(times, prepend=-DT), PARAMS.cv_accel_sigma_mm_s2) > 1.5e4).any()
