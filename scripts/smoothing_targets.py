@@ -2,10 +2,10 @@
 
 For every seed: a gesture (in turn) seen by two sensors of the paper's ring with the calibrated simulator
 profile, fused as the live node does (the "skelfuse" preset, causal), then smoothed by the fixed-lag smoother
-(3 frames; "lag 3 adaptive": with the process noise the live filter's own velocities set), the fixed-interval
-RTS smoother over the live model ("rts fixed") and the offline default, the RTS smoother with its adaptive
-second pass ("rts"; :mod:`skelfuse.fusion.smoother`). Per joint group (torso,
-arms, legs of the paper's 16 joints), against the truth:
+(3 frames, the live option: per axis, with the process noise the live filter's own velocities set), the
+offline default, the RTS smoother with its adaptive second pass ("rts"; :mod:`skelfuse.fusion.smoother`), and
+as controls both over the live model's constant process noise ("lag 3 fixed", "rts fixed": what the adaptive
+noise buys and costs). Per joint group (torso, arms, legs of the paper's 16 joints), against the truth:
 
 - jitter: median |second difference| of the *error* (output minus truth, mm/frame^2), as a share of the better
   single view's (the views' own jitter: what a smoother has to remove). Every smoother here is linear in its
@@ -65,7 +65,7 @@ FPS = 30.0
 GESTURES = ("squat", "random", "hands_up_down", "walking", "jump", "lunge")
 SHIFTS = np.arange(-3, 6)
 GROUPS = {"torso": JOINT_GROUPS["torso"], "arms": JOINT_GROUPS["upper_limb"], "legs": JOINT_GROUPS["lower_limb"]}
-SMOOTHERS = ("causal", "lag 3", "lag 3 adaptive", "rts fixed", "rts")
+SMOOTHERS = ("causal", "lag 3", "lag 3 fixed", "rts fixed", "rts")
 BOTTOM_FRAMES = 3  # the views' pelvis error is averaged over the truth's lowest frame +- this many
 
 
@@ -108,19 +108,18 @@ def smoothers(take: dict) -> dict[str, Callable[[np.ndarray], np.ndarray]]:
         raise SystemExit("the smoother's forward pass is not the live filter")
     sigma = adaptive_accel_sigma(backward_pass(fwd, dt), fwd.linked, dt, params.cv_accel_sigma_mm_s2)
     live_sigma = causal_accel_sigma(fwd, dt, params.cv_accel_sigma_mm_s2)
+    constant = np.full_like(live_sigma, params.cv_accel_sigma_mm_s2)
     alive = np.isfinite(fwd.out)
     maps = {
         "causal": lambda z: forward_pass(z, n_agree, dt, restart, params).out,
-        "lag 3": lambda z: fixed_lag_smooth(z, n_agree, dt, restart, params, 3),
-        "lag 3 adaptive": lambda z: np.where(
-            alive, smooth_per_axis(z, n_agree, dt, restart, params, live_sigma, 3), np.nan
-        ),
+        "lag 3": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, live_sigma, 3), np.nan),
+        "lag 3 fixed": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, constant, 3), np.nan),
         "rts fixed": lambda z: rts_smooth(z, n_agree, dt, restart, params)[0],
         "rts": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, sigma), np.nan),
     }
     default, _ = rts_smooth(take["merged"], n_agree, dt, restart, params, adaptive=True)
-    live_lag = fixed_lag_smooth(take["merged"], n_agree, dt, restart, params, 3, adaptive=True)
-    for name, want in (("rts", default), ("lag 3 adaptive", live_lag)):
+    live_lag = fixed_lag_smooth(take["merged"], n_agree, dt, restart, params, 3)
+    for name, want in (("rts", default), ("lag 3", live_lag)):
         if not np.allclose(maps[name](take["merged"]), want, equal_nan=True, rtol=0, atol=1e-9):
             raise SystemExit(f"the {name} pass split here is not the smoother's own")
     return maps

@@ -130,8 +130,10 @@ def test_master_choice_and_sensor_order_give_the_same_rig(paper_take):
         assert np.linalg.norm(a[:3, 3] - b[:3, 3]) < 2.0
 
 
-def _row_rig_take():
-    """Three sensors in a row; the person walks between 0 and 1, then between 1 and 2: 0 and 2 never overlap."""
+@pytest.fixture(scope="module")
+def row_rig_take():
+    """Three sensors in a row; the person walks between 0 and 1, then between 1 and 2: 0 and 2 never overlap.
+    Shared by the tests below, so its arrays are read-only: a test that changes them copies them first."""
     rig = [look_at(f"row_{i}", np.array([2500.0 * i, 0, 1100]), np.array([2500.0 * i, 2800, 900])) for i in range(3)]
     profile = load_profile()
     first = simulate(
@@ -142,11 +144,12 @@ def _row_rig_take():
     )
     positions = np.concatenate([first.positions, second.positions])
     confidence = np.concatenate([first.confidence, second.confidence])
+    positions.flags.writeable = confidence.flags.writeable = False
     return first, positions, confidence
 
 
-def test_sensor_that_never_overlaps_the_master_is_chained_consistently():
-    obs, positions, confidence = _row_rig_take()
+def test_sensor_that_never_overlaps_the_master_is_chained_consistently(row_rig_take):
+    obs, positions, confidence = row_rig_take
     seen = np.isfinite(positions).all(axis=-1).any(axis=-1)
     assert not (seen[:, 0] & seen[:, 2]).any()  # row_0 (master) and row_2 never see the person together
     cal = calibrate_from_skeletons(positions, confidence, obs.sensor_ids, progress=False)
@@ -163,8 +166,8 @@ def test_sensor_that_never_overlaps_the_master_is_chained_consistently():
     assert all(q.verdict == "good" for q in cal.quality.values())
 
 
-def test_unlinked_sensor_raises_a_calibration_error():
-    obs, positions, confidence = _row_rig_take()
+def test_unlinked_sensor_raises_a_calibration_error(row_rig_take):
+    obs, positions, confidence = row_rig_take
     positions = positions.copy()
     positions[:, 1] = np.nan  # without the middle sensor nothing links row_2 to row_0
     with pytest.raises(CalibrationError, match=r"could not link sensors row_1, row_2 to master row_0"):

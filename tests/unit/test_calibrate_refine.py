@@ -162,9 +162,11 @@ def test_calibrate_refine_brings_a_miscalibrated_rig_closer_to_the_truth(tmp_pat
     assert (after_mm[1:] < before_mm[1:]).all(), (before_mm, after_mm)
 
 
-@pytest.mark.parametrize("seed", range(5))
+# Seeds whose walks, between them, draw every verdict of a refined sensor ("improved" and "bad" on seed 3,
+# "check" and "improved" on seed 4); seeds 0-2 draw no other verdict and take the same branches of the test.
+@pytest.mark.parametrize("seed", [3, 4])
 def test_refine_rates_by_held_out_evidence_and_keeps_exact_poses(seed: int) -> None:
-    """Five simulated walks (8 instants). From exact poses the ICP still moves every sensor (it fits noise):
+    """Two simulated walks (8 instants). From exact poses the ICP still moves every sensor (it fits noise):
     the held-out gap does not fall, so each sensor is rated "no improvement" and keeps its exact pose. From
     poses off by 2° / 40 mm, every sensor not rated "no improvement" has a smaller true rotation error after,
     and its held-out gap fell (the verdict's own evidence, recomputed here from the poses it reports)."""

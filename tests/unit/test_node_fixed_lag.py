@@ -1,5 +1,6 @@
 """``[fusion] fixed_lag_frames``: the node publishes each instant N instants later, smoothed; what it publishes is
-the offline fixed-lag smoother (``fixed_lag_smooth`` through ``smooth_tracks``) over the same causal stream."""
+the offline fixed-lag smoother (``fixed_lag_smooth`` through ``smooth_tracks``: per axis, with the process noise
+the live filter's velocity changes set) over the same causal stream."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from skelfuse.rig.smoothing import follow_bones
 from skelfuse.schema.errors import ConfigError
 from skelfuse.service.fusion_core import FusedOutput, FusionCore
 from skelfuse.service.node import FusionNode, fixed_lag_line
+from skelfuse.sim.rig import paper_rig
 from skelfuse.wire.codec import decode_fused_frame, encode_sensor_frame
 
 PERIOD_NS = 33_333_333
@@ -27,6 +29,8 @@ N = 130
 LEAVES, RETURNS = 60, 95  # the second walker walks out at instant 60 and a third person in at 95
 SILENT = range(40, 43)  # no sensor sends anything: a gap of three instants
 SENSOR_DROP = range(20, 31)  # capture_1 sends nothing
+JUMPS = 75  # every view puts the first walker 400 mm aside from here on: the follow rule restarts the filter
+JUMP_MM = np.array([-400.0, 0.0, 0.0])
 
 
 def rig_config(fusion: str = "") -> object:
@@ -41,8 +45,10 @@ def rig_config(fusion: str = "") -> object:
 
 
 def take() -> list[list]:
-    """Per instant the sensor frames: two walkers, one leaving, a newcomer later, dropouts and a silent gap."""
+    """Per instant the sensor frames: two walkers, one leaving, a newcomer later, dropouts, a silent gap and a
+    jump every view makes."""
     frames = synthetic_frames(3, N, seed=5, n_people=3)
+    jump = {s.sensor_id: (s.to_sensor(JUMP_MM) - s.to_sensor(np.zeros(3))).astype(np.float32) for s in paper_rig(3)}
     plan = []
     for k in range(N):
         keep = [0] + ([1] if k < LEAVES else []) + ([2] if k >= RETURNS else [])
@@ -51,12 +57,15 @@ def take() -> list[list]:
             if k in SILENT or (frame.sensor_id == "capture_1" and k in SENSOR_DROP):
                 continue
             arrival = 10**9 + k * PERIOD_NS
+            positions = frame.positions[keep]
+            if k >= JUMPS:
+                positions[0] += jump[frame.sensor_id]
             body = dataclasses.replace(
                 frame,
                 sequence=k,
                 host_time_ns=arrival - 2_000_000,
                 body_ids=frame.body_ids[keep],
-                positions=frame.positions[keep],
+                positions=positions,
                 orientations=frame.orientations[keep],
                 confidence=frame.confidence[keep],
             )
@@ -105,6 +114,7 @@ def test_the_node_publishes_the_offline_fixed_lag_smoother_of_its_causal_stream(
     assert len(lagged) == len(live) == len(instants) and lagged_core.frames_out == len(live)
     tracks = {int(t) for p in people for t in p.track_ids}
     assert len(tracks) >= 3  # the leaver's track ended, the newcomer's started
+    assert sum(bool(np.any(p.restarted)) for p in people if p.restarted is not None) == 1  # the jump
     for out, instant, smoothed in zip(lagged, instants, expected, strict=True):
         rows = np.searchsorted(instant.people.track_ids, instant.frame.track_ids)
         frame = decode_fused_frame(out.payload)

@@ -9,11 +9,13 @@ from filterpy.kalman import KalmanFilter
 
 from skelfuse.fusion import preset
 from skelfuse.fusion.smoother import (
+    FixedLagSmoother,
     causal_accel_sigma,
     fixed_lag_smooth,
     forward_pass,
     rts_smooth,
     smooth_per_axis,
+    smooth_tracks,
 )
 
 SEED = 1965
@@ -73,15 +75,26 @@ def test_segments_are_smoothed_apart_and_short_gaps_filled():
 
 
 def test_fixed_lag_spans_causal_to_full():
+    # Per axis, with the process noise the live filter's velocity changes set: a lag of 0 is that filter, a lag
+    # as long as the take its fixed-interval smoother (filterpy's filter and smoother with the same per-step Q).
     rng = np.random.default_rng(SEED + 2)
     T = 50
     z = np.cumsum(rng.normal(0.0, 5.0, (T, 3, 3)), axis=0)
+    z[20:26, 1] += 120.0  # a joint that jumps away and back: the noise rises there
     args = (z, np.ones((T, 3)), np.full(T, DT), np.zeros(T, bool), PARAMS)
-    full, causal = rts_smooth(*args)
-    np.testing.assert_allclose(fixed_lag_smooth(*args, lag=0), causal, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(fixed_lag_smooth(*args, lag=T), full, rtol=0, atol=1e-9)
+    sigma = causal_accel_sigma(forward_pass(*args), np.full(T, DT), PARAMS.cv_accel_sigma_mm_s2)
+    assert (sigma > PARAMS.cv_accel_sigma_mm_s2).any() and (sigma == PARAMS.cv_accel_sigma_mm_s2).any()
+    causal, full = fixed_lag_smooth(*args, lag=0), fixed_lag_smooth(*args, lag=T)
+    for joint in range(3):
+        for axis in range(3):
+            want_full, want_causal = _filterpy_varying_q(
+                z[:, joint, axis], PARAMS.cv_meas_sigma_mm**2, sigma[:, joint, axis], PARAMS
+            )
+            np.testing.assert_allclose(causal[:, joint, axis], want_causal, rtol=0, atol=1e-7)
+            np.testing.assert_allclose(full[:, joint, axis], want_full, rtol=0, atol=1e-7)
     lag3 = fixed_lag_smooth(*args, lag=3)
     np.testing.assert_allclose(lag3[-4:], full[-4:], rtol=0, atol=1e-9)  # the end: as much as there is
+    assert not np.allclose(lag3[:-4], full[:-4]) and not np.allclose(lag3[:-4], causal[:-4])
 
 
 def test_only_the_constant_velocity_model_is_smoothed():
@@ -113,8 +126,9 @@ def test_the_command_line_offers_the_smoothers_there_are():
     assert tuple(OFFLINE_SMOOTHERS) == tuple(SMOOTHERS)
 
 
-def _filterpy_rts_varying_q(z: np.ndarray, r: float, sigmas: np.ndarray, params) -> np.ndarray:
-    """One axis through filterpy with the white-noise acceleration ``sigmas[t]`` for the step into frame t."""
+def _filterpy_varying_q(z: np.ndarray, r: float, sigmas: np.ndarray, params) -> tuple[np.ndarray, np.ndarray]:
+    """One axis through filterpy with the white-noise acceleration ``sigmas[t]`` for the step into frame t:
+    (smoothed, filtered) positions."""
     kf = KalmanFilter(dim_x=2, dim_z=1)
     kf.F = np.array([[1.0, DT], [0.0, 1.0]])
     kf.H = np.array([[1.0, 0.0]])
@@ -129,7 +143,7 @@ def _filterpy_rts_varying_q(z: np.ndarray, r: float, sigmas: np.ndarray, params)
         means.append(kf.x.copy())
         covs.append(kf.P.copy())
     smoothed, _, _, _ = kf.rts_smoother(np.array(means), np.array(covs), Qs=qs)
-    return smoothed[:, 0, 0]
+    return smoothed[:, 0, 0], np.array(means)[:, 0, 0]
 
 
 def test_per_axis_process_noise_equals_filterpy():
@@ -144,7 +158,7 @@ def test_per_axis_process_noise_equals_filterpy():
         for axis in range(3):
             # below the live model's noise counts as it
             want_sigma = np.maximum(sigma[:, joint, axis], PARAMS.cv_accel_sigma_mm_s2)
-            want = _filterpy_rts_varying_q(z[:, joint, axis], PARAMS.cv_meas_sigma_mm**2, want_sigma, PARAMS)
+            want, _ = _filterpy_varying_q(z[:, joint, axis], PARAMS.cv_meas_sigma_mm**2, want_sigma, PARAMS)
             np.testing.assert_allclose(smoothed[:, joint, axis], want, rtol=0, atol=1e-7)
 
 
@@ -210,7 +224,7 @@ def test_the_adaptive_pass_follows_a_hop_and_keeps_still_motion_smooth():
     assert jitter(adaptive - 900.0) < 1.3 * jitter(fixed - 900.0)
 
 
-def test_the_adaptive_fixed_lag_uses_no_frame_beyond_its_lag():
+def test_the_fixed_lag_uses_no_frame_beyond_its_lag_and_follows_a_hop():
     # What a live fixed-lag smoother can give: the estimate of frame t is the same whatever comes after t + lag,
     # its process noise included; over a lag as long as the take it is the fixed-interval smoother with that
     # noise.
@@ -219,16 +233,50 @@ def test_the_adaptive_fixed_lag_uses_no_frame_beyond_its_lag():
     truth = _hops(T)
     z = truth + rng.normal(0.0, 6.0, truth.shape)
     args = (np.ones((T, 1)), np.full(T, DT), np.zeros(T, bool), PARAMS)
-    out = fixed_lag_smooth(z, *args, lag, adaptive=True)
+    out = fixed_lag_smooth(z, *args, lag)
     for t in (20, 60, 100):
         changed = z.copy()
         changed[t + lag + 1 :] += rng.normal(0.0, 300.0, changed[t + lag + 1 :].shape)
-        again = fixed_lag_smooth(changed, *args, lag, adaptive=True)
+        again = fixed_lag_smooth(changed, *args, lag)
         np.testing.assert_allclose(again[: t + 1], out[: t + 1], rtol=0, atol=1e-9)
         assert not np.allclose(again[t + 1 :], out[t + 1 :])
     sigma = causal_accel_sigma(forward_pass(z, *args), np.full(T, DT), PARAMS.cv_accel_sigma_mm_s2)
     full = smooth_per_axis(z, *args, sigma)
-    np.testing.assert_allclose(fixed_lag_smooth(z, *args, T, adaptive=True), full, rtol=0, atol=1e-9)
-    plain = fixed_lag_smooth(z, *args, lag)
+    np.testing.assert_allclose(fixed_lag_smooth(z, *args, T), full, rtol=0, atol=1e-9)
+    live_model = np.full((T, 1, 3), PARAMS.cv_accel_sigma_mm_s2)  # the fixed lag over the live model: rounds a hop off
+    plain = smooth_per_axis(z, *args, live_model, lag)
     error = lambda x: float(np.mean(np.linalg.norm(x - truth, axis=-1)))  # noqa: E731
     assert error(out) < error(plain)
+
+
+def test_the_live_fixed_lag_smoother_equals_the_offline_one_instant_by_instant():
+    # Two hopping tracks (the process noise rises at every take-off and landing): one restarted by the follow
+    # rule, one coasting through a 3-frame hole and ending early, a third starting late; a silent gap between
+    # instants lengthens the time step. Pushed instant by instant, released lag instants later and flushed at
+    # the end, the live smoother gives the offline fixed lag over the same instants.
+    rng = np.random.default_rng(SEED + 7)
+    T, lag = 90, 3
+    times = np.arange(T) * DT
+    times[50:] += 2 * DT  # two instants missing
+    hops = _hops(T)[:, 0]
+    ids = [np.array([1, 2] if t < 60 else [1]) if t < 70 else np.array([1, 3]) for t in range(T)]
+    merged, agree, restarted = [], [], []
+    for t in range(T):
+        z = np.stack([hops + 300.0 * k for k in range(len(ids[t]))])[:, t] + rng.normal(0.0, 6.0, (len(ids[t]), 3))
+        z = np.repeat(z[:, None], 4, axis=1)  # 4 joints per person
+        if t in (30, 31, 32) and len(ids[t]) > 1:
+            z[1, 2] = np.nan  # the second person's joint 2 coasts
+        merged.append(z)
+        agree.append(np.full(z.shape[:2], 2))
+        restarted.append(np.array([t == 40] + [False] * (len(ids[t]) - 1)))
+    smoother = FixedLagSmoother(PARAMS, lag)
+    live = [smoother.push(times[t], ids[t], merged[t], agree[t], restarted[t]) for t in range(T)]
+    assert all(out is None for out in live[:lag])
+    live = [out for out in live if out is not None] + smoother.flush()
+    expected = smooth_tracks(times, ids, merged, agree, restarted, PARAMS, lag)
+    assert len(live) == T
+    for got, want in zip(live, expected, strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    fwd = forward_pass(np.stack([m[0] for m in merged]), np.full((T, 4), 2), np.diff(times, prepend=-DT),
+                       np.arange(T) == 40, PARAMS)  # fmt: skip
+    assert (causal_accel_sigma(fwd, np.diff(times, prepend=-DT), PARAMS.cv_accel_sigma_mm_s2) > 1.5e4).any()

@@ -21,10 +21,11 @@ offline default therefore runs a second, adaptive pass: per axis, with the proce
 first pass saw hard acceleration (:func:`adaptive_accel_sigma`); elsewhere the model is the live one.
 
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
-option: ``lag`` frames of added latency); a lag of 0 is the causal filter, a lag as long as the segment the
-full smoother. :class:`FixedLagSmoother` gives the same instant by instant, for the live node. The offline
-form can run a causal version of the adaptive pass (:func:`causal_accel_sigma`: the live filter's own
-velocity changes in the frames before), off by default.
+option: ``lag`` frames of added latency), with a causal form of the adaptive pass: per axis, its process noise
+set by the live filter's own velocity changes in the frames up to then (:func:`causal_accel_sigma`), so a jump
+is followed within the lag while still motion is smoothed as the live model smooths it. A lag as long as the
+segment gives the fixed-interval smoother with that noise. :class:`FixedLagSmoother` gives the same instant by
+instant, for the live node.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
 Only the "cv_kalman" filter has a velocity state worth smoothing; other filters are rejected.
@@ -32,6 +33,7 @@ Only the "cv_kalman" filter has a velocity state worth smoothing; other filters 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -199,14 +201,20 @@ def _velocity_changes(states: np.ndarray, linked: np.ndarray, dt_s: np.ndarray) 
 
 
 def _gain(P: np.ndarray, P_pred: np.ndarray, dt: float) -> np.ndarray:
-    """(N, 2, 2) RTS gain C = P F' (P~)^-1 from the covariance triangles (p00, p01, p11)."""
+    """(N, 2, 2) RTS gain C = P F' (P~)^-1 from the covariance triangles (p00, p01, p11), entry by entry (a
+    2 x 2 product: the per-joint arrays are short, so building stacked matrices would cost more than it)."""
     a, b, c = P[:, 0], P[:, 1], P[:, 2]
-    pft = np.stack([np.stack([a + b * dt, b], -1), np.stack([b + c * dt, c], -1)], -2)  # P F'
     p, q, r = P_pred[:, 0], P_pred[:, 1], P_pred[:, 2]
     det = p * r - q * q
     det = np.where(det > 0, det, np.inf)  # a degenerate prediction gives no correction
-    inverse = np.stack([np.stack([r, -q], -1), np.stack([-q, p], -1)], -2) / det[:, None, None]
-    return pft @ inverse
+    i00, i01, i11 = r / det, -q / det, p / det  # (P~)^-1, symmetric
+    f00, f10 = a + b * dt, b + c * dt  # P F' = [[f00, b], [f10, c]]
+    gain = np.empty((len(P), 2, 2))
+    gain[:, 0, 0] = f00 * i00 + b * i01
+    gain[:, 0, 1] = f00 * i01 + b * i11
+    gain[:, 1, 0] = f10 * i00 + c * i01
+    gain[:, 1, 1] = f10 * i01 + c * i11
+    return gain
 
 
 def _backward_step(fwd: ForwardPass, t: int, later: np.ndarray, dt: float) -> np.ndarray:
@@ -298,20 +306,16 @@ def fixed_lag_smooth(
     restart: np.ndarray,
     params: FusionParams,
     lag: int,
-    *,
-    adaptive: bool = False,
 ) -> np.ndarray:
     """(T, N, 3) the estimate of each frame t from the frames up to t + ``lag`` (NaN where no estimate).
 
-    Frames within ``lag`` of the end use what there is (the end of a take is the end of the data).
-    ``adaptive``: per axis, with the process noise of :func:`causal_accel_sigma` (still from the frames up to
-    t + ``lag`` only: no added latency).
+    Per axis, with the process noise of :func:`causal_accel_sigma` (from the frames up to t only: it adds no
+    latency), smoothed backward from frame t + ``lag``. Frames within ``lag`` of the end use what there is (the
+    end of a take is the end of the data).
     """
     if int(lag) < 0:
         raise ValueError(f"lag must be >= 0 frames, got {lag!r}")
     fwd = forward_pass(z, n_agree, dt_s, restart, params)
-    if not adaptive:
-        return np.where(np.isfinite(fwd.out), _fixed_lag_positions(fwd, dt_s, int(lag)), np.nan)
     sigma = causal_accel_sigma(fwd, dt_s, params.cv_accel_sigma_mm_s2)
     positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma, int(lag))
     return np.where(np.isfinite(fwd.out), positions, np.nan)
@@ -353,8 +357,6 @@ def smooth_tracks(
     restarted: list[np.ndarray | None],
     params: FusionParams,
     lag: int | None = None,
-    *,
-    adaptive: bool | None = None,
 ) -> list[np.ndarray]:
     """Smooth every track of a fused take, instant by instant as the live fusion gave them.
 
@@ -367,9 +369,8 @@ def smooth_tracks(
     n_agree : per instant, (P_t, J) the views behind them.
     restarted : per instant, (P_t,) bool or None, the follow rule restarted the person's filter.
     params : the FusionParams of the live fusion ("cv_kalman").
-    lag : None for the fixed-interval smoother, else the fixed lag in frames.
-    adaptive : the adaptive pass (:func:`rts_smooth`, :func:`fixed_lag_smooth`); None: on for the
-        fixed-interval smoother, off for a fixed lag (what the live option gives).
+    lag : None for the fixed-interval smoother with its adaptive pass (:func:`rts_smooth`), else the fixed lag
+        in frames (:func:`fixed_lag_smooth`, what the live option gives).
 
     Returns
     -------
@@ -389,9 +390,9 @@ def smooth_tracks(
         restart = np.array([_restarted_at(restarted[t], row) for t, row in where])
         dt = np.diff(times_s[instants], prepend=times_s[instants[0]] - 1.0 / 30.0)
         if lag is None:
-            smoothed, _ = rts_smooth(z, agree, dt, restart, params, adaptive=adaptive is not False)
+            smoothed, _ = rts_smooth(z, agree, dt, restart, params, adaptive=True)
         else:
-            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag, adaptive=bool(adaptive))
+            smoothed = fixed_lag_smooth(z, agree, dt, restart, params, lag)
         for k, (t, row) in enumerate(where):
             out[t][row] = smoothed[k]
     return out
@@ -402,25 +403,65 @@ def _restarted_at(restarted: np.ndarray | None, row: int) -> bool:
     return restarted is not None and bool(restarted[row])
 
 
-@dataclass
-class _TrackWindow:
-    """One live track for :class:`FixedLagSmoother`: its filter and its last frames' :class:`ForwardPass` rows."""
+class _AdaptiveTrack:
+    """One live track for :class:`FixedLagSmoother`: the steps of :func:`fixed_lag_smooth`, one frame at a time.
 
-    filter: _TrackFilter
-    last_time_s: float
-    instants: list[int]  # the instant of each kept row, increasing
-    rows: list[tuple[np.ndarray, ...]]  # (out, x, P, x_pred, P_pred, linked) per kept row
-    dt_s: list[float]
+    Per frame: the live filter's step (its velocity change into the frame, over the last ``ADAPTIVE_SPREAD``
+    frames, sets that frame's per-axis process noise as :func:`causal_accel_sigma` does), then the per-axis
+    filter's step with that noise (:func:`_per_axis_forward`'s pseudo-joints). The per-axis rows of the frames
+    not yet released are kept for the backward steps.
+    """
+
+    def __init__(self, n_joints: int, time_s: float, params: FusionParams) -> None:
+        self.params = params
+        self.live = _TrackFilter(*init_filter_state(n_joints))
+        self.per_axis = _TrackFilter(*init_filter_state(3 * n_joints))
+        self.last_time_s = time_s
+        self.velocity_changes: deque[np.ndarray] = deque(maxlen=ADAPTIVE_SPREAD + 1)  # (N, 3) mm/s^2 each
+        self.instants: list[int] = []  # the instant of each kept row, increasing
+        self.rows: list[tuple[np.ndarray, ...]] = []  # the per-axis (out, x, P, x_pred, P_pred, linked) per row
+        self.live_out: list[np.ndarray] = []  # (N, 3) the live filter's output per row (NaN: no estimate)
+        self.dt_s: list[float] = []
+
+    def step(self, instant: int, time_s: float, z: np.ndarray, agree: np.ndarray, restart: bool) -> None:
+        """Add frame ``instant`` of the track (z (N, 3) mm, agree (N,), restart as :func:`forward_pass`)."""
+        dt = time_s - self.last_time_s if self.velocity_changes else FIRST_DT_S
+        previous = self.live.x
+        out, x, _, _, _, linked = self.live.step(z, agree, restart, dt, self.params)  # linked: False at the start
+        self.velocity_changes.append(
+            _velocity_changes(np.stack([previous, x]), np.stack([linked, linked]), np.full(2, dt))[1]
+        )
+        base = self.params.cv_accel_sigma_mm_s2
+        sigma = np.maximum(base, ADAPTIVE_GAIN * np.max(np.stack(self.velocity_changes), axis=0))
+        coords = np.repeat(np.asarray(z, dtype=np.float64).reshape(-1, 1), 3, axis=1)
+        self.rows.append(self.per_axis.step(coords, np.repeat(agree, 3), restart, dt, self.params, sigma.reshape(-1)))
+        self.live_out.append(out)
+        self.instants.append(instant)
+        self.dt_s.append(dt)
+        self.last_time_s = time_s
+
+    def release(self, instant: int) -> np.ndarray:
+        """(N, 3) frame ``instant`` smoothed backward from the newest frame; the frames up to it are dropped."""
+        n_joints = len(self.live_out[0])
+        fwd = _stacked(self.rows, 3 * n_joints)
+        t = self.instants.index(instant)
+        smoothed = _smoothed_from(fwd, np.asarray(self.dt_s), t, len(self.rows) - 1)[:, 0]
+        alive = np.isfinite(fwd.out[t][:, 0]).reshape(n_joints, 3) & np.isfinite(self.live_out[t])
+        positions = np.where(alive, smoothed.reshape(n_joints, 3), np.nan)
+        for kept in (self.instants, self.rows, self.live_out, self.dt_s):
+            del kept[: t + 1]  # never needed again
+        return positions
 
 
 class FixedLagSmoother:
     """Fixed-lag smoothing of the live tracks, instant by instant: the live fusion's instants in, each one
     back ``lag`` instants later, smoothed by the frames up to then.
 
-    Per track it runs the live filter over the merged measurements (:func:`forward_pass`'s step, so the
-    filtered states are the live output's) and keeps the last ``lag`` + 1 frames; an instant is released once
-    ``lag`` more instants arrived, each of its tracks smoothed backward from its newest frame. The result is
-    :func:`fixed_lag_smooth` (through :func:`smooth_tracks`) over the same stream, frame for frame:
+    Per track it runs :func:`fixed_lag_smooth`'s steps frame by frame (the live filter, the process noise its
+    velocity changes set, the per-axis filter with that noise; :class:`_AdaptiveTrack`) and keeps the frames
+    not yet released; an instant is released once ``lag`` more instants arrived, each of its tracks smoothed
+    backward from its newest frame. The result is :func:`fixed_lag_smooth` (through :func:`smooth_tracks`)
+    over the same stream, frame for frame:
 
     - a new track starts its own window (the backward pass never crosses a track start or a restart);
     - a track that ends (absent from an instant: ids are never reused) has its last frames smoothed from
@@ -437,7 +478,7 @@ class FixedLagSmoother:
             raise ValueError(f"the fixed lag must be at least 1 frame, got {lag!r}")
         self.params = params
         self.lag = int(lag)
-        self._tracks: dict[int, _TrackWindow] = {}
+        self._tracks: dict[int, _AdaptiveTrack] = {}
         self._held: list[tuple[int, np.ndarray, tuple[int, ...]]] = []  # (instant, track ids, positions' shape)
         self._count = 0
 
@@ -453,9 +494,11 @@ class FixedLagSmoother:
         instant ``lag`` instants back, in its track order, or None while fewer have arrived."""
         instant = self._count
         self._count += 1
-        ids = np.asarray(track_ids).tolist()
-        for row, track_id in enumerate(ids):
-            self._add(int(track_id), instant, float(time_s), merged[row], n_agree[row], _restarted_at(restarted, row))
+        for row, track_id in enumerate(np.asarray(track_ids).tolist()):
+            track = self._tracks.get(int(track_id))
+            if track is None:
+                track = self._tracks[int(track_id)] = _AdaptiveTrack(np.shape(merged)[1], float(time_s), self.params)
+            track.step(instant, float(time_s), merged[row], n_agree[row], _restarted_at(restarted, row))
         self._held.append((instant, np.asarray(track_ids), np.shape(merged)))
         return self._release() if len(self._held) > self.lag else None
 
@@ -463,30 +506,12 @@ class FixedLagSmoother:
         """The instants still held, oldest first, each smoothed from what there is."""
         return [self._release() for _ in range(len(self._held))]
 
-    def _add(self, track_id: int, instant: int, time_s: float, z: np.ndarray, agree: np.ndarray, restart: bool) -> None:
-        window = self._tracks.get(track_id)
-        if window is None:
-            window = _TrackWindow(_TrackFilter(*init_filter_state(z.shape[0])), time_s, [], [], [])
-            self._tracks[track_id] = window
-            dt = FIRST_DT_S
-        else:
-            dt = time_s - window.last_time_s
-        window.rows.append(window.filter.step(z, agree, restart, dt, self.params))
-        window.instants.append(instant)
-        window.dt_s.append(dt)
-        window.last_time_s = time_s
-
     def _release(self) -> np.ndarray:
         instant, ids, shape = self._held.pop(0)
         out = np.full(shape, np.nan)
         for row, track_id in enumerate(ids.tolist()):
-            window = self._tracks[int(track_id)]
-            fwd = _stacked(window.rows, shape[1])
-            t = window.instants.index(instant)
-            smoothed = _smoothed_from(fwd, np.asarray(window.dt_s), t, len(window.rows) - 1)
-            out[row] = np.where(np.isfinite(fwd.out[t]), smoothed, np.nan)
-            del window.instants[: t + 1], window.rows[: t + 1], window.dt_s[: t + 1]  # never needed again
+            out[row] = self._tracks[int(track_id)].release(instant)
         # A track without frames left ended at or before this instant (a live one has a frame in every later one).
-        for track_id in [k for k, w in self._tracks.items() if not w.instants]:
+        for track_id in [k for k, track in self._tracks.items() if not track.instants]:
             del self._tracks[track_id]
         return out
