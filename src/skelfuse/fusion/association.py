@@ -352,11 +352,11 @@ def assign_to_tracks(
     S, B = usable.shape
     K = tracks.shape[0]
     return kernels.load().association.assign_to_tracks(
-        _kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
-        _kernel_array(usable, np.bool_, (S, B), "usable"),
-        _kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
-        _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
-        _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
+        kernels.kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
+        kernels.kernel_array(usable, np.bool_, (S, B), "usable"),
+        kernels.kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
+        kernels.kernel_array(confirmed, np.bool_, (K,), "confirmed"),
+        kernels.kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
         int(min_common_points),
     )
 
@@ -382,13 +382,13 @@ def match_tracks(
     S, B = valid.shape
     K = tracks.shape[0]
     return kernels.load().association.match_tracks(
-        _kernel_array(positions, np.float64, (S, B, N_JOINTS, 3), "positions"),
-        _kernel_array(valid, np.bool_, (S, B), "valid"),
+        kernels.kernel_array(positions, np.float64, (S, B, N_JOINTS, 3), "positions"),
+        kernels.kernel_array(valid, np.bool_, (S, B), "valid"),
         _CENTRAL,
         _PAIRS,
-        _kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
-        _kernel_array(confirmed, np.bool_, (K,), "confirmed"),
-        _kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
+        kernels.kernel_array(tracks, np.float64, (K, N_DESCRIPTOR, 3), "tracks"),
+        kernels.kernel_array(confirmed, np.bool_, (K,), "confirmed"),
+        kernels.kernel_array(gate_mm, np.float64, (K,), "gate_mm"),
         int(min_common_points),
         np.nan if duplicate_mm is None else float(duplicate_mm),
     )
@@ -401,16 +401,7 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
     reference)."""
     S, B = person.shape
     return kernels.load().association.person_descriptors(
-        _kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
-        _kernel_array(person, np.int64, (S, B), "person"),
+        kernels.kernel_array(body_desc, np.float64, (S, B, N_DESCRIPTOR, 3), "body_desc"),
+        kernels.kernel_array(person, np.int64, (S, B), "person"),
         int(n_persons),
     )
-
-
-def _kernel_array(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """An argument as the kernel reads it (C order, its dtype), its shape checked: the kernel does not check its
-    indices."""
-    out = np.ascontiguousarray(values, dtype=dtype)
-    if out.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
-    return out

@@ -178,13 +178,13 @@ def position_uncertainty(
     B, J = candidates.shape[0], candidates.shape[2]
     return kernels.load().uncertainty.position_uncertainty(
         candidates,
-        _checked(merged, np.float64, (B, J, 3), "merged"),
-        _checked(n_agree, np.int64, (B, J), "n_agree"),
-        _checked(fused, np.float64, (B, J, 3), "fused"),
-        _checked(previous_cov, np.float64, (B, J, 3), "previous_cov"),
-        _checked(coast_before, np.int64, (B * J,), "coast_before"),
-        _checked(coast_after, np.int64, (B * J,), "coast_after"),
-        _checked(torso, np.int64, np.shape(torso), "torso"),
+        kernels.kernel_array(merged, np.float64, (B, J, 3), "merged"),
+        kernels.kernel_array(n_agree, np.int64, (B, J), "n_agree"),
+        kernels.kernel_array(fused, np.float64, (B, J, 3), "fused"),
+        kernels.kernel_array(previous_cov, np.float64, (B, J, 3), "previous_cov"),
+        kernels.kernel_array(coast_before, np.int64, (B * J,), "coast_before"),
+        kernels.kernel_array(coast_after, np.int64, (B * J,), "coast_after"),
+        kernels.kernel_array(torso, np.int64, np.shape(torso), "torso"),
         float(params.cv_meas_sigma_mm),
         PRIOR_SAMPLES,
         params.filter is not None,
@@ -192,12 +192,3 @@ def position_uncertainty(
         float(params.cv_accel_sigma_mm_s2),
         float(params.cv_velocity0_sigma_mm_s),
     )
-
-
-def _checked(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """An argument as the kernel reads it (C order, its dtype), its shape checked (the kernel does not check
-    indices)."""
-    out = np.ascontiguousarray(values, dtype=dtype)
-    if out.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
-    return out

@@ -32,6 +32,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import NamedTuple
 
+import numpy as np
+
 KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association", "uncertainty")
 """The kernel modules of this package (one per compiled stage)."""
 
@@ -47,6 +49,15 @@ class Kernels(NamedTuple):
     orientation: ModuleType
     association: ModuleType
     uncertainty: ModuleType
+
+
+def kernel_array(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """An argument as a kernel reads it (C order, its dtype), its shape checked: compiled code does not check its
+    indices."""
+    out: np.ndarray = np.ascontiguousarray(values, dtype=dtype)
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out
 
 
 def cache_dir() -> Path:
