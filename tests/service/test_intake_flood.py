@@ -8,6 +8,7 @@ for one second (``on_fused`` runs on the loop thread) so that its intake queue o
 from __future__ import annotations
 
 import dataclasses
+import json
 import threading
 import time
 import tomllib
@@ -95,7 +96,11 @@ def test_a_flood_on_one_key_costs_no_instant_of_the_other_sensors() -> None:
                 publishers[frame.sensor_id].put(encode_sensor_frame(stamped))
         stop.set()
         flooder.join(5)
-        wait_until(lambda: len([o for o in fused if o.frame.time_us >= base_us]) >= INSTANTS, "every instant fused")
+        wait_until(
+            lambda: len([o for o in fused if o.frame.time_us >= base_us]) >= INSTANTS,
+            "every instant fused",
+            details=lambda: json.dumps({k: node.report.status.get(k) for k in ("counters", "info")}, default=str),
+        )
     finally:
         stop.set()
         lifecycle.request_exit()

@@ -24,23 +24,7 @@ def filter_step(
     params: FusionParams,
     dt_s: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One filter step for N joints, of the kind ``params.filter``.
-
-    Parameters
-    ----------
-    x : (N, 2, 3) float64, position (mm) and velocity (mm/s).
-    P : (N, 3) float64, (p_pos mm^2, p_pos_vel mm^2/s, p_vel mm^2/s^2).
-    coast : (N,) int, -1 = no track, else frames since the last measurement.
-    z : (N, 3) float64, mm, the merged positions; NaN = no measurement.
-    n_agree : (N,) int, sensors behind each measurement (cv_kalman may scale R by it).
-    params : FusionParams
-    dt_s : float, seconds since the previous frame.
-
-    Returns
-    -------
-    out : (N, 3) float64, mm, the filtered positions (NaN = no estimate).
-    x, P, coast : the new state (new arrays).
-    """
+    """:func:`skelfuse.fusion.filters.filter_step` in numpy (its parameters and returns are documented there)."""
     kind = params.filter
     if kind is None:
         return z.copy(), x, P, coast

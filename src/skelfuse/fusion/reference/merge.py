@@ -90,26 +90,8 @@ def merge_dbscan(
     reference_weight: float | None = 2.0,
     previous_weight: float | None = 1.0,
 ) -> MergeResult:
-    """DBSCAN (Nc = 1) merge of every joint; see the module docstring for weights, ties and empty cases.
-
-    Parameters
-    ----------
-    positions : (B, S, J, 3) float, mm, world frame; NaN = missing candidate.
-    confidence : (B, S, J) int, tracker confidence of each candidate.
-    reference : (B, J, 3) float, mm, or None
-        Trick-1 candidate per joint (see :func:`skelfuse.fusion.realign.reference_positions`). Ignored
-        when ``reference_weight`` is None.
-    previous : (B, J, 3) float, mm, or None
-        Trick-2 candidate per joint (last frame's merged position). Ignored when ``previous_weight`` is None.
-    eps_mm : float
-        Searching radius, mm.
-    reference_weight, previous_weight : float or None
-        Weights in the cluster score; None leaves that candidate out.
-
-    Returns
-    -------
-    MergeResult
-    """
+    """:func:`skelfuse.fusion.merge.merge_dbscan` in numpy (its contract, weights, ties and empty cases are
+    documented there)."""
     B, S, J, _ = positions.shape
     N = B * J
     sensor_axes = np.transpose(positions, (3, 0, 2, 1)).reshape(3, N, S)  # (3, N, S), a copy
