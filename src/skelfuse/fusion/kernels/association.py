@@ -18,14 +18,29 @@ stands alone; the numpy form is :mod:`skelfuse.fusion.reference.association`.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
+
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
 
 BIG_COST = 1e12
 """Stands for "no cost" (a pair outside the gate) in the assignment matrices; such pairs are rejected after."""
 
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+
+@numba.njit(**_JIT)
+def _filled(n: int, value: int) -> np.ndarray:
+    """An (n,) int64 array of ``value`` (a loop: numba's np.full compiles per signature)."""
+    out = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        out[i] = value
+    return out
+
+
+@numba.njit(**_JIT, inline="always")
 def _augmenting_path(
     cost: np.ndarray,
     u: np.ndarray,
@@ -46,12 +61,12 @@ def _augmenting_path(
         remaining[it] = nc - it - 1  # from the last column: a constant matrix gives the identity
     in_rows[:] = False
     in_cols[:] = False
-    shortest[:] = np.inf
+    shortest[:] = math.inf
     sink = -1
     i = row
     while sink == -1:
         index = -1
-        lowest = np.inf
+        lowest = math.inf
         in_rows[i] = True
         for it in range(n_remaining):
             j = remaining[it]
@@ -64,7 +79,7 @@ def _augmenting_path(
                 lowest = shortest[j]
                 index = it
         min_val = lowest
-        if min_val == np.inf:
+        if min_val == math.inf:
             return -1, min_val
         j = remaining[index]
         if row4col[j] == -1:
@@ -77,7 +92,7 @@ def _augmenting_path(
     return sink, min_val
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 2),), **_JIT)
 def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The minimum-cost assignment of a (R, C) cost matrix: row indices (ascending), their columns, and a status.
 
@@ -85,20 +100,21 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     assigned at a finite cost). min(R, C) pairs.
     """
     transpose = matrix.shape[1] < matrix.shape[0]
-    cost = matrix.T.copy() if transpose else matrix
-    nr, nc = cost.shape
-    if nr == 0 or nc == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0
+    nr, nc = (matrix.shape[1], matrix.shape[0]) if transpose else (matrix.shape[0], matrix.shape[1])
+    cost = np.empty((nr, nc))
     for i in range(nr):
         for j in range(nc):
-            if cost[i, j] != cost[i, j] or cost[i, j] == -np.inf:
-                return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 1
+            cost[i, j] = matrix[j, i] if transpose else matrix[i, j]
+            if cost[i, j] != cost[i, j] or cost[i, j] == -math.inf:
+                return _filled(0, 0), _filled(0, 0), 1
+    if nr == 0 or nc == 0:
+        return _filled(0, 0), _filled(0, 0), 0
     u = np.zeros(nr)
     v = np.zeros(nc)
     shortest = np.empty(nc)
-    path = np.full(nc, -1, dtype=np.int64)
-    col4row = np.full(nr, -1, dtype=np.int64)
-    row4col = np.full(nc, -1, dtype=np.int64)
+    path = _filled(nc, -1)
+    col4row = _filled(nr, -1)
+    row4col = _filled(nc, -1)
     in_rows = np.zeros(nr, dtype=np.bool_)
     in_cols = np.zeros(nc, dtype=np.bool_)
     remaining = np.empty(nc, dtype=np.int64)
@@ -133,10 +149,13 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
                     rows[n], cols[n] = original_row, i
                     n += 1
         return rows, cols, 0
-    return np.arange(nr, dtype=np.int64), col4row, 0
+    rows = np.empty(nr, dtype=np.int64)
+    for i in range(nr):
+        rows[i] = i
+    return rows, col4row, 0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**_JIT)
 def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_points: int) -> np.ndarray:
     """(S, B, K) mean distance (mm) over the descriptor points a body (S, B, D, 3) and a track (K, D, 3) both have;
     inf with fewer than ``min_common_points`` (at least 1) in common."""
@@ -153,27 +172,27 @@ def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_point
                     dx = body_desc[s, b, d, 0] - tracks[k, d, 0]
                     dy = body_desc[s, b, d, 1] - tracks[k, d, 1]
                     dz = body_desc[s, b, d, 2] - tracks[k, d, 2]
-                    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
-                    if np.isfinite(dist):
+                    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    if math.isfinite(dist):
                         total += dist
                         count += 1
-                cost[s, b, k] = total / count if count >= need else np.inf
+                cost[s, b, k] = total / count if count >= need else math.inf
     return cost
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _indices(mask: np.ndarray) -> np.ndarray:
-    """The indices where a (N,) bool mask holds, ascending (a plain loop: numba's flatnonzero costs compile time)."""
+@numba.njit(**_JIT)
+def _indices(mask: np.ndarray, person: np.ndarray) -> np.ndarray:
+    """The indices where a (N,) bool mask holds and ``person`` (N,) is -1 (unassigned), ascending."""
     out = np.empty(mask.shape[0], dtype=np.int64)
     n = 0
     for i in range(mask.shape[0]):
-        if mask[i]:
+        if mask[i] and person[i] < 0:
             out[n] = i
             n += 1
     return out[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**_JIT)
 def _assign_sensor(
     cost: np.ndarray,
     allowed: np.ndarray,
@@ -206,8 +225,8 @@ def _assign_sensor(
                     person[b] = k
                     assigned_cost[b] = cost[b, k]
         return
-    rows = _indices(usable & (person < 0))
-    cols = _indices(in_stage)
+    rows = _indices(usable, person)
+    cols = _indices(in_stage, _filled(K, -1))
     matrix = np.empty((rows.size, cols.size))
     for r in range(rows.size):
         for c in range(cols.size):
@@ -220,7 +239,7 @@ def _assign_sensor(
             assigned_cost[b] = matrix[r_idx[n], c_idx[n]]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**_JIT)
 def assign_to_tracks(
     body_desc: np.ndarray,
     usable: np.ndarray,
@@ -241,27 +260,57 @@ def assign_to_tracks(
     -------
     person (S, B) int64 track of each body (-1: none), assigned_cost (S, B) float64 (NaN: none), cost (S, B, K).
     """
-    S, B = usable.shape
-    K = tracks.shape[0]
     cost = descriptor_costs(body_desc, tracks, min_common_points)
+    person, assigned_cost = _cascade(cost, usable, confirmed, gate_mm)
+    return person, assigned_cost, cost
+
+
+@numba.njit(**_JIT, inline="always")
+def _cascade(
+    cost: np.ndarray, usable: np.ndarray, confirmed: np.ndarray, gate_mm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Step 3 on the (S, B, K) costs: per sensor, the Hungarian assignment under the gate, confirmed tracks first,
+    then the tentative ones with the bodies left; returns person (S, B) and assigned_cost (S, B) as
+    :func:`assign_to_tracks`. Inlined into its callers (one compiled function less)."""
+    S, B, K = cost.shape
     allowed = np.zeros((S, B, K), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
             for k in range(K):
                 allowed[s, b, k] = usable[s, b] and cost[s, b, k] <= gate_mm[k]
-    person = np.full((S, B), -1, dtype=np.int64)
-    assigned_cost = np.full((S, B), np.nan)
-    tentative = ~confirmed
+    person = np.empty((S, B), dtype=np.int64)
+    assigned_cost = np.empty((S, B))
+    for s in range(S):
+        for b in range(B):
+            person[s, b], assigned_cost[s, b] = -1, np.nan
+    tentative = np.empty(K, dtype=np.bool_)
+    n_confirmed = 0
+    for k in range(K):
+        tentative[k] = not confirmed[k]
+        n_confirmed += 1 if confirmed[k] else 0
     for stage in range(2):
         in_stage = confirmed if stage == 0 else tentative
-        if _indices(in_stage).size == 0:
+        if (n_confirmed if stage == 0 else K - n_confirmed) == 0:
             continue
         for s in range(S):
             _assign_sensor(cost[s], allowed[s], usable[s], in_stage, person[s], assigned_cost[s])
-    return person, assigned_cost, cost
+    return person, assigned_cost
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_MATCH_TRACKS = (
+    array(FLOAT, 4),  # positions
+    array(BOOL, 2),  # valid
+    array(INT, 1, readonly=True),  # central
+    array(INT, 2, readonly=True),  # pairs
+    array(FLOAT, 3),  # tracks
+    array(BOOL, 1),  # confirmed
+    array(FLOAT, 1),  # gate_mm
+    INT,  # min_common_points
+    FLOAT,  # duplicate_mm
+)
+
+
+@numba.njit(_MATCH_TRACKS, **_JIT)
 def match_tracks(
     positions: np.ndarray,
     valid: np.ndarray,
@@ -299,17 +348,18 @@ def match_tracks(
                     if d < C:
                         body_desc[s, b, d, c] = positions[s, b, central[d], c]
                     else:
-                        pair = pairs[d - C]
-                        body_desc[s, b, d, c] = 0.5 * (positions[s, b, pair[0], c] + positions[s, b, pair[1], c])
-                point = body_desc[s, b, d]
-                n_finite += np.isfinite(point[0]) and np.isfinite(point[1]) and np.isfinite(point[2])
+                        first, second = pairs[d - C, 0], pairs[d - C, 1]
+                        body_desc[s, b, d, c] = 0.5 * (positions[s, b, first, c] + positions[s, b, second, c])
+                x, y, z = body_desc[s, b, d, 0], body_desc[s, b, d, 1], body_desc[s, b, d, 2]
+                n_finite += 1 if math.isfinite(x) and math.isfinite(y) and math.isfinite(z) else 0
             usable[s, b] = valid[s, b] and n_finite >= min_common_points
-    person, assigned_cost, cost = assign_to_tracks(body_desc, usable, tracks, confirmed, gate_mm, min_common_points)
+    cost = descriptor_costs(body_desc, tracks, min_common_points)
+    person, assigned_cost = _cascade(cost, usable, confirmed, gate_mm)
     duplicates = np.zeros((S, B), dtype=np.bool_)
-    leftover = usable & (person < 0)
+    leftover = np.zeros((S, B), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
-            if not leftover[s, b]:
+            if not (usable[s, b] and person[s, b] < 0):
                 continue
             for other in range(B):  # a track that took another body of this sensor, within duplicate_mm
                 k = person[s, other]
@@ -319,7 +369,7 @@ def match_tracks(
     return body_desc, usable, person, assigned_cost, cost, duplicates, leftover
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 4), array(INT, 2), INT), **_JIT)
 def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
     """Per person, the median over its sensors of their bodies' descriptors, and how many sensors see it.
 
@@ -347,7 +397,7 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
                 for s in range(S):
                     for b in range(B):
                         value = body_desc[s, b, d, c]
-                        if person[s, b] != p or not np.isfinite(value):
+                        if person[s, b] != p or not math.isfinite(value):
                             continue
                         at = count
                         while at > 0 and seen[at - 1] > value:
@@ -360,10 +410,9 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
 
 
 def warm_up() -> None:
-    """Compile (or load) :func:`assign_to_tracks` and :func:`linear_sum_assignment` for their one signature each."""
+    """Run the live path's kernels (:func:`match_tracks`, :func:`person_descriptors`; each compiled for its one
+    signature when this module loads, or loaded from the cache) on tiny inputs."""
     desc = np.zeros((1, 2, 7, 3))
-    assign_to_tracks(desc, np.ones((1, 2), np.bool_), np.zeros((1, 7, 3)), np.ones(1, np.bool_), np.full(1, 450.0), 3)
-    linear_sum_assignment(np.zeros((2, 1)))
     person_descriptors(desc, np.zeros((1, 2), dtype=np.int64), 1)
     match_tracks(
         np.zeros((1, 2, 4, 3)),
