@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from numba.core import event
 
 from fake_zenoh import FakeSample
 from skelfuse.config import RigConfig, load_rig_config
@@ -98,6 +99,34 @@ def test_without_a_stop_the_whole_backlog_is_fused(rig: RigConfig, payloads: lis
     # Every instant but the newest (still open, waiting for its deadline) is fused, in time order.
     times = [decode_fused_frame(p).time_us for p in fused.payloads]
     assert len(times) >= INSTANTS - 2 and times == sorted(times)
+
+
+class _Compiles(event.Listener):
+    """Records the functions numba compiles while installed."""
+
+    def __init__(self) -> None:
+        self.names: list[str] = []
+
+    def on_start(self, ev: event.Event) -> None:
+        self.names.append(ev.data["dispatcher"].py_func.__qualname__)
+
+    def on_end(self, ev: event.Event) -> None:
+        pass
+
+
+def test_a_node_compiles_nothing_once_it_started(rig: RigConfig, payloads: list[tuple[str, bytes]]) -> None:
+    # The node prepares its kernels before its first instant; a live call with argument types the preparation
+    # did not cover (another array layout, a read-only table) would compile in the loop, for seconds on a first
+    # start, with no status meanwhile.
+    node, samples = _backlog(rig, payloads)
+    fused = _Publisher(lambda publisher: samples.qsize() == 0 and node.lifecycle.request_exit())
+    compiles = _Compiles()
+    with event.install_listener("numba:compile", compiles):
+        node._loop(samples, fused, _Publisher(), None)
+    frames = [decode_fused_frame(p) for p in fused.payloads]
+    assert len(frames) >= INSTANTS - 2
+    assert all(frame.orientations is not None for frame in frames)  # every stage ran, the orientations too
+    assert compiles.names == []
 
 
 def test_a_backlog_that_never_empties_does_not_hold_the_status_back(

@@ -142,8 +142,8 @@ from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, 
 # Confidence value -> tier rank 1 (NONE), 2 (LOW), 3 (MEDIUM+); HIGH and anything above count as MEDIUM.
 _TIER_RANK = (np.minimum(np.arange(256), int(Confidence.MEDIUM)) + 1).astype(np.int8)
 _ONES3 = np.ones(3)  # x @ ones sums the last axis of 3 faster than x.sum(-1)
-_PAIR_LEFT = PAPER_REALIGN_PAIRS[:, 0]
-_PAIR_RIGHT = PAPER_REALIGN_PAIRS[:, 1]
+_PAIR_LEFT = np.ascontiguousarray(PAPER_REALIGN_PAIRS[:, 0], dtype=np.int64)  # C order: as the kernel reads them
+_PAIR_RIGHT = np.ascontiguousarray(PAPER_REALIGN_PAIRS[:, 1], dtype=np.int64)
 _PAIR_JOINTS = np.concatenate([_PAIR_LEFT, _PAIR_RIGHT])  # (2P,) left joints, then right joints
 _PAIR_SWAPPED = np.concatenate([_PAIR_RIGHT, _PAIR_LEFT])
 _N_PAIRS = len(PAPER_REALIGN_PAIRS)

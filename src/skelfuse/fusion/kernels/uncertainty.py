@@ -9,11 +9,17 @@ step of the constant-velocity covariance recursion. The same arithmetic as the n
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+@numba.njit(**_JIT)
 def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np.ndarray) -> float:
     """|candidate - merged|^2, mm^2 (NaN where either is missing)."""
     dx = candidates[b, s, j, 0] - merged[b, j, 0]
@@ -22,7 +28,7 @@ def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**_JIT)
 def _torso_agreement(candidates: np.ndarray, merged: np.ndarray, b: int, torso: np.ndarray, rms: np.ndarray) -> float:
     """Median over the torso joints seen by two views or more of the views' RMS distance from the merged joint
     (NaN: no such joint). ``rms`` (K,): scratch."""
@@ -33,11 +39,11 @@ def _torso_agreement(candidates: np.ndarray, merged: np.ndarray, b: int, torso: 
         n = 0
         for s in range(S):
             sq = _squared_distance(candidates, b, s, torso[k], merged)
-            if np.isfinite(sq):
+            if math.isfinite(sq):
                 total += sq
                 n += 1
         if n >= 2:
-            value = np.sqrt(total / n)
+            value = math.sqrt(total / n)
             at = count  # insertion sort: a handful of joints
             while at > 0 and rms[at - 1] > value:
                 rms[at] = rms[at - 1]
@@ -45,11 +51,29 @@ def _torso_agreement(candidates: np.ndarray, merged: np.ndarray, b: int, torso: 
             rms[at] = value
             count += 1
     if count == 0:
-        return np.nan
+        return math.nan
     return 0.5 * (rms[(count - 1) // 2] + rms[count // 2])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (
+    array(FLOAT, 4),  # candidates
+    array(FLOAT, 3),  # merged
+    array(INT, 2),  # n_agree
+    array(FLOAT, 3),  # fused
+    array(FLOAT, 3),  # previous_cov
+    array(INT, 1),  # coast_before
+    array(INT, 1),  # coast_after
+    array(INT, 1, readonly=True),  # torso
+    FLOAT,  # sigma0_mm
+    FLOAT,  # prior_samples
+    BOOL,  # use_filter
+    FLOAT,  # dt_s
+    FLOAT,  # accel_sigma
+    FLOAT,  # velocity0_sigma
+)
+
+
+@numba.njit(_SIGNATURE, **_JIT)
 def position_uncertainty(
     candidates: np.ndarray,
     merged: np.ndarray,
@@ -96,7 +120,7 @@ def position_uncertainty(
             n_views = 0
             for s in range(S):
                 sq = _squared_distance(candidates, b, s, j, merged)
-                if np.isfinite(sq):
+                if math.isfinite(sq):
                     ss += sq
                     n_views += 1
             n = float(n_agree[b, j])
@@ -104,14 +128,14 @@ def position_uncertainty(
             r = v / max(n, 1.0) if n > 0.0 else np.nan
             i = b * J + j
             if not use_filter:
-                std[b, j] = np.sqrt(r)
+                std[b, j] = math.sqrt(r)
             else:
                 # P~ = F P F' + Q on the triangle (p00, p01, p11).
                 p0, p1, p2 = previous_cov[b, j, 0], previous_cov[b, j, 1], previous_cov[b, j, 2]
                 pred0 = p0 + p1 * (2.0 * dt_s) + p2 * (dt_s * dt_s) + q0
                 pred1 = p1 + p2 * dt_s + q1
                 pred2 = p2 + q2
-                r_safe = r if np.isfinite(r) else 1.0
+                r_safe = r if math.isfinite(r) else 1.0
                 if coast_after[i] == 0 and coast_before[i] >= 0:  # K = P~ H' / (H P~ H' + R); P = (I - KH) P~
                     g0 = pred0 / (pred0 + r_safe)
                     g1 = pred1 / (pred0 + r_safe)
@@ -125,9 +149,9 @@ def position_uncertainty(
                 elif coast_after[i] > 0:
                     cov[b, j, 0], cov[b, j, 1], cov[b, j, 2] = pred0, pred1, pred2
                 # Never below this frame's own measurement variance (the slow part of the error stays).
-                value = np.sqrt(max(cov[b, j, 0], r) if np.isfinite(r) else cov[b, j, 0])
+                value = math.sqrt(max(cov[b, j, 0], r) if math.isfinite(r) else cov[b, j, 0])
                 std[b, j] = value if coast_after[i] >= 0 else np.nan
-            if not np.isfinite(fused[b, j, 0] + fused[b, j, 1] + fused[b, j, 2]):
+            if not math.isfinite(fused[b, j, 0] + fused[b, j, 1] + fused[b, j, 2]):
                 std[b, j] = np.nan
     return std, cov, agreement
 
