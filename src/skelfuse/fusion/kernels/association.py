@@ -298,8 +298,8 @@ def _cascade(
 _MATCH_TRACKS = (
     array(FLOAT, 4),  # positions
     array(BOOL, 2),  # valid
-    array(INT, 1, readonly=True),  # central
-    array(INT, 2, readonly=True),  # pairs
+    array(INT, 1),  # central
+    array(INT, 2),  # pairs
     array(FLOAT, 3),  # tracks
     array(BOOL, 1),  # confirmed
     array(FLOAT, 1),  # gate_mm

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba.core import types
+
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, INT32, array
 
 PAPER_KALMAN, CV_KALMAN, ALPHA_BETA = 0, 1, 2
 """Filter kinds, as the kernel's ``kind`` argument."""
@@ -66,7 +69,23 @@ def _update(
         new_P[i, 2] = pred[2, 2]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (
+    INT,  # kind
+    array(FLOAT, 3),  # x
+    array(FLOAT, 2),  # P
+    array(INT32, 1),  # coast
+    array(FLOAT, 2),  # z
+    array(INT, 1),  # n_agree
+    types.Tuple((array(FLOAT, 2), array(FLOAT, 2), array(FLOAT, 1), array(FLOAT, 1))),  # model
+    FLOAT,  # r
+    array(FLOAT, 1),  # gains
+    INT,  # max_coast_frames
+    BOOL,  # scale_r_by_agree
+    BOOL,  # output_posterior
+)
+
+
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
 def filter_step(
     kind: int,
     x: np.ndarray,

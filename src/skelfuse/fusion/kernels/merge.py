@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+
 _ROUND_SCALE = 1e6  # centroid tie-break resolution: 1e-6 mm, as numpy's round(x, 6) (x * 1e6, rint, / 1e6)
 
 
@@ -168,7 +170,19 @@ def _score(
             key[s] = rank[0] * (3 * n_sensors + 1)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (
+    array(FLOAT, 4),  # positions
+    array(INT, 3),  # confidence
+    array(FLOAT, 3),  # reference
+    array(FLOAT, 3),  # previous
+    BOOL,  # use_ref
+    BOOL,  # use_prev
+    FLOAT,  # eps_mm
+    array(INT, 1),  # rank
+)
+
+
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
 def merge_dbscan(
     positions: np.ndarray,
     confidence: np.ndarray,

@@ -360,9 +360,9 @@ _SIGNATURE = (
     FLOAT,  # alpha
     FLOAT,  # beta
     FLOAT,  # dt_s
-    array(INT, 2, readonly=True),  # joint_index
-    array(FLOAT, 2, readonly=True),  # joint_value
-    array(INT, 1, readonly=True),  # body_joints
+    array(INT, 2),  # joint_index
+    array(FLOAT, 2),  # joint_value
+    array(INT, 1),  # body_joints
 )
 
 

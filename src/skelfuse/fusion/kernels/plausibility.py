@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+
 PLAUSIBLE, TELEPORT, UPSIDE_DOWN, BONES = 0, 1, 2, 3  # as skelfuse.fusion.plausibility's reasons
 
 
@@ -66,7 +68,22 @@ def _median_bone_ratio(view: np.ndarray, learned: np.ndarray, bones: np.ndarray,
     return 0.5 * (ratios[(n - 1) // 2] + ratios[n // 2])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (
+    array(FLOAT, 4),  # candidates
+    array(FLOAT, 3),  # predicted
+    array(FLOAT, 2),  # learned_bones
+    array(BOOL, 1),  # bones_ready
+    array(INT, 1),  # torso
+    array(INT, 2),  # bones
+    INT,  # neck
+    INT,  # pelvis
+    FLOAT,  # gate_mm
+    FLOAT,  # up_cos
+    FLOAT,  # log_bone_ratio
+)
+
+
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
 def check_views(
     candidates: np.ndarray,
     predicted: np.ndarray,

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skelfuse.fusion.kernels.signatures import FLOAT, INT, array
+
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
@@ -21,7 +23,10 @@ def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (array(FLOAT, 4), array(FLOAT, 3), array(INT, 1), array(INT, 1))
+
+
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
 def pair_votes(
     positions: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,9 +1,9 @@
 """The numba types of the kernels' explicit signatures.
 
-Each public kernel is compiled for one signature given up front (``numba.njit(signature)``): it compiles when its
+Each live kernel is compiled for one signature given up front (``numba.njit(signature)``): it compiles when its
 module loads, never again for another array layout or read-only-ness, and refuses arguments of other types
-instead of compiling for them. Array arguments are C-contiguous; a table the wrappers keep read-only is declared
-read-only, which accepts writable arrays too.
+instead of compiling for them in the middle of a fusion. Array arguments are C-contiguous and declared read-only
+unless the kernel writes into them: a read-only array type accepts writable arrays as well.
 """
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ from numba.core import types
 
 FLOAT = numba.float64
 INT = numba.int64
+INT32 = numba.int32
 BOOL = numba.boolean
 
 
-def array(dtype: types.Type, ndim: int, readonly: bool = False) -> types.Array:
-    """A C-contiguous array type of ``ndim`` dimensions (read-only: accepts writable arrays as well)."""
-    return types.Array(dtype, ndim, "C", readonly=readonly)
+def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:
+    """A C-contiguous array argument of ``ndim`` dimensions; read-only unless ``writable`` (the kernel writes it)."""
+    return types.Array(dtype, ndim, "C", readonly=not writable)

@@ -11,8 +11,23 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+_SIGNATURE = (
+    array(FLOAT, 3),  # descriptor
+    array(FLOAT, 2),  # velocity
+    array(FLOAT, 1),  # last_seen_s
+    array(INT, 1),  # n_frames_seen
+    array(FLOAT, 3),  # predicted
+    array(FLOAT, 3),  # measured
+    array(BOOL, 1),  # hit
+    FLOAT,  # time_s
+    FLOAT,  # smoothing
+    FLOAT,  # max_speed_mm_s
+)
+
+
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
 def seen_motion(
     descriptor: np.ndarray,
     velocity: np.ndarray,

@@ -61,7 +61,7 @@ _SIGNATURE = (
     array(FLOAT, 3),  # previous_cov
     array(INT, 1),  # coast_before
     array(INT, 1),  # coast_after
-    array(INT, 1, readonly=True),  # torso
+    array(INT, 1),  # torso
     FLOAT,  # sigma0_mm
     FLOAT,  # prior_samples
     BOOL,  # use_filter
