@@ -16,7 +16,12 @@ How the kernels are built, and why:
   ``$NUMBA_CACHE_DIR`` when the user set it, else ``$XDG_CACHE_HOME/skelfuse/numba`` (``~/.cache/skelfuse/numba``;
   ``%LOCALAPPDATA%\\skelfuse\\numba`` on Windows). numba writes its cache files atomically, so processes that
   compile at once (test workers, two nodes) share the directory safely.
-* Fixed signatures: float64 / int64 / bool arrays, C-contiguous, so each kernel compiles once.
+* One explicit signature per live kernel (:mod:`.signatures`): float64 / int64 / bool arrays, C-contiguous,
+  read-only where the kernel only reads them. Each compiles once, when its module loads; a call with other types
+  is refused, never compiled in the middle of a fusion.
+* Few compiled functions, and helpers over scalars: numba types, lowers and optimizes every helper on its own and
+  again inside each caller, so the first start's compile time grows with their number and depth, not with the
+  loops' length.
 * Single-threaded (the capture PC's cores belong to the body trackers) and no fastmath: NaN joints are data, and
   fastmath may assume they never occur.
 * Debugging: ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (slow, but a debugger steps into them).
@@ -125,7 +130,7 @@ def load() -> Kernels:
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) every kernel now, on tiny inputs of the fixed signatures."""
+    """Compile (or load from the cache) every kernel now, and run each on tiny inputs of its signature."""
     kernels = load()
     for module in kernels:
         module.warm_up()
