@@ -43,6 +43,9 @@ def test_metric_functions_on_hand_made_cases() -> None:
     joints = np.arange(N_JOINTS)
     assert velocity_lag(late, path, joints) == 2.0
     assert velocity_lag(path, path, joints) == 0.0
+    # A take shorter than the shifts tried (10 frames, shifts up to 10): the shifts that leave no overlap are
+    # skipped, the rest still find the lag.
+    assert velocity_lag(late[:10], path[:10], joints) == 2.0
     straight = np.zeros((10, N_JOINTS, 3))
     straight[..., 1] = np.arange(10)[:, None] * 7.0  # constant velocity: no jitter
     assert median_jitter(straight, joints) == 0.0
@@ -128,7 +131,8 @@ def test_orientation_agreement_measures_the_twist_and_leaves_mirrored_views_out(
 def test_orientation_by_joint_measures_the_full_angle_per_joint() -> None:
     """Hand-made: view 0 is every fused frame turned 12° about the world's up (a tilt, not only a twist), view 1
     is the fused frame, view 2 is mirrored (left out). Per aimed joint: 12 and 0, pooled 6 (the median of equal
-    counts of 12 and 0), 12 between the views; the derived joints are not listed."""
+    counts of 12 and 0), 12 between the views (a and b: 12; c, left out, against either: none); the derived joints
+    are not listed."""
     truth = make_gesture("walking", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=1).positions
     fused_quats = apply_derived(body_hint_frames(truth))
     turn = quat_from_rotvec(np.array([0.0, 0.0, np.radians(12.0)]))
@@ -140,6 +144,8 @@ def test_orientation_by_joint_measures_the_full_angle_per_joint() -> None:
         assert row["a"] == pytest.approx(12.0, abs=1e-5) and row["b"] == pytest.approx(0.0, abs=1e-3)
         assert math.isnan(row["c"])
         assert row["views"] == pytest.approx(6.0, abs=1e-3) and row["between views"] == pytest.approx(12.0, abs=1e-5)
+        assert row["between a and b"] == pytest.approx(12.0, abs=1e-5)
+        assert math.isnan(row["between a and c"]) and math.isnan(row["between b and c"])
 
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
