@@ -149,7 +149,9 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="the andyj1 folder (default: %(default)s)")
     parser.add_argument("--json", action="store_true", help="print the per-joint figures as JSON, stamped")
     args = parser.parse_args()
-    args.stamp = RunStamp.begin(sys.argv[1:], program=("python", "scripts/orientation_to_views.py")) if args.json else None
+    args.stamp = (
+        RunStamp.begin(sys.argv[1:], program=("python", "scripts/orientation_to_views.py")) if args.json else None
+    )
     result = none_for_nan(measure(args.data.resolve()))
     if args.json:
         print_json(result, args)
