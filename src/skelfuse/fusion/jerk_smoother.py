@@ -123,7 +123,7 @@ def _model(dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _forward(
     z: np.ndarray, meas_var: np.ndarray, linked: np.ndarray, dt_s: np.ndarray, jerk: np.ndarray, initial: np.ndarray
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The Kalman filter over (T, M) coordinates: filtered and predicted states (T, M, 3) and covariances
     (T, M, 3, 3), and whether each frame's state is an estimate (a segment measured at or before it)."""
     T, M = z.shape
