@@ -260,8 +260,8 @@ def _measure(
     valid: np.ndarray,
     dots: np.ndarray,
 ) -> tuple[int, Quat]:
-    """Steps 2-3: joint j's usable views (an ankle's times the inverse of its aim offset) swung onto the aim, and
-    their consensus (:func:`_consensus`). ``swung`` (S, 4), ``valid`` (S,), ``dots`` (S, S): scratch."""
+    """Steps 2-3: joint j's usable views (an ankle's or the head's times the inverse of its aim offset) swung onto
+    the aim, and their consensus (:func:`_consensus`). ``swung`` (S, 4), ``valid`` (S,), ``dots`` (S, S): scratch."""
     has_aim = aim[0] == aim[0]
     for s in range(view_quats.shape[1]):
         # Without an aim every swing is NaN, and a view that may not contribute is never read: skip both.
@@ -336,7 +336,7 @@ def _fuse_body(
             state[b, j, c] = q[c] if located and q[c] == q[c] else 0.0
         for c in range(3):
             omega_out[b, j, c] = omega[c] if math.isfinite(omega[c]) else 0.0
-        if has_offset:  # the aim frame to the tracker's joint frame (the ankles: times their offset)
+        if has_offset:  # the aim frame to the tracker's joint frame (the ankles and the head: times their offset)
             q = _multiply(q, offset)
         quats[b, j, 0], quats[b, j, 1], quats[b, j, 2], quats[b, j, 3] = q
     # Derived joints (hand tips, feet, face): their source joint's frame times a fixed offset.

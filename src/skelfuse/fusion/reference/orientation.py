@@ -168,7 +168,7 @@ def _rows_view_aim_frames(view_quats: np.ndarray) -> np.ndarray:
 
 
 def _rows_from_aim_frames(quats: np.ndarray) -> np.ndarray:
-    """(4, ..., J) component-major aim frames -> k4abt frames (a copy; only the ankles change)."""
+    """(4, ..., J) component-major aim frames -> k4abt frames (a copy; only the ankles and the head change)."""
     out = np.array(quats, dtype=np.float64, copy=True)
     if _OFFSET.size:
         out[..., _OFFSET] = _rows_bilinear(out[..., _OFFSET], _AIM_OFFSET_ROWS, _QMUL_ROWS)
