@@ -8,6 +8,8 @@ watchdog on SIGTERM (exit status 4 after 15 s while still fusing the backlog).
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +22,7 @@ from skelfuse.service.node import FusionNode, NodeOptions
 from skelfuse.service.worker import SimSource
 from skelfuse.service.zenoh_io import SampleQueue
 from skelfuse.wire.codec import decode_fused_frame, encode_sensor_frame
+from waiting import DEFAULT_TIMEOUT_S
 
 RIG_SIM_4 = Path(__file__).resolve().parents[2] / "config" / "rig-sim-4.toml"
 INSTANTS = 60
@@ -137,20 +140,23 @@ def test_a_backlog_that_never_empties_does_not_hold_the_status_back(
     # kill -9 test waits for a status after the restarted sensor's return).
     node = FusionNode(rig, None, options=NodeOptions(status_period_s=0.01))
     samples = SampleQueue()
-    feed = iter(payloads * 50)
+    feed = itertools.cycle(payloads)
     for key, payload in (next(feed) for _ in range(8)):
         samples(FakeSample(key, payload))
     take, take_now = samples.get, samples.get_nowait
+    fused, status = _Publisher(), _Publisher()
+    # The loop runs until five statuses are out (the event this test waits for), its deadline far above five
+    # periods: how many instants fit in five periods is the node's speed, not the rule under test.
+    deadline = time.monotonic() + DEFAULT_TIMEOUT_S
 
     def arrive() -> None:  # a sample arrives for each one taken: the queue never empties
         key, payload = next(feed)
         samples(FakeSample(key, payload))
+        if (len(status.payloads) >= 5 and len(fused.payloads) >= INSTANTS) or time.monotonic() > deadline:
+            node.lifecycle.request_exit()
 
     samples.get = lambda timeout: arrive() or take(timeout)  # type: ignore[method-assign]
     samples.get_nowait = lambda: arrive() or take_now()  # type: ignore[method-assign]
-    fused = _Publisher()
-    fused.on_put = lambda publisher: len(publisher.payloads) >= INSTANTS and node.lifecycle.request_exit()
-    status = _Publisher()
     node._loop(samples, fused, status, None)
     assert samples.qsize() == 8  # it never emptied
     assert len(fused.payloads) >= INSTANTS
