@@ -104,9 +104,9 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
         for j in range(nc):
             cost[i, j] = matrix[j, i] if transpose else matrix[i, j]
             if cost[i, j] != cost[i, j] or cost[i, j] == -math.inf:
-                return _filled(0, 0), _filled(0, 0), 1
+                return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 1
     if nr == 0 or nc == 0:
-        return _filled(0, 0), _filled(0, 0), 0
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 0
     u = np.zeros(nr)
     v = np.zeros(nc)
     shortest = np.empty(nc)
