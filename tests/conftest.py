@@ -17,8 +17,15 @@ import multiprocessing.process
 import os
 import re
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from typing import Any
+
+# This process caches bytecode in __pycache__ (git ignores it) even where the environment sets
+# PYTHONDONTWRITEBYTECODE: without the cache every xdist worker rewrites the asserts of every test module and
+# compiles skelfuse again on every run, about half of collection's time. Processes the tests start keep the
+# environment as it is.
+sys.dont_write_bytecode = False
 
 # One thread per process in native libraries (OpenMP: scikit-learn's DBSCAN in the reference fuser; OpenBLAS),
 # set before any of them loads and inherited by the processes tests start. Their threads spin while they wait
