@@ -122,7 +122,7 @@ def self_occlusion(points: np.ndarray, radii: dict[str, float], margin_mm: float
     ends = points[:, [J[c[2]] for c in CAPSULES]][:, None]
     radius = np.array([radii[c[0]] for c in CAPSULES])  # (C,)
     joints = points[:, :, None, :]  # (T, 32, 1, 3)
-    origin = np.zeros_like(joints)
+    origin = np.zeros(3)  # the camera; broadcast, so the ray-independent terms are formed once per capsule
     ray_dist, s = segment_distance(origin, joints, starts, ends)  # (T, 32, C)
     inside, _ = segment_distance(joints, joints, starts, ends)
     depth = np.linalg.norm(joints, axis=-1)  # (T, 32, 1)
