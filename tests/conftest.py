@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import gc
 import multiprocessing.process
 import os
 import re
@@ -65,6 +66,13 @@ def pytest_configure(config: pytest.Config) -> None:
     multiprocessing.process.BaseProcess.start = _recording(  # type: ignore[method-assign]
         "a multiprocessing process", multiprocessing.process.BaseProcess.start
     )
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """The modules and test items collection made live to the end of the run: moved out of the cyclic garbage
+    collector's sight (``gc.freeze``), each full collection no longer walks them again (a few % of a run)."""
+    gc.collect()
+    gc.freeze()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
