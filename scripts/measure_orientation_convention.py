@@ -133,10 +133,8 @@ def frame_offsets(data: Path) -> dict[str, Any]:
     for name in (*FILES, MAPPED):
         rec = load_andyj1_csv(data / name)
         p, q = rec.positions[:, 0].astype(np.float64), rec.orientations[:, 0].astype(np.float64)
-        x_axis = quat_rotate(q / np.linalg.norm(q, axis=-1, keepdims=True), np.array([1.0, 0.0, 0.0]))[:, OFFSET_JOINTS]
-        bone = aim_directions(p)[:, OFFSET_JOINTS]
-        ok = np.isfinite(x_axis).all(axis=-1) & np.isfinite(bone).all(axis=-1)
-        R = offsets[name] = kabsch(bone[ok], x_axis[ok], np.ones(int(ok.sum())))
+        x_axis, bone, ok = _axes_and_bones(p, q)
+        R = offsets[name] = frame_offset(p, q)
         per_frame = kabsch(bone, x_axis, ok.astype(float))
         drift = [rotation_angle_deg(f @ R.T) for f, n in zip(per_frame, ok.sum(axis=1), strict=True) if n >= 6]
         axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
@@ -149,6 +147,21 @@ def frame_offsets(data: Path) -> dict[str, Any]:
     position_map = fit_rigid(own, mapped).R
     return {"files": rows, "mapped": MAPPED, "mapped_positions_deg": rotation_angle_deg(position_map),
             "mapped_undone_deg": rotation_angle_deg(offsets[MAPPED] @ position_map)}  # fmt: skip
+
+
+def _axes_and_bones(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The SDK X axes and the aim bones (unit, (T, joints, 3)) of :data:`OFFSET_JOINTS`, and where both exist."""
+    x_axis = quat_rotate(q / np.linalg.norm(q, axis=-1, keepdims=True), np.array([1.0, 0.0, 0.0]))[:, OFFSET_JOINTS]
+    bone = aim_directions(p)[:, OFFSET_JOINTS]
+    return x_axis, bone, np.isfinite(x_axis).all(axis=-1) & np.isfinite(bone).all(axis=-1)
+
+
+def frame_offset(positions: np.ndarray, orientations: np.ndarray) -> np.ndarray:
+    """(3, 3) the one rotation R with the SDK X axes ~ R bone over every torso, arm and leg joint and frame of one
+    body's ``positions`` (T, 32, 3) and ``orientations`` (T, 32, 4, w x y z): identity for a file whose frames lie
+    on its own bones; R^T turns the frames of a file whose orientations missed its positions' mapping back."""
+    x_axis, bone, ok = _axes_and_bones(positions, orientations)
+    return kabsch(bone[ok], x_axis[ok], np.ones(int(ok.sum())))
 
 
 def _median_angle(u: np.ndarray, v: np.ndarray) -> float:

@@ -3,13 +3,15 @@
 For every seed: a gesture (in turn) seen by two sensors of the paper's ring with the calibrated simulator
 profile, fused as the live node does (the "skelfuse" preset, causal), then smoothed by the fixed-lag smoother
 (3 frames, the live option: per axis, with the process noise the live filter's own velocities set), the
-offline default, the RTS smoother with its adaptive second pass ("rts"; :mod:`skelfuse.fusion.smoother`), and
-as controls both over the live model's constant process noise ("lag 3 fixed", "rts fixed": what the adaptive
-noise buys and costs). Per joint group (torso, arms, legs of the paper's 16 joints), against the truth:
+offline default ("rts": the RTS smoother, its adaptive second pass and its constant-acceleration third pass;
+:mod:`skelfuse.fusion.smoother`, :mod:`skelfuse.fusion.jerk_smoother`), and as controls the offline default
+without its third pass ("rts cv": what the acceleration state buys) and both the fixed lag and the RTS
+smoother over the live model's constant process noise ("lag 3 fixed", "rts fixed": what the adaptive noise buys
+and costs). Per joint group (torso, arms, legs of the paper's 16 joints), against the truth:
 
 - jitter: median |second difference| of the *error* (output minus truth, mm/frame^2), as a share of the better
   single view's (the views' own jitter: what a smoother has to remove). Every smoother here is linear in its
-  measurements (for the adaptive pass: once its process noise is set), so the error splits exactly into the
+  measurements (for the adaptive passes: once their process noise is set), so the error splits exactly into the
   smoother run on the truth alone ("distortion": what smoothing does to real motion) and on the measurement
   error alone ("noise": what is left of the views' jitter); both are reported;
 - error: mean distance to the truth, mm, and its largest excess over the causal filter's across takes;
@@ -23,7 +25,7 @@ noise buys and costs). Per joint group (torso, arms, legs of the paper's 16 join
 
 Targets: smoothed jitter <= 0.25 of the better view at |lag| <= 0.05 frame, squat depth within 5 mm where it is
 the smoothing's doing, error no worse than causal; fixed lag 3: jitter <= 0.35 at |lag| <= 0.05 frame. The
-adaptive pass's constants were chosen on the training seeds (0-5, one take of each gesture); the held-out seeds
+adaptive passes' constants were chosen on the training seeds (0-5, one take of each gesture); the held-out seeds
 (1000 up, those of ``eval robustness``) are reported apart.
 
     PYTHONPATH=src python scripts/smoothing_targets.py [--training 0 1 ...] [--held-out 1000 ...] [--duration 10]
@@ -47,6 +49,7 @@ from skelfuse.cli.stamp import RunStamp
 from skelfuse.eval.metrics import best_lag, lag_error_curve, nan_for_none, none_for_nan
 from skelfuse.eval.rig import velocity_lag
 from skelfuse.fusion import Fuser, preset
+from skelfuse.fusion.jerk_smoother import jerk_sigma, jerk_smooth
 from skelfuse.fusion.smoother import (
     adaptive_accel_sigma,
     backward_pass,
@@ -65,7 +68,7 @@ FPS = 30.0
 GESTURES = ("squat", "random", "hands_up_down", "walking", "jump", "lunge")
 SHIFTS = np.arange(-3, 6)
 GROUPS = {"torso": JOINT_GROUPS["torso"], "arms": JOINT_GROUPS["upper_limb"], "legs": JOINT_GROUPS["lower_limb"]}
-SMOOTHERS = ("causal", "lag 3", "lag 3 fixed", "rts fixed", "rts")
+SMOOTHERS = ("causal", "lag 3", "lag 3 fixed", "rts fixed", "rts cv", "rts")
 BOTTOM_FRAMES = 3  # the views' pelvis error is averaged over the truth's lowest frame +- this many
 
 
@@ -104,18 +107,21 @@ def smoothers(take: dict) -> dict[str, Callable[[np.ndarray], np.ndarray]]:
     n_agree, restart = take["n_agree"], take["restart"]
     dt = np.full(len(n_agree), 1.0 / FPS)
     fwd = forward_pass(take["merged"], n_agree, dt, restart, params)
+    alive = np.isfinite(fwd.out)
     if not np.allclose(fwd.out, take["live"], equal_nan=True, rtol=0, atol=1e-9):
         raise SystemExit("the smoother's forward pass is not the live filter")
     sigma = adaptive_accel_sigma(backward_pass(fwd, dt), fwd.linked, dt, params.cv_accel_sigma_mm_s2)
+    second = np.where(alive, smooth_per_axis(take["merged"], n_agree, dt, restart, params, sigma), np.nan)
+    jerk = jerk_sigma(second, fwd.linked, dt)
     live_sigma = causal_accel_sigma(fwd, dt, params.cv_accel_sigma_mm_s2)
     constant = np.full_like(live_sigma, params.cv_accel_sigma_mm_s2)
-    alive = np.isfinite(fwd.out)
     maps = {
         "causal": lambda z: forward_pass(z, n_agree, dt, restart, params).out,
         "lag 3": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, live_sigma, 3), np.nan),
         "lag 3 fixed": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, constant, 3), np.nan),
         "rts fixed": lambda z: rts_smooth(z, n_agree, dt, restart, params)[0],
-        "rts": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, sigma), np.nan),
+        "rts cv": lambda z: np.where(alive, smooth_per_axis(z, n_agree, dt, restart, params, sigma), np.nan),
+        "rts": lambda z: np.where(alive, jerk_smooth(z, n_agree, dt, fwd.linked, params, jerk), np.nan),
     }
     default, _ = rts_smooth(take["merged"], n_agree, dt, restart, params, adaptive=True)
     live_lag = fixed_lag_smooth(take["merged"], n_agree, dt, restart, params, 3)
@@ -191,12 +197,13 @@ def cell(values: list[float], digits: int) -> str:
 
 def report(title: str, per_take: list[dict]) -> list[str]:
     """The split's tables (markdown lines)."""
+    names = [name for name in SMOOTHERS if name in per_take[0]]  # a record from before a row was added lacks it
     out = [f"**{title}**: seeds {', '.join(str(r['seed']) for r in per_take)}; median [min, max] over takes", ""]
     out.append(
         "| output | " + " | ".join(f"{g} jitter (worst take: distortion / noise)" for g in GROUPS) + " | error mm |"
     )
     out.append("|---|" + "---|" * (len(GROUPS) + 1))
-    for name in SMOOTHERS:
+    for name in names:
         cells = []
         for g in GROUPS:
             worst = max(per_take, key=lambda r: r[name][g]["jitter"])[name][g]
@@ -209,7 +216,7 @@ def report(title: str, per_take: list[dict]) -> list[str]:
             " correlation against the smoother's input", ""]  # fmt: skip
     out.append("| output | " + " | ".join(GROUPS) + " |")
     out.append("|---|" + "---|" * len(GROUPS))
-    for name in ("view 0", "view 1", *SMOOTHERS):
+    for name in ("view 0", "view 1", *names):
         cells = []
         for g in GROUPS:
             measures = ("shift",) if name.startswith("view") else ("shift", "timing", "vel input")
@@ -220,11 +227,11 @@ def report(title: str, per_take: list[dict]) -> list[str]:
         out += ["", "Squat depth, mm (output minus truth; negative = too deep), per squat take", ""]
         bottom = list(squats[0]["bottom"])
         out.append("| seed | " + " | ".join(bottom)
-                   + " | " + " | ".join(f"{n} (by smoothing)" for n in SMOOTHERS) + " |")  # fmt: skip
-        out.append("|---|" + "---|" * (len(bottom) + len(SMOOTHERS)))
+                   + " | " + " | ".join(f"{n} (by smoothing)" for n in names) + " |")  # fmt: skip
+        out.append("|---|" + "---|" * (len(bottom) + len(names)))
         for r in squats:
             views = " | ".join(f"{r['bottom'][k]:+.1f}" for k in bottom)
-            outs = " | ".join(f"{r[n]['depth']:+.1f} ({r[n]['depth by smoothing']:+.1f})" for n in SMOOTHERS)
+            outs = " | ".join(f"{r[n]['depth']:+.1f} ({r[n]['depth by smoothing']:+.1f})" for n in names)
             out.append(f"| {r['seed']} | {views} | {outs} |")
     return [*out, ""]
 

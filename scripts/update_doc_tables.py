@@ -72,6 +72,7 @@ RECORDS: dict[str, dict[str, list[str]]] = {
     },
     "orientations": {
         "orientation-convention": ["scripts/measure_orientation_convention.py", "--json"],
+        "orientation-views": ["scripts/orientation_to_views.py", "--data", f"{DATA}/azure-kinect-andyj1", "--json"],
         "orientation-joints": [
             "scripts/orientation_error_by_joint.py",
             "--regions",
@@ -128,6 +129,7 @@ QUICK: dict[str, dict[str, list[str]]] = {
     },
     "orientations": {
         "orientation-convention": RECORDS["orientations"]["orientation-convention"],
+        "orientation-views": RECORDS["orientations"]["orientation-views"],
         "orientation-joints": ["scripts/orientation_error_by_joint.py", "--duration", "1", "--json"],
     },
     "retargeting": {"retargeting": ["scripts/retargeting_error.py", "--duration", "2", "--json"]},
@@ -475,6 +477,7 @@ BLOCKS: dict[str, tuple[str, str, Callable[[dict[str, Any]], str]]] = {
         _by_script("scripts/measure_orientation_convention.py"),
     ),
     "orientation-joints": ("orientations", "orientation-joints", _by_script("scripts/orientation_error_by_joint.py")),
+    "orientation-views": ("orientations", "orientation-views", _by_script("scripts/orientation_to_views.py")),
     "retargeting": ("retargeting", "retargeting", _by_script("scripts/retargeting_error.py")),
     "rear-views": ("rear-views", "rear-views", _by_script("scripts/measure_rear_view_signal.py")),
     "soak": ("soak", "soak", render_soak),

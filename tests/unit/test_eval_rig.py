@@ -43,6 +43,9 @@ def test_metric_functions_on_hand_made_cases() -> None:
     joints = np.arange(N_JOINTS)
     assert velocity_lag(late, path, joints) == 2.0
     assert velocity_lag(path, path, joints) == 0.0
+    # A take shorter than the shifts tried (10 frames, shifts up to 10): the shifts that leave no overlap are
+    # skipped, the rest still find the lag.
+    assert velocity_lag(late[:10], path[:10], joints) == 2.0
     straight = np.zeros((10, N_JOINTS, 3))
     straight[..., 1] = np.arange(10)[:, None] * 7.0  # constant velocity: no jitter
     assert median_jitter(straight, joints) == 0.0
@@ -128,7 +131,8 @@ def test_orientation_agreement_measures_the_twist_and_leaves_mirrored_views_out(
 def test_orientation_by_joint_measures_the_full_angle_per_joint() -> None:
     """Hand-made: view 0 is every fused frame turned 12° about the world's up (a tilt, not only a twist), view 1
     is the fused frame, view 2 is mirrored (left out). Per aimed joint: 12 and 0, pooled 6 (the median of equal
-    counts of 12 and 0), 12 between the views; the derived joints are not listed."""
+    counts of 12 and 0), 12 between the views (a and b: 12; c, left out, against either: none); the derived joints
+    are not listed."""
     truth = make_gesture("walking", duration_s=1.0, fps=30.0, facing_deg=0.0, seed=1).positions
     fused_quats = apply_derived(body_hint_frames(truth))
     turn = quat_from_rotvec(np.array([0.0, 0.0, np.radians(12.0)]))
@@ -140,6 +144,8 @@ def test_orientation_by_joint_measures_the_full_angle_per_joint() -> None:
         assert row["a"] == pytest.approx(12.0, abs=1e-5) and row["b"] == pytest.approx(0.0, abs=1e-3)
         assert math.isnan(row["c"])
         assert row["views"] == pytest.approx(6.0, abs=1e-3) and row["between views"] == pytest.approx(12.0, abs=1e-5)
+        assert row["between a and b"] == pytest.approx(12.0, abs=1e-5)
+        assert math.isnan(row["between a and c"]) and math.isnan(row["between b and c"])
 
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -161,3 +167,41 @@ def test_fused_ankles_follow_the_trackers_frames_on_the_real_take() -> None:
     per_joint = run_rig_eval(take, presets=("skelfuse",), progress=False).orientation_by_joint["skelfuse"]
     for joint in ("ANKLE_LEFT", "ANKLE_RIGHT", "KNEE_LEFT", "KNEE_RIGHT"):
         assert per_joint[joint]["sub1"] <= 8.0, (joint, per_joint[joint])
+
+
+OWN_FRAMES = ("joints_sync_1", "joints_sync_2")
+"""The 2-sensor take's files, each written in its own camera's frame (positions and orientations alike)."""
+
+
+@pytest.mark.skipif(
+    not (DATA / "azure-kinect-andyj1" / "extrinsic_calculation").is_dir(),
+    reason=f"real andyj1 take not found in {DATA}",
+)
+def test_the_tracker_head_frame_holds_the_nose_and_the_fused_head_sits_between_the_views() -> None:
+    """The real 2-sensor take, from the files in each camera's own frame: every frame's SDK head frame holds the
+    nose where the schema says (HEAD_NOSE_DIRECTION, to 1e-4: the head frame is rigid to the face), and the fused
+    head frame lies within 8 deg (median) of both views, which agree within 16. With the head aimed along
+    NECK -> HEAD, which the tracker's head X leaves by 2-9 deg as the neck bends, it sat 9.7 deg from the master."""
+    from skelfuse.calibration.rigid import fit_rigid
+    from skelfuse.eval.rig import run_rig_eval
+    from skelfuse.fusion.orientation import quat_conjugate, quat_rotate
+    from skelfuse.recording.inputs import open_inputs
+    from skelfuse.schema.skeleton import HEAD_NOSE_DIRECTION, Confidence, J
+
+    folder = DATA / "azure-kinect-andyj1" / "extrinsic_calculation"
+    take = open_inputs([f"{name}={folder / f'{name}.csv'}" for name in OWN_FRAMES])
+    for rec in take.recordings:
+        p, q = rec.positions[:, 0].astype(np.float64), rec.orientations[:, 0].astype(np.float64)
+        nose = p[:, J["NOSE"]] - p[:, J["HEAD"]]
+        local = quat_rotate(quat_conjugate(q[:, J["HEAD"]]), nose / np.linalg.norm(nose, axis=-1, keepdims=True))
+        np.testing.assert_allclose(local, np.broadcast_to(HEAD_NOSE_DIRECTION, local.shape), atol=1e-4)
+    master, sub = (r.positions[:, 0].reshape(-1, 3).astype(np.float64) for r in take.recordings)
+    medium = np.logical_and(*(r.confidence[:, 0].reshape(-1) >= int(Confidence.MEDIUM) for r in take.recordings))
+    fit = fit_rigid(sub[medium], master[medium])  # the subordinate's pose from the joints both see well
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = fit.R, fit.t
+    calibration = {OWN_FRAMES[0]: np.eye(4), OWN_FRAMES[1]: pose}
+    head = run_rig_eval(take, calibration=calibration, presets=("skelfuse",), progress=False).orientation_by_joint
+    row = head["skelfuse"]["HEAD"]
+    assert row[f"between {OWN_FRAMES[0]} and {OWN_FRAMES[1]}"] <= 16.0
+    assert max(row[OWN_FRAMES[0]], row[OWN_FRAMES[1]]) <= 8.0, row

@@ -173,7 +173,7 @@ def test_sample_queue_bounds_bytes_and_each_key() -> None:
         SampleQueue(max_payload_bytes=2048, max_bytes=1024)
 
 
-def flood_rig() -> RigConfig:
+def flood_rig(node_table: str = "") -> RigConfig:
     """4 synthetic sensors (the soak's), a small intake queue so that a one-second stall overflows it."""
     return parse_rig_config(
         tomllib.loads(
@@ -181,6 +181,7 @@ def flood_rig() -> RigConfig:
                 [
                     '[rig]\nname = "flood"\n[sync]\nby = "device"\nfps = 30.0\ntolerance_ms = 10.0',
                     "deadline_ms = 17.0\n[intake]\nmax_queue = 256\nmax_queue_per_key = 64",
+                    node_table,
                     *sim_sensor_tables(4),
                 ]
             )
@@ -235,6 +236,31 @@ def test_a_flooding_key_cannot_push_out_other_sensors_frames(flood_sensor: str, 
     label = flood_sensor if flood_sensor in cfg.sensor_ids else "?"
     assert counts[label]["dropped"] > 900  # ~1000 flood samples came during the stall, at most 64 stay
     assert all(counts.get(sid, {"dropped": 0})["dropped"] == 0 for sid in kept_sensors)
+
+
+@pytest.mark.parametrize("rejected_key", ["capture_3", "intruder"])
+def test_a_rejected_sample_read_in_a_backlog_does_not_close_its_neighbours_instant(rejected_key: str) -> None:
+    # A backlog's frames arrived in time, whatever the time the loop reads them. A rejected payload read between
+    # two sensors' frames of one instant made that instant due by the time now (a deadline poll at "now"), so the
+    # instant went out with the sensors read so far and the rest came late: a peer's garbage cost good frames.
+    cfg = flood_rig("[node]\nmax_lag_s = 30.0")  # nothing shed: the backlog is half a second old when read
+    frames = synthetic_frames(4, 10, seed=5)
+    core = FusionCore(cfg)
+    read_ns = 10**9 + 10 * PERIOD_NS + 500_000_000
+    garbage_key = f"skelfuse/flood/sensors/{rejected_key}/skeletons"
+    outs = []
+    for k in range(10):
+        for i, frame in enumerate(frames[k]):
+            arrival_ns = 10**9 + k * PERIOD_NS + i * 1_000_000
+            stamped = dataclasses.replace(frame, sequence=k, device_time_us=10**6 + k * 33_333 + 160 * i)
+            payload = encode_sensor_frame(stamped)
+            outs += core.receive(f"skelfuse/flood/sensors/{frame.sensor_id}/skeletons", payload, arrival_ns, read_ns)
+            outs += core.receive(garbage_key, b"\x00garbage" * 8, arrival_ns + 500_000, read_ns)
+    outs += core.poll(read_ns)
+    assert len(outs) == 10
+    assert all(np.isfinite(out.sensors_world).any(axis=(1, 2, 3)).all() for out in outs), "an instant lost a sensor"
+    assert sum(c.late for c in core.grouper.stats.sensors.values()) == 0
+    assert core.deadline_emits == 0
 
 
 def test_the_node_report_keeps_a_bounded_record() -> None:

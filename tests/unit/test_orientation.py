@@ -15,6 +15,7 @@ from skelfuse.fusion.pipeline import Fuser
 from skelfuse.fusion.presets import preset
 from skelfuse.schema.skeleton import (
     ANKLE_FOOT_ANGLE_DEG,
+    HEAD_NOSE_DIRECTION,
     MIRROR,
     N_JOINTS,
     ORIENTATION_AIM,
@@ -47,7 +48,10 @@ def t_pose(facing: str = "-y") -> np.ndarray:
         p[J[f"FOOT_{side}"]] = (sx * 100, -150.0, 20.0)
         p[J[f"EYE_{side}"]] = (sx * 30, -80.0, 1750.0)
         p[J[f"EAR_{side}"]] = (sx * 70, 0.0, 1730.0)
-    p[J["NOSE"]] = (0.0, -100.0, 1720.0)
+    # The nose 100 mm from the head where the tracker's head frame holds it (X up, Y forward = -y, Z left = +x).
+    p[J["NOSE"]] = p[J["HEAD"]] + 100.0 * np.array(HEAD_NOSE_DIRECTION) @ np.array(
+        [[0, 0, 1.0], [0, -1.0, 0], [1.0, 0, 0]]
+    )
     return p
 
 
@@ -59,9 +63,15 @@ LEFT, FORWARD, UP = np.array([1.0, 0, 0]), np.array([0, -1.0, 0]), np.array([0, 
 
 AIM_AXES = np.tile([1.0, 0.0, 0.0], (N_JOINTS, 1))
 """(32, 3) each joint's aim bone in its own frame: X, except the ankles, whose foot bone lies at the measured
-angle about local Z (the tracker's convention, docs/orientations.md), computed here by scipy."""
+angle about local Z (the tracker's convention, docs/orientations.md), computed here by scipy, and the head, whose
+nose bone lies along the measured direction."""
 for _name, _deg in ANKLE_FOOT_ANGLE_DEG.items():
     AIM_AXES[J[_name]] = Rotation.from_euler("z", _deg, degrees=True).apply([1.0, 0.0, 0.0])
+AIM_AXES[J["HEAD"]] = np.array(HEAD_NOSE_DIRECTION) / np.linalg.norm(HEAD_NOSE_DIRECTION)
+AIM_Z = np.tile([0.0, 0.0, 1.0], (N_JOINTS, 1))
+"""(32, 3) each joint's aim-frame Z in its own frame: Z, made normal to the aim bone (only the head's is not)."""
+AIM_Z -= np.sum(AIM_Z * AIM_AXES, axis=-1, keepdims=True) * AIM_AXES
+AIM_Z /= np.linalg.norm(AIM_Z, axis=-1, keepdims=True)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -149,14 +159,13 @@ def test_t_pose_frames_by_hand():
 
 def test_aim_frames_put_x_on_the_aim_bone_and_turn_back():
     """An aim frame's X is where the joint's frame holds its aim bone (the ankles: the foot at the measured angle
-    about Z, by scipy here); the conversion is exact both ways and leaves every other joint as it is."""
+    about Z, by scipy here; the head: the nose along its measured direction) and its Z the joint's Z made normal
+    to it; the conversion is exact both ways and leaves every other joint as it is."""
     q = _wxyz(Rotation.random(N_JOINTS, random_state=11))
     aimed = orient.to_aim_frames(q)
-    np.testing.assert_allclose(orient.quat_rotate(aimed, [1.0, 0.0, 0.0]), orient.quat_rotate(q, AIM_AXES), atol=1e-12)
-    np.testing.assert_allclose(
-        orient.quat_rotate(aimed, [0.0, 0.0, 1.0]), orient.quat_rotate(q, [0.0, 0.0, 1.0]), atol=1e-12
-    )
-    others = np.setdiff1d(np.arange(N_JOINTS), [J[name] for name in ANKLE_FOOT_ANGLE_DEG])
+    np.testing.assert_allclose(orient.quat_rotate(aimed, [1.0, 0.0, 0.0]), orient.quat_rotate(q, AIM_AXES), atol=1e-9)
+    np.testing.assert_allclose(orient.quat_rotate(aimed, [0.0, 0.0, 1.0]), orient.quat_rotate(q, AIM_Z), atol=1e-9)
+    others = np.setdiff1d(np.arange(N_JOINTS), [J[name] for name in (*ANKLE_FOOT_ANGLE_DEG, "HEAD")])
     np.testing.assert_array_equal(aimed[others], q[others])
     assert np.allclose(orient.quat_angle_deg(orient.from_aim_frames(aimed), q), 0.0, atol=1e-6)
 

@@ -9,7 +9,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skelfuse.fusion.orientation import aim_directions, quat_angle_deg, quat_rotate, views_to_world
-from skelfuse.schema.skeleton import ANKLE_FOOT_ANGLE_DEG, BODY_REGIONS, ORIENTATION_AIMED, ORIENTATION_DERIVED, J
+from skelfuse.schema.skeleton import (
+    ANKLE_FOOT_ANGLE_DEG,
+    BODY_REGIONS,
+    HEAD_NOSE_DIRECTION,
+    ORIENTATION_AIMED,
+    ORIENTATION_DERIVED,
+    J,
+)
 from skelfuse.sim.gestures import forward_kinematics, make_gesture, rest_offsets
 from skelfuse.sim.joint_frames import TPOSE_AXES
 from skelfuse.sim.motion import axis_rotation
@@ -19,9 +26,10 @@ from skelfuse.sim.rig import paper_rig
 
 AIM_AXES = np.tile([1.0, 0.0, 0.0], (32, 1))
 """(32, 3) each joint's aim bone in its own frame: X, except the ankles (the foot bone at the measured angle about
-Z, docs/orientations.md), by scipy."""
+Z, docs/orientations.md), by scipy, and the head (the nose along its measured direction)."""
 for _name, _deg in ANKLE_FOOT_ANGLE_DEG.items():
     AIM_AXES[J[_name]] = Rotation.from_euler("z", _deg, degrees=True).apply([1.0, 0.0, 0.0])
+AIM_AXES[J["HEAD"]] = np.array(HEAD_NOSE_DIRECTION) / np.linalg.norm(HEAD_NOSE_DIRECTION)
 
 
 @pytest.fixture(scope="module")
@@ -78,8 +86,9 @@ def test_truth_of_a_t_pose_is_the_documented_convention():
     truth = truth_orientations(pose[None], 30.0, seed=0, arm_twist_deg=0.0)[0]
     turn = axis_rotation("z", np.radians(facing))
     ankles = np.array([J["ANKLE_LEFT"], J["ANKLE_RIGHT"]])
+    head = J["HEAD"]
     tabled = ORIENTATION_AIMED.copy()
-    tabled[ankles] = False
+    tabled[[*ankles, head]] = False
     table = quat_from_matrix(turn @ TPOSE_AXES[tabled])
     table_x = quat_rotate(table, np.array([1.0, 0.0, 0.0]))
     off_bone = np.degrees(np.arccos(np.clip(np.sum(table_x * aim_directions(pose)[tabled], -1), -1, 1)))
@@ -95,10 +104,16 @@ def test_truth_of_a_t_pose_is_the_documented_convention():
     assert np.abs(quat_rotate(truth[ankles], AIM_AXES[ankles]) - foot).max() < 1e-9
     table_z = (turn @ TPOSE_AXES[ankles])[..., 2]
     assert np.abs(quat_rotate(truth[ankles], np.array([0.0, 0.0, 1.0])) - table_z).max() < 1e-9
+    # The head is rigid to the face: the nose where the tracker's head frame holds it, and the simulated face
+    # built that way (to the 0.01 mm of its rest offsets), so its frame is the table's.
+    nose = pose[J["NOSE"]] - pose[head]
+    assert np.abs(quat_rotate(truth[head], AIM_AXES[head]) - nose / np.linalg.norm(nose)).max() < 1e-9
+    assert quat_angle_deg(truth[head], quat_from_matrix(turn @ TPOSE_AXES[head])) < 0.05
     product = apply_derived(body_hint_frames(pose))
     on_bone = np.flatnonzero(tabled)[off_bone < 1e-4]
     assert quat_angle_deg(truth[on_bone], product[on_bone]).max() < 1e-4
-    assert quat_angle_deg(truth[ankles], product[ankles]).max() < 1e-4  # the same foot, the same rule
+    for rigid in (ankles, [head]):  # the same foot or nose, the same rule
+        assert quat_angle_deg(truth[rigid], product[rigid]).max() < 1e-4
 
 
 def test_views_report_truth_through_their_pose_with_the_modelled_noise(take):
@@ -124,13 +139,15 @@ def test_views_report_truth_through_their_pose_with_the_modelled_noise(take):
     exact = views_to_world(observe_orientations(obs, truth, seed=7, noise=quiet), obs.world_from_sensor)
     clean = obs.tracked & ~obs.mirrored
     ankles = np.array([J["ANKLE_LEFT"], J["ANKLE_RIGHT"]])
-    others = np.setdiff1d(np.arange(32), [*ankles, J["FOOT_LEFT"], J["FOOT_RIGHT"]])  # feet: copies of ankles
+    held = np.array([*ankles, J["HEAD"]])
+    copies = [J[name] for name in ("FOOT_LEFT", "FOOT_RIGHT", "NOSE", "EYE_LEFT", "EAR_LEFT", "EYE_RIGHT", "EAR_RIGHT")]
+    others = np.setdiff1d(np.arange(32), [*held, *copies])  # feet: copies of the ankles; the face: of the head
     assert np.nanmax(quat_angle_deg(exact, truth[:, None])[clean][:, others]) < 0.01  # float32 rounding
-    # The ankles hold the view's own reported foot bone at the measured angle, as the real tracker's do: their
-    # error is that foot bone's direction error (the positions' noise), nothing else.
-    local = quat_rotate(exact[..., ankles, :], AIM_AXES[ankles])  # where the frame puts the foot, world
-    feet = [J["FOOT_LEFT"], J["FOOT_RIGHT"]]
-    bones = obs.positions[..., feet, :].astype(np.float64) - obs.positions[..., ankles, :]  # each sensor's frame
+    # The ankles and the head hold the view's own reported foot or nose bone where the convention puts it, as the
+    # real tracker's do: their error is that bone's direction error (the positions' noise), nothing else.
+    local = quat_rotate(exact[..., held, :], AIM_AXES[held])  # where the frame puts the foot or the nose, world
+    feet = [J["FOOT_LEFT"], J["FOOT_RIGHT"], J["NOSE"]]
+    bones = obs.positions[..., feet, :].astype(np.float64) - obs.positions[..., held, :]  # each sensor's frame
     foot = np.einsum("sij,tskj->tski", obs.world_from_sensor[:, :3, :3], bones)
     foot /= np.linalg.norm(foot, axis=-1, keepdims=True)
     assert np.abs(local - foot)[clean].max() < 1e-5

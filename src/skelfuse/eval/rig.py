@@ -126,6 +126,8 @@ def velocity_lag(
     shifts = np.arange(-max_lag, max_lag + 1)
     r = np.full(len(shifts), -np.inf)
     for k, shift in enumerate(shifts.tolist()):
+        if abs(shift) >= n:  # no frame overlaps (a take shorter than the shifts)
+            continue
         # fused[t + shift] against view[t]: a late fused output matches at a positive shift
         a = vf[max(shift, 0) : n + min(shift, 0)]
         b = vv[max(-shift, 0) : n + min(-shift, 0)]
@@ -520,8 +522,9 @@ def _orientation_by_joint(
     fused_quats: np.ndarray, fused: np.ndarray, view_quats: np.ndarray, views: np.ndarray, ids: Sequence[str]
 ) -> dict[str, dict[str, float]]:
     """Per aimed joint: the median full angle (degrees) between the fused orientation and the views' (``"views"``:
-    pooled over the views; one key per view), and ``"between views"``: the median angle between every two views'
-    own frames. Mirrored frames are left out as in :func:`_orientation_agreement`."""
+    pooled over the views; one key per view), ``"between views"``: the median angle between every two views' own
+    frames, and ``"between A and B"`` per pair of views (a frame within x degrees of both views of a pair needs
+    them within 2x of each other). Mirrored frames are left out as in :func:`_orientation_agreement`."""
     views_quats = _unmirrored(view_quats, views, fused)
     angles = view_orientation_agreement(fused_quats, fused, views_quats)  # (T, S, 32), full angle
     n_views = views_quats.shape[1]
@@ -534,6 +537,8 @@ def _orientation_by_joint(
         row = {"views": _nanmedian(angles[:, :, joint])}
         row.update({sid: _nanmedian(angles[:, i, joint]) for i, sid in enumerate(ids)})
         row["between views"] = _nanmedian(between[:, :, joint])
+        pair_names = [f"between {ids[a]} and {ids[b]}" for a in range(n_views) for b in range(a + 1, n_views)]
+        row.update({name: _nanmedian(between[:, k, joint]) for k, name in enumerate(pair_names)})
         out[JOINT_NAMES[joint]] = row
     return out
 

@@ -5,11 +5,12 @@ Every fused joint gets a quaternion (w, x, y, z) in the world frame, in the k4ab
 bone, the other two axes turn with the body. A bone direction fixes two of the three degrees of freedom of that
 frame (the *swing*); the third, the rotation about the bone (the *twist*), is what the views add.
 
-The ankles are the exception the convention measured: the tracker's ankle frame is rigid to the foot, its X
-off the shin by the ankle's flexion, the foot bone at a fixed angle about its Z
+The ankles and the head are the exceptions the convention measured: the tracker's ankle frame is rigid to the
+foot, its X off the shin by the ankle's flexion, the foot bone at a fixed angle about its Z, and its head frame
+rigid to the face, the nose at a fixed direction in it, its X off the neck as the neck bends
 (:data:`~skelfuse.schema.skeleton.ORIENTATION_AIM_OFFSET`). The stage works on *aim frames* (local X on the
-aim bone, the foot for the ankles): the views enter through :func:`to_aim_frames`, the filter carries aim
-frames, and the output leaves through :func:`from_aim_frames`, in the tracker's convention.
+aim bone, the foot for the ankles, the nose for the head): the views enter through :func:`to_aim_frames`, the
+filter carries aim frames, and the output leaves through :func:`from_aim_frames`, in the tracker's convention.
 
 One step (:func:`fuse_orientations`), for B bodies, S views and the 32 joints at once, no loop over joints:
 
@@ -299,7 +300,7 @@ def quat_from_matrix_nan(R: np.ndarray) -> np.ndarray:
 
 def to_aim_frames(quats: np.ndarray) -> np.ndarray:
     """(..., 32, 4) k4abt joint frames -> aim frames (local X on the aim bone): ``q * conj(offset)``
-    (:data:`skelfuse.schema.skeleton.ORIENTATION_AIM_OFFSET`; only the ankles differ)."""
+    (:data:`skelfuse.schema.skeleton.ORIENTATION_AIM_OFFSET`; only the ankles and the head differ)."""
     q = np.array(quats, dtype=np.float64, copy=True)
     q[..., _OFFSET, :] = quat_multiply(q[..., _OFFSET, :], quat_conjugate(ORIENTATION_AIM_OFFSET[_OFFSET]))
     return q
@@ -593,7 +594,7 @@ def _rows_view_aim_frames(view_quats: np.ndarray) -> np.ndarray:
 
 
 def _rows_from_aim_frames(quats: np.ndarray) -> np.ndarray:
-    """(4, ..., J) component-major aim frames -> k4abt frames (a copy; only the ankles change)."""
+    """(4, ..., J) component-major aim frames -> k4abt frames (a copy; only the ankles and the head change)."""
     out = np.array(quats, dtype=np.float64, copy=True)
     if _OFFSET.size:
         out[..., _OFFSET] = _rows_bilinear(out[..., _OFFSET], _AIM_OFFSET_ROWS, _QMUL_ROWS)

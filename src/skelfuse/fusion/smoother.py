@@ -18,13 +18,17 @@ prediction there.
 The white-noise acceleration of the live model suits everyday motion but rounds off a jump's take-off and
 landing (smoothed in both directions, the error's second difference grows as the view noise's falls). The
 offline default therefore runs a second, adaptive pass: per axis, with the process noise raised where the
-first pass saw hard acceleration (:func:`adaptive_accel_sigma`); elsewhere the model is the live one.
+first pass saw hard acceleration (:func:`adaptive_accel_sigma`); elsewhere the model is the live one. A third
+pass then smooths the measurements again with an acceleration state, its jerk noise set from the second pass's
+motion (:mod:`skelfuse.fusion.jerk_smoother`): a flight or a swing at steady acceleration needs no process noise
+there, so it keeps the jump's shape while it removes more of the views' jitter.
 
 :func:`fixed_lag_smooth` gives the estimate of every frame from the frames up to ``lag`` later (the live
 option: ``lag`` frames of added latency), with a causal form of the adaptive pass: per axis, its process noise
 set by the live filter's own velocity changes in the frames up to then (:func:`causal_accel_sigma`), so a jump
 is followed within the lag while still motion is smoothed as the live model smooths it. A lag as long as the
-segment gives the fixed-interval smoother with that noise. :class:`FixedLagSmoother` gives the same instant by
+segment gives the fixed-interval constant-velocity smoother with that noise (the offline default's third pass,
+an acceleration state, needs the frames after the lag). :class:`FixedLagSmoother` gives the same instant by
 instant, for the live node.
 
 Pure numpy, vectorized over joints; one Python step per frame (a take is thousands of frames, not millions).
@@ -39,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.filters import _cv_model, filter_step, init_filter_state
+from skelfuse.fusion.jerk_smoother import jerk_sigma, jerk_smooth
 from skelfuse.fusion.presets import FusionParams
 
 ADAPTIVE_GAIN = 1.5
@@ -236,8 +241,9 @@ def rts_smooth(
     """Fixed-interval smoothing of one track (see the module docstring).
 
     ``adaptive``: a second pass, per axis, whose process noise follows the first pass's accelerations
-    (:func:`adaptive_accel_sigma`): a jump or a foot strike is followed, not rounded off, while still and slow
-    motion is smoothed as hard as before.
+    (:func:`adaptive_accel_sigma`), then the constant-acceleration pass whose jerk noise follows the second
+    pass's motion (:func:`~skelfuse.fusion.jerk_smoother.jerk_smooth`): a jump or a foot strike is followed, not
+    rounded off, while still and slow motion is smoothed harder than the live model can.
 
     Returns
     -------
@@ -250,6 +256,8 @@ def rts_smooth(
     if adaptive:
         sigma = adaptive_accel_sigma(states, fwd.linked, dt_s, params.cv_accel_sigma_mm_s2)
         positions = smooth_per_axis(z, n_agree, dt_s, restart, params, sigma)
+        jerk = jerk_sigma(positions, fwd.linked, dt_s)
+        positions = jerk_smooth(z, n_agree, dt_s, fwd.linked, params, jerk)
     return np.where(np.isfinite(fwd.out), positions, np.nan), fwd.out
 
 

@@ -229,7 +229,7 @@ ORIENTATION_AIM = np.array(
         [23, 24, 1],  # KNEE_RIGHT
         [24, 25, 1],  # ANKLE_RIGHT: the foot bone, at a fixed angle from X (ORIENTATION_AIM_OFFSET)
         [-1, -1, 0],  # FOOT_RIGHT = ANKLE_RIGHT turned 90 deg about Z
-        [3, 26, 1],  # HEAD: X along neck -> head
+        [26, 27, 1],  # HEAD: the nose bone, at a fixed direction in the head frame (ORIENTATION_AIM_OFFSET)
         [-1, -1, 0],  # NOSE = HEAD
         [-1, -1, 0],  # EYE_LEFT = HEAD turned 90 deg about Z
         [-1, -1, 0],  # EAR_LEFT = HEAD turned 180 deg about Z
@@ -247,18 +247,39 @@ The same in every frame of every real recording in its own camera frame, the foo
 the foot, not to the shin: its X leans off the shin by the ankle's flexion (docs/orientations.md)."""
 
 
+HEAD_NOSE_DIRECTION = (0.32046, 0.94673, -0.03178)
+"""Where the nose lies in the SDK's head frame (the unit HEAD -> NOSE bone in local x, y, z): the same to 1e-5 in
+every frame of every real recording in its own camera frame (``scripts/measure_orientation_convention.py``). The
+head frame is rigid to the face, not to the neck: its X lies 2-9 deg off NECK -> HEAD as the neck bends."""
+
+
 def _about_z(angle_deg: float) -> tuple[float, float, float, float]:
     half = np.radians(angle_deg) / 2.0
     return (float(np.cos(half)), 0.0, 0.0, float(np.sin(half)))
 
 
+def _from_aim_frame(direction: tuple[float, float, float]) -> tuple[float, float, float, float]:
+    """The offset of a joint whose aim bone lies along ``direction`` in its SDK frame: its aim frame there has X on
+    the bone, Z the SDK's Z made normal to it (so the body hint that turns Z keeps its meaning), Y = Z x X."""
+    x = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
+    z = np.array([0.0, 0.0, 1.0]) - x[2] * x
+    z /= np.linalg.norm(z)
+    R = np.stack([x, np.cross(z, x), z], axis=0)  # the offset: the transpose of the aim frame's axes in the SDK's
+    w = np.sqrt(1.0 + np.trace(R)) / 2.0  # the rotation is well under 180 deg (w > 0)
+    return (float(w), (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w))
+
+
 ORIENTATION_AIM_OFFSET = np.array(
-    [_about_z(-ANKLE_FOOT_ANGLE_DEG.get(name, 0.0)) for name in JOINT_NAMES],
+    [
+        _from_aim_frame(HEAD_NOSE_DIRECTION) if name == "HEAD" else _about_z(-ANKLE_FOOT_ANGLE_DEG.get(name, 0.0))
+        for name in JOINT_NAMES
+    ],
     dtype=np.float64,
 )
 """(32, 4) per joint, the fixed rotation from its aim frame (local X on the aim bone) to the SDK's frame:
 ``q_sdk = q_aim * offset``. Identity except the ankles, whose aim bone (the foot) lies at
-:data:`ANKLE_FOOT_ANGLE_DEG` about local Z from the SDK's X."""
+:data:`ANKLE_FOOT_ANGLE_DEG` about local Z from the SDK's X, and the head, whose aim bone (the nose) lies along
+:data:`HEAD_NOSE_DIRECTION`."""
 
 ORIENTATION_AIMED = ORIENTATION_AIM[:, 2] != 0
 """(32,) bool: the joint's frame follows a bone of its own (False: a rigid copy, see ORIENTATION_DERIVED)."""

@@ -230,8 +230,9 @@ class FusionCore:
     def receive(self, key: str, payload: bytes, arrival_ns: int, now_ns: int | None = None) -> list[FusedOutput]:
         """One sample from the sensor wildcard; returns the fused instants that became due.
 
-        ``now_ns``: the time now on the clock of ``arrival_ns`` (the live node's monotonic clock): instants due now
-        and older than ``[node] max_lag_s`` are shed. Default ``arrival_ns`` (a sample taken as it arrives)."""
+        ``now_ns``: the time now on the clock of ``arrival_ns`` (the live node's monotonic clock): due instants older
+        than ``[node] max_lag_s`` by then are shed. Deadlines run on arrivals, a rejected sample's too: a backlog's
+        frames arrived in time, whatever the time now. Default ``arrival_ns`` (a sample taken as it arrives)."""
         now_ns = arrival_ns if now_ns is None else now_ns
         self.frames_in += 1
         key_sensor = self._sensor_of_key.get(key) if isinstance(key, str) else None  # the rig's keys, parsed once
@@ -240,23 +241,23 @@ class FusionCore:
                 key_sensor = keys.parse_sensor_key(key, self.cfg.name)
             except ValueError as exc:
                 self._reject(UNKNOWN_SENSOR, BAD_KEY, str(exc))
-                return self.poll(now_ns)
+                return self._due(arrival_ns, now_ns)
         intake = self.intake
         if len(payload) > intake.max_payload_bytes:
             self._reject(key_sensor, OVERSIZED, f"{len(payload)} bytes, at most {intake.max_payload_bytes} ([intake])")
-            return self.poll(now_ns)
+            return self._due(arrival_ns, now_ns)
         try:
             frame = decode_sensor_frame(payload)
         except DecodeError as exc:
             self._reject(key_sensor, exc.reason, str(exc))
-            return self.poll(now_ns)
+            return self._due(arrival_ns, now_ns)
         if frame.n_bodies > intake.max_bodies_per_sensor:
             self._reject(
                 key_sensor,
                 TOO_MANY_BODIES,
                 f"{frame.n_bodies} bodies, at most {intake.max_bodies_per_sensor} ([intake] max_bodies_per_sensor)",
             )
-            return self.poll(now_ns)
+            return self._due(arrival_ns, now_ns)
         if frame.n_bodies:
             reach = float(np.abs(frame.positions).max())  # finite: the codec rejects NaN and Inf
             if reach > intake.max_range_mm:
@@ -266,14 +267,14 @@ class FusionCore:
                     f"a joint {reach:.4g} mm from the sensor on one axis, at most {intake.max_range_mm:g} mm "
                     f"([intake] max_range_mm)",
                 )
-                return self.poll(now_ns)
+                return self._due(arrival_ns, now_ns)
         if frame.sensor_id != key_sensor:
             self._reject(
                 key_sensor,
                 KEY_MISMATCH,
                 f"payload says sensor {frame.sensor_id!r} but came on the key of {key_sensor!r}",
             )
-            return self.poll(now_ns)
+            return self._due(arrival_ns, now_ns)
         window = self._sensors.get(key_sensor)
         if window is not None:
             window.received += 1
@@ -284,7 +285,12 @@ class FusionCore:
 
     def poll(self, now_ns: int) -> list[FusedOutput]:
         """Instants whose deadline passed by ``now_ns``."""
-        groups = self.grouper.poll(now_ns)
+        return self._due(now_ns, now_ns)
+
+    def _due(self, by_ns: int, now_ns: int) -> list[FusedOutput]:
+        """Instants whose deadline passed by ``by_ns`` (a rejected sample's arrival: a frame queued behind it in a
+        backlog arrived in time, whatever the time now), those older than the bound at ``now_ns`` shed."""
+        groups = self.grouper.poll(by_ns)
         self.deadline_emits += sum(1 for g in groups if not g.complete)
         return self._fuse_groups(groups, trigger_arrival_ns=None, now_ns=now_ns)
 

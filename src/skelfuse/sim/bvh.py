@@ -96,10 +96,11 @@ _ROLES_3DSMAX = {
 }
 
 # Face points relative to the head centre, mm for a 1750 mm adult, in BVH head axes (x left, y up,
-# z forward). Anthropometric rough values: nose tip ~95 mm in front of the head centre, eyes ~32 mm
-# either side of the midline, ears ~75 mm to the side.
+# z forward). Anthropometric rough values: nose tip ~96 mm from the head centre along the tracker's own nose
+# direction in its head frame (the schema's HEAD_NOSE_DIRECTION), eyes ~32 mm either side of the midline, ears
+# ~75 mm to the side.
 _FACE_MM = {
-    "NOSE": (0.0, -15.0, 95.0),
+    "NOSE": (-3.06, 30.83, 91.07),
     "EYE_LEFT": (32.0, 20.0, 80.0),
     "EYE_RIGHT": (-32.0, 20.0, 80.0),
     "EAR_LEFT": (75.0, 0.0, -5.0),

@@ -46,7 +46,7 @@ _REST_1750 = {
     "ANKLE_LEFT": (0.0, 0.0, -430.0),
     "FOOT_LEFT": (140.0, 0.0, -45.0),
     "HEAD": (10.0, 0.0, 130.0),
-    "NOSE": (95.0, 0.0, -15.0),
+    "NOSE": (91.07, -3.06, 30.83),  # 96 mm along the tracker's nose direction in its head frame (HEAD_NOSE_DIRECTION)
     "EYE_LEFT": (80.0, 32.0, 20.0),
     "EAR_LEFT": (-5.0, 75.0, 0.0),
 }

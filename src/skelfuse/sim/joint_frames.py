@@ -5,7 +5,8 @@ The k4abt convention (docs/orientations.md) is stated once here as the frames of
 
 * every joint is first built as its aim frame (local X on the schema's aim bone) and turned by the schema's
   fixed ``ORIENTATION_AIM_OFFSET`` at the end: the identity except at the ankles, whose frame is rigid to the
-  foot bone (the foot at a measured angle about local Z), not aimed along the shin;
+  foot bone (the foot at a measured angle about local Z), not aimed along the shin, and the head, rigid to the
+  nose (at a measured direction), not aimed along the neck;
 * a joint whose segment holds a line across the body rigidly (the pelvis: the hips; the chest: the
   clavicles; the neck and head: the ears) takes its X from its bone and its lateral axis from that line;
 * every other joint rides on its parent: the parent's frame times the two joints' fixed T-pose relation,
@@ -63,7 +64,8 @@ AIM_OFFSETS = Rotation.from_quat(ORIENTATION_AIM_OFFSET, scalar_first=True).as_m
 """(32, 3, 3) the schema's aim-frame -> k4abt-frame offsets as matrices: ``R_k4abt = R_aim @ offset``."""
 
 _TPOSE_AIM_AXES = TPOSE_AXES @ np.swapaxes(AIM_OFFSETS, -1, -2)
-"""(32, 3, 3) the T-pose's aim frames (the ankles' X on the foot bone the measured angle puts there)."""
+"""(32, 3, 3) the T-pose's aim frames (the ankles' X on the foot bone the measured angle puts there, the head's
+on the nose)."""
 
 
 _LATERAL_LINE = {

@@ -22,10 +22,11 @@ knees 3.5-10, arms 10-21, head 10-24; frame-to-frame change 1-2 deg, hands 4 deg
 view: a rough model of one short take, not a measurement of the tracker in general. Occluded joints get
 ``occluded_factor`` times more. A mirrored view (``Observations.mirrored``) reports the frames of a body
 facing the other way: the true frames of the mirror joints turned 180 deg about the vertical (an ASSUMED
-model of the tracker's flip). A view's ankle frames then hold the view's own reported foot bone where the
-convention puts it (turned by the smallest rotation): the real tracker's ankle frame is rigid to the foot it
-reports (measured: the same angle in every frame, docs/orientations.md), so its ankle error is its foot's
-position error; mirrored frames are left as they are. The derived joints (hand tips, feet, face) copy their
+model of the tracker's flip). A view's ankle and head frames then hold the view's own reported foot or nose
+bone where the convention puts it (turned by the smallest rotation): the real tracker's ankle frame is rigid to
+the foot it reports and its head frame to the face (measured: the same angle or direction in every frame,
+docs/orientations.md), so its ankle and head error is that bone's position error; mirrored frames are left as
+they are. The derived joints (hand tips, feet, face) copy their
 source joint's reported frame with the schema's offsets, as the SDK's do (measured). Where a view tracked
 nothing the orientation is NaN.
 
@@ -60,7 +61,7 @@ ARM_TWIST_DEG = 35.0
 """Largest simulated roll of an arm or hand bone about itself, deg (assumed)."""
 
 _TWIST_REGIONS = ("arm", "hand")
-_HELD_ON_OWN_BONE = np.flatnonzero(np.abs(ORIENTATION_AIM_OFFSET[:, 0]) < 1.0 - 1e-12)  # the ankles
+_HELD_ON_OWN_BONE = np.flatnonzero(np.abs(ORIENTATION_AIM_OFFSET[:, 0]) < 1.0 - 1e-12)  # the ankles and the head
 _TURN_180_Z = np.diag([-1.0, -1.0, 1.0])
 
 
@@ -177,10 +178,10 @@ def observe_orientations(
 
 
 def _held_on_own_bones(frames: np.ndarray, positions: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """(T, 32, 3, 3) a view's frames with its ankles turned by the smallest rotation that puts their aim axis on
-    the view's own (T, 32, 3) foot bone, in the frames where ``held`` (T,) and the bone is known."""
+    """(T, 32, 3, 3) a view's frames with its ankles and head turned by the smallest rotation that puts their aim
+    axis on the view's own (T, 32, 3) foot or nose bone, in the frames where ``held`` (T,) and the bone is known."""
     joints = _HELD_ON_OWN_BONE
-    aim = frames[:, joints] @ np.swapaxes(AIM_OFFSETS[joints], -1, -2)  # the aim frames: X on the foot
+    aim = frames[:, joints] @ np.swapaxes(AIM_OFFSETS[joints], -1, -2)  # the aim frames: X on the foot or nose
     bone = bone_directions(np.asarray(positions, dtype=np.float64))[:, joints]
     swung = swing_matrix(aim[..., 0], bone) @ aim @ AIM_OFFSETS[joints]
     use = held[:, None] & np.isfinite(bone).all(axis=-1) & np.isfinite(swung).all(axis=(-1, -2))
