@@ -512,6 +512,12 @@ def test_orientations_do_not_change_the_fused_positions() -> None:
     plain = paper.fuse_take(run, world, obs.confidence, 30.0)
     oriented, fused_quats = paper.fuse_take_oriented(run, world, obs.confidence, quats, 30.0)
     np.testing.assert_array_equal(plain, oriented)
+    # The preset as the live node runs it (orientations and position uncertainty on) fuses the same positions
+    # as these runs, which leave the outputs they do not score off.
+    fuser = paper.Fuser(run.params(), n_bodies=1)
+    assert fuser.params.orientations and fuser.params.position_std
+    live = [fuser.step(world[t][None], obs.confidence[t][None], dt_s=1 / 30.0).positions[0] for t in range(len(world))]
+    np.testing.assert_array_equal(plain, np.array(live))
     # an orientation wherever its bone is known (a hand that no view saw yet has none, nor has its wrist)
     knowable = np.isfinite(aim_directions(plain)).all(axis=-1)[..., ORIENTATION_DERIVED_SOURCE]
     assert knowable[:, :26].mean() > 0.9

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skelfuse.fusion.camera import Intrinsics
-from skelfuse.fusion.depth.icp import IcpResult, refine_poses_from_walk
+from skelfuse.fusion.depth.icp import IcpResult, refine_poses_from_walk, walk_normals
 from skelfuse.fusion.transform import invert_transform, transform_points
 from skelfuse.service.sim_clouds import sensor_person_clouds
 from skelfuse.sim.gestures import make_gesture
@@ -191,7 +191,8 @@ def heldout_gap_mm(frames: list[list[np.ndarray]], poses: np.ndarray, sensor: in
         ]
         if len(mine) < MIN_POINTS or not others:
             continue
-        distance, _ = cKDTree(np.concatenate(others)).query(transform_points(poses[sensor], mine))
+        tree = cKDTree(np.concatenate(others), balanced_tree=False)  # midpoint splits: faster, same distances
+        distance, _ = tree.query(transform_points(poses[sensor], mine))
         gaps.append(np.minimum(distance, HELDOUT_GATE_MM))
     return float(np.concatenate(gaps).mean()) if gaps else float("nan")
 
@@ -208,11 +209,12 @@ def refine(
             "4 (two folds of 2: one to fit, one to check)"
         )
     poses = np.asarray(poses, dtype=np.float64)
-    whole, results = refine_poses_from_walk(frames, poses, reference=reference, passes=passes)
+    normals = walk_normals(frames)  # once: the folds refine the same clouds again
+    whole, results = refine_poses_from_walk(frames, poses, reference=reference, passes=passes, normals=normals)
     folds = (frames[0::2], frames[1::2])
     fitted = (
-        refine_poses_from_walk(folds[0], poses, reference=reference, passes=passes)[0],
-        refine_poses_from_walk(folds[1], poses, reference=reference, passes=passes)[0],
+        refine_poses_from_walk(folds[0], poses, reference=reference, passes=passes, normals=normals[0::2])[0],
+        refine_poses_from_walk(folds[1], poses, reference=reference, passes=passes, normals=normals[1::2])[0],
     )
     n_sensors = poses.shape[0]
     before, after = np.full(n_sensors, np.nan), np.full(n_sensors, np.nan)

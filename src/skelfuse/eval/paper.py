@@ -51,7 +51,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -238,13 +238,22 @@ def fuse_sequence(
     """
     cand = np.ascontiguousarray(candidates)
     conf = np.ascontiguousarray(confidence)
-    fuser = Fuser(params, n_bodies=1, sensor_positions=sensor_positions)
+    fuser = Fuser(_positions_only(params, keep_orientations=False), n_bodies=1, sensor_positions=sensor_positions)
     out = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
     dt_s = 1.0 / fps
     for t in range(cand.shape[0]):
         result = fuser.step(cand[t][None], conf[t][None], dt_s=dt_s)
         out[t] = np.asarray(result.positions)[0]
     return out
+
+
+def _positions_only(params: Any, *, keep_orientations: bool) -> Any:
+    """``params`` (a ``FusionParams``) without the outputs that never change the fused positions and that this
+    module does not score: the per-joint position uncertainty, and the orientations unless kept. The positions
+    are the same bit for bit; a "skelfuse" run takes about a third of the time."""
+    if keep_orientations:
+        return replace(params, position_std=False)
+    return replace(params, orientations=False, position_std=False)
 
 
 def fuse_take_oriented(
@@ -263,7 +272,9 @@ def fuse_take_oriented(
     conf = np.ascontiguousarray(confidence[:, sensors])
     views = np.ascontiguousarray(orientations[:, sensors])
     positions_of_sensors = None if sensor_positions is None else np.asarray(sensor_positions)[sensors]
-    fuser = Fuser(run.params(), n_bodies=1, sensor_positions=positions_of_sensors)
+    fuser = Fuser(
+        _positions_only(run.params(), keep_orientations=True), n_bodies=1, sensor_positions=positions_of_sensors
+    )
     positions = np.full((cand.shape[0], N_JOINTS, 3), np.nan)
     quats = np.full((cand.shape[0], N_JOINTS, 4), np.nan)
     dt_s = 1.0 / fps

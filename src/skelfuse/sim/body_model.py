@@ -78,8 +78,9 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
     ----------
     C. Ericson, Real-Time Collision Detection (2005), 5.1.9 ClosestPtSegmentSegment.
     """
+    # The dot products broadcast as they go (a ray's length once per ray, not once per ray and capsule); the
+    # results still take the broadcast shape of all four inputs, through r, d1 x d2 and the products below.
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    d1, d2, r = np.broadcast_arrays(d1, d2, r)
 
     def dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         return np.einsum("...k,...k->...", u, v)
@@ -88,14 +89,16 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
     eps = 1e-12
     a_safe = np.maximum(a, eps)
     e_safe = np.maximum(e, eps)
-    denom = a * e - b * b
-    s = np.where(denom > eps * np.maximum(a * e, eps), np.clip((b * f - c * e) / np.maximum(denom, eps), 0, 1), 0.0)
+    ae = a * e
+    denom = ae - b * b
+    s = np.where(denom > eps * np.maximum(ae, eps), np.clip((b * f - c * e) / np.maximum(denom, eps), 0, 1), 0.0)
     t = (b * s + f) / e_safe
     s = np.where(t < 0, np.clip(-c / a_safe, 0, 1), np.where(t > 1, np.clip((b - c) / a_safe, 0, 1), s))
     t = np.clip(t, 0, 1)
     degenerate_q = e <= eps  # a sphere: closest point on p to q0
-    s = np.where(degenerate_q, np.clip(-c / a_safe, 0, 1), s)
-    t = np.where(degenerate_q, 0.0, t)
+    if degenerate_q.any():
+        s = np.where(degenerate_q, np.clip(-c / a_safe, 0, 1), s)
+        t = np.where(degenerate_q, 0.0, t)
     # |r + s d1 - t d2|² expanded, so no (..., 3) temporaries are needed
     squared = dot(r, r) + s * s * a + t * t * e + 2 * s * c - 2 * t * f - 2 * s * t * b
     return np.sqrt(np.maximum(squared, 0.0)), s
@@ -119,7 +122,7 @@ def self_occlusion(points: np.ndarray, radii: dict[str, float], margin_mm: float
     ends = points[:, [J[c[2]] for c in CAPSULES]][:, None]
     radius = np.array([radii[c[0]] for c in CAPSULES])  # (C,)
     joints = points[:, :, None, :]  # (T, 32, 1, 3)
-    origin = np.zeros_like(joints)
+    origin = np.zeros(3)  # the camera; broadcast, so the ray-independent terms are formed once per capsule
     ray_dist, s = segment_distance(origin, joints, starts, ends)  # (T, 32, C)
     inside, _ = segment_distance(joints, joints, starts, ends)
     depth = np.linalg.norm(joints, axis=-1)  # (T, 32, 1)

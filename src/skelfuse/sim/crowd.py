@@ -143,7 +143,7 @@ def other_person_occlusion(
     ends = occluders[:, :, _CAPSULE_END].reshape(T, 1, -1, 3)
     radius = np.tile(np.array([radii[c[0]] for c in CAPSULES]), Q)  # (Q*C,)
     joints = points[:, :, None, :]
-    ray_dist, s = segment_distance(np.zeros_like(joints), joints, starts, ends)  # (T, 32, Q*C)
+    ray_dist, s = segment_distance(np.zeros(3), joints, starts, ends)  # (T, 32, Q*C); rays from the camera
     depth = np.linalg.norm(joints, axis=-1)
     with np.errstate(invalid="ignore"):
         hides = (ray_dist < radius) & (s * depth < depth - margin_mm)

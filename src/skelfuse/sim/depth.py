@@ -19,6 +19,7 @@ covers about 65° x 60°; the real NFOV lens covers 75° x 65° through its dist
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -142,12 +143,21 @@ def surface_distance(points_world: np.ndarray, people_world: np.ndarray) -> np.n
     return best
 
 
+@functools.lru_cache(maxsize=4)
+def _image_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """(H, W, 3) unit ray directions of every pixel, camera frame; read-only, formed once per camera model
+    (every capsule of every frame of a take looks them up)."""
+    u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
+    d = np.stack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones(u.shape)], -1)
+    rays = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    rays.flags.writeable = False
+    return rays
+
+
 def _pixel_rays(intrinsics: Intrinsics, u0: int, u1: int, v0: int, v1: int) -> tuple[np.ndarray, np.ndarray]:
     """Unit ray directions (n, 3) of the pixels in [u0, u1) x [v0, v1), camera frame, and their flat indices."""
     u, v = np.meshgrid(np.arange(u0, u1), np.arange(v0, v1))
-    d = np.stack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones(u.shape)], -1)
-    d = d.reshape(-1, 3)
-    return d / np.linalg.norm(d, axis=1, keepdims=True), (v * intrinsics.width + u).reshape(-1)
+    return _image_rays(intrinsics)[v0:v1, u0:u1].reshape(-1, 3), (v * intrinsics.width + u).reshape(-1)
 
 
 def _ray_capsule(rd: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:

