@@ -249,3 +249,22 @@ def test_a_first_start_says_it_is_compiling_and_a_later_one_does_not(caplog, mon
     with caplog.at_level(logging.INFO, logger="skelfuse.service.node"):
         prepare_kernels("later")
     assert "compiling" not in caplog.text
+
+
+def test_the_first_start_compile_groups_cover_every_kernel_module_once():
+    grouped = [name for group in kernels.COMPILE_GROUPS for name in group]
+    assert sorted(grouped) == sorted(kernels.KERNEL_MODULES)
+
+
+@pytest.mark.live
+def test_kernels_compiled_in_child_processes_fill_the_cache_and_a_failed_child_is_reported(
+    caplog, monkeypatch, tmp_path
+):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # an empty cache: what a first start finds
+    kernels.compile_in_processes((("tracks",), ("realign",)))
+    cached = {path.name.split(".")[0] for path in tmp_path.rglob("*.nbi")}
+    assert cached == {"tracks", "realign"}  # both children compiled into the user's cache, nothing else
+    with caplog.at_level(logging.WARNING, logger="skelfuse.fusion.kernels"):
+        kernels.compile_in_processes((("no_such_kernel_module",),))
+    assert "compiling the kernels ('no_such_kernel_module',) in a child process failed (exit 1)" in caplog.text
+    assert "ModuleNotFoundError" in caplog.text

@@ -19,6 +19,8 @@ How the kernels are built, and why:
 * One explicit signature per live kernel (:mod:`.signatures`): float64 / int64 / bool arrays, C-contiguous,
   read-only where the kernel only reads them. Each compiles once, when its module loads; a call with other types
   is refused, never compiled in the middle of a fusion.
+* A first start (no cache, on two cores or more) compiles the kernel modules in two child processes at once
+  (:func:`compile_in_processes`): a cold compile is numba's typing and LLVM on one core, so that halves the wait.
 * Few compiled functions, and helpers over scalars: numba types, lowers and optimizes every helper on its own and
   again inside each caller, so the first start's compile time grows with their number and depth, not with the
   loops' length.
@@ -30,7 +32,9 @@ How the kernels are built, and why:
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
+import subprocess
 import sys
 from functools import cache
 from pathlib import Path
@@ -41,6 +45,8 @@ import numpy as np
 
 KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association", "uncertainty")
 """The kernel modules of this package (one per compiled stage)."""
+
+log = logging.getLogger(__name__)
 
 
 class Kernels(NamedTuple):
@@ -129,8 +135,48 @@ def load() -> Kernels:
     )
 
 
+COMPILE_GROUPS = (
+    ("orientation", "merge", "tracks", "plausibility"),
+    ("association", "uncertainty", "filters", "realign"),
+)
+"""The kernel modules a first start compiles in two processes at once, about half the compile time each (a cold
+compile is numba's typing and LLVM, one core per process)."""
+
+_COMPILE_GROUP = (
+    "import importlib, sys; [importlib.import_module(f'{sys.argv[1]}.{m}').warm_up() for m in sys.argv[2:]]"
+)
+
+
+def compile_in_processes(groups: tuple[tuple[str, ...], ...] = COMPILE_GROUPS) -> None:
+    """Compile the kernel modules into :func:`cache_dir`, each group in a child process, all at once.
+
+    What a first start runs on a machine of two cores or more: it takes about half the time of compiling them
+    here, and :func:`load` then reads their caches. A child that fails is reported and its modules compile in
+    this process when loaded, where their error is raised.
+    """
+    use_user_cache_dir()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # this process's skelfuse
+    children = [
+        subprocess.Popen(
+            [sys.executable, "-c", _COMPILE_GROUP, __name__, *group], env=env, stderr=subprocess.PIPE, text=True
+        )
+        for group in groups
+    ]
+    for group, child in zip(groups, children, strict=True):
+        _, errors = child.communicate()
+        if child.returncode != 0:
+            log.warning(
+                "compiling the kernels %s in a child process failed (exit %s): %s", group, child.returncode, errors
+            )
+
+
 def warm_up() -> None:
-    """Compile (or load from the cache) every kernel now, and run each on tiny inputs of its signature."""
+    """Compile (or load from the cache) every kernel now, and run each on tiny inputs of its signature.
+
+    With no cache and no kernel loaded yet, on two cores or more, the modules compile in two processes at once
+    (:func:`compile_in_processes`)."""
+    if not is_cached() and not load.cache_info().currsize and (os.cpu_count() or 1) > 1:
+        compile_in_processes()
     kernels = load()
     for module in kernels:
         module.warm_up()
