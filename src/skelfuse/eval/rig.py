@@ -528,16 +528,14 @@ def _orientation_by_joint(
     views_quats = _unmirrored(view_quats, views, fused)
     angles = view_orientation_agreement(fused_quats, fused, views_quats)  # (T, S, 32), full angle
     n_views = views_quats.shape[1]
-    pairs = [
-        quat_angle_deg(views_quats[:, a], views_quats[:, b]) for a in range(n_views) for b in range(a + 1, n_views)
-    ]
-    between = np.stack(pairs, axis=1)  # (T, pairs, 32)
+    pairs = [(a, b) for a in range(n_views) for b in range(a + 1, n_views)]
+    between = np.stack([quat_angle_deg(views_quats[:, a], views_quats[:, b]) for a, b in pairs], axis=1)  # (T, P, 32)
+    pair_names = [f"between {ids[a]} and {ids[b]}" for a, b in pairs]
     out: dict[str, dict[str, float]] = {}
     for joint in np.flatnonzero(ORIENTATION_AIMED):
         row = {"views": _nanmedian(angles[:, :, joint])}
         row.update({sid: _nanmedian(angles[:, i, joint]) for i, sid in enumerate(ids)})
         row["between views"] = _nanmedian(between[:, :, joint])
-        pair_names = [f"between {ids[a]} and {ids[b]}" for a in range(n_views) for b in range(a + 1, n_views)]
         row.update({name: _nanmedian(between[:, k, joint]) for k, name in enumerate(pair_names)})
         out[JOINT_NAMES[joint]] = row
     return out
