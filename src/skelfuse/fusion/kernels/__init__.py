@@ -114,6 +114,7 @@ def use_user_cache_dir() -> None:
 def load() -> Kernels:
     """Import numba (its cache directory set first) and the kernel modules; the kernels compile on first call."""
     use_user_cache_dir()
+    import_numba_without_blas()
     import skelfuse.fusion.kernels.association
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
@@ -133,6 +134,28 @@ def load() -> Kernels:
         association=skelfuse.fusion.kernels.association,
         uncertainty=skelfuse.fusion.kernels.uncertainty,
     )
+
+
+def import_numba_without_blas() -> None:
+    """Import numba's array-math implementations without letting them import scipy.linalg (a third of a later
+    start).
+
+    numba loads its implementations (``numba.np.arraymath`` among them) when its first function compiles or loads
+    from the cache, and that module probes for BLAS at import by importing ``scipy.linalg``, whatever the
+    functions use. The kernels use no BLAS (no ``np.dot``, ``@`` or ``np.linalg``; a test checks their source),
+    so the probe is answered "no scipy" here: the import of scipy is refused while that module loads, and allowed
+    again right after (numba then computes a 1-D ``np.dot`` with its own loop; ``np.linalg`` and 2-D products
+    still import scipy when they compile). Where scipy.linalg is already imported, it costs nothing and numba
+    imports as usual.
+    """
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    refused = "scipy" if "scipy" not in sys.modules else "scipy.linalg"
+    sys.modules[refused] = None  # type: ignore[assignment]  # importlib's "refuse this import" marker
+    try:
+        import numba.np.arraymath  # noqa: F401  # the BLAS probe runs now, and finds no scipy
+    finally:
+        del sys.modules[refused]
 
 
 COMPILE_GROUPS = (
