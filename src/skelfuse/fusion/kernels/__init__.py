@@ -5,7 +5,8 @@ per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merg
 (:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
 realignment's votes (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the orientation stage
 (:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`) and the position
-uncertainty (:mod:`.uncertainty`). Their numpy
+uncertainty (:mod:`.uncertainty`), and the rig's stacking of an instant's bodies in the world frame
+(:mod:`.stacking`). Their numpy
 forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
@@ -43,7 +44,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association", "uncertainty")
+KERNEL_MODULES = (
+    "merge",
+    "filters",
+    "plausibility",
+    "realign",
+    "tracks",
+    "orientation",
+    "association",
+    "uncertainty",
+    "stacking",
+)
 """The kernel modules of this package (one per compiled stage)."""
 
 log = logging.getLogger(__name__)
@@ -60,6 +71,7 @@ class Kernels(NamedTuple):
     orientation: ModuleType
     association: ModuleType
     uncertainty: ModuleType
+    stacking: ModuleType
 
 
 def kernel_array(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -121,6 +133,7 @@ def load() -> Kernels:
     import skelfuse.fusion.kernels.orientation
     import skelfuse.fusion.kernels.plausibility
     import skelfuse.fusion.kernels.realign
+    import skelfuse.fusion.kernels.stacking
     import skelfuse.fusion.kernels.tracks
     import skelfuse.fusion.kernels.uncertainty
 
@@ -133,6 +146,7 @@ def load() -> Kernels:
         orientation=skelfuse.fusion.kernels.orientation,
         association=skelfuse.fusion.kernels.association,
         uncertainty=skelfuse.fusion.kernels.uncertainty,
+        stacking=skelfuse.fusion.kernels.stacking,
     )
 
 
@@ -160,7 +174,7 @@ def import_numba_without_blas() -> None:
 
 COMPILE_GROUPS = (
     ("orientation", "merge", "tracks", "plausibility"),
-    ("association", "uncertainty", "filters", "realign"),
+    ("association", "uncertainty", "filters", "realign", "stacking"),
 )
 """The kernel modules a first start compiles in two processes at once, about half the compile time each (a cold
 compile is numba's typing and LLVM, one core per process)."""
