@@ -210,9 +210,12 @@ class PeopleFuser:
         orientations = None
         if world_orientations is not None and self.params.orientations:
             orientations = gather_orientations(world_orientations, assignment, P)
+        # The rows are sorted and distinct: as many as the association's rows means all of them, in order
+        # (the usual frame), and the candidates need no copy.
+        whole = rows.size == association.n_persons
         result, new_state = fuse(
-            association.candidates[rows],
-            association.confidence[rows],
+            association.candidates if whole else association.candidates[rows],
+            association.confidence if whole else association.confidence[rows],
             state,
             self.params,
             dt_s,
