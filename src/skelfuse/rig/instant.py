@@ -4,21 +4,22 @@ Both :class:`skelfuse.service.node.FusionCore` (live) and :func:`skelfuse.record
 (offline) fuse every instant through one :class:`GroupFuser`, so "the live stream of a set of frames equals
 the offline fusion of the same frames" holds by construction. Cycle of :meth:`GroupFuser.step`:
 
-1. :func:`group_bodies`: the group's frames (dict sensor id -> SensorFrame, some sensors missing) become
-   ``(S, B, 32, 3)`` sensor-frame positions, NaN-padded to the most bodies any sensor reported, with
-   ``(S, B, 32)`` confidence and ``(S, B)`` valid; rows in the rig's sensor order.
-2. :func:`bodies_to_world`: one :func:`~skelfuse.fusion.transform.apply_transform` over every sensor block.
+1. The group's frames (dict sensor id -> SensorFrame, some sensors missing) become ``(S, B, 32, 3)`` positions,
+   NaN-padded to the most bodies any sensor reported, with ``(S, B, 32)`` confidence and ``(S, B)`` valid; rows
+   in the rig's sensor order (as :func:`group_bodies` stacks them).
+2. ... in the world frame: the stacking and the transform are one compiled pass
+   (:func:`~skelfuse.fusion.transform.stack_views_to_world`; :func:`bodies_to_world` is the same transform alone).
 3. Clock rule: a time step back (a new clock epoch, e.g. a restarted rig) or a gap over
    :data:`RESET_GAP_S` restarts the fusion state (:meth:`PeopleFuser.reset
    <skelfuse.fusion.people.PeopleFuser.reset>`: tracks forgotten, ids keep counting up, never reused).
 4. :meth:`PeopleFuser.step <skelfuse.fusion.people.PeopleFuser.step>` at the group's time in seconds:
    association across sensors, stable track ids, per-track fusion.
-   With ``params.orientations`` the bodies' joint quaternions go along, rotated to the world frame by the
-   calibration (:func:`~skelfuse.fusion.orientation.views_to_world`).
+   With ``params.orientations`` the bodies' joint quaternions go along, stacked and rotated to the world frame
+   by the calibration in the same pass as the positions (as :func:`~skelfuse.fusion.orientation.views_to_world`).
 5. A :class:`~skelfuse.schema.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
    coasting past the filter's ``max_coast_frames`` has none and is left out), ascending track id.
 
-Only pure numpy and the fusion core: no zenoh, no clocks, no I/O.
+Only numpy and the fusion core (its compiled kernels included): no zenoh, no clocks, no I/O.
 """
 
 from __future__ import annotations
