@@ -64,7 +64,9 @@ def stack_to_world(
         total += frame_counts[f]
     if total != positions.shape[0] or (with_orientations and orientations.shape[0] != total):
         return False
-    valid[:] = False
+    for s in range(S):
+        for b in range(B):
+            valid[s, b] = False
     n = 0
     for f in range(n_frames):
         s = frame_rows[f]
@@ -96,13 +98,17 @@ def stack_to_world(
                     world_orientations[s, b, j, 2] = r2 / norm
                     world_orientations[s, b, j, 3] = r3 / norm
             n += 1
-    for s in range(S):  # the empty slots, written once
+    for s in range(S):  # the empty slots, written once (plain loops: a slice assignment compiles far longer)
         for b in range(B):
-            if not valid[s, b]:
-                world[s, b] = np.nan
-                stacked_confidence[s, b] = 0
+            if valid[s, b]:
+                continue
+            for j in range(J):
+                stacked_confidence[s, b, j] = 0
+                for a in range(3):
+                    world[s, b, j, a] = np.nan
                 if with_orientations:
-                    world_orientations[s, b] = np.nan
+                    for a in range(4):
+                        world_orientations[s, b, j, a] = np.nan
     return True
 
 
