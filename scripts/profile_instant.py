@@ -35,6 +35,7 @@ STAGES = [  # (module, attribute, label); a class attribute as "Class.method"
     ("skelfuse.rig.instant", "bodies_to_world", "bodies to world"),
     ("skelfuse.rig.instant", "views_to_world", "orientations to world"),
     ("skelfuse.rig.instant", "views_to_world_by_matrix", "orientations to world"),
+    ("skelfuse.rig.instant", "GroupFuser._stack_to_world", "stack + to world (bodies, orientations)"),
     ("skelfuse.fusion.tracks", "TrackTable.predict", "tracks: predict"),
     ("skelfuse.fusion.people", "associate", "associate"),
     ("skelfuse.fusion.tracks", "TrackTable.update", "tracks: update"),

@@ -64,6 +64,7 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
         "match_tracks",
         "person_descriptors",
         "position_uncertainty",
+        "stack_views_to_world",
     }
 
 

@@ -15,6 +15,7 @@ FLOAT = numba.float64
 INT = numba.int64
 INT32 = numba.int32
 BOOL = numba.boolean
+UINT8 = numba.uint8
 
 
 def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:

@@ -19,6 +19,7 @@ from skelfuse.fusion.reference import (
     plausibility,
     realign,
     tracks,
+    transform,
     uncertainty,
 )
 
@@ -34,5 +35,6 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.association", "match_tracks"): association.match_tracks,
     ("skelfuse.fusion.association", "person_descriptors"): association.person_descriptors,
     ("skelfuse.fusion.pipeline", "position_uncertainty"): uncertainty.position_uncertainty,
+    ("skelfuse.rig.instant", "stack_views_to_world"): transform.stack_views_to_world,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
