@@ -57,7 +57,7 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
         "merge_dbscan",
         "filter_step",
         "check_views",
-        "pair_votes",
+        "realign_temporal",
         "seen_motion",
         "fuse_orientations",
         "assign_to_tracks",

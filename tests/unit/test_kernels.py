@@ -184,29 +184,70 @@ def test_numba_loads_with_the_first_fusion_not_with_the_modules():
     assert done.stdout.split() == ["False", "True"]
 
 
-@settings(max_examples=120, deadline=None)
+def _sided_body(rng: np.random.Generator) -> np.ndarray:
+    """(J, 3) a random body whose left joints lie 150 mm to one side and right joints to the other, mm."""
+    body = rng.normal(0.0, 40.0, (N_JOINTS, 3))
+    body[realign.PAPER_REALIGN_PAIRS[:, 0], 0] -= 150.0
+    body[realign.PAPER_REALIGN_PAIRS[:, 1], 0] += 150.0
+    return body
+
+
+@settings(max_examples=150, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
     n_bodies=st.integers(0, 3),
     n_sensors=st.integers(1, 6),
     missing_joints=st.sampled_from([0.0, 0.3, 0.9]),
-    missing_anchor=st.sampled_from([0.0, 0.3, 1.0]),
+    anchor=st.sampled_from(["kept", "mirrored", "partial", "none", "jumped"]),
+    rules=st.fixed_dictionaries(
+        {
+            "recovery_frames": st.sampled_from([1, 3, 10]),
+            "recovery_share": st.sampled_from([0.6, 0.75]),
+            "majority_recovery_frames": st.sampled_from([None, 4]),
+            "max_jump_mm": st.sampled_from([None, 200.0]),
+            "rear_view_cos": st.sampled_from([None, -0.7, 0.3]),
+            "rear_view_frames": st.sampled_from([1, 3]),
+            "credit_frames": st.sampled_from([0, 5]),
+        }
+    ),
 )
-def test_realign_votes_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensors, missing_joints, missing_anchor):
+def test_temporal_realignment_kernel_equals_the_numpy_reference(
+    seed, n_bodies, n_sensors, missing_joints, anchor, rules
+):
     rng = np.random.default_rng(seed)
-    bodies = np.array([_standing_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
+    bodies = np.array([_sided_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
     views = bodies[:, None] + rng.normal(0.0, 30.0, (n_bodies, n_sensors, N_JOINTS, 3))
     mirrored = rng.random((n_bodies, n_sensors)) < 0.4
     views[mirrored] = views[mirrored][:, MIRROR]  # left/right labels swapped
     views[rng.random(views.shape[:3]) < missing_joints] = np.nan
-    anchor = bodies[:, realign.PAPER_REALIGN_PAIRS.T.ravel()] + rng.normal(0.0, 10.0, (n_bodies, 1, 3))
-    anchor[rng.random(anchor.shape[:2]) < missing_anchor] = np.nan
-    got = realign.pair_votes(views, anchor)
-    want = realign_reference.pair_votes(views, anchor)
-    np.testing.assert_allclose(got[0], want[0], rtol=1e-12, atol=ATOL)  # margin
-    np.testing.assert_array_equal(got[1], want[1])  # decided
-    np.testing.assert_array_equal(got[2], want[2])  # views that see a pair
-    np.testing.assert_array_equal(got[0] < 0.0, want[0] < 0.0)  # the flip decisions
+    views[rng.random((n_bodies, n_sensors)) < 0.15] = np.nan  # a view without the body
+    confidence = rng.integers(0, 4, views.shape[:3]).astype(np.uint8)
+    previous = bodies + rng.normal(0.0, 10.0, (n_bodies, 1, 3))
+    if anchor == "mirrored":
+        previous = previous[:, MIRROR]
+    elif anchor == "partial":
+        previous[rng.random(previous.shape[:2]) < 0.4] = np.nan
+    elif anchor == "none":
+        previous[:] = np.nan
+    elif anchor == "jumped":
+        previous += 500.0
+    streak = np.stack(
+        [
+            rng.integers(-5, 12, n_bodies),
+            rng.integers(0, 6, n_bodies),
+            rng.integers(0, n_sensors + 2, n_bodies),
+            rng.integers(0, 4, n_bodies),
+        ],
+        axis=1,
+    ).astype(np.int32)
+    sensors = rng.normal(0.0, 2500.0, (n_sensors, 3))
+    got = realign.realign_temporal(views, confidence, previous, streak, sensor_positions=sensors, **rules)
+    want = realign_reference.realign_temporal(views, confidence, previous, streak, sensor_positions=sensors, **rules)
+    np.testing.assert_array_equal(got[2], want[2])  # mirrored
+    np.testing.assert_array_equal(got[3], want[3])  # counters
+    np.testing.assert_array_equal(got[0], want[0])  # the views, labels exchanged
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[3].dtype == want[3].dtype == np.int32 and got[2].dtype == want[2].dtype
 
 
 @settings(max_examples=100, deadline=None)

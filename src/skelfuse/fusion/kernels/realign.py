@@ -1,9 +1,10 @@
-"""The left/right votes of the temporal realignment (:func:`skelfuse.fusion.realign.pair_votes`) as a compiled loop.
+"""The temporal left/right realignment (:func:`skelfuse.fusion.realign.realign_temporal`) as one compiled call.
 
-Per body and view, per left/right pair: the swap cost minus the keep cost against the anchor pair, as a vote in
-[-1, 1] (divided by twice the anchor's width), summed over the pairs that can decide. The same arithmetic as the
-numpy reference (:mod:`skelfuse.fusion.reference.realign`) up to the order of its sums of three and of the pairs
-(last bits); the rule is documented in :mod:`skelfuse.fusion.realign`.
+Per body: the teleport rule, each view's left/right votes against the anchor (the previous pairs; on a cold start
+the seed view's or the static reference's), the recovery, credit and rear-view rules with their counters, and the
+mirrored views' labels exchanged. The same arithmetic as the numpy reference (:mod:`skelfuse.fusion.reference.
+realign`) up to the order of its sums of three and of the pairs (last bits); the rules are documented in
+:mod:`skelfuse.fusion.realign`.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import FLOAT, INT, INT32, UINT8, array
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -23,52 +24,299 @@ def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-_SIGNATURE = (array(FLOAT, 4), array(FLOAT, 3), array(INT, 1), array(INT, 1))
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _view_vote(view: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np.ndarray) -> tuple[float, bool, bool]:
+    """One view's margin for keeping its labels (the sum of the deciding pairs' votes in [-1, 1]), whether a pair
+    decided, and whether the view holds both joints of a pair. ``anchor`` (2P, 3): left joints, then right."""
+    P = left.shape[0]
+    margin = 0.0
+    decided = sees_pair = False
+    for p in range(P):
+        lj, rj = left[p], right[p]
+        if view[lj, 0] + view[rj, 0] == view[lj, 0] + view[rj, 0]:  # both x present (NaN: not equal)
+            sees_pair = True
+        keep = _distance(view, lj, anchor, p) + _distance(view, rj, anchor, P + p)
+        swap = _distance(view, rj, anchor, p) + _distance(view, lj, anchor, P + p)
+        vote = (swap - keep) / max(2.0 * _distance(anchor, p, anchor, P + p), 1.0)
+        if vote == vote:  # both of the view's joints and both anchors exist
+            margin += vote
+            decided = True
+    return margin, decided, sees_pair
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _centre(view: np.ndarray, centre: np.ndarray) -> tuple[float, float, float]:
+    """Mean of the four centre joints (shoulders, hips), NaN unless all four are known."""
+    x = y = z = 0.0
+    for joint in centre:
+        x += view[joint, 0]
+        y += view[joint, 1]
+        z += view[joint, 2]
+    return x / 4, y / 4, z / 4
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _teleported(positions: np.ndarray, previous: np.ndarray, centre: np.ndarray, max_jump_mm: float) -> bool:
+    """One body's centre lies farther than ``max_jump_mm`` from the previous one in every view that has one."""
+    tx, ty, tz = _centre(previous, centre)
+    n_known = n_far = 0
+    for s in range(positions.shape[0]):
+        nx, ny, nz = _centre(positions[s], centre)
+        d2 = (nx - tx) * (nx - tx) + (ny - ty) * (ny - ty) + (nz - tz) * (nz - tz)
+        if d2 == d2:
+            n_known += 1
+            if d2 > max_jump_mm * max_jump_mm:
+                n_far += 1
+    return n_known > 0 and n_far == n_known
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _faces_away(view: np.ndarray, sensor: np.ndarray, centre: np.ndarray, rear_view_cos: float) -> bool:
+    """The view's skeleton, as labelled, faces away from its sensor (cosine below ``rear_view_cos``)."""
+    sl, sr, hl, hr = centre[0], centre[1], centre[2], centre[3]
+    lx = view[sl, 0] - view[sr, 0] + view[hl, 0] - view[hr, 0]
+    ly = view[sl, 1] - view[sr, 1] + view[hl, 1] - view[hr, 1]
+    cx, cy, _ = _centre(view, centre)
+    tx, ty = sensor[0] - cx, sensor[1] - cy
+    norms = np.hypot(lx, ly) * np.hypot(tx, ty)
+    if norms < 1e-9:  # NaN compares False and stays NaN
+        norms = 1e-9
+    return (ly * tx - lx * ty) / norms < rear_view_cos  # NaN compares False
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _static_reference(
+    positions: np.ndarray, confidence: np.ndarray, joint: int, medium: int
+) -> tuple[float, float, float]:
+    """The mean of one joint's valid candidates of the best confidence tier present (NaN: none)."""
+    best = 0
+    for s in range(positions.shape[0]):
+        if positions[s, joint, 0] == positions[s, joint, 0]:
+            best = max(best, min(int(confidence[s, joint]), medium) + 1)
+    x = y = z = 0.0
+    n = 0
+    for s in range(positions.shape[0]):
+        if positions[s, joint, 0] == positions[s, joint, 0] and min(int(confidence[s, joint]), medium) + 1 == best:
+            x += positions[s, joint, 0]
+            y += positions[s, joint, 1]
+            z += positions[s, joint, 2]
+            n += 1
+    if n == 0:
+        return np.nan, np.nan, np.nan
+    return x / n, y / n, z / n
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _cold_anchor(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    evidence: np.ndarray,
+    anchor: np.ndarray,
+    prev_ok: np.ndarray,
+    has_prev: bool,
+    left: np.ndarray,
+    right: np.ndarray,
+    medium: int,
+) -> None:
+    """Fill the pairs the previous lacks (``~prev_ok``): the seed view's where it has them and the body has no
+    previous pair at all, else the static reference. The seed: most evidence, then most pair joints, lowest index."""
+    P = left.shape[0]
+    seed, best = 0, -1.0
+    for s in range(positions.shape[0]):
+        present = 0
+        for p in range(P):
+            present += (positions[s, left[p], 0] == positions[s, left[p], 0]) + (
+                positions[s, right[p], 0] == positions[s, right[p], 0]
+            )
+        score = evidence[s] * (2 * P + 1) + present
+        if score > best:
+            seed, best = s, score
+    view = positions[seed]
+    for p in range(P):
+        if prev_ok[p]:
+            continue
+        for side in range(2):
+            joint, row = (left[p], p) if side == 0 else (right[p], P + p)
+            if not has_prev and view[left[p], 0] + view[right[p], 0] == view[left[p], 0] + view[right[p], 0]:
+                anchor[row, 0], anchor[row, 1], anchor[row, 2] = view[joint, 0], view[joint, 1], view[joint, 2]
+            else:
+                anchor[row, 0], anchor[row, 1], anchor[row, 2] = _static_reference(positions, confidence, joint, medium)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _next_counters(
+    streak: np.ndarray,
+    against: float,
+    total: float,
+    rear_against: int,
+    rear_for: int,
+    has_prev: bool,
+    unanimous: bool,
+    options: tuple[int, int, int, int],
+    recovery_share: float,
+) -> tuple[int, int, int, bool]:
+    """The recovery, simple-majority and rear-view counters after this frame, and whether the body follows its
+    views (every decided view's decision inverted). ``options``: recovery_frames, majority_recovery_frames (-1:
+    off), rear_view_frames, credit_frames."""
+    recovery_frames, majority_frames, rear_frames, credit_frames = options[0], options[1], options[2], options[3]
+    confirmed = rear_for > rear_against
+    majority = has_prev and not confirmed and against >= max(recovery_share * total, 0.5)
+    simple = has_prev and not confirmed and 2.0 * against > total
+    disproved = rear_against > rear_for
+    kept = min(int(streak[0]), 0)
+    count = int(streak[0]) + 1 if majority else (max(kept - 1, -credit_frames) if unanimous else kept)
+    count = count if has_prev else 0
+    simple_count = int(streak[1]) + 1 if simple else 0
+    rear_count = int(streak[3]) + 1 if disproved and has_prev else 0
+    credit = min(-min(count, 0), recovery_frames)
+    follow = count >= recovery_frames or rear_count >= rear_frames + credit
+    follow = follow or (majority_frames >= 0 and simple_count >= majority_frames)
+    if follow:
+        count = simple_count = rear_count = 0
+    if not has_prev:  # cold start: the rear views facing away decide, else the MEDIUM evidence
+        follow = disproved or (2.0 * against > total and rear_against == rear_for)
+    return count, simple_count, rear_count, follow
+
+
+_SIGNATURE = (
+    array(FLOAT, 4),  # positions
+    array(UINT8, 3),  # confidence
+    array(FLOAT, 3),  # previous
+    array(INT32, 2),  # streak
+    array(FLOAT, 2),  # sensor_positions
+    array(INT, 1),  # left
+    array(INT, 1),  # right
+    array(INT, 1),  # mirror
+    array(INT, 1),  # centre
+    INT,  # recovery_frames
+    INT,  # majority_recovery_frames
+    INT,  # rear_view_frames
+    INT,  # credit_frames
+    FLOAT,  # recovery_share
+    FLOAT,  # max_jump_mm
+    FLOAT,  # rear_view_cos
+    INT,  # medium
+)
 
 
 @numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
-def pair_votes(
-    positions: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each view's margin for keeping its labels, whether any pair decided, and the views that see a pair.
+def realign_temporal(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    previous: np.ndarray,
+    streak: np.ndarray,
+    sensor_positions: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    mirror: np.ndarray,
+    centre: np.ndarray,
+    recovery_frames: int,
+    majority_recovery_frames: int,
+    rear_view_frames: int,
+    credit_frames: int,
+    recovery_share: float,
+    max_jump_mm: float,
+    rear_view_cos: float,
+    medium: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Realign every body's views against its anchor; see :func:`skelfuse.fusion.realign.realign_temporal`.
 
     Parameters
     ----------
-    positions : (B, S, J, 3) float64 mm, NaN = missing; anchor : (B, 2P, 3) float64 mm, the anchor's left joints
-    then its right joints; left, right : (P,) int64 joint indices of the pairs.
+    positions : (B, S, J, 3) float64 mm, NaN = missing; confidence : (B, S, J) uint8; previous : (B, J, 3) float64
+    mm, the anchor; streak : (B, 4) int32 counters; sensor_positions : (S, 3) float64 mm (read only where
+    ``rear_view_cos`` is not NaN); left, right : (P,) int64 pair joints; mirror : (J,) int64 the left/right
+    permutation; centre : (4,) int64 shoulder L, R, hip L, R; the rules' options (majority_recovery_frames -1: off;
+    max_jump_mm inf: off;
+    rear_view_cos NaN: off); medium : the MEDIUM confidence.
 
     Returns
     -------
-    margin (B, S) float64, decided (B, S) bool, n_views (B,) int64.
+    positions (B, S, J, 3) float64 and confidence (B, S, J) uint8 with the mirrored views' labels exchanged,
+    mirrored (B, S) bool, the new counters (B, 4) int32.
     """
-    B, S = positions.shape[0], positions.shape[1]
+    B, S, J = positions.shape[0], positions.shape[1], positions.shape[2]
     P = left.shape[0]
-    margin = np.zeros((B, S))
-    decided = np.zeros((B, S), dtype=np.bool_)
-    n_views = np.zeros(B, dtype=np.int64)
+    options = (recovery_frames, majority_recovery_frames, rear_view_frames, credit_frames)
+    out_positions = positions.copy()
+    out_confidence = confidence.copy()
+    mirrored = np.zeros((B, S), dtype=np.bool_)
+    counters = np.zeros((B, 4), dtype=np.int32)
+    anchor = np.empty((2 * P, 3))
+    evidence = np.zeros(S)
+    margin = np.zeros(S)
+    decided = np.zeros(S, dtype=np.bool_)
+    prev_ok = np.zeros(P, dtype=np.bool_)
     for b in range(B):
+        jumped = _teleported(positions[b], previous[b], centre, max_jump_mm)
+        for p in range(2 * P):
+            joint = left[p] if p < P else right[p - P]
+            for k in range(3):
+                anchor[p, k] = np.nan if jumped else previous[b, joint, k]
+        n_views = 0
         for s in range(S):
-            view = positions[b, s]
-            sees_pair = False
-            for p in range(P):
-                lj, rj = left[p], right[p]
-                if view[lj, 0] + view[rj, 0] == view[lj, 0] + view[rj, 0]:  # both x present (NaN: not equal)
-                    sees_pair = True
-                keep_left = _distance(view, lj, anchor[b], p)
-                keep_right = _distance(view, rj, anchor[b], P + p)
-                swap_left = _distance(view, rj, anchor[b], p)
-                swap_right = _distance(view, lj, anchor[b], P + p)
-                width = _distance(anchor[b], p, anchor[b], P + p)
-                vote = (-keep_left - keep_right + swap_left + swap_right) / max(2.0 * width, 1.0)
-                if vote == vote:  # both of the view's joints and both anchors exist
-                    margin[b, s] += vote
-                    decided[b, s] = True
-            if sees_pair:
-                n_views[b] += 1
-    return margin, decided, n_views
+            evidence[s] = 0.0
+            for j in range(J):
+                evidence[s] += confidence[b, s, j] >= medium
+            margin[s], decided[s], sees_pair = _view_vote(positions[b, s], anchor, left, right)
+            n_views += sees_pair
+        more_views = n_views > streak[b, 2]
+        has_prev = all_prev = False
+        for p in range(P):
+            prev_ok[p] = anchor[p, 0] + anchor[P + p, 0] == anchor[p, 0] + anchor[P + p, 0] and not more_views
+            has_prev |= prev_ok[p]
+            all_prev = prev_ok[p] if p == 0 else all_prev and prev_ok[p]
+        if not all_prev and S > 0:
+            _cold_anchor(positions[b], confidence[b], evidence, anchor, prev_ok, has_prev, left, right, medium)
+            for s in range(S):
+                margin[s], decided[s], _ = _view_vote(positions[b, s], anchor, left, right)
+        against = total = 0.0
+        rear_against = rear_for = n_decided = n_flips = 0
+        for s in range(S):
+            flip = margin[s] < 0.0
+            against += evidence[s] * flip
+            total += evidence[s] * decided[s]
+            n_decided += decided[s]
+            n_flips += flip
+            if decided[s] and _faces_away(positions[b, s], sensor_positions[s], centre, rear_view_cos):
+                rear_against += flip
+                rear_for += not flip
+        views_seen = int(streak[b, 2]) if has_prev else n_views
+        unanimous = n_decided >= max(views_seen, 2) and n_flips == 0
+        count, simple_count, rear_count, follow = _next_counters(
+            streak[b], against, total, rear_against, rear_for, has_prev, unanimous, options, recovery_share
+        )
+        counters[b, 0], counters[b, 1], counters[b, 2], counters[b, 3] = count, simple_count, views_seen, rear_count
+        for s in range(S):
+            mirrored[b, s] = (margin[s] < 0.0) != (follow and decided[s])
+            if mirrored[b, s]:
+                for j in range(J):
+                    out_confidence[b, s, j] = confidence[b, s, mirror[j]]
+                    for k in range(3):
+                        out_positions[b, s, j, k] = positions[b, s, mirror[j], k]
+    return out_positions, out_confidence, mirrored, counters
 
 
 def warm_up() -> None:
-    """Compile (or load) :func:`pair_votes` for its one signature."""
+    """Compile (or load) :func:`realign_temporal` for its one signature."""
     pairs = np.array([0], dtype=np.int64)
-    pair_votes(np.zeros((1, 1, 2, 3)), np.zeros((1, 2, 3)), pairs, pairs + 1)
+    centre = np.array([0, 1, 0, 1], dtype=np.int64)
+    realign_temporal(
+        np.zeros((1, 1, 2, 3)),
+        np.zeros((1, 1, 2), dtype=np.uint8),
+        np.zeros((1, 2, 3)),
+        np.zeros((1, 4), dtype=np.int32),
+        np.zeros((1, 3)),
+        pairs,
+        pairs + 1,
+        np.array([1, 0], dtype=np.int64),
+        centre,
+        10,
+        -1,
+        3,
+        0,
+        0.75,
+        np.inf,
+        np.nan,
+        2,
+    )

@@ -27,7 +27,7 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
-    ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
+    ("skelfuse.fusion.pipeline", "realign_temporal"): realign.realign_temporal,
     ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
     ("skelfuse.fusion.pipeline", "fuse_orientations"): orientation.fuse_orientations,
     ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
