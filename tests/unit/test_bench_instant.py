@@ -56,7 +56,9 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
     assert {name for _, name in LIVE_STAGES} == {
         "merge_dbscan",
         "filter_step",
-        "check_views",
+        "plausibility_step",
+        "merge_views",
+        "learn_bones",
         "realign_temporal",
         "seen_motion",
         "fuse_orientations",

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -144,6 +145,70 @@ def test_plausibility_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensor
     want = plausibility_reference.check_views(views, predicted, learned, bones_ready, params)
     np.testing.assert_array_equal(got, want)
     assert got.dtype == want.dtype == np.uint8
+
+
+def _plausibility_frame(rng: np.random.Generator, bodies: np.ndarray, n_sensors: int, missing_joints: float):
+    """Views of the bodies: some teleported (by one offset shared by the body's views, or each its own), upside
+    down, of another size or absent; NaN joints."""
+    predicted = bodies + rng.normal(0.0, 5.0, (len(bodies), 1, 3))
+    views = predicted[:, None] + rng.normal(0.0, 20.0, (len(bodies), n_sensors, N_JOINTS, 3))
+    kind = rng.integers(0, 6, (len(bodies), n_sensors))
+    views[kind == 1] += rng.normal(0.0, 300.0, 3)  # teleported, every such view alike: they agree elsewhere
+    views[kind == 5] += rng.normal(0.0, 300.0, ((kind == 5).sum(), 1, 3))  # teleported, each its own way
+    views[kind == 2] *= (1.0, 1.0, -1.0)  # upside down
+    views[kind == 3] *= 1.4  # another body size
+    views[kind == 4] = np.nan  # the view does not see the body
+    views[rng.random(views.shape[:3]) < missing_joints] = np.nan
+    confidence = rng.integers(0, 4, views.shape[:3]).astype(np.uint8)
+    return predicted, views, confidence
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_bodies=st.integers(0, 3),
+    n_sensors=st.integers(1, 5),
+    missing_joints=st.sampled_from([0.0, 0.2, 0.7]),
+    joint_speed=st.sampled_from([np.inf, 3000.0]),
+)
+def test_plausibility_stage_kernels_equal_the_numpy_reference_over_a_sequence(
+    seed, n_bodies, n_sensors, missing_joints, joint_speed
+):
+    rng = np.random.default_rng(seed)
+    params = PlausibilityParams(
+        gate_mm=250.0, up_cos=0.0, bone_ratio=0.25, joint_speed_mm_s=joint_speed, release_frames=2, follow_frames=3
+    )
+    bodies = np.array([_standing_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
+    got = replace(
+        plausibility.init_plausibility_state(n_bodies, n_sensors),
+        bones=plausibility.bone_lengths(bodies),
+        bone_frames=rng.integers(0, 12, n_bodies).astype(np.int32),  # some ready to judge the size
+    )
+    want = got
+    for _ in range(6):  # the hysteresis, the follow rule and the bone learning carry over
+        predicted, views, confidence = _plausibility_frame(rng, bodies, n_sensors, missing_joints)
+        result, got = plausibility.plausibility_step(views, confidence, predicted, got, params)
+        expected, want = plausibility_reference.plausibility_step(views, confidence, predicted, want, params)
+        for field in ("held", "failed", "restart", "views", "views_confidence"):
+            np.testing.assert_array_equal(getattr(result, field), getattr(expected, field), err_msg=field)
+            assert getattr(result, field).dtype == getattr(expected, field).dtype, field
+        for field in ("held", "release", "follow"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+            assert getattr(got, field).dtype == getattr(want, field).dtype, field
+        merged = plausibility.merge_views(views, confidence, result, predicted, params, 1 / 30)
+        merged_reference = plausibility_reference.merge_views(views, confidence, expected, predicted, params, 1 / 30)
+        np.testing.assert_array_equal(merged[0], merged_reference[0])
+        np.testing.assert_array_equal(merged[1], merged_reference[1])
+        fused = predicted + rng.normal(0.0, 5.0, predicted.shape)
+        n_agree = rng.integers(0, 3, fused.shape[:2]).astype(np.int16)
+        n_agree[rng.random(n_bodies) < 0.3] = 0  # a body nothing was merged for: learns nothing
+        got, want = (
+            plausibility.learn_bones(got, fused, n_agree),
+            plausibility_reference.learn_bones(want, fused, n_agree),
+        )
+        np.testing.assert_allclose(got.bones, want.bones, rtol=1e-12, atol=ATOL)
+        np.testing.assert_array_equal(got.bone_frames, want.bone_frames)
+        assert got.bone_frames.dtype == want.bone_frames.dtype == np.int32
 
 
 def test_the_kernels_reasons_are_the_stages():

@@ -50,12 +50,10 @@ from skelfuse.fusion.plausibility import (
     PlausibilityParams,
     PlausibilityResult,
     PlausibilityState,
-    drop_far_joints,
     init_plausibility_state,
     learn_bones,
+    merge_views,
     plausibility_step,
-    realignment_views,
-    remove_held,
 )
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
@@ -251,13 +249,13 @@ def fuse(
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
     previous = _previous_candidate(state, params, dt_s)
-    held_out = plausibility = restarted = predicted = None
+    held_out = plausibility = restarted = predicted = verdict = None
     state_coast, flip_counters = state.coast, state.flip_counters
     if params.plausibility_gate_mm is not None:
         predicted = _predicted(state, dt_s)
-        verdict, plausibility = _plausibility(positions, predicted, state, params)
+        verdict, plausibility = _plausibility(positions, conf, predicted, state, params)
         held_out, restarted = verdict.held, verdict.restart
-        positions, conf = realignment_views(positions, conf, held_out)
+        positions, conf = verdict.views, verdict.views_confidence
         if restarted.any():  # the track follows the views: filter, trick 2 and the realignment start over there
             state_coast = np.where(restarted[:, None], -1, state.coast)
             previous = np.where(restarted[:, None, None], np.nan, previous)
@@ -266,11 +264,8 @@ def fuse(
     positions, conf, reference, streak, flipped = _realign(
         positions, conf, params, previous, flip_counters, dt_s, sensor_positions
     )
-    if predicted is not None and restarted is not None and held_out is not None:
-        positions, conf = remove_held(positions, conf, held_out)
-        if params.plausibility_joint_speed_mm_s is not None:
-            plausible = _plausibility_params(params)
-            positions, conf = drop_far_joints(positions, conf, predicted, restarted, plausible, dt_s)
+    if predicted is not None and verdict is not None:
+        positions, conf = merge_views(positions, conf, verdict, predicted, _plausibility_params(params), dt_s)
         reference = None  # recomputed from what is left where the merge needs one
     merged = _merge(positions, conf, reference, previous, params)
     if plausibility is not None:
@@ -365,7 +360,7 @@ def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
 
 
 def _plausibility(
-    positions: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
+    positions: np.ndarray, conf: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
 ) -> tuple[PlausibilityResult, PlausibilityState]:
     """The plausibility stage's view checks, before the realignment, against the track's prediction."""
     B, S = positions.shape[:2]
@@ -382,10 +377,12 @@ def _plausibility(
         previous = init_plausibility_state(B, S)
     else:
         previous = PlausibilityState(held=held, release=release, follow=follow, bones=bones, bone_frames=bone_frames)
-    return plausibility_step(positions, predicted, previous, _plausibility_params(params))
+    return plausibility_step(positions, conf, predicted, previous, _plausibility_params(params))
 
 
+@lru_cache(maxsize=16)
 def _plausibility_params(params: FusionParams) -> PlausibilityParams:
+    """The plausibility stage's options from FusionParams' (made once per parameter set, not per frame)."""
     return PlausibilityParams(
         gate_mm=float(params.plausibility_gate_mm or 0.0),
         up_cos=params.plausibility_up_cos,

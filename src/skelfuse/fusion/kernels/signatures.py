@@ -23,3 +23,4 @@ def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:
 
 
 UINT8 = numba.uint8
+INT16 = numba.int16
