@@ -56,6 +56,8 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
     assert {name for _, name in LIVE_STAGES} == {
         "merge_dbscan",
         "filter_step",
+        "select_candidates",
+        "predicted_positions",
         "plausibility_step",
         "merge_views",
         "learn_bones",

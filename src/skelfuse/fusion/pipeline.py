@@ -42,6 +42,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
@@ -59,8 +60,6 @@ from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.fusion.uncertainty import position_uncertainty
 from skelfuse.schema.skeleton import N_JOINTS
-
-_ONES3 = np.ones(3)
 
 
 @dataclass(frozen=True)
@@ -179,12 +178,13 @@ def select_candidates(
     """Mark unusable candidates missing: non-finite, or confidence below ``min_confidence``.
 
     A candidate whose coordinates are so large that their sum overflows (beyond about 1e307 mm) counts as
-    non-finite too: one sum and one test per candidate instead of three tests and a reduction.
+    non-finite too: one sum and one test per candidate. One compiled call (:mod:`skelfuse.fusion.kernels.merge`);
+    the numpy form is the test reference (:mod:`skelfuse.fusion.reference.pipeline`).
 
     Parameters
     ----------
     candidates : (B, S, J, 3) float, mm.
-    confidence : (B, S, J) int.
+    confidence : (B, S, J) int (0-255).
     min_confidence : int or None (None keeps every finite candidate).
 
     Returns
@@ -192,14 +192,24 @@ def select_candidates(
     positions : (B, S, J, 3) float64, mm, all three coordinates NaN where missing.
     confidence : (B, S, J) uint8, 0 where missing.
     """
-    positions = np.asarray(candidates, dtype=np.float64)
-    # The sum of the three coordinates is finite exactly when all three are (inf - inf is NaN); mm-sized
-    # values cannot overflow.
-    valid = np.isfinite(positions @ _ONES3)
-    if min_confidence is not None:
-        valid &= confidence >= min_confidence
-    conf = confidence * valid
-    return np.where(valid[..., None], positions, np.nan), conf if conf.dtype == np.uint8 else conf.astype(np.uint8)
+    positions = np.ascontiguousarray(candidates, dtype=np.float64)
+    if positions.ndim != 4 or positions.shape[3] != 3:
+        raise ValueError(f"candidates must have shape (B, S, J, 3), got {positions.shape}")
+    conf = kernels.kernel_array(confidence, np.uint8, positions.shape[:3], "confidence")
+    return kernels.load().merge.select_candidates(positions, conf, 0 if min_confidence is None else int(min_confidence))
+
+
+def predicted_positions(state: FusionState, dt_s: float) -> np.ndarray:
+    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track).
+
+    One compiled call (:mod:`skelfuse.fusion.kernels.filters`); the numpy form is the test reference."""
+    B = state.n_bodies
+    return kernels.load().filters.predict(
+        kernels.kernel_array(state.x, np.float64, (B, N_JOINTS, 2, 3), "x"),
+        kernels.kernel_array(state.coast, np.int32, (B, N_JOINTS), "coast"),
+        kernels.kernel_array(state.previous, np.float64, (B, N_JOINTS, 3), "previous"),
+        float(dt_s),
+    )
 
 
 def fuse(
@@ -248,11 +258,12 @@ def fuse(
     B, _, J, _ = candidates.shape
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
-    previous = _previous_candidate(state, params, dt_s)
     held_out = plausibility = restarted = predicted = verdict = None
+    if params.plausibility_gate_mm is not None or _anchored_on_prediction(params):
+        predicted = predicted_positions(state, dt_s)
+    previous = predicted if predicted is not None and _anchored_on_prediction(params) else state.previous
     state_coast, flip_counters = state.coast, state.flip_counters
-    if params.plausibility_gate_mm is not None:
-        predicted = _predicted(state, dt_s)
+    if predicted is not None and params.plausibility_gate_mm is not None:
         verdict, plausibility = _plausibility(positions, conf, predicted, state, params)
         held_out, restarted = verdict.held, verdict.restart
         positions, conf = verdict.views, verdict.views_confidence
@@ -353,12 +364,6 @@ def _position_uncertainty(
     )
 
 
-def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
-    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track)."""
-    x = state.x
-    return np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)
-
-
 def _plausibility(
     positions: np.ndarray, conf: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
 ) -> tuple[PlausibilityResult, PlausibilityState]:
@@ -447,13 +452,9 @@ def _orientation_params(agree_deg: float, alpha: float, beta: float) -> Orientat
     return OrientationParams(agree_deg=agree_deg, alpha=alpha, beta=beta)
 
 
-def _previous_candidate(state: FusionState, params: FusionParams, dt_s: float) -> np.ndarray:
-    """Trick 2's candidate and the temporal anchor: last merged positions, or the filter's prediction."""
-    if params.previous_candidate == "merged" or params.filter not in ("cv_kalman", "alpha_beta"):
-        return state.previous
-    x = state.x
-    predicted = x[:, :, 0] + dt_s * x[:, :, 1]  # x~ = x + v dt
-    return np.where((state.coast >= 0)[..., None], predicted, state.previous)
+def _anchored_on_prediction(params: FusionParams) -> bool:
+    """Trick 2's candidate and the temporal anchor are the filter's prediction (else the last merged positions)."""
+    return params.previous_candidate == "predicted" and params.filter in ("cv_kalman", "alpha_beta")
 
 
 def _realign(
