@@ -9,6 +9,8 @@ documented in :mod:`skelfuse.fusion.plausibility`.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -26,7 +28,7 @@ def _torso_offset(view: np.ndarray, predicted: np.ndarray, torso: np.ndarray) ->
         dx = view[joint, 0] - predicted[joint, 0]
         dy = view[joint, 1] - predicted[joint, 1]
         dz = view[joint, 2] - predicted[joint, 2]
-        if np.isfinite(dx) and np.isfinite(dy) and np.isfinite(dz):
+        if math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz):
             sx += dx
             sy += dy
             sz += dz
@@ -42,7 +44,7 @@ def _up(body: np.ndarray, neck: int, pelvis: int) -> tuple[float, float, float]:
     ux = body[neck, 0] - body[pelvis, 0]
     uy = body[neck, 1] - body[pelvis, 1]
     uz = body[neck, 2] - body[pelvis, 2]
-    norm = np.sqrt(ux * ux + uy * uy + uz * uz)
+    norm = math.sqrt(ux * ux + uy * uy + uz * uz)
     return ux / norm, uy / norm, uz / norm
 
 
@@ -55,8 +57,8 @@ def _median_bone_ratio(view: np.ndarray, learned: np.ndarray, bones: np.ndarray,
         dx = view[b, 0] - view[a, 0]
         dy = view[b, 1] - view[a, 1]
         dz = view[b, 2] - view[a, 2]
-        ratio = np.sqrt(dx * dx + dy * dy + dz * dz) / learned[k]
-        if np.isfinite(ratio):
+        ratio = math.sqrt(dx * dx + dy * dy + dz * dz) / learned[k]
+        if math.isfinite(ratio):
             i = n  # insertion sort: a dozen bones
             while i > 0 and ratios[i - 1] > ratio:
                 ratios[i] = ratios[i - 1]
@@ -90,7 +92,7 @@ def _view_reason(
         return UPSIDE_DOWN
     if bones_ready:
         median = _median_bone_ratio(view, learned, bones, ratios)
-        if np.abs(np.log(median)) > log_bone_ratio:  # NaN (too few bones) compares False
+        if abs(np.log(median)) > log_bone_ratio:  # NaN (too few bones) compares False
             return BONES
     mx, my, mz = _torso_offset(view, predicted, torso)
     if mx * mx + my * my + mz * mz > gate_mm * gate_mm:  # NaN compares False
@@ -111,7 +113,7 @@ def _views_agree_elsewhere(
     for s in range(S):
         n_present += present[s]
         offsets[s, 0], offsets[s, 1], offsets[s, 2] = _torso_offset(views[s], predicted, torso)
-        if present[s] and failed[s] == TELEPORT and np.isfinite(offsets[s, 0] + offsets[s, 1] + offsets[s, 2]):
+        if present[s] and failed[s] == TELEPORT and math.isfinite(offsets[s, 0] + offsets[s, 1] + offsets[s, 2]):
             n_moved += 1
             mx += offsets[s, 0]
             my += offsets[s, 1]
@@ -123,7 +125,7 @@ def _views_agree_elsewhere(
     for s in range(S):  # every present view moved, so each present view is one of them
         if present[s]:
             dx, dy, dz = offsets[s, 0] - mx, offsets[s, 1] - my, offsets[s, 2] - mz
-            spread = max(spread, np.sqrt(dx * dx + dy * dy + dz * dz))
+            spread = max(spread, math.sqrt(dx * dx + dy * dy + dz * dz))
     return spread < 0.5 * gate_mm
 
 
@@ -209,7 +211,7 @@ def plausibility_step(
             )
             present[s] = False
             for joint in torso:
-                present[s] |= np.isfinite(view[joint, 0])
+                present[s] |= math.isfinite(view[joint, 0])
             failed[s] = reasons[b, s] if present[s] else PLAUSIBLE
             failed_out[b, s] = failed[s]
             any_present |= present[s]
@@ -233,8 +235,9 @@ def plausibility_step(
             new_release[b, s] = count if new_held[b, s] > 0 else 0
             held_out[b, s] = new_held[b, s] if present[s] else PLAUSIBLE
             if held_out[b, s] == UPSIDE_DOWN or held_out[b, s] == BONES:  # does not vote on left/right
-                views[b, s] = np.nan
-                views_confidence[b, s] = 0
+                for j in range(candidates.shape[2]):
+                    views[b, s, j, 0] = views[b, s, j, 1] = views[b, s, j, 2] = np.nan
+                    views_confidence[b, s, j] = 0
         if restart[b]:
             new_follow[b] = 0
     return reasons, failed_out, held_out, restart, new_held, new_release, new_follow, views, views_confidence
@@ -270,9 +273,9 @@ def merge_views(
                 dx = candidates[b, s, j, 0] - predicted[b, j, 0]
                 dy = candidates[b, s, j, 1] - predicted[b, j, 1]
                 dz = candidates[b, s, j, 2] - predicted[b, j, 2]
-                too_far = np.sqrt(dx * dx + dy * dy + dz * dz) > max_distance_mm and not restart[b]  # NaN: False
+                too_far = math.sqrt(dx * dx + dy * dy + dz * dz) > max_distance_mm and not restart[b]  # NaN: False
                 if held[b, s] != PLAUSIBLE or too_far:
-                    positions[b, s, j] = np.nan
+                    positions[b, s, j, 0] = positions[b, s, j, 1] = positions[b, s, j, 2] = np.nan
                     out_confidence[b, s, j] = 0
     return positions, out_confidence
 
@@ -310,8 +313,8 @@ def learn_bones(
             dx = merged[b, child, 0] - merged[b, parent, 0]
             dy = merged[b, child, 1] - merged[b, parent, 1]
             dz = merged[b, child, 2] - merged[b, parent, 2]
-            length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if not np.isfinite(length):
+            length = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not math.isfinite(length):
                 continue
             seen_any = True
             old = learned_bones[b, k]

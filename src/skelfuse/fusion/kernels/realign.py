@@ -9,6 +9,8 @@ realign`) up to the order of its sums of three and of the pairs (last bits); the
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -21,7 +23,7 @@ def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
     dx = a[i, 0] - b[k, 0]
     dy = a[i, 1] - b[k, 1]
     dz = a[i, 2] - b[k, 2]
-    return np.sqrt(dx * dx + dy * dy + dz * dz)
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -37,7 +39,8 @@ def _view_vote(view: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np
             sees_pair = True
         keep = _distance(view, lj, anchor, p) + _distance(view, rj, anchor, P + p)
         swap = _distance(view, rj, anchor, p) + _distance(view, lj, anchor, P + p)
-        vote = (swap - keep) / max(2.0 * _distance(anchor, p, anchor, P + p), 1.0)
+        wx, wy, wz = anchor[p, 0] - anchor[P + p, 0], anchor[p, 1] - anchor[P + p, 1], anchor[p, 2] - anchor[P + p, 2]
+        vote = (swap - keep) / max(2.0 * math.sqrt(wx * wx + wy * wy + wz * wz), 1.0)
         if vote == vote:  # both of the view's joints and both anchors exist
             margin += vote
             decided = True
@@ -78,7 +81,7 @@ def _faces_away(view: np.ndarray, sensor: np.ndarray, centre: np.ndarray, rear_v
     ly = view[sl, 1] - view[sr, 1] + view[hl, 1] - view[hr, 1]
     cx, cy, _ = _centre(view, centre)
     tx, ty = sensor[0] - cx, sensor[1] - cy
-    norms = np.hypot(lx, ly) * np.hypot(tx, ty)
+    norms = math.hypot(lx, ly) * math.hypot(tx, ty)
     if norms < 1e-9:  # NaN compares False and stays NaN
         norms = 1e-9
     return (ly * tx - lx * ty) / norms < rear_view_cos  # NaN compares False
@@ -143,41 +146,6 @@ def _cold_anchor(
                 anchor[row, 0], anchor[row, 1], anchor[row, 2] = _static_reference(positions, confidence, joint, medium)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _next_counters(
-    streak: np.ndarray,
-    against: float,
-    total: float,
-    rear_against: int,
-    rear_for: int,
-    has_prev: bool,
-    unanimous: bool,
-    options: tuple[int, int, int, int],
-    recovery_share: float,
-) -> tuple[int, int, int, bool]:
-    """The recovery, simple-majority and rear-view counters after this frame, and whether the body follows its
-    views (every decided view's decision inverted). ``options``: recovery_frames, majority_recovery_frames (-1:
-    off), rear_view_frames, credit_frames."""
-    recovery_frames, majority_frames, rear_frames, credit_frames = options[0], options[1], options[2], options[3]
-    confirmed = rear_for > rear_against
-    majority = has_prev and not confirmed and against >= max(recovery_share * total, 0.5)
-    simple = has_prev and not confirmed and 2.0 * against > total
-    disproved = rear_against > rear_for
-    kept = min(int(streak[0]), 0)
-    count = int(streak[0]) + 1 if majority else (max(kept - 1, -credit_frames) if unanimous else kept)
-    count = count if has_prev else 0
-    simple_count = int(streak[1]) + 1 if simple else 0
-    rear_count = int(streak[3]) + 1 if disproved and has_prev else 0
-    credit = min(-min(count, 0), recovery_frames)
-    follow = count >= recovery_frames or rear_count >= rear_frames + credit
-    follow = follow or (majority_frames >= 0 and simple_count >= majority_frames)
-    if follow:
-        count = simple_count = rear_count = 0
-    if not has_prev:  # cold start: the rear views facing away decide, else the MEDIUM evidence
-        follow = disproved or (2.0 * against > total and rear_against == rear_for)
-    return count, simple_count, rear_count, follow
-
-
 _SIGNATURE = (
     array(FLOAT, 4),  # positions
     array(UINT8, 3),  # confidence
@@ -237,7 +205,6 @@ def realign_temporal(
     """
     B, S, J = positions.shape[0], positions.shape[1], positions.shape[2]
     P = left.shape[0]
-    options = (recovery_frames, majority_recovery_frames, rear_view_frames, credit_frames)
     out_positions = positions.copy()
     out_confidence = confidence.copy()
     mirrored = np.zeros((B, S), dtype=np.bool_)
@@ -261,7 +228,7 @@ def realign_temporal(
             margin[s], decided[s], sees_pair = _view_vote(positions[b, s], anchor, left, right)
             n_views += sees_pair
         more_views = n_views > streak[b, 2]
-        has_prev = all_prev = False
+        has_prev = all_prev = P < 0  # False, typed as a run-time bool (a literal would compile the helpers twice)
         for p in range(P):
             prev_ok[p] = anchor[p, 0] + anchor[P + p, 0] == anchor[p, 0] + anchor[P + p, 0] and not more_views
             has_prev |= prev_ok[p]
@@ -271,7 +238,7 @@ def realign_temporal(
             for s in range(S):
                 margin[s], decided[s], _ = _view_vote(positions[b, s], anchor, left, right)
         against = total = 0.0
-        rear_against = rear_for = n_decided = n_flips = 0
+        rear_against = rear_for = n_decided = n_flips = S - S  # 0 (a run-time int, as above)
         for s in range(S):
             flip = margin[s] < 0.0
             against += evidence[s] * flip
@@ -283,9 +250,23 @@ def realign_temporal(
                 rear_for += not flip
         views_seen = int(streak[b, 2]) if has_prev else n_views
         unanimous = n_decided >= max(views_seen, 2) and n_flips == 0
-        count, simple_count, rear_count, follow = _next_counters(
-            streak[b], against, total, rear_against, rear_for, has_prev, unanimous, options, recovery_share
-        )
+        # The recovery, simple-majority and rear-view counters, and whether the body follows its views.
+        confirmed = rear_for > rear_against
+        majority = has_prev and not confirmed and against >= max(recovery_share * total, 0.5)
+        simple = has_prev and not confirmed and 2.0 * against > total
+        disproved = rear_against > rear_for
+        kept = min(int(streak[b, 0]), 0)
+        count = int(streak[b, 0]) + 1 if majority else (max(kept - 1, -credit_frames) if unanimous else kept)
+        count = count if has_prev else 0
+        simple_count = int(streak[b, 1]) + 1 if simple else 0
+        rear_count = int(streak[b, 3]) + 1 if disproved and has_prev else 0
+        credit = min(-min(count, 0), recovery_frames)
+        follow = count >= recovery_frames or rear_count >= rear_view_frames + credit
+        follow = follow or (majority_recovery_frames >= 0 and simple_count >= majority_recovery_frames)
+        if follow:
+            count = simple_count = rear_count = 0
+        if not has_prev:  # cold start: the rear views facing away decide, else the MEDIUM evidence
+            follow = disproved or (2.0 * against > total and rear_against == rear_for)
         counters[b, 0], counters[b, 1], counters[b, 2], counters[b, 3] = count, simple_count, views_seen, rear_count
         for s in range(S):
             mirrored[b, s] = (margin[s] < 0.0) != (follow and decided[s])
