@@ -153,6 +153,7 @@ CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"]
 """The body centre of the teleport and rear-view rules: shoulders and hips, both sides (a flip leaves it in place)."""
 N_COUNTERS = 4
 """Per-body realignment counters (see :func:`realign_temporal`'s ``streak``)."""
+_NO_ANCHOR = np.zeros((0, 2 * _N_PAIRS, 3))  # the kernel's cold anchor where none is given (it reads none)
 
 
 def reference_positions(positions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -342,10 +343,11 @@ def realign_temporal(
     rear = sensor_positions is not None and rear_view_cos is not None
     sensors = sensor_positions if sensor_positions is not None and rear else np.zeros((S, 3))
     rear_cos = float(rear_view_cos) if rear_view_cos is not None and rear else math.nan
-    return kernels.load().realign.realign_temporal(
-        positions,
+    arguments = (
         kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
         kernels.kernel_array(previous, np.float64, (B, N_JOINTS, 3), "previous"),
+    )
+    options = (
         kernels.kernel_array(streak, np.int32, (B, N_COUNTERS), "streak"),
         kernels.kernel_array(sensors, np.float64, (S, 3), "sensor_positions"),
         _PAIR_LEFT,
@@ -360,6 +362,28 @@ def realign_temporal(
         math.inf if max_jump_mm is None else float(max_jump_mm),
         rear_cos,
         int(Confidence.MEDIUM),
+    )
+    kernel = kernels.load().realign.realign_temporal
+    out = kernel(positions, *arguments, _NO_ANCHOR, False, *options)
+    if out[4].any():  # a body starts cold (first frames, a new view, a teleport): its anchor, then the whole call
+        out = kernel(positions, *arguments, cold_anchors(positions, arguments[0], out[5]), True, *options)
+    return out[:4]
+
+
+def cold_anchors(positions: np.ndarray, confidence: np.ndarray, has_prev: np.ndarray) -> np.ndarray:
+    """(B, 2P, 3) the anchor pairs of a cold start, for the pairs the previous lacks: the seed view's pair where the
+    seed holds it and the body's previous holds no pair at all (``has_prev`` (B,) False), else the static reference
+    (:func:`reference_positions`). The seed: the view with the most MEDIUM evidence, then the most pair joints, then
+    the lowest index. numpy: it runs only when a body starts cold."""
+    B = positions.shape[0]
+    pairs = positions[:, :, _PAIR_JOINTS]  # (B, S, 2P, 3)
+    evidence = (confidence >= int(Confidence.MEDIUM)).sum(axis=2)  # (B, S) MEDIUM-or-better joints
+    seed = (evidence * (2 * _N_PAIRS + 1) + (~np.isnan(pairs[..., 0])).sum(axis=2)).argmax(axis=1)  # (B,)
+    seed_pairs = pairs[np.arange(B), seed]  # (B, 2P, 3)
+    seed_ok = ~np.isnan(seed_pairs[:, :_N_PAIRS, 0] + seed_pairs[:, _N_PAIRS:, 0])
+    use_seed = np.tile(seed_ok & ~has_prev[:, None], 2)[..., None]
+    return np.ascontiguousarray(
+        np.where(use_seed, seed_pairs, reference_positions(positions, confidence)[:, _PAIR_JOINTS])
     )
 
 

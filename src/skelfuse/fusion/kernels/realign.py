@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import FLOAT, INT, INT32, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, INT32, UINT8, array
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -87,69 +87,12 @@ def _faces_away(view: np.ndarray, sensor: np.ndarray, centre: np.ndarray, rear_v
     return (ly * tx - lx * ty) / norms < rear_view_cos  # NaN compares False
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _static_reference(
-    positions: np.ndarray, confidence: np.ndarray, joint: int, medium: int
-) -> tuple[float, float, float]:
-    """The mean of one joint's valid candidates of the best confidence tier present (NaN: none)."""
-    best = 0
-    for s in range(positions.shape[0]):
-        if positions[s, joint, 0] == positions[s, joint, 0]:
-            best = max(best, min(int(confidence[s, joint]), medium) + 1)
-    x = y = z = 0.0
-    n = 0
-    for s in range(positions.shape[0]):
-        if positions[s, joint, 0] == positions[s, joint, 0] and min(int(confidence[s, joint]), medium) + 1 == best:
-            x += positions[s, joint, 0]
-            y += positions[s, joint, 1]
-            z += positions[s, joint, 2]
-            n += 1
-    if n == 0:
-        return np.nan, np.nan, np.nan
-    return x / n, y / n, z / n
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _cold_anchor(
-    positions: np.ndarray,
-    confidence: np.ndarray,
-    evidence: np.ndarray,
-    anchor: np.ndarray,
-    prev_ok: np.ndarray,
-    has_prev: bool,
-    left: np.ndarray,
-    right: np.ndarray,
-    medium: int,
-) -> None:
-    """Fill the pairs the previous lacks (``~prev_ok``): the seed view's where it has them and the body has no
-    previous pair at all, else the static reference. The seed: most evidence, then most pair joints, lowest index."""
-    P = left.shape[0]
-    seed, best = 0, -1.0
-    for s in range(positions.shape[0]):
-        present = 0
-        for p in range(P):
-            present += (positions[s, left[p], 0] == positions[s, left[p], 0]) + (
-                positions[s, right[p], 0] == positions[s, right[p], 0]
-            )
-        score = evidence[s] * (2 * P + 1) + present
-        if score > best:
-            seed, best = s, score
-    view = positions[seed]
-    for p in range(P):
-        if prev_ok[p]:
-            continue
-        for side in range(2):
-            joint, row = (left[p], p) if side == 0 else (right[p], P + p)
-            if not has_prev and view[left[p], 0] + view[right[p], 0] == view[left[p], 0] + view[right[p], 0]:
-                anchor[row, 0], anchor[row, 1], anchor[row, 2] = view[joint, 0], view[joint, 1], view[joint, 2]
-            else:
-                anchor[row, 0], anchor[row, 1], anchor[row, 2] = _static_reference(positions, confidence, joint, medium)
-
-
 _SIGNATURE = (
     array(FLOAT, 4),  # positions
     array(UINT8, 3),  # confidence
     array(FLOAT, 3),  # previous
+    array(FLOAT, 3),  # cold_anchor
+    BOOL,  # use_cold_anchor
     array(INT32, 2),  # streak
     array(FLOAT, 2),  # sensor_positions
     array(INT, 1),  # left
@@ -165,6 +108,9 @@ _SIGNATURE = (
     FLOAT,  # rear_view_cos
     INT,  # medium
 )
+# The kernel's outputs: positions, confidence, mirrored, counters, and per body whether it needs a cold anchor and
+# whether its previous holds any pair.
+_OUTPUT = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
@@ -172,6 +118,8 @@ def realign_temporal(
     positions: np.ndarray,
     confidence: np.ndarray,
     previous: np.ndarray,
+    cold_anchor: np.ndarray,
+    use_cold_anchor: bool,
     streak: np.ndarray,
     sensor_positions: np.ndarray,
     left: np.ndarray,
@@ -186,13 +134,15 @@ def realign_temporal(
     max_jump_mm: float,
     rear_view_cos: float,
     medium: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> _OUTPUT:
     """Realign every body's views against its anchor; see :func:`skelfuse.fusion.realign.realign_temporal`.
 
     Parameters
     ----------
     positions : (B, S, J, 3) float64 mm, NaN = missing; confidence : (B, S, J) uint8; previous : (B, J, 3) float64
-    mm, the anchor; streak : (B, 4) int32 counters; sensor_positions : (S, 3) float64 mm (read only where
+    mm, the anchor; cold_anchor : (B, 2P, 3) float64 mm, read where ``use_cold_anchor``: the pairs of a body whose
+    previous lacks them (:func:`skelfuse.fusion.realign.cold_anchors`, which needs the has_prev this returns);
+    streak : (B, 4) int32 counters; sensor_positions : (S, 3) float64 mm (read only where
     ``rear_view_cos`` is not NaN); left, right : (P,) int64 pair joints; mirror : (J,) int64 the left/right
     permutation; centre : (4,) int64 shoulder L, R, hip L, R; the rules' options (majority_recovery_frames -1: off;
     max_jump_mm inf: off;
@@ -201,7 +151,8 @@ def realign_temporal(
     Returns
     -------
     positions (B, S, J, 3) float64 and confidence (B, S, J) uint8 with the mirrored views' labels exchanged,
-    mirrored (B, S) bool, the new counters (B, 4) int32.
+    mirrored (B, S) bool, the new counters (B, 4) int32; needs_cold (B,) bool, bodies left undecided for want of
+    a cold anchor (only without ``use_cold_anchor``), and has_prev (B,) bool, the previous holds one of its pairs.
     """
     B, S, J = positions.shape[0], positions.shape[1], positions.shape[2]
     P = left.shape[0]
@@ -209,6 +160,8 @@ def realign_temporal(
     out_confidence = confidence.copy()
     mirrored = np.zeros((B, S), dtype=np.bool_)
     counters = np.zeros((B, 4), dtype=np.int32)
+    needs_cold = np.zeros(B, dtype=np.bool_)
+    any_prev = np.zeros(B, dtype=np.bool_)
     anchor = np.empty((2 * P, 3))
     evidence = np.zeros(S)
     margin = np.zeros(S)
@@ -233,8 +186,15 @@ def realign_temporal(
             prev_ok[p] = anchor[p, 0] + anchor[P + p, 0] == anchor[p, 0] + anchor[P + p, 0] and not more_views
             has_prev |= prev_ok[p]
             all_prev = prev_ok[p] if p == 0 else all_prev and prev_ok[p]
-        if not all_prev and S > 0:
-            _cold_anchor(positions[b], confidence[b], evidence, anchor, prev_ok, has_prev, left, right, medium)
+        any_prev[b] = has_prev
+        if not all_prev and not use_cold_anchor and S > 0:  # a cold start (rare): the caller makes the anchor
+            needs_cold[b] = True
+            continue
+        if not all_prev:
+            for p in range(2 * P):
+                if not prev_ok[p % P]:
+                    for k in range(3):
+                        anchor[p, k] = cold_anchor[b, p, k]
             for s in range(S):
                 margin[s], decided[s], _ = _view_vote(positions[b, s], anchor, left, right)
         against = total = 0.0
@@ -275,7 +235,7 @@ def realign_temporal(
                     out_confidence[b, s, j] = confidence[b, s, mirror[j]]
                     for k in range(3):
                         out_positions[b, s, j, k] = positions[b, s, mirror[j], k]
-    return out_positions, out_confidence, mirrored, counters
+    return out_positions, out_confidence, mirrored, counters, needs_cold, any_prev
 
 
 def warm_up() -> None:
@@ -286,6 +246,8 @@ def warm_up() -> None:
         np.zeros((1, 1, 2, 3)),
         np.zeros((1, 1, 2), dtype=np.uint8),
         np.zeros((1, 2, 3)),
+        np.zeros((1, 2, 3)),
+        True,
         np.zeros((1, 4), dtype=np.int32),
         np.zeros((1, 3)),
         pairs,
