@@ -267,14 +267,20 @@ def merge_views(
     B, S, J = candidates.shape[0], candidates.shape[1], candidates.shape[2]
     positions = candidates.copy()
     out_confidence = confidence.copy()
+    check_joints = max_distance_mm < np.inf  # off: no distance to take
     for b in range(B):
         for s in range(S):
+            held_out = held[b, s] != PLAUSIBLE
+            if not held_out and not (check_joints and not restart[b]):
+                continue
             for j in range(J):
-                dx = candidates[b, s, j, 0] - predicted[b, j, 0]
-                dy = candidates[b, s, j, 1] - predicted[b, j, 1]
-                dz = candidates[b, s, j, 2] - predicted[b, j, 2]
-                too_far = math.sqrt(dx * dx + dy * dy + dz * dz) > max_distance_mm and not restart[b]  # NaN: False
-                if held[b, s] != PLAUSIBLE or too_far:
+                too_far = False
+                if not held_out:
+                    dx = candidates[b, s, j, 0] - predicted[b, j, 0]
+                    dy = candidates[b, s, j, 1] - predicted[b, j, 1]
+                    dz = candidates[b, s, j, 2] - predicted[b, j, 2]
+                    too_far = math.sqrt(dx * dx + dy * dy + dz * dz) > max_distance_mm  # NaN compares False
+                if held_out or too_far:
                     positions[b, s, j, 0] = positions[b, s, j, 1] = positions[b, s, j, 2] = np.nan
                     out_confidence[b, s, j] = 0
     return positions, out_confidence
