@@ -1,8 +1,9 @@
 """The temporal left/right realignment (:func:`skelfuse.fusion.realign.realign_temporal`) as one compiled call.
 
 Per body: the teleport rule, each view's left/right votes against the anchor (the previous pairs; on a cold start
-the seed view's or the static reference's), the recovery, credit and rear-view rules with their counters, and the
-mirrored views' labels exchanged. The same arithmetic as the numpy reference (:mod:`skelfuse.fusion.reference.
+the seed view's or the static reference's, which the caller makes in numpy and passes in on a second call: rare,
+and compiled it would lengthen every first start), the recovery, credit and rear-view rules with their counters,
+and the mirrored views' labels exchanged. The same arithmetic as the numpy reference (:mod:`skelfuse.fusion.reference.
 realign`) up to the order of its sums of three and of the pairs (last bits); the rules are documented in
 :mod:`skelfuse.fusion.realign`.
 """
