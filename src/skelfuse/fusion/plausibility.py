@@ -30,8 +30,8 @@ Hysteresis: a view that fails is held out at once; it is used again in its ``pla
 plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
 frames in a row, the track is what is wrong (real fast motion, a track started on a glitch): every view is
 released and the caller restarts the body's filter where the views are; at once when two or more views moved
-away from the track together (their torso offsets within half the gate of their mean). A body-id change at a
-sensor needs no rule here: association matches bodies to tracks by position, so a re-acquired body that fits the
+away from the track together (:func:`views_agree_elsewhere`). A body-id change at a sensor needs no rule
+here: association matches bodies to tracks by position, so a re-acquired body that fits the
 track is simply checked like any other view.
 
 Batched over bodies B, sensors S and joints J: :func:`plausibility_step` (checks, hysteresis, follow rule and the
@@ -87,6 +87,7 @@ BONE_LEARNING_RATE = 0.05
 """Weight of a frame in the learned bone lengths (about 20 frames of memory: follows the squat's shrinking)."""
 MIN_BONE_FRAMES = 10
 """Frames of learning before the bone check runs."""
+_NO_AGREEMENT = np.zeros(0, dtype=np.bool_)  # the kernel's agreement where none is known (it reads none)
 
 
 @dataclass(frozen=True)
@@ -167,6 +168,31 @@ def median_of_finite(values: np.ndarray, finite: np.ndarray) -> np.ndarray:
     low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[..., None], axis=-1)[..., 0]
     high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[..., None], axis=-1)[..., 0]
     return np.where(count > 0, 0.5 * (low + high), 1.0)
+
+
+def torso_offset(candidates: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(B, S, 3) mean offset of each view's torso joints from the prediction, mm (NaN: fewer than two in common).
+
+    Mirror-invariant: the torso joints hold both hips or neither."""
+    offset = candidates[:, :, TORSO_JOINTS] - predicted[:, None, TORSO_JOINTS]  # (B, S, T, 3)
+    common = np.isfinite(offset).all(axis=-1)
+    n_common = common.sum(axis=-1)
+    mean_offset = np.where(common[..., None], offset, 0.0).sum(axis=-2) / np.maximum(n_common, 1)[..., None]
+    return np.where((n_common >= 2)[..., None], mean_offset, np.nan)
+
+
+def views_agree_elsewhere(
+    candidates: np.ndarray, predicted: np.ndarray, present: np.ndarray, failed: np.ndarray, p: PlausibilityParams
+) -> np.ndarray:
+    """(B,) two or more views, every present one, moved away from the track together (their torso offsets within
+    half the gate of their mean): the person is where they say (a track on the wrong place, a take's seam),
+    so the track follows them at once instead of after ``follow_frames``."""
+    offset = torso_offset(candidates, predicted)  # (B, S, 3)
+    moved = present & (failed == TELEPORT) & np.isfinite(offset).all(axis=-1)
+    n_moved = moved.sum(axis=-1)
+    mean = np.where(moved[..., None], offset, 0.0).sum(axis=1) / np.maximum(n_moved, 1)[:, None]
+    spread = np.where(moved, np.linalg.norm(offset - mean[:, None], axis=-1), 0.0).max(axis=-1, initial=0.0)
+    return (n_moved >= 2) & (n_moved == present.sum(axis=-1)) & (spread < 0.5 * p.gate_mm)
 
 
 def check_views(
@@ -250,7 +276,7 @@ def _step_kernel(
     B, S = candidates.shape[:2]
     if candidates.shape[2:] != (N_JOINTS, 3):
         raise ValueError(f"plausibility needs candidates (B, S, {N_JOINTS}, 3), got {candidates.shape}")
-    return kernels.load().plausibility.plausibility_step(
+    arguments = (
         candidates,
         kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
         kernels.kernel_array(predicted, np.float64, (B, N_JOINTS, 3), "predicted"),
@@ -269,6 +295,12 @@ def _step_kernel(
         int(p.release_frames),
         int(p.follow_frames),
     )
+    kernel = kernels.load().plausibility.plausibility_step
+    out = kernel(*arguments, _NO_AGREEMENT, False)
+    if out[9].any():  # every view of a body failed (rare): did they move away together? Then the whole call again
+        present = np.isfinite(arguments[0][..., TORSO_JOINTS, 0]).any(axis=-1)
+        out = kernel(*arguments, views_agree_elsewhere(candidates, arguments[2], present, out[1], p), True)
+    return out[:9]
 
 
 def merge_views(

@@ -100,35 +100,6 @@ def _view_reason(
     return PLAUSIBLE
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _views_agree_elsewhere(
-    views: np.ndarray, predicted: np.ndarray, torso: np.ndarray, present: np.ndarray, failed: np.ndarray, gate_mm: float
-) -> bool:
-    """Two or more views, every present one, failed as a teleport with torso offsets within half the gate of their
-    mean: the person is where they say."""
-    S = views.shape[0]
-    offsets = np.empty((S, 3))
-    n_moved = n_present = 0
-    mx = my = mz = 0.0
-    for s in range(S):
-        n_present += present[s]
-        offsets[s, 0], offsets[s, 1], offsets[s, 2] = _torso_offset(views[s], predicted, torso)
-        if present[s] and failed[s] == TELEPORT and math.isfinite(offsets[s, 0] + offsets[s, 1] + offsets[s, 2]):
-            n_moved += 1
-            mx += offsets[s, 0]
-            my += offsets[s, 1]
-            mz += offsets[s, 2]
-    if n_moved < 2 or n_moved != n_present:
-        return False
-    mx, my, mz = mx / n_moved, my / n_moved, mz / n_moved
-    spread = 0.0
-    for s in range(S):  # every present view moved, so each present view is one of them
-        if present[s]:
-            dx, dy, dz = offsets[s, 0] - mx, offsets[s, 1] - my, offsets[s, 2] - mz
-            spread = max(spread, math.sqrt(dx * dx + dy * dy + dz * dz))
-    return spread < 0.5 * gate_mm
-
-
 _SIGNATURE = (
     array(FLOAT, 4),  # candidates
     array(UINT8, 3),  # confidence
@@ -147,6 +118,8 @@ _SIGNATURE = (
     FLOAT,  # log_bone_ratio
     INT,  # release_frames
     INT,  # follow_frames
+    array(BOOL, 1),  # agree_elsewhere
+    BOOL,  # agreement_known
 )
 
 
@@ -169,7 +142,9 @@ def plausibility_step(
     log_bone_ratio: float,
     release_frames: int,
     follow_frames: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    agree_elsewhere: np.ndarray,
+    agreement_known: bool,
+) -> tuple[np.ndarray, ...]:
     """Check every view, apply the hysteresis and the follow rule, and blank the views the realignment must not see.
 
     Parameters
@@ -178,14 +153,17 @@ def plausibility_step(
     release : (B, S) uint8 / int32 and follow : (B,) int32, the hysteresis state; learned_bones : (B, NB) float64
     mm; bones_ready : (B,) bool; torso : (T,) int64 joint indices; bones : (NB, 2) int64 joint pairs (parent,
     child); neck, pelvis : joint indices; gate_mm, up_cos : thresholds; log_bone_ratio : log1p(bone_ratio);
-    release_frames, follow_frames : the hysteresis.
+    release_frames, follow_frames : the hysteresis; agree_elsewhere : (B,) bool, read where ``agreement_known``:
+    the body's present views moved away from the track together (every view of a body failed; the caller tests
+    that in numpy when this call asks for it, and calls again).
 
     Returns
     -------
     reasons (B, S) uint8, every view's reason to fail this frame (absent views too); failed (B, S) uint8, the
     present views' reasons; held_out (B, S) uint8, the reason each present view is held out; restart (B,) bool;
     the new held (B, S) uint8, release (B, S) int32 and follow (B,) int32; the realignment's views (B, S, J, 3)
-    float64 and their confidence (B, S, J) uint8.
+    float64 and their confidence (B, S, J) uint8; needs_agreement (B,) bool, every present view failed and
+    ``agreement_known`` is off.
     """
     B, S = candidates.shape[0], candidates.shape[1]
     thresholds = (gate_mm, up_cos, log_bone_ratio)
@@ -193,6 +171,7 @@ def plausibility_step(
     failed_out = np.zeros((B, S), dtype=np.uint8)
     held_out = np.zeros((B, S), dtype=np.uint8)
     restart = np.zeros(B, dtype=np.bool_)
+    needs_agreement = np.zeros(B, dtype=np.bool_)
     new_held = np.zeros((B, S), dtype=np.uint8)
     new_release = np.zeros((B, S), dtype=np.int32)
     new_follow = np.zeros(B, dtype=np.int32)
@@ -218,9 +197,8 @@ def plausibility_step(
             any_passed |= present[s] and failed[s] == PLAUSIBLE
         all_failed = any_present and not any_passed
         new_follow[b] = follow[b] + 1 if all_failed else 0
-        restart[b] = new_follow[b] >= follow_frames or (
-            all_failed and _views_agree_elsewhere(candidates[b], predicted[b], torso, present, failed, gate_mm)
-        )
+        needs_agreement[b] = all_failed and not agreement_known
+        restart[b] = new_follow[b] >= follow_frames or (all_failed and agreement_known and agree_elsewhere[b])
         for s in range(S):
             passing = held[b, s] > 0 and present[s] and failed[s] == PLAUSIBLE
             count = release[b, s] + 1 if passing else 0
@@ -240,7 +218,18 @@ def plausibility_step(
                     views_confidence[b, s, j] = 0
         if restart[b]:
             new_follow[b] = 0
-    return reasons, failed_out, held_out, restart, new_held, new_release, new_follow, views, views_confidence
+    return (
+        reasons,
+        failed_out,
+        held_out,
+        restart,
+        new_held,
+        new_release,
+        new_follow,
+        views,
+        views_confidence,
+        needs_agreement,
+    )
 
 
 _MERGE_VIEWS_SIGNATURE = (
@@ -354,6 +343,8 @@ def warm_up() -> None:
         0.2,
         3,
         8,
+        np.zeros(1, dtype=np.bool_),
+        True,
     )
     merge_views(
         candidates,

@@ -23,6 +23,8 @@ from skelfuse.fusion.plausibility import (
     PlausibilityState,
     bone_lengths,
     median_of_finite,
+    torso_offset,
+    views_agree_elsewhere,
 )
 from skelfuse.schema.skeleton import J
 
@@ -75,17 +77,6 @@ def check_views(
     return np.where(upside_down, UPSIDE_DOWN, reason).astype(np.uint8)
 
 
-def torso_offset(candidates: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-    """(B, S, 3) mean offset of each view's torso joints from the prediction, mm (NaN: fewer than two in common).
-
-    Mirror-invariant: the torso joints hold both hips or neither."""
-    offset = candidates[:, :, TORSO_JOINTS] - predicted[:, None, TORSO_JOINTS]  # (B, S, T, 3)
-    common = np.isfinite(offset).all(axis=-1)
-    n_common = common.sum(axis=-1)
-    mean_offset = np.where(common[..., None], offset, 0.0).sum(axis=-2) / np.maximum(n_common, 1)[..., None]
-    return np.where((n_common >= 2)[..., None], mean_offset, np.nan)
-
-
 def plausibility_step(
     candidates: np.ndarray,
     confidence: np.ndarray,
@@ -122,20 +113,6 @@ def plausibility_step(
         held=held_out, failed=failed, restart=restart, views=views, views_confidence=views_confidence
     )
     return result, new_state
-
-
-def views_agree_elsewhere(
-    candidates: np.ndarray, predicted: np.ndarray, present: np.ndarray, failed: np.ndarray, p: PlausibilityParams
-) -> np.ndarray:
-    """(B,) two or more views, every present one, moved away from the track together (their torso offsets within
-    half the gate of their mean): the person is where they say (a track on the wrong place, a take's seam),
-    so the track follows them at once instead of after ``follow_frames``."""
-    offset = torso_offset(candidates, predicted)  # (B, S, 3)
-    moved = present & (failed == TELEPORT) & np.isfinite(offset).all(axis=-1)
-    n_moved = moved.sum(axis=-1)
-    mean = np.where(moved[..., None], offset, 0.0).sum(axis=1) / np.maximum(n_moved, 1)[:, None]
-    spread = np.where(moved, np.linalg.norm(offset - mean[:, None], axis=-1), 0.0).max(axis=-1, initial=0.0)
-    return (n_moved >= 2) & (n_moved == present.sum(axis=-1)) & (spread < 0.5 * p.gate_mm)
 
 
 def realignment_views(
