@@ -1,11 +1,11 @@
 """Compiled kernels of the per-instant path (numba), loaded on first use.
 
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
-per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
-(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
-realignment's votes (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the orientation stage
-(:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`) and the position
-uncertainty (:mod:`.uncertainty`), and the rig's stacking of an instant's bodies in the world frame
+per instant) run as plain loops compiled by numba: the candidate selection and the DBSCAN merge (:mod:`.merge`),
+the per-joint filters and their one-step prediction (:mod:`.filters`), the plausibility stage (:mod:`.plausibility`),
+the temporal left/right realignment (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the
+orientation stage (:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`),
+the position uncertainty (:mod:`.uncertainty`) and the rig's stacking of an instant's bodies in the world frame
 (:mod:`.stacking`). Their numpy
 forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 

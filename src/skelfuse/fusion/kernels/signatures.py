@@ -21,3 +21,7 @@ UINT8 = numba.uint8
 def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:
     """A C-contiguous array argument of ``ndim`` dimensions; read-only unless ``writable`` (the kernel writes it)."""
     return types.Array(dtype, ndim, "C", readonly=not writable)
+
+
+UINT8 = numba.uint8
+INT16 = numba.int16
