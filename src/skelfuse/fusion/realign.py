@@ -90,9 +90,10 @@ Two modes:
     Rear views (``sensor_positions`` and ``rear_view_cos``, off unless given)
         A tracker that sees a person from behind and mirrors the skeleton assumes it sees the front: the
         mirrored skeleton faces ITS OWN sensor. A view whose skeleton, as labelled, faces AWAY from its
-        sensor (:func:`facing_cosine` below ``rear_view_cos``: the facing, ``left x up`` from hips and
-        shoulders, against the horizontal direction from the body to the sensor's calibrated position) is
-        therefore a rear view that is not mirrored at that instant, and its left/right is right. A view facing
+        sensor (the cosine of :func:`skelfuse.fusion.reference.realign.facing_cosine` below ``rear_view_cos``:
+        the facing, ``left x up`` from hips and shoulders, against the horizontal direction from the body to the
+        sensor's calibrated position) is therefore a rear view that is not mirrored at that instant, and its
+        left/right is right. A view facing
         its sensor is ambiguous (a front view, or a mirrored rear one); a side view is weak either way and
         stays under the threshold. So: on a cold start the group holding more such views wins (the MEDIUM
         evidence decides only where they tie, e.g. none); a warm anchor that more of them disagree with than
