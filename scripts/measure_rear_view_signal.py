@@ -5,8 +5,8 @@ the left/right of a view whose skeleton faces away from its sensor. This script 
 
 - simulator: per (frame, view) of simulated takes (the robustness matrix's gestures and facings, the paper's ring
   of 2/3/4 sensors, seeds 0-19 by default: below the matrix's held-out seeds), the cosine between the view's own
-  facing and the direction to its sensor (:func:`skelfuse.fusion.realign.facing_cosine`), against the simulator's
-  truth of which views are mirrored; per failure family given on the command line;
+  facing and the direction to its sensor (:func:`skelfuse.fusion.reference.realign.facing_cosine`), against the
+  simulator's truth of which views are mirrored; per failure family given on the command line;
 - real data (../shared/data/azure-kinect-andyj1, where present): the same cosine for every view whose sensor
   position is known (each camera's own frame: the 2-camera take's two files and the 3-camera take's master), and
   for the 3-camera take's subordinates (already in the master frame, positions unknown) the angle between their
@@ -31,7 +31,7 @@ import numpy as np
 from skelfuse.cli.common import print_json
 from skelfuse.cli.stamp import RunStamp
 from skelfuse.fusion.depth.frontal import body_facing
-from skelfuse.fusion.realign import facing_cosine
+from skelfuse.fusion.reference.realign import facing_cosine
 from skelfuse.sim.failures import family_profile
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import facing_away_deg, load_profile, simulate

@@ -56,14 +56,19 @@ def test_the_numpy_references_replace_every_compiled_stage(monkeypatch: pytest.M
     assert {name for _, name in LIVE_STAGES} == {
         "merge_dbscan",
         "filter_step",
-        "check_views",
-        "pair_votes",
+        "select_candidates",
+        "predicted_positions",
+        "plausibility_step",
+        "merge_views",
+        "learn_bones",
+        "realign_temporal",
         "seen_motion",
         "fuse_orientations",
         "assign_to_tracks",
         "match_tracks",
         "person_descriptors",
         "position_uncertainty",
+        "stack_views_to_world",
     }
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -146,6 +147,70 @@ def test_plausibility_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensor
     assert got.dtype == want.dtype == np.uint8
 
 
+def _plausibility_frame(rng: np.random.Generator, bodies: np.ndarray, n_sensors: int, missing_joints: float):
+    """Views of the bodies: some teleported (by one offset shared by the body's views, or each its own), upside
+    down, of another size or absent; NaN joints."""
+    predicted = bodies + rng.normal(0.0, 5.0, (len(bodies), 1, 3))
+    views = predicted[:, None] + rng.normal(0.0, 20.0, (len(bodies), n_sensors, N_JOINTS, 3))
+    kind = rng.integers(0, 6, (len(bodies), n_sensors))
+    views[kind == 1] += rng.normal(0.0, 300.0, 3)  # teleported, every such view alike: they agree elsewhere
+    views[kind == 5] += rng.normal(0.0, 300.0, ((kind == 5).sum(), 1, 3))  # teleported, each its own way
+    views[kind == 2] *= (1.0, 1.0, -1.0)  # upside down
+    views[kind == 3] *= 1.4  # another body size
+    views[kind == 4] = np.nan  # the view does not see the body
+    views[rng.random(views.shape[:3]) < missing_joints] = np.nan
+    confidence = rng.integers(0, 4, views.shape[:3]).astype(np.uint8)
+    return predicted, views, confidence
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_bodies=st.integers(0, 3),
+    n_sensors=st.integers(1, 5),
+    missing_joints=st.sampled_from([0.0, 0.2, 0.7]),
+    joint_speed=st.sampled_from([np.inf, 3000.0]),
+)
+def test_plausibility_stage_kernels_equal_the_numpy_reference_over_a_sequence(
+    seed, n_bodies, n_sensors, missing_joints, joint_speed
+):
+    rng = np.random.default_rng(seed)
+    params = PlausibilityParams(
+        gate_mm=250.0, up_cos=0.0, bone_ratio=0.25, joint_speed_mm_s=joint_speed, release_frames=2, follow_frames=3
+    )
+    bodies = np.array([_standing_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
+    got = replace(
+        plausibility.init_plausibility_state(n_bodies, n_sensors),
+        bones=plausibility.bone_lengths(bodies),
+        bone_frames=rng.integers(0, 12, n_bodies).astype(np.int32),  # some ready to judge the size
+    )
+    want = got
+    for _ in range(6):  # the hysteresis, the follow rule and the bone learning carry over
+        predicted, views, confidence = _plausibility_frame(rng, bodies, n_sensors, missing_joints)
+        result, got = plausibility.plausibility_step(views, confidence, predicted, got, params)
+        expected, want = plausibility_reference.plausibility_step(views, confidence, predicted, want, params)
+        for field in ("held", "failed", "restart", "views", "views_confidence"):
+            np.testing.assert_array_equal(getattr(result, field), getattr(expected, field), err_msg=field)
+            assert getattr(result, field).dtype == getattr(expected, field).dtype, field
+        for field in ("held", "release", "follow"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+            assert getattr(got, field).dtype == getattr(want, field).dtype, field
+        merged = plausibility.merge_views(views, confidence, result, predicted, params, 1 / 30)
+        merged_reference = plausibility_reference.merge_views(views, confidence, expected, predicted, params, 1 / 30)
+        np.testing.assert_array_equal(merged[0], merged_reference[0])
+        np.testing.assert_array_equal(merged[1], merged_reference[1])
+        fused = predicted + rng.normal(0.0, 5.0, predicted.shape)
+        n_agree = rng.integers(0, 3, fused.shape[:2]).astype(np.int16)
+        n_agree[rng.random(n_bodies) < 0.3] = 0  # a body nothing was merged for: learns nothing
+        got, want = (
+            plausibility.learn_bones(got, fused, n_agree),
+            plausibility_reference.learn_bones(want, fused, n_agree),
+        )
+        np.testing.assert_allclose(got.bones, want.bones, rtol=1e-12, atol=ATOL)
+        np.testing.assert_array_equal(got.bone_frames, want.bone_frames)
+        assert got.bone_frames.dtype == want.bone_frames.dtype == np.int32
+
+
 def test_the_kernels_reasons_are_the_stages():
     kernel = plausibility_kernel
     assert (kernel.PLAUSIBLE, kernel.TELEPORT, kernel.UPSIDE_DOWN, kernel.BONES) == (
@@ -184,29 +249,70 @@ def test_numba_loads_with_the_first_fusion_not_with_the_modules():
     assert done.stdout.split() == ["False", "True"]
 
 
-@settings(max_examples=120, deadline=None)
+def _sided_body(rng: np.random.Generator) -> np.ndarray:
+    """(J, 3) a random body whose left joints lie 150 mm to one side and right joints to the other, mm."""
+    body = rng.normal(0.0, 40.0, (N_JOINTS, 3))
+    body[realign.PAPER_REALIGN_PAIRS[:, 0], 0] -= 150.0
+    body[realign.PAPER_REALIGN_PAIRS[:, 1], 0] += 150.0
+    return body
+
+
+@settings(max_examples=150, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
     n_bodies=st.integers(0, 3),
     n_sensors=st.integers(1, 6),
     missing_joints=st.sampled_from([0.0, 0.3, 0.9]),
-    missing_anchor=st.sampled_from([0.0, 0.3, 1.0]),
+    anchor=st.sampled_from(["kept", "mirrored", "partial", "none", "jumped"]),
+    rules=st.fixed_dictionaries(
+        {
+            "recovery_frames": st.sampled_from([1, 3, 10]),
+            "recovery_share": st.sampled_from([0.6, 0.75]),
+            "majority_recovery_frames": st.sampled_from([None, 4]),
+            "max_jump_mm": st.sampled_from([None, 200.0]),
+            "rear_view_cos": st.sampled_from([None, -0.7, 0.3]),
+            "rear_view_frames": st.sampled_from([1, 3]),
+            "credit_frames": st.sampled_from([0, 5]),
+        }
+    ),
 )
-def test_realign_votes_kernel_equals_the_numpy_reference(seed, n_bodies, n_sensors, missing_joints, missing_anchor):
+def test_temporal_realignment_kernel_equals_the_numpy_reference(
+    seed, n_bodies, n_sensors, missing_joints, anchor, rules
+):
     rng = np.random.default_rng(seed)
-    bodies = np.array([_standing_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
+    bodies = np.array([_sided_body(rng) for _ in range(n_bodies)]).reshape(n_bodies, N_JOINTS, 3)
     views = bodies[:, None] + rng.normal(0.0, 30.0, (n_bodies, n_sensors, N_JOINTS, 3))
     mirrored = rng.random((n_bodies, n_sensors)) < 0.4
     views[mirrored] = views[mirrored][:, MIRROR]  # left/right labels swapped
     views[rng.random(views.shape[:3]) < missing_joints] = np.nan
-    anchor = bodies[:, realign.PAPER_REALIGN_PAIRS.T.ravel()] + rng.normal(0.0, 10.0, (n_bodies, 1, 3))
-    anchor[rng.random(anchor.shape[:2]) < missing_anchor] = np.nan
-    got = realign.pair_votes(views, anchor)
-    want = realign_reference.pair_votes(views, anchor)
-    np.testing.assert_allclose(got[0], want[0], rtol=1e-12, atol=ATOL)  # margin
-    np.testing.assert_array_equal(got[1], want[1])  # decided
-    np.testing.assert_array_equal(got[2], want[2])  # views that see a pair
-    np.testing.assert_array_equal(got[0] < 0.0, want[0] < 0.0)  # the flip decisions
+    views[rng.random((n_bodies, n_sensors)) < 0.15] = np.nan  # a view without the body
+    confidence = rng.integers(0, 4, views.shape[:3]).astype(np.uint8)
+    previous = bodies + rng.normal(0.0, 10.0, (n_bodies, 1, 3))
+    if anchor == "mirrored":
+        previous = previous[:, MIRROR]
+    elif anchor == "partial":
+        previous[rng.random(previous.shape[:2]) < 0.4] = np.nan
+    elif anchor == "none":
+        previous[:] = np.nan
+    elif anchor == "jumped":
+        previous += 500.0
+    streak = np.stack(
+        [
+            rng.integers(-5, 12, n_bodies),
+            rng.integers(0, 6, n_bodies),
+            rng.integers(0, n_sensors + 2, n_bodies),
+            rng.integers(0, 4, n_bodies),
+        ],
+        axis=1,
+    ).astype(np.int32)
+    sensors = rng.normal(0.0, 2500.0, (n_sensors, 3))
+    got = realign.realign_temporal(views, confidence, previous, streak, sensor_positions=sensors, **rules)
+    want = realign_reference.realign_temporal(views, confidence, previous, streak, sensor_positions=sensors, **rules)
+    np.testing.assert_array_equal(got[2], want[2])  # mirrored
+    np.testing.assert_array_equal(got[3], want[3])  # counters
+    np.testing.assert_array_equal(got[0], want[0])  # the views, labels exchanged
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[3].dtype == want[3].dtype == np.int32 and got[2].dtype == want[2].dtype
 
 
 @settings(max_examples=100, deadline=None)

@@ -14,7 +14,8 @@ from skelfuse.bench.reference import ReferenceFuser
 from skelfuse.eval import robustness
 from skelfuse.fusion import Fuser, preset
 from skelfuse.fusion.depth.frontal import body_facing
-from skelfuse.fusion.realign import facing_cosine, realign_temporal, teleported
+from skelfuse.fusion.realign import realign_temporal
+from skelfuse.fusion.reference.realign import facing_cosine, teleported
 from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 from skelfuse.sim.gestures import make_gesture
 from skelfuse.sim.observe import load_profile, simulate

@@ -205,3 +205,25 @@ def test_group_fuser_publishes_orientations_the_example_decodes():
     assert (frame.position_std[np.isfinite(frame.positions).all(axis=-1)] > 0).all()
     decoded = _example().decode_fused(codec.encode_fused_frame(frame))
     np.testing.assert_array_equal(np.array(decoded["persons"][0]["orientations"]), frame.orientations[0])
+
+
+@pytest.mark.parametrize(
+    ("quat", "refused"),
+    [
+        ([1.0, 0.0, 0.0, 0.0], None),
+        ([2.0, 0.0, 0.0, 0.0], "norm is not 1"),
+        ([1.0, 0.0, 0.0, 0.05], "norm is not 1"),  # norm 1.00125
+        ([np.inf, 0.0, 0.0, 0.0], "Inf"),
+    ],
+)
+def test_a_frame_with_every_orientation_known_is_checked_as_strictly(quat, refused):
+    """No unknown joint: the encoder's shorter path for fully known orientations refuses what the full rule does."""
+    frame = frame_with_sections(2)
+    frame.orientations[0, 9] = [0.0, 1.0, 0.0, 0.0]  # every joint known
+    frame.orientations[1, 4] = quat
+    if refused is None:
+        back = codec.decode_fused_frame(codec.encode_fused_frame(frame))
+        np.testing.assert_array_equal(back.orientations, frame.orientations)
+    else:
+        with pytest.raises(ValueError, match=refused):
+            codec.encode_fused_frame(frame)

@@ -209,12 +209,13 @@ class PeopleFuser:
         state = table.fusion if every else take_state(table.fusion, out_idx)
         orientations = None
         if world_orientations is not None and self.params.orientations:
-            orientations = gather_orientations(
-                world_orientations, association.person_of_body, rows, association.n_persons
-            )
+            orientations = gather_orientations(world_orientations, assignment, P)
+        # The rows are sorted and distinct: as many as the association's rows means all of them, in order
+        # (the usual frame), and the candidates need no copy.
+        whole = rows.size == association.n_persons
         result, new_state = fuse(
-            association.candidates[rows],
-            association.confidence[rows],
+            association.candidates if whole else association.candidates[rows],
+            association.confidence if whole else association.confidence[rows],
             state,
             self.params,
             dt_s,
@@ -248,24 +249,17 @@ class PeopleFuser:
         return init_state(n_tracks, self.params)
 
 
-def gather_orientations(
-    orientations: np.ndarray, person_of_body: np.ndarray, rows: np.ndarray, n_persons: int
-) -> np.ndarray:
-    """(S, B, J, 4) per-body quaternions -> (P, S, J, 4) for the person rows ``rows`` of the ``n_persons``
-    association rows (NaN: not seen), the same gather as
+def gather_orientations(orientations: np.ndarray, assignment: np.ndarray, n_rows: int) -> np.ndarray:
+    """(S, B, J, 4) per-body quaternions -> (n_rows, S, J, 4) by each body's output row ``assignment`` ((S, B),
+    -1: none; NaN where a sensor does not see the row), the same gather as
     :func:`~skelfuse.fusion.association.gather_candidates` does for positions."""
     orientations = np.asarray(orientations, dtype=np.float64)
-    if orientations.shape[:2] != person_of_body.shape or orientations.shape[2:] != (N_JOINTS, 4):
+    if orientations.shape[:2] != assignment.shape or orientations.shape[2:] != (N_JOINTS, 4):
         raise ValueError(
-            f"world_orientations must have shape {(*person_of_body.shape, N_JOINTS, 4)} (S, B, J, 4), "
+            f"world_orientations must have shape {(*assignment.shape, N_JOINTS, 4)} (S, B, J, 4), "
             f"got {orientations.shape}"
         )
-    S = person_of_body.shape[0]
-    out_row = np.full(int(n_persons) + 1, -1, dtype=np.int64)  # a coasting track's row may exceed every body's
-    out_row[rows] = np.arange(rows.size)
-    out = np.full((rows.size, S, N_JOINTS, 4), np.nan)
-    sensor_idx, body_idx = np.nonzero(person_of_body >= 0)
-    target = out_row[person_of_body[sensor_idx, body_idx]]
-    keep = target >= 0
-    out[target[keep], sensor_idx[keep]] = orientations[sensor_idx[keep], body_idx[keep]]
+    out = np.full((int(n_rows), assignment.shape[0], N_JOINTS, 4), np.nan)
+    sensor_idx, body_idx = np.nonzero(assignment >= 0)
+    out[assignment[sensor_idx, body_idx], sensor_idx] = orientations[sensor_idx, body_idx]
     return out

@@ -42,6 +42,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from skelfuse.fusion import kernels
 from skelfuse.fusion.filters import filter_step, init_filter_state
 from skelfuse.fusion.merge import MergeResult, merge_average, merge_dbscan
 from skelfuse.fusion.orientation import OrientationParams, fuse_orientations, init_orientation_state
@@ -50,19 +51,15 @@ from skelfuse.fusion.plausibility import (
     PlausibilityParams,
     PlausibilityResult,
     PlausibilityState,
-    drop_far_joints,
     init_plausibility_state,
     learn_bones,
+    merge_views,
     plausibility_step,
-    realignment_views,
-    remove_held,
 )
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.realign import realign_body, realign_paper, realign_temporal, reference_positions
 from skelfuse.fusion.uncertainty import position_uncertainty
 from skelfuse.schema.skeleton import N_JOINTS
-
-_ONES3 = np.ones(3)
 
 
 @dataclass(frozen=True)
@@ -181,12 +178,13 @@ def select_candidates(
     """Mark unusable candidates missing: non-finite, or confidence below ``min_confidence``.
 
     A candidate whose coordinates are so large that their sum overflows (beyond about 1e307 mm) counts as
-    non-finite too: one sum and one test per candidate instead of three tests and a reduction.
+    non-finite too: one sum and one test per candidate. One compiled call (:mod:`skelfuse.fusion.kernels.merge`);
+    the numpy form is the test reference (:mod:`skelfuse.fusion.reference.pipeline`).
 
     Parameters
     ----------
     candidates : (B, S, J, 3) float, mm.
-    confidence : (B, S, J) int.
+    confidence : (B, S, J) int (0-255).
     min_confidence : int or None (None keeps every finite candidate).
 
     Returns
@@ -194,14 +192,24 @@ def select_candidates(
     positions : (B, S, J, 3) float64, mm, all three coordinates NaN where missing.
     confidence : (B, S, J) uint8, 0 where missing.
     """
-    positions = np.asarray(candidates, dtype=np.float64)
-    # The sum of the three coordinates is finite exactly when all three are (inf - inf is NaN); mm-sized
-    # values cannot overflow.
-    valid = np.isfinite(positions @ _ONES3)
-    if min_confidence is not None:
-        valid &= confidence >= min_confidence
-    conf = confidence * valid
-    return np.where(valid[..., None], positions, np.nan), conf if conf.dtype == np.uint8 else conf.astype(np.uint8)
+    positions = np.ascontiguousarray(candidates, dtype=np.float64)
+    if positions.ndim != 4 or positions.shape[3] != 3:
+        raise ValueError(f"candidates must have shape (B, S, J, 3), got {positions.shape}")
+    conf = kernels.kernel_array(confidence, np.uint8, positions.shape[:3], "confidence")
+    return kernels.load().merge.select_candidates(positions, conf, 0 if min_confidence is None else int(min_confidence))
+
+
+def predicted_positions(state: FusionState, dt_s: float) -> np.ndarray:
+    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track).
+
+    One compiled call (:mod:`skelfuse.fusion.kernels.filters`); the numpy form is the test reference."""
+    B = state.n_bodies
+    return kernels.load().filters.predict(
+        kernels.kernel_array(state.x, np.float64, (B, N_JOINTS, 2, 3), "x"),
+        kernels.kernel_array(state.coast, np.int32, (B, N_JOINTS), "coast"),
+        kernels.kernel_array(state.previous, np.float64, (B, N_JOINTS, 3), "previous"),
+        float(dt_s),
+    )
 
 
 def fuse(
@@ -250,14 +258,15 @@ def fuse(
     B, _, J, _ = candidates.shape
 
     positions, conf = select_candidates(candidates, confidence, params.min_confidence)
-    previous = _previous_candidate(state, params, dt_s)
-    held_out = plausibility = restarted = predicted = None
+    held_out = plausibility = restarted = predicted = verdict = None
+    if params.plausibility_gate_mm is not None or _anchored_on_prediction(params):
+        predicted = predicted_positions(state, dt_s)
+    previous = predicted if predicted is not None and _anchored_on_prediction(params) else state.previous
     state_coast, flip_counters = state.coast, state.flip_counters
-    if params.plausibility_gate_mm is not None:
-        predicted = _predicted(state, dt_s)
-        verdict, plausibility = _plausibility(positions, predicted, state, params)
+    if predicted is not None and params.plausibility_gate_mm is not None:
+        verdict, plausibility = _plausibility(positions, conf, predicted, state, params)
         held_out, restarted = verdict.held, verdict.restart
-        positions, conf = realignment_views(positions, conf, held_out)
+        positions, conf = verdict.views, verdict.views_confidence
         if restarted.any():  # the track follows the views: filter, trick 2 and the realignment start over there
             state_coast = np.where(restarted[:, None], -1, state.coast)
             previous = np.where(restarted[:, None, None], np.nan, previous)
@@ -266,11 +275,8 @@ def fuse(
     positions, conf, reference, streak, flipped = _realign(
         positions, conf, params, previous, flip_counters, dt_s, sensor_positions
     )
-    if predicted is not None and restarted is not None and held_out is not None:
-        positions, conf = remove_held(positions, conf, held_out)
-        if params.plausibility_joint_speed_mm_s is not None:
-            plausible = _plausibility_params(params)
-            positions, conf = drop_far_joints(positions, conf, predicted, restarted, plausible, dt_s)
+    if predicted is not None and verdict is not None:
+        positions, conf = merge_views(positions, conf, verdict, predicted, _plausibility_params(params), dt_s)
         reference = None  # recomputed from what is left where the merge needs one
     merged = _merge(positions, conf, reference, previous, params)
     if plausibility is not None:
@@ -358,14 +364,8 @@ def _position_uncertainty(
     )
 
 
-def _predicted(state: FusionState, dt_s: float) -> np.ndarray:
-    """(B, J, 3) the track's one-step prediction ``x + v dt`` (the last merged position without a filter track)."""
-    x = state.x
-    return np.where((state.coast >= 0)[..., None], x[:, :, 0] + dt_s * x[:, :, 1], state.previous)
-
-
 def _plausibility(
-    positions: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
+    positions: np.ndarray, conf: np.ndarray, predicted: np.ndarray, state: FusionState, params: FusionParams
 ) -> tuple[PlausibilityResult, PlausibilityState]:
     """The plausibility stage's view checks, before the realignment, against the track's prediction."""
     B, S = positions.shape[:2]
@@ -382,10 +382,12 @@ def _plausibility(
         previous = init_plausibility_state(B, S)
     else:
         previous = PlausibilityState(held=held, release=release, follow=follow, bones=bones, bone_frames=bone_frames)
-    return plausibility_step(positions, predicted, previous, _plausibility_params(params))
+    return plausibility_step(positions, conf, predicted, previous, _plausibility_params(params))
 
 
+@lru_cache(maxsize=16)
 def _plausibility_params(params: FusionParams) -> PlausibilityParams:
+    """The plausibility stage's options from FusionParams' (made once per parameter set, not per frame)."""
     return PlausibilityParams(
         gate_mm=float(params.plausibility_gate_mm or 0.0),
         up_cos=params.plausibility_up_cos,
@@ -450,13 +452,9 @@ def _orientation_params(agree_deg: float, alpha: float, beta: float) -> Orientat
     return OrientationParams(agree_deg=agree_deg, alpha=alpha, beta=beta)
 
 
-def _previous_candidate(state: FusionState, params: FusionParams, dt_s: float) -> np.ndarray:
-    """Trick 2's candidate and the temporal anchor: last merged positions, or the filter's prediction."""
-    if params.previous_candidate == "merged" or params.filter not in ("cv_kalman", "alpha_beta"):
-        return state.previous
-    x = state.x
-    predicted = x[:, :, 0] + dt_s * x[:, :, 1]  # x~ = x + v dt
-    return np.where((state.coast >= 0)[..., None], predicted, state.previous)
+def _anchored_on_prediction(params: FusionParams) -> bool:
+    """Trick 2's candidate and the temporal anchor are the filter's prediction (else the last merged positions)."""
+    return params.previous_candidate == "predicted" and params.filter in ("cv_kalman", "alpha_beta")
 
 
 def _realign(

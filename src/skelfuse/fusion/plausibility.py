@@ -18,24 +18,26 @@ track already knows, and holds out the views that fail:
   size is not this person);
 * optionally (``plausibility_joint_speed_mm_s``, off by default), a single joint: a candidate farther from its
   own prediction than that speed times dt plus the gate is dropped alone (the view stays in;
-  :func:`drop_far_joints`, run after the left/right realignment).
+  :func:`merge_views`, run after the left/right realignment).
 
 The view checks are mirror-invariant (torso mean, pelvis-to-neck direction, median bone ratio), so they run
 *before* the realignment. A view upside down or of another size does not vote on the body's left/right (a
 180 deg turned body looks mirrored and, with one other view, could turn the body's labels); a view held for a
-teleport still votes (:func:`realignment_views`): with two sensors it is often the only view that keeps the
-labels right while the other is a mirrored rear view. No held view is merged (:func:`remove_held`).
+teleport still votes (``PlausibilityResult.views``): with two sensors it is often the only view that keeps the
+labels right while the other is a mirrored rear view. No held view is merged (:func:`merge_views`).
 
 Hysteresis: a view that fails is held out at once; it is used again in its ``plausibility_release_frames``-th
 plausible frame in a row. When every present view of a body fails for ``plausibility_follow_frames``
 frames in a row, the track is what is wrong (real fast motion, a track started on a glitch): every view is
 released and the caller restarts the body's filter where the views are; at once when two or more views moved
-away from the track together (:func:`views_agree_elsewhere`). A body-id change at a sensor needs no
-rule here: association matches bodies to tracks by position, so a re-acquired body that fits the track is
-simply checked like any other view.
+away from the track together (:func:`views_agree_elsewhere`). A body-id change at a sensor needs no rule
+here: association matches bodies to tracks by position, so a re-acquired body that fits the
+track is simply checked like any other view.
 
-Batched over bodies B, sensors S and joints J (the view checks in a compiled kernel, the rest numpy); the caller
-keeps :class:`PlausibilityState`.
+Batched over bodies B, sensors S and joints J: :func:`plausibility_step` (checks, hysteresis, follow rule and the
+realignment's views), :func:`merge_views` and :func:`learn_bones` are one compiled call each
+(:mod:`skelfuse.fusion.kernels.plausibility`), their numpy forms the test reference
+(:mod:`skelfuse.fusion.reference.plausibility`); the caller keeps :class:`PlausibilityState`.
 """
 
 from __future__ import annotations
@@ -85,6 +87,7 @@ BONE_LEARNING_RATE = 0.05
 """Weight of a frame in the learned bone lengths (about 20 frames of memory: follows the squat's shrinking)."""
 MIN_BONE_FRAMES = 10
 """Frames of learning before the bone check runs."""
+_NO_AGREEMENT = np.zeros(0, dtype=np.bool_)  # the kernel's agreement where none is known (it reads none)
 
 
 @dataclass(frozen=True)
@@ -128,11 +131,16 @@ class PlausibilityResult:
     held : (B, S) uint8, reason per view this frame (0 = used, or absent).
     failed : (B, S) uint8, reason the view failed this frame's checks (0 = passed or absent).
     restart : (B,) bool, every view had failed for ``follow_frames``: restart the body's filter at the views.
+    views : (B, S, J, 3) float64 mm and views_confidence : (B, S, J) uint8, what the left/right realignment may
+        see: the candidates without the views held upside down or for another size (NaN, confidence 0); a view
+        held for a teleport still votes.
     """
 
     held: np.ndarray
     failed: np.ndarray
     restart: np.ndarray
+    views: np.ndarray
+    views_confidence: np.ndarray
 
 
 def init_plausibility_state(n_bodies: int, n_sensors: int) -> PlausibilityState:
@@ -173,102 +181,6 @@ def torso_offset(candidates: np.ndarray, predicted: np.ndarray) -> np.ndarray:
     return np.where((n_common >= 2)[..., None], mean_offset, np.nan)
 
 
-def check_views(
-    candidates: np.ndarray,
-    predicted: np.ndarray,
-    learned_bones: np.ndarray,
-    bones_ready: np.ndarray,
-    p: PlausibilityParams,
-) -> np.ndarray:
-    """The reason each view fails this frame (0 = passes or no evidence), no hysteresis.
-
-    Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.plausibility`); the numpy form is the test reference
-    (:mod:`skelfuse.fusion.reference.plausibility`).
-
-    Parameters
-    ----------
-    candidates : (B, S, J, 3) mm, NaN = missing.
-    predicted : (B, J, 3) mm, the track's prediction (NaN = no track for that joint).
-    learned_bones : (B, NB) mm; bones_ready : (B,) bool, the lengths are learned enough to judge.
-    p : PlausibilityParams
-
-    Returns
-    -------
-    (B, S) uint8 reason (UPSIDE_DOWN before BONES before TELEPORT where several hold).
-    """
-    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
-    B = candidates.shape[0]
-    if candidates.shape[2:] != (N_JOINTS, 3) or np.shape(predicted) != (B, N_JOINTS, 3):
-        raise ValueError(
-            f"check_views needs candidates (B, S, {N_JOINTS}, 3) and predicted (B, {N_JOINTS}, 3), got "
-            f"{candidates.shape} and {np.shape(predicted)}"
-        )
-    if np.shape(learned_bones) != (B, len(CHECK_BONES)) or np.shape(bones_ready) != (B,):
-        raise ValueError(
-            f"check_views needs learned_bones (B, {len(CHECK_BONES)}) and bones_ready (B,) for B = {B}, got "
-            f"{np.shape(learned_bones)} and {np.shape(bones_ready)}"
-        )
-    return kernels.load().plausibility.check_views(
-        candidates,
-        np.ascontiguousarray(predicted, dtype=np.float64),
-        np.ascontiguousarray(learned_bones, dtype=np.float64),
-        np.ascontiguousarray(bones_ready, dtype=np.bool_),
-        TORSO_JOINTS,
-        CHECK_BONES,
-        J["NECK"],
-        J["PELVIS"],
-        float(p.gate_mm),
-        float(p.up_cos),
-        math.log1p(p.bone_ratio),
-    )
-
-
-def plausibility_step(
-    candidates: np.ndarray, predicted: np.ndarray, state: PlausibilityState, p: PlausibilityParams
-) -> tuple[PlausibilityResult, PlausibilityState]:
-    """Check every view, apply the hysteresis and the follow rule.
-
-    Parameters
-    ----------
-    candidates : (B, S, J, 3) float64 mm, the selected candidates, before the realignment; NaN = missing.
-    predicted : (B, J, 3) mm, the track's one-step prediction; NaN = no track.
-    state : PlausibilityState for the same B and S.
-    p : PlausibilityParams
-
-    Returns
-    -------
-    result : PlausibilityResult (:func:`realignment_views` and :func:`remove_held` apply it)
-    state : the new PlausibilityState (the caller learns the bones with :func:`learn_bones` after the merge).
-    """
-    present = np.isfinite(candidates[..., TORSO_JOINTS, 0]).any(axis=-1)  # (B, S)
-    failed = np.where(
-        present, check_views(candidates, predicted, state.bones, state.bone_frames >= MIN_BONE_FRAMES, p), 0
-    )
-    failed = failed.astype(np.uint8)
-    # Every present view failed: count; after follow_frames the track follows the views.
-    all_failed = present.any(axis=-1) & ~((present & (failed == PLAUSIBLE)).any(axis=-1))
-    follow = np.where(all_failed, state.follow + 1, 0).astype(np.int32)
-    restart = follow >= p.follow_frames
-    if all_failed.any():  # the views' agreement matters only for a body every view failed
-        restart |= all_failed & views_agree_elsewhere(candidates, predicted, present, failed, p)
-    # Hysteresis: a failing view is held (reason of this frame); a held view passing counts towards release.
-    release = np.where((state.held > 0) & present & (failed == PLAUSIBLE), state.release + 1, 0).astype(np.int32)
-    released = (release >= p.release_frames) | restart[:, None]
-    held = np.where(failed > 0, failed, np.where(released, PLAUSIBLE, state.held)).astype(np.uint8)
-    held = np.where(restart[:, None], PLAUSIBLE, held).astype(np.uint8)
-    release = np.where(held > 0, release, 0).astype(np.int32)
-    follow = np.where(restart, 0, follow).astype(np.int32)
-
-    new_state = PlausibilityState(
-        held=held, release=release, follow=follow, bones=state.bones, bone_frames=state.bone_frames
-    )
-    return PlausibilityResult(
-        held=np.where(present, held, 0).astype(np.uint8),
-        failed=failed,
-        restart=restart,
-    ), new_state
-
-
 def views_agree_elsewhere(
     candidates: np.ndarray, predicted: np.ndarray, present: np.ndarray, failed: np.ndarray, p: PlausibilityParams
 ) -> np.ndarray:
@@ -283,59 +195,163 @@ def views_agree_elsewhere(
     return (n_moved >= 2) & (n_moved == present.sum(axis=-1)) & (spread < 0.5 * p.gate_mm)
 
 
-def realignment_views(
-    candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """What the left/right realignment may see: every view but those upside down or of another size (a body
-    turned 180 deg looks mirrored: it would vote the labels wrong, and its jump would restart the realignment).
-    A view held for a teleport still votes where it is: its labels still tell left from right, and a jump that
-    every view makes (a looped take's seam) must still restart the realignment."""
-    garbage = (held == UPSIDE_DOWN) | (held == BONES)
-    positions = np.where(garbage[..., None, None], np.nan, candidates)
-    return positions, np.where(garbage[..., None], 0, confidence).astype(np.uint8)
-
-
-def remove_held(candidates: np.ndarray, confidence: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The candidates without the held-out views (NaN / confidence 0): what the merge gets."""
-    use = held == PLAUSIBLE
-    return np.where(use[..., None, None], candidates, np.nan), np.where(use[..., None], confidence, 0).astype(np.uint8)
-
-
-def drop_far_joints(
+def check_views(
     candidates: np.ndarray,
-    confidence: np.ndarray,
     predicted: np.ndarray,
-    restart: np.ndarray,
+    learned_bones: np.ndarray,
+    bones_ready: np.ndarray,
     p: PlausibilityParams,
-    dt_s: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Drop single candidates farther from their own prediction than ``joint_speed_mm_s * dt`` plus the gate.
+) -> np.ndarray:
+    """The reason each view fails this frame (0 = passes or no evidence), no hysteresis.
 
-    Run on the *realigned* candidates (a mirrored view's limbs are far from their prediction until the
-    realignment swaps them back); nothing is dropped for a body whose track restarts this frame.
+    The checks of :func:`plausibility_step`'s compiled kernel (:mod:`skelfuse.fusion.kernels.plausibility`), for
+    every view, present or not; the numpy form is the test reference (:mod:`skelfuse.fusion.reference.plausibility`).
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) mm, NaN = missing.
+    predicted : (B, J, 3) mm, the track's prediction (NaN = no track for that joint).
+    learned_bones : (B, NB) mm; bones_ready : (B,) bool, the lengths are learned enough to judge.
+    p : PlausibilityParams
 
     Returns
     -------
-    positions : (B, S, J, 3) NaN where dropped; confidence : (B, S, J) 0 where dropped.
+    (B, S) uint8 reason (UPSIDE_DOWN before BONES before TELEPORT where several hold).
     """
-    distance = np.sqrt(np.sum((candidates - predicted[:, None]) ** 2, axis=-1))  # (B, S, J), NaN: unknown
-    too_far = (distance > p.joint_speed_mm_s * dt_s + p.gate_mm) & ~restart[:, None, None]
-    return np.where(too_far[..., None], np.nan, candidates), np.where(too_far, 0, confidence).astype(np.uint8)
+    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
+    B, S = candidates.shape[:2]
+    state = init_plausibility_state(B, S)
+    no_confidence = np.zeros((B, S, N_JOINTS), np.uint8)
+    return _step_kernel(candidates, no_confidence, predicted, state, learned_bones, bones_ready, p)[0]
+
+
+def plausibility_step(
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    predicted: np.ndarray,
+    state: PlausibilityState,
+    p: PlausibilityParams,
+) -> tuple[PlausibilityResult, PlausibilityState]:
+    """Check every view, apply the hysteresis and the follow rule, and blank what the realignment must not see.
+
+    One compiled call (:mod:`skelfuse.fusion.kernels.plausibility`); the numpy form is the test reference
+    (:mod:`skelfuse.fusion.reference.plausibility`).
+
+    Parameters
+    ----------
+    candidates : (B, S, J, 3) float64 mm, the selected candidates, before the realignment; NaN = missing.
+    confidence : (B, S, J) uint8, their confidences.
+    predicted : (B, J, 3) mm, the track's one-step prediction; NaN = no track.
+    state : PlausibilityState for the same B and S.
+    p : PlausibilityParams
+
+    Returns
+    -------
+    result : PlausibilityResult (its views go to the realignment; :func:`merge_views` applies the rest)
+    state : the new PlausibilityState (the caller learns the bones with :func:`learn_bones` after the merge).
+    """
+    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
+    ready = state.bone_frames >= MIN_BONE_FRAMES
+    _, failed, held_out, restart, held, release, follow, views, views_confidence = _step_kernel(
+        candidates, confidence, predicted, state, state.bones, ready, p
+    )
+    new_state = PlausibilityState(
+        held=held, release=release, follow=follow, bones=state.bones, bone_frames=state.bone_frames
+    )
+    return PlausibilityResult(
+        held=held_out, failed=failed, restart=restart, views=views, views_confidence=views_confidence
+    ), new_state
+
+
+def _step_kernel(
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    predicted: np.ndarray,
+    state: PlausibilityState,
+    learned_bones: np.ndarray,
+    bones_ready: np.ndarray,
+    p: PlausibilityParams,
+) -> tuple[np.ndarray, ...]:
+    """The plausibility kernel's call, its arguments checked (compiled code does not check its indices)."""
+    B, S = candidates.shape[:2]
+    if candidates.shape[2:] != (N_JOINTS, 3):
+        raise ValueError(f"plausibility needs candidates (B, S, {N_JOINTS}, 3), got {candidates.shape}")
+    arguments = (
+        candidates,
+        kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
+        kernels.kernel_array(predicted, np.float64, (B, N_JOINTS, 3), "predicted"),
+        kernels.kernel_array(state.held, np.uint8, (B, S), "held"),
+        kernels.kernel_array(state.release, np.int32, (B, S), "release"),
+        kernels.kernel_array(state.follow, np.int32, (B,), "follow"),
+        kernels.kernel_array(learned_bones, np.float64, (B, len(CHECK_BONES)), "learned_bones"),
+        kernels.kernel_array(bones_ready, np.bool_, (B,), "bones_ready"),
+        TORSO_JOINTS,
+        CHECK_BONES,
+        J["NECK"],
+        J["PELVIS"],
+        float(p.gate_mm),
+        float(p.up_cos),
+        math.log1p(p.bone_ratio),
+        int(p.release_frames),
+        int(p.follow_frames),
+    )
+    kernel = kernels.load().plausibility.plausibility_step
+    out = kernel(*arguments, _NO_AGREEMENT, False)
+    if out[9].any():  # every view of a body failed (rare): did they move away together? Then the whole call again
+        present = np.isfinite(arguments[0][..., TORSO_JOINTS, 0]).any(axis=-1)
+        out = kernel(*arguments, views_agree_elsewhere(candidates, arguments[2], present, out[1], p), True)
+    return out[:9]
+
+
+def merge_views(
+    candidates: np.ndarray,
+    confidence: np.ndarray,
+    result: PlausibilityResult,
+    predicted: np.ndarray,
+    p: PlausibilityParams,
+    dt_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the merge gets from the *realigned* candidates: no held view (NaN / confidence 0), and no single joint
+    farther from its own prediction than ``joint_speed_mm_s * dt`` plus the gate (a mirrored view's limbs are far
+    from their prediction until the realignment swaps them back); nothing is dropped alone in a body whose track
+    restarts this frame. One compiled call; the numpy form is the test reference.
+
+    Returns
+    -------
+    positions : (B, S, J, 3) float64, NaN where held or dropped; confidence : (B, S, J) uint8, 0 there.
+    """
+    candidates = np.ascontiguousarray(candidates, dtype=np.float64)
+    B, S = candidates.shape[:2]
+    if candidates.shape[2:] != (N_JOINTS, 3):
+        raise ValueError(f"merge_views needs candidates (B, S, {N_JOINTS}, 3), got {candidates.shape}")
+    return kernels.load().plausibility.merge_views(
+        candidates,
+        kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
+        kernels.kernel_array(result.held, np.uint8, (B, S), "held"),
+        kernels.kernel_array(predicted, np.float64, (B, N_JOINTS, 3), "predicted"),
+        kernels.kernel_array(result.restart, np.bool_, (B,), "restart"),
+        p.joint_speed_mm_s * dt_s + p.gate_mm,
+    )
 
 
 def learn_bones(state: PlausibilityState, merged: np.ndarray, n_agree: np.ndarray) -> PlausibilityState:
-    """Fold this frame's merged body into the learned bone lengths (bones whose both ends were merged).
+    """Fold this frame's merged body into the learned bone lengths (bones whose both ends were merged): the first
+    length as it is, then at ``max(BONE_LEARNING_RATE, 1 / (frames + 1))``. One compiled call; the numpy form is
+    the test reference.
 
     Parameters
     ----------
     merged : (B, J, 3) mm, the merge of the plausible views; n_agree : (B, J) views behind each joint.
     """
-    lengths = bone_lengths(np.where((n_agree > 0)[..., None], merged, np.nan))  # (B, NB)
-    seen = np.isfinite(lengths)
-    first = ~(state.bones > 0)  # NaN or 0: not learned yet
-    rate = np.where(first, 1.0, np.maximum(BONE_LEARNING_RATE, 1.0 / (state.bone_frames[:, None] + 1.0)))
-    bones = np.where(seen, np.where(first, lengths, state.bones + rate * (lengths - state.bones)), state.bones)
-    frames = state.bone_frames + seen.any(axis=-1)
+    B = len(state.bones)
+    bones, frames = kernels.load().plausibility.learn_bones(
+        kernels.kernel_array(merged, np.float64, (B, N_JOINTS, 3), "merged"),
+        kernels.kernel_array(n_agree, np.int16, (B, N_JOINTS), "n_agree"),
+        kernels.kernel_array(state.bones, np.float64, (B, len(CHECK_BONES)), "bones"),
+        kernels.kernel_array(state.bone_frames, np.int32, (B,), "bone_frames"),
+        CHECK_BONES,
+        BONE_LEARNING_RATE,
+    )
     return PlausibilityState(
-        held=state.held, release=state.release, follow=state.follow, bones=bones, bone_frames=frames.astype(np.int32)
+        held=state.held, release=state.release, follow=state.follow, bones=bones, bone_frames=frames
     )

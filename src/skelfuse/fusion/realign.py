@@ -90,9 +90,10 @@ Two modes:
     Rear views (``sensor_positions`` and ``rear_view_cos``, off unless given)
         A tracker that sees a person from behind and mirrors the skeleton assumes it sees the front: the
         mirrored skeleton faces ITS OWN sensor. A view whose skeleton, as labelled, faces AWAY from its
-        sensor (:func:`facing_cosine` below ``rear_view_cos``: the facing, ``left x up`` from hips and
-        shoulders, against the horizontal direction from the body to the sensor's calibrated position) is
-        therefore a rear view that is not mirrored at that instant, and its left/right is right. A view facing
+        sensor (the cosine of :func:`skelfuse.fusion.reference.realign.facing_cosine` below ``rear_view_cos``:
+        the facing, ``left x up`` from hips and shoulders, against the horizontal direction from the body to the
+        sensor's calibrated position) is therefore a rear view that is not mirrored at that instant, and its
+        left/right is right. A view facing
         its sensor is ambiguous (a front view, or a mirrored rear one); a side view is weak either way and
         stays under the threshold. So: on a cold start the group holding more such views wins (the MEDIUM
         evidence decides only where they tie, e.g. none); a warm anchor that more of them disagree with than
@@ -125,7 +126,9 @@ Two modes:
 
     Returns the flip decisions and the new per-body disagreement counters; the caller keeps the counters.
 
-All functions are vectorized over bodies, sensors and pairs, and never modify their inputs.
+realign_paper and realign_body are numpy, vectorized over bodies, sensors and pairs; realign_temporal runs as one
+compiled call (its numpy form is the test reference, :mod:`skelfuse.fusion.reference.realign`). None modifies its
+inputs.
 """
 
 from __future__ import annotations
@@ -133,11 +136,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from skelfuse.fusion import kernels
 from skelfuse.fusion.mirror import mirror_views, pair_costs
-from skelfuse.schema.skeleton import N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
+from skelfuse.schema.skeleton import MIRROR, N_JOINTS, PAPER_REALIGN_PAIRS, Confidence, J
 
 # Confidence value -> tier rank 1 (NONE), 2 (LOW), 3 (MEDIUM+); HIGH and anything above count as MEDIUM.
 _TIER_RANK = (np.minimum(np.arange(256), int(Confidence.MEDIUM)) + 1).astype(np.int8)
@@ -147,11 +149,12 @@ _PAIR_RIGHT = np.ascontiguousarray(PAPER_REALIGN_PAIRS[:, 1], dtype=np.int64)
 _PAIR_JOINTS = np.concatenate([_PAIR_LEFT, _PAIR_RIGHT])  # (2P,) left joints, then right joints
 _PAIR_SWAPPED = np.concatenate([_PAIR_RIGHT, _PAIR_LEFT])
 _N_PAIRS = len(PAPER_REALIGN_PAIRS)
-_ONES_J = np.ones(N_JOINTS)
-_ONES_2P = np.ones(2 * _N_PAIRS)
-# The body centre of the teleport rule: shoulders and hips, both sides, so that a left/right flip leaves it.
-_CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]])
-_N_COUNTERS = 4  # per-body realignment counters (see realign_temporal's ``streak``)
+_MIRROR = np.ascontiguousarray(MIRROR, dtype=np.int64)
+CENTRE_JOINTS = np.array([J["SHOULDER_LEFT"], J["SHOULDER_RIGHT"], J["HIP_LEFT"], J["HIP_RIGHT"]], dtype=np.int64)
+"""The body centre of the teleport and rear-view rules: shoulders and hips, both sides (a flip leaves it in place)."""
+N_COUNTERS = 4
+"""Per-body realignment counters (see :func:`realign_temporal`'s ``streak``)."""
+_NO_ANCHOR = np.zeros((0, 2 * _N_PAIRS, 3))  # the kernel's cold anchor where none is given (it reads none)
 
 
 def reference_positions(positions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -272,7 +275,6 @@ def realign_temporal(
     streak: np.ndarray,
     recovery_frames: int = 10,
     recovery_share: float = 0.75,
-    reference: np.ndarray | None = None,
     majority_recovery_frames: int | None = None,
     max_jump_mm: float | None = None,
     sensor_positions: np.ndarray | None = None,
@@ -299,8 +301,6 @@ def realign_temporal(
         Disagreement frames in a row after which the body follows the majority (>= 1).
     recovery_share : float
         Share of the evidence, in (0.5, 1], that counts as a clear majority against the anchor.
-    reference : (B, J, 3) float, mm, or None
-        :func:`reference_positions` of these same candidates, if the caller already has it.
     majority_recovery_frames : int or None
         Disagreement frames in a row after which the body follows a simple majority (more than half the
         evidence). This slower rule undoes a wrong start in a 2-against-2 split, which the clear-majority
@@ -327,186 +327,65 @@ def realign_temporal(
 
     Returns
     -------
-    positions : (B, S, J, 3) float64, mm, mirrored sensors' skeletons mirrored back (the input arrays
-        themselves when no sensor is mirrored; do not modify them in place).
-    confidence : (B, S, J), permuted along with the positions.
+    positions : (B, S, J, 3) float64, mm, mirrored sensors' skeletons mirrored back (new arrays).
+    confidence : (B, S, J) uint8, permuted along with the positions.
     mirrored : (B, S) bool, which sensors were mirrored.
     streak : (B, 4) int32, the new counters.
-    """
-    B = positions.shape[0]
-    streak = np.asarray(streak, dtype=np.int32)
-    if streak.shape[1] < _N_COUNTERS:  # counters from before the rear-view rule: its streak starts at 0
-        streak = np.concatenate([streak, np.zeros((B, _N_COUNTERS - streak.shape[1]), np.int32)], axis=1)
-    if max_jump_mm is not None:
-        jumped = teleported(positions, previous, max_jump_mm)
-        if jumped.any():
-            previous = np.where(jumped[:, None, None], np.nan, previous)
-    # Evidence of a view: its MEDIUM-or-better joints, all 32 (a rear view sees face, hands and arms in
-    # front of the chest occluded, LOW or NONE).
-    evidence = (confidence >= int(Confidence.MEDIUM)) @ _ONES_J  # (B, S), float: whole counts
-    anchor = previous[:, _PAIR_JOINTS]  # (B, 2P, 3): the anchor's left joints, then its right joints
-    # Views that see at least one whole pair. An anchor only knows the views it was built from: once more
-    # views see the body than ever did since its cold start, the body starts cold again, so a start seen
-    # by the rear sensors alone is re-decided when the front ones join.
-    margin, decided, n_views = pair_votes(positions, anchor)
-    more_views = n_views > streak[:, 2]
-    warm = not (math.isnan(anchor.sum()) or more_views.any())  # usual: every pair anchored, no new view
-    if warm:
-        has_prev = None
-    else:
-        prev_ok = ~np.isnan(anchor[:, :_N_PAIRS, 0] + anchor[:, _N_PAIRS:, 0])  # (B, P)
-        prev_ok &= ~more_views[:, None]
-        has_prev = prev_ok.any(axis=1)  # (B,)
-        if reference is None:
-            reference = reference_positions(positions, confidence)
-        # Cold-start seed: most MEDIUM joints, then most present pair joints, then the lowest index.
-        pairs = positions[:, :, _PAIR_JOINTS]  # (B, S, 2P, 3)
-        present = ~np.isnan(pairs[..., 0])
-        seed = (evidence * (2 * _N_PAIRS + 1) + present @ _ONES_2P).argmax(axis=1)  # (B,)
-        seed_pairs = pairs[np.arange(B), seed]  # (B, 2P, 3)
-        seed_ok = ~np.isnan(seed_pairs[:, :_N_PAIRS, 0] + seed_pairs[:, _N_PAIRS:, 0])
-        use_seed = np.tile(seed_ok & ~has_prev[:, None], 2)[..., None]
-        static = reference[:, _PAIR_JOINTS]
-        anchor = np.where(np.tile(prev_ok, 2)[..., None], anchor, np.where(use_seed, seed_pairs, static))
-        margin, decided, _ = pair_votes(positions, anchor)
-    flips = margin < 0.0
-    if has_prev is None and not flips.any():  # warm and no view disagrees: nothing to flip, the anchor earns credit
-        counters = np.zeros((B, _N_COUNTERS), dtype=np.int32)
-        counters[:, 0] = recovery_count(streak[:, 0], False, vouched(decided, streak[:, 2]), credit_frames)
-        counters[:, 2] = streak[:, 2]
-        return positions, confidence, flips, counters
-    against = (evidence * flips).sum(axis=1)  # (B,) evidence of the views the anchor would flip
-    total = (evidence * decided).sum(axis=1)
-    # Rear-view rule: views facing away from their own sensor are not mirrored; count those the anchor would
-    # flip (rear_against) and those it keeps (rear_for).
-    rear_against = rear_for = np.zeros(B)
-    if sensor_positions is not None and rear_view_cos is not None:
-        rear = (facing_cosine(positions, sensor_positions) < rear_view_cos) & decided  # NaN compares False
-        rear_against = (rear & flips) @ np.ones(flips.shape[1])
-        rear_for = (rear & ~flips) @ np.ones(flips.shape[1])
-    confirmed = rear_for > rear_against  # a rear view vouches for the anchor: no majority overturns it
-    # Recovery: a clear majority against the anchor for recovery_frames frames in a row wins. Evidence
-    # counts are whole numbers and the share exceeds 1/2, so the 0.5 floor only rules out total == 0.
-    majority = (against >= np.maximum(recovery_share * total, 0.5)) & ~confirmed
-    simple = (2.0 * against > total) & ~confirmed
-    disproved = rear_against > rear_for
-    if has_prev is not None:
-        majority &= has_prev
-        simple &= has_prev
-        disproved_now = disproved & ~has_prev
-        disproved &= has_prev
-    # Views seen since the cold start: unchanged while anchored (no more views than before, or it would
-    # have started cold), this frame's count after a cold start.
-    views_seen = streak[:, 2] if has_prev is None else np.where(has_prev, streak[:, 2], n_views)
-    unanimous = vouched(decided, views_seen) & ~flips.any(axis=1)
-    count = recovery_count(streak[:, 0], majority, unanimous, credit_frames)
-    new_streak = np.stack(
-        [
-            count if has_prev is None else count * has_prev,  # a cold start starts without credit
-            (streak[:, 1] + 1) * simple,
-            views_seen,
-            (streak[:, 3] + 1) * disproved,
-        ],
-        axis=1,
-    ).astype(np.int32)
-    # The anchor's credit (a negative recovery count) holds off the rear-view rule for as many frames more, at
-    # most recovery_frames: a rear view facing away is stronger evidence than a majority.
-    credit = np.minimum(-np.minimum(new_streak[:, 0], 0), recovery_frames)
-    follow = (new_streak[:, 0] >= recovery_frames) | (new_streak[:, 3] >= rear_view_frames + credit)
-    if majority_recovery_frames is not None:
-        follow |= new_streak[:, 1] >= majority_recovery_frames
-    new_streak[follow, :2] = 0
-    new_streak[follow, 3] = 0
-    if has_prev is not None:
-        # Cold start: the group holding more rear views facing away wins; without such a vote, the group with
-        # more MEDIUM evidence (the seed's on a tie).
-        by_evidence = (2 * against > total) & (rear_against == rear_for)
-        follow = np.where(has_prev, follow, disproved_now | by_evidence)
-    mirrored = flips ^ (follow[:, None] & decided) if follow.any() else flips
-    if not mirrored.any():
-        return positions, confidence, mirrored, new_streak
-    out_positions, out_confidence = mirror_views(positions, confidence, mirrored)
-    return out_positions, out_confidence, mirrored, new_streak
 
-
-def recovery_count(count: np.ndarray, majority: ArrayLike, unanimous: ArrayLike, credit_frames: int) -> np.ndarray:
-    """The recovery rule's counter (B,) after one frame: +1 for a frame in which a clear ``majority`` of the
-    evidence disagreed with the anchor, -1 down to ``-credit_frames`` for a frame in which every decided view
-    agreed with it (``unanimous``); any other frame ends a run of disagreement (a positive count drops to 0)
-    and keeps the credit. The body follows the majority once the count reaches the recovery frames, so an
-    anchor that every view vouched for recently outlasts that many more frames of disagreement."""
-    kept = np.minimum(count, 0)
-    return np.where(majority, count + 1, np.where(unanimous, np.maximum(kept - 1, -credit_frames), kept))
-
-
-def vouched(decided: np.ndarray, views_seen: np.ndarray) -> np.ndarray:
-    """(B,) bool: enough views decided for their agreement with the anchor to earn it credit: at least two, and
-    every view that has seen the body since its cold start (``views_seen``). The views left of a body that lost
-    one (to someone else, or to the tracker) would otherwise vouch for an anchor they made themselves: a lone
-    rear view that the recovery rule followed earns the mirrored anchor credit against the front view's return."""
-    return decided.sum(axis=1) >= np.maximum(views_seen, 2)
-
-
-def pair_votes(positions: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each view's left/right vote against an anchor, over the pairs of :data:`PAPER_REALIGN_PAIRS`.
-
-    Per view and pair, ``(swap - keep) / max(2 |anchor_L - anchor_R|, 1)`` with ``keep = |L - anchor_L| +
-    |R - anchor_R|`` and ``swap = |R - anchor_L| + |L - anchor_R|``: a vote in [-1, 1] (the triangle inequality),
-    so a pair held wide apart weighs no more than the hips. A pair decides only where both of the view's joints
-    and both anchors exist. Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.realign`); the numpy form is
-    the test reference (:mod:`skelfuse.fusion.reference.realign`).
-
-    Parameters
-    ----------
-    positions : (B, S, J, 3) float mm, NaN = missing.
-    anchor : (B, 2P, 3) float mm, the anchor's left joints of the pairs, then its right joints.
-
-    Returns
-    -------
-    margin : (B, S) float64, the sum of the deciding pairs' votes (< 0: the view is mirrored against the anchor).
-    decided : (B, S) bool, at least one pair decided.
-    n_views : (B,) int64, views that hold both joints of at least one pair.
+    Runs in one compiled kernel (:mod:`skelfuse.fusion.kernels.realign`); the numpy form is the test reference
+    (:mod:`skelfuse.fusion.reference.realign`).
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
-    anchor = np.ascontiguousarray(anchor, dtype=np.float64)
-    if positions.ndim != 4 or positions.shape[2:] != (N_JOINTS, 3) or anchor.shape != (len(positions), 2 * _N_PAIRS, 3):
-        raise ValueError(
-            f"pair_votes needs positions (B, S, {N_JOINTS}, 3) and anchor (B, {2 * _N_PAIRS}, 3), got "
-            f"{positions.shape} and {anchor.shape}"
-        )
-    return kernels.load().realign.pair_votes(positions, anchor, _PAIR_LEFT, _PAIR_RIGHT)
+    B, S = positions.shape[:2]
+    streak = np.asarray(streak, dtype=np.int32)
+    if streak.ndim == 2 and streak.shape[0] == B and streak.shape[1] < N_COUNTERS:  # counters from before the
+        streak = np.concatenate([streak, np.zeros((B, N_COUNTERS - streak.shape[1]), np.int32)], axis=1)  # rear rule
+    # The rear-view rule needs both; the kernel reads a NaN cosine as off.
+    rear = sensor_positions is not None and rear_view_cos is not None
+    sensors = sensor_positions if sensor_positions is not None and rear else np.zeros((S, 3))
+    rear_cos = float(rear_view_cos) if rear_view_cos is not None and rear else math.nan
+    arguments = (
+        kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
+        kernels.kernel_array(previous, np.float64, (B, N_JOINTS, 3), "previous"),
+    )
+    options = (
+        kernels.kernel_array(streak, np.int32, (B, N_COUNTERS), "streak"),
+        kernels.kernel_array(sensors, np.float64, (S, 3), "sensor_positions"),
+        _PAIR_LEFT,
+        _PAIR_RIGHT,
+        _MIRROR,
+        CENTRE_JOINTS,
+        int(recovery_frames),
+        -1 if majority_recovery_frames is None else int(majority_recovery_frames),
+        int(rear_view_frames),
+        int(credit_frames),
+        float(recovery_share),
+        math.inf if max_jump_mm is None else float(max_jump_mm),
+        rear_cos,
+        int(Confidence.MEDIUM),
+    )
+    kernel = kernels.load().realign.realign_temporal
+    out = kernel(positions, *arguments, _NO_ANCHOR, False, *options)
+    if out[4].any():  # a body starts cold (first frames, a new view, a teleport): its anchor, then the whole call
+        out = kernel(positions, *arguments, cold_anchors(positions, arguments[0], out[5]), True, *options)
+    return out[:4]
 
 
-def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.ndarray:
-    """(B, S) cosine between the facing of each view's skeleton, as labelled, and the horizontal direction from
-    that body to the view's own sensor: +1 faces its sensor, -1 faces away from it.
-
-    The facing is ``left x up`` (world z up), ``left`` the sum of the hip and shoulder vectors from the right
-    joint to the left one; the body's position is the mean of those four joints. NaN where one is missing.
-    ``positions`` (B, S, J, 3) world mm; ``sensor_positions`` (S, 3) world mm.
-    """
-    quad = positions[:, :, _CENTRE_JOINTS]  # (B, S, 4, 3): shoulder L, R, hip L, R
-    left = quad[:, :, 0] - quad[:, :, 1] + quad[:, :, 2] - quad[:, :, 3]  # (B, S, 3)
-    # np.add.reduce / 4 is what ndarray.mean computes, without its Python-level wrapper (hot path).
-    to_sensor = np.asarray(sensor_positions, dtype=np.float64)[None] - np.add.reduce(quad, axis=2) / 4
-    # forward = left x z = (left_y, -left_x, 0); its dot with the horizontal direction to the sensor:
-    dot = left[..., 1] * to_sensor[..., 0] - left[..., 0] * to_sensor[..., 1]
-    norms = np.hypot(left[..., 0], left[..., 1]) * np.hypot(to_sensor[..., 0], to_sensor[..., 1])
-    return dot / np.maximum(norms, 1e-9)
-
-
-def teleported(positions: np.ndarray, previous: np.ndarray, max_jump_mm: float) -> np.ndarray:
-    """(B,) bool: the body's centre (mean of shoulders and hips) lies more than ``max_jump_mm`` from the centre of
-    ``previous`` (B, J, 3) in every view that has all four: a jump every view makes. One view of someone else (a
-    neighbour, a tracker that lost the body) does not make the body jump. False where either centre is unknown."""
-    # np.add.reduce / 4 is ndarray.mean over the four joints, without its Python-level wrapper (hot path).
-    then = np.add.reduce(previous[:, _CENTRE_JOINTS], axis=1) / 4  # (B, 3), NaN unless all four are known
-    now = np.add.reduce(positions[:, :, _CENTRE_JOINTS], axis=2) / 4  # (B, S, 3)
-    step = now - then[:, None]
-    d2 = (step * step) @ _ONES3  # (B, S), NaN where a centre is unknown
-    known = d2 == d2
-    far = d2 > max_jump_mm * max_jump_mm  # NaN compares False
-    return known.any(axis=1) & (far == known).all(axis=1)
+def cold_anchors(positions: np.ndarray, confidence: np.ndarray, has_prev: np.ndarray) -> np.ndarray:
+    """(B, 2P, 3) the anchor pairs of a cold start, for the pairs the previous lacks: the seed view's pair where the
+    seed holds it and the body's previous holds no pair at all (``has_prev`` (B,) False), else the static reference
+    (:func:`reference_positions`). The seed: the view with the most MEDIUM evidence, then the most pair joints, then
+    the lowest index. numpy: it runs only when a body starts cold."""
+    B = positions.shape[0]
+    pairs = positions[:, :, _PAIR_JOINTS]  # (B, S, 2P, 3)
+    evidence = (confidence >= int(Confidence.MEDIUM)).sum(axis=2)  # (B, S) MEDIUM-or-better joints
+    seed = (evidence * (2 * _N_PAIRS + 1) + (~np.isnan(pairs[..., 0])).sum(axis=2)).argmax(axis=1)  # (B,)
+    seed_pairs = pairs[np.arange(B), seed]  # (B, 2P, 3)
+    seed_ok = ~np.isnan(seed_pairs[:, :_N_PAIRS, 0] + seed_pairs[:, _N_PAIRS:, 0])
+    use_seed = np.tile(seed_ok & ~has_prev[:, None], 2)[..., None]
+    return np.ascontiguousarray(
+        np.where(use_seed, seed_pairs, reference_positions(positions, confidence)[:, _PAIR_JOINTS])
+    )
 
 
 def _swap_pairs(

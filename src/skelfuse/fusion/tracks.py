@@ -260,10 +260,12 @@ class TrackTable:
         dead = ~hit & (~self.confirmed | (time_s - self.last_seen_s > p.timeout_s))
         row_ids = np.full(association.n_persons, -1, dtype=np.int64)
         row_ids[:K] = np.where(dead, -1, self.ids)
-        if hit.any():
+        every_hit = K > 0 and bool(hit.all())  # the usual frame: every track seen
+        if every_hit or hit.any():
             self._hit(hit, prediction.descriptors, association.descriptors[:K], n_seen[:K], time_s)
-        self.hits[~hit] = 0
-        self.n_sensors_seen[~hit] = 0
+        if not every_hit:
+            self.hits[~hit] = 0
+            self.n_sensors_seen[~hit] = 0
         kept = np.flatnonzero(~dead)
         if kept.size < K:
             self._take(kept)

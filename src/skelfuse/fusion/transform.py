@@ -6,7 +6,12 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+
+from skelfuse.fusion import kernels
+from skelfuse.schema.skeleton import N_JOINTS
 
 _ORTHO_TOL = 1e-6
 
@@ -107,3 +112,69 @@ def apply_transform(world_from_sensor: np.ndarray, positions: np.ndarray) -> np.
         )
     # p @ R' + t, batched over sensors: (..., S, J, 3) @ (S, 3, 3) broadcasts the leading axes.
     return p @ np.swapaxes(T[:, :3, :3], -1, -2) + T[:, None, :3, 3]
+
+
+class StackedViews(NamedTuple):
+    """One instant's bodies, sensor by sensor, in the world frame (:func:`stack_views_to_world`)."""
+
+    world: np.ndarray  # (S, B, 32, 3) float64 mm; NaN in empty slots
+    confidence: np.ndarray  # (S, B, 32) uint8; 0 in empty slots
+    valid: np.ndarray  # (S, B) bool: the slot holds a body
+    orientations: np.ndarray | None  # (S, B, 32, 4) float64 world quaternions; NaN in empty slots; None: not asked
+
+
+def stack_views_to_world(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    orientations: np.ndarray | None,
+    frame_rows: np.ndarray,
+    frame_counts: np.ndarray,
+    n_bodies: int,
+    world_from_sensor: np.ndarray,
+    quat_matrices: np.ndarray,
+) -> StackedViews:
+    """Scatter the frames' bodies into sensor-by-body slots and move them to the world frame, in one pass.
+
+    Parameters
+    ----------
+    positions : (N, 32, 3) float64, mm, sensor frames; confidence : (N, 32) uint8
+        Every frame's bodies, frame after frame.
+    orientations : (N, 32, 4) float64 sensor-frame quaternions, or None (the output has none)
+    frame_rows, frame_counts : (F,) int64
+        Each frame's sensor row and its number of bodies (they sum to N); a body's slot is its index in its frame.
+    n_bodies : int
+        B, at least the largest count.
+    world_from_sensor : (S, 4, 4) float64; quat_matrices : (S, 4, 4) float64
+        The poses and their rotations as quaternion products
+        (:func:`skelfuse.fusion.orientation.calibration_quat_matrices`).
+
+    Runs in a compiled kernel (:mod:`skelfuse.fusion.kernels.stacking`; numpy's per-call overhead dominates this
+    small work); the numpy form (:func:`apply_transform` over the scattered blocks) is its test reference.
+    """
+    S, N, F = world_from_sensor.shape[0], positions.shape[0], frame_rows.shape[0]
+    world = np.empty((S, n_bodies, N_JOINTS, 3))
+    stacked = np.empty((S, n_bodies, N_JOINTS), dtype=np.uint8)
+    valid = np.empty((S, n_bodies), dtype=bool)
+    quats = np.empty((S, n_bodies, N_JOINTS, 4) if orientations is not None else (0, 0, N_JOINTS, 4))
+    fits = kernels.load().stacking.stack_to_world(
+        kernels.kernel_array(positions, np.float64, (N, N_JOINTS, 3), "positions"),
+        kernels.kernel_array(confidence, np.uint8, (N, N_JOINTS), "confidence"),
+        _NO_ORIENTATIONS
+        if orientations is None
+        else kernels.kernel_array(orientations, np.float64, (N, N_JOINTS, 4), "orientations"),
+        kernels.kernel_array(frame_rows, np.int64, (F,), "frame_rows"),
+        kernels.kernel_array(frame_counts, np.int64, (F,), "frame_counts"),
+        kernels.kernel_array(world_from_sensor, np.float64, (S, 4, 4), "world_from_sensor"),
+        kernels.kernel_array(quat_matrices, np.float64, (S, 4, 4), "quat_matrices"),
+        world,
+        stacked,
+        valid,
+        quats,
+    )
+    if not fits:
+        raise ValueError(f"frame_rows / frame_counts do not fit {N} bodies in ({S}, {n_bodies}) slots")
+    return StackedViews(world, stacked, valid, None if orientations is None else quats)
+
+
+_NO_ORIENTATIONS = np.empty((0, N_JOINTS, 4))
+_NO_ORIENTATIONS.setflags(write=False)

@@ -562,10 +562,9 @@ class FrameGrouper:
         if len(group.frames) == len(self.expected_sensor_ids):  # complete (frames hold expected sensors only)
             return True
         window_end = group.anchor_us + self.tolerance_us
-        return all(
-            sid in group.frames or self._latest_by_sensor.get(sid, window_end) > window_end
-            for sid in self.expected_sensor_ids
-        )
+        latest = self._latest_by_sensor
+        # Only the missing sensors can hold the group open (a set difference, not a pass over every sensor).
+        return all(latest.get(sid, window_end) > window_end for sid in self._expected.difference(group.frames))
 
     def _emit_due(self, now_ns: int) -> list[FrameGroup]:
         last_due = -1

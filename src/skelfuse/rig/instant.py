@@ -4,21 +4,22 @@ Both :class:`skelfuse.service.node.FusionCore` (live) and :func:`skelfuse.record
 (offline) fuse every instant through one :class:`GroupFuser`, so "the live stream of a set of frames equals
 the offline fusion of the same frames" holds by construction. Cycle of :meth:`GroupFuser.step`:
 
-1. :func:`group_bodies`: the group's frames (dict sensor id -> SensorFrame, some sensors missing) become
-   ``(S, B, 32, 3)`` sensor-frame positions, NaN-padded to the most bodies any sensor reported, with
-   ``(S, B, 32)`` confidence and ``(S, B)`` valid; rows in the rig's sensor order.
-2. :func:`bodies_to_world`: one :func:`~skelfuse.fusion.transform.apply_transform` over every sensor block.
+1. The group's frames (dict sensor id -> SensorFrame, some sensors missing) become ``(S, B, 32, 3)`` positions,
+   NaN-padded to the most bodies any sensor reported, with ``(S, B, 32)`` confidence and ``(S, B)`` valid; rows
+   in the rig's sensor order (as :func:`group_bodies` stacks them).
+2. ... in the world frame: the stacking and the transform are one compiled pass
+   (:func:`~skelfuse.fusion.transform.stack_views_to_world`; :func:`bodies_to_world` is the same transform alone).
 3. Clock rule: a time step back (a new clock epoch, e.g. a restarted rig) or a gap over
    :data:`RESET_GAP_S` restarts the fusion state (:meth:`PeopleFuser.reset
    <skelfuse.fusion.people.PeopleFuser.reset>`: tracks forgotten, ids keep counting up, never reused).
 4. :meth:`PeopleFuser.step <skelfuse.fusion.people.PeopleFuser.step>` at the group's time in seconds:
    association across sensors, stable track ids, per-track fusion.
-   With ``params.orientations`` the bodies' joint quaternions go along, rotated to the world frame by the
-   calibration (:func:`~skelfuse.fusion.orientation.views_to_world`).
+   With ``params.orientations`` the bodies' joint quaternions go along, stacked and rotated to the world frame
+   by the calibration in the same pass as the positions (as :func:`~skelfuse.fusion.orientation.views_to_world`).
 5. A :class:`~skelfuse.schema.frames.FusedFrame`: one person per confirmed track that has an estimate (a track
    coasting past the filter's ``max_coast_frames`` has none and is left out), ascending track id.
 
-Only pure numpy and the fusion core: no zenoh, no clocks, no I/O.
+Only numpy and the fusion core (its compiled kernels included): no zenoh, no clocks, no I/O.
 """
 
 from __future__ import annotations
@@ -29,11 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from skelfuse.fusion.association import DEFAULT_DUPLICATE_MM, DEFAULT_GATE_MM
-from skelfuse.fusion.orientation import calibration_quat_matrices, views_to_world_by_matrix
+from skelfuse.fusion.orientation import calibration_quat_matrices
 from skelfuse.fusion.people import PeopleFuser, PeopleResult
 from skelfuse.fusion.presets import FusionParams
 from skelfuse.fusion.tracks import MAX_TRACKS, TrackParams
-from skelfuse.fusion.transform import apply_transform
+from skelfuse.fusion.transform import StackedViews, apply_transform, stack_views_to_world
 from skelfuse.rig.grouping import FrameGroup
 from skelfuse.schema.frames import FusedFrame, SensorFrame
 from skelfuse.schema.skeleton import N_JOINTS
@@ -202,6 +203,7 @@ class GroupFuser:
             )
         self.world_from_sensor = poses
         self._orientation_matrices = calibration_quat_matrices(poses)  # the poses' rotations, once
+        self._rows = {sid: row for row, sid in enumerate(self.sensor_ids)}  # sensor id -> row
         self.params = params
         self.reset_gap_s = float(reset_gap_s)
         track_params = TrackParams(
@@ -226,10 +228,47 @@ class GroupFuser:
         if reset:
             self.people.reset()
         self.last_time_us = time_us
-        positions, confidence, valid, local = _stack_group(
-            group.frames, self.sensor_ids, orientations=self.params.orientations
+        views = self._stack_to_world(group.frames)
+        people = self.people.step(
+            views.world, views.confidence, views.valid, time_us / 1e6, world_orientations=views.orientations
         )
-        world = bodies_to_world(self.world_from_sensor, positions)
-        orientations = None if local is None else views_to_world_by_matrix(local, self._orientation_matrices)
-        people = self.people.step(world, confidence, valid, time_us / 1e6, world_orientations=orientations)
-        return FusedInstant(fused_frame(people, time_us, self.sensor_ids), world, valid, people, reset)
+        return FusedInstant(fused_frame(people, time_us, self.sensor_ids), views.world, views.valid, people, reset)
+
+    def _stack_to_world(self, frames: Mapping[str, SensorFrame]) -> StackedViews:
+        """The instant's bodies as :func:`group_bodies` stacks them, in the world frame (with their orientations
+        when the preset fuses them): one concatenation per array and one compiled pass."""
+        rows: list[int] = []
+        present: list[SensorFrame] = []
+        for sid, frame in frames.items():
+            row = self._rows.get(sid)
+            if row is not None and frame.body_ids.shape[0]:
+                rows.append(row)
+                present.append(frame)
+        counts = [frame.body_ids.shape[0] for frame in present]
+        if present:
+            positions = np.concatenate([frame.positions for frame in present], dtype=np.float64)
+            confidence = np.concatenate([frame.confidence for frame in present])
+        else:
+            positions, confidence = _NO_POSITIONS, _NO_CONFIDENCE
+        orientations = None
+        if self.params.orientations:
+            orientations = (
+                np.concatenate([frame.orientations for frame in present], dtype=np.float64)
+                if present
+                else _NO_ORIENTATIONS
+            )
+        return stack_views_to_world(
+            positions,
+            confidence,
+            orientations,
+            np.array(rows, dtype=np.int64),
+            np.array(counts, dtype=np.int64),
+            max(counts, default=0),
+            self.world_from_sensor,
+            self._orientation_matrices,
+        )
+
+
+_NO_POSITIONS = np.zeros((0, N_JOINTS, 3))
+_NO_CONFIDENCE = np.zeros((0, N_JOINTS), dtype=np.uint8)
+_NO_ORIENTATIONS = np.zeros((0, N_JOINTS, 4))

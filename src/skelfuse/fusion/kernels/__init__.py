@@ -1,11 +1,12 @@
 """Compiled kernels of the per-instant path (numba), loaded on first use.
 
 The stages whose numpy form spends most of its time in numpy's per-call overhead (dozens of small array calls
-per instant) run as plain loops compiled by numba: the DBSCAN merge (:mod:`.merge`), the per-joint filters
-(:mod:`.filters`), the plausibility stage's view checks (:mod:`.plausibility`), the temporal left/right
-realignment's votes (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the orientation stage
-(:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`) and the position
-uncertainty (:mod:`.uncertainty`). Their numpy
+per instant) run as plain loops compiled by numba: the candidate selection and the DBSCAN merge (:mod:`.merge`),
+the per-joint filters and their one-step prediction (:mod:`.filters`), the plausibility stage (:mod:`.plausibility`),
+the temporal left/right realignment (:mod:`.realign`), the seen tracks' motion update (:mod:`.tracks`), the
+orientation stage (:mod:`.orientation`), the association's costs and Hungarian assignment (:mod:`.association`),
+the position uncertainty (:mod:`.uncertainty`) and the rig's stacking of an instant's bodies in the world frame
+(:mod:`.stacking`). Their numpy
 forms live on in :mod:`skelfuse.fusion.reference` as the test reference, which the live path never imports.
 
 How the kernels are built, and why:
@@ -43,7 +44,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-KERNEL_MODULES = ("merge", "filters", "plausibility", "realign", "tracks", "orientation", "association", "uncertainty")
+KERNEL_MODULES = (
+    "merge",
+    "filters",
+    "plausibility",
+    "realign",
+    "tracks",
+    "orientation",
+    "association",
+    "uncertainty",
+    "stacking",
+)
 """The kernel modules of this package (one per compiled stage)."""
 
 log = logging.getLogger(__name__)
@@ -60,6 +71,7 @@ class Kernels(NamedTuple):
     orientation: ModuleType
     association: ModuleType
     uncertainty: ModuleType
+    stacking: ModuleType
 
 
 def kernel_array(values: np.ndarray, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -114,12 +126,14 @@ def use_user_cache_dir() -> None:
 def load() -> Kernels:
     """Import numba (its cache directory set first) and the kernel modules; the kernels compile on first call."""
     use_user_cache_dir()
+    import_numba_without_blas()
     import skelfuse.fusion.kernels.association
     import skelfuse.fusion.kernels.filters
     import skelfuse.fusion.kernels.merge
     import skelfuse.fusion.kernels.orientation
     import skelfuse.fusion.kernels.plausibility
     import skelfuse.fusion.kernels.realign
+    import skelfuse.fusion.kernels.stacking
     import skelfuse.fusion.kernels.tracks
     import skelfuse.fusion.kernels.uncertainty
 
@@ -132,12 +146,35 @@ def load() -> Kernels:
         orientation=skelfuse.fusion.kernels.orientation,
         association=skelfuse.fusion.kernels.association,
         uncertainty=skelfuse.fusion.kernels.uncertainty,
+        stacking=skelfuse.fusion.kernels.stacking,
     )
+
+
+def import_numba_without_blas() -> None:
+    """Import numba's array-math implementations without letting them import scipy.linalg (a third of a later
+    start).
+
+    numba loads its implementations (``numba.np.arraymath`` among them) when its first function compiles or loads
+    from the cache, and that module probes for BLAS at import by importing ``scipy.linalg``, whatever the
+    functions use. The kernels use no BLAS (no ``np.dot``, ``@`` or ``np.linalg``; a test checks their source),
+    so the probe is answered "no scipy" here: the import of scipy is refused while that module loads, and allowed
+    again right after (numba then computes a 1-D ``np.dot`` with its own loop; ``np.linalg`` and 2-D products
+    still import scipy when they compile). Where scipy.linalg is already imported, it costs nothing and numba
+    imports as usual.
+    """
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    refused = "scipy" if "scipy" not in sys.modules else "scipy.linalg"
+    sys.modules[refused] = None  # type: ignore[assignment]  # importlib's "refuse this import" marker
+    try:
+        import numba.np.arraymath  # noqa: F401  # the BLAS probe runs now, and finds no scipy
+    finally:
+        del sys.modules[refused]
 
 
 COMPILE_GROUPS = (
     ("orientation", "merge", "tracks", "plausibility"),
-    ("association", "uncertainty", "filters", "realign"),
+    ("association", "uncertainty", "filters", "realign", "stacking"),
 )
 """The kernel modules a first start compiles in two processes at once, about half the compile time each (a cold
 compile is numba's typing and LLVM, one core per process)."""

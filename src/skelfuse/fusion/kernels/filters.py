@@ -163,10 +163,24 @@ def filter_step(
     return out, new_x, new_P, new_coast
 
 
+@numba.njit((array(FLOAT, 4), array(INT32, 2), array(FLOAT, 3), FLOAT), cache=True, nogil=True, error_model="numpy")
+def predict(x: np.ndarray, coast: np.ndarray, previous: np.ndarray, dt_s: float) -> np.ndarray:
+    """(B, J, 3) each joint's one-step prediction ``x + v dt`` where it has a track (``coast >= 0``), else
+    ``previous``. x : (B, J, 2, 3) position and velocity; coast : (B, J); previous : (B, J, 3)."""
+    B, J = x.shape[0], x.shape[1]
+    out = np.empty((B, J, 3))
+    for b in range(B):
+        for j in range(J):
+            for k in range(3):
+                out[b, j, k] = x[b, j, 0, k] + dt_s * x[b, j, 1, k] if coast[b, j] >= 0 else previous[b, j, k]
+    return out
+
+
 def warm_up() -> None:
-    """Compile (or load) :func:`filter_step` for its one signature."""
+    """Compile (or load) :func:`filter_step` and :func:`predict` for their signatures."""
     x = np.zeros((1, 2, 3))
     P = np.zeros((1, 3))
     coast = np.zeros(1, dtype=np.int32)
     model = (np.eye(2), np.eye(3), np.zeros(3), np.zeros(3))
     filter_step(CV_KALMAN, x, P, coast, P, np.ones(1, dtype=np.int64), model, 1.0, np.zeros(2), 5, True, False)
+    predict(np.zeros((1, 1, 2, 3)), np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1, 3)), 1.0)

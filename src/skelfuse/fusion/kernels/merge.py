@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, UINT8, array
 
 _ROUND_SCALE = 1e6  # centroid tie-break resolution: 1e-6 mm, as numpy's round(x, 6) (x * 1e6, rint, / 1e6)
 
@@ -252,10 +252,33 @@ def merge_dbscan(
     return merged, n_agree, best_conf, members
 
 
+@numba.njit((array(FLOAT, 4), array(UINT8, 3), INT), cache=True, nogil=True, error_model="numpy")
+def select_candidates(
+    candidates: np.ndarray, confidence: np.ndarray, min_confidence: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The usable candidates (:func:`skelfuse.fusion.pipeline.select_candidates`): NaN, confidence 0 where a
+    coordinate is not finite (their sum is not) or the confidence is below ``min_confidence``."""
+    B, S, J = candidates.shape[0], candidates.shape[1], candidates.shape[2]
+    positions = np.empty((B, S, J, 3))
+    out_confidence = np.empty((B, S, J), dtype=np.uint8)
+    for b in range(B):
+        for s in range(S):
+            for j in range(J):
+                x, y, z = candidates[b, s, j, 0], candidates[b, s, j, 1], candidates[b, s, j, 2]
+                if np.isfinite(x + y + z) and confidence[b, s, j] >= min_confidence:
+                    positions[b, s, j, 0], positions[b, s, j, 1], positions[b, s, j, 2] = x, y, z
+                    out_confidence[b, s, j] = confidence[b, s, j]
+                else:
+                    positions[b, s, j, 0] = positions[b, s, j, 1] = positions[b, s, j, 2] = np.nan
+                    out_confidence[b, s, j] = 0
+    return positions, out_confidence
+
+
 def warm_up() -> None:
-    """Compile (or load) :func:`merge_dbscan` for its one signature."""
+    """Compile (or load) :func:`merge_dbscan` and :func:`select_candidates` for their signatures."""
     positions = np.zeros((1, 2, 1, 3))
     points = np.zeros((1, 1, 3))
     rank = np.zeros(12, dtype=np.int64)
     rank.setflags(write=False)  # as rank_table's cached tables: the same (read-only) signature
     merge_dbscan(positions, np.ones((1, 2, 1), dtype=np.int64), points, points, True, True, 100.0, rank)
+    select_candidates(positions, np.ones((1, 2, 1), dtype=np.uint8), 1)

@@ -15,8 +15,13 @@ FLOAT = numba.float64
 INT = numba.int64
 INT32 = numba.int32
 BOOL = numba.boolean
+UINT8 = numba.uint8
 
 
 def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:
     """A C-contiguous array argument of ``ndim`` dimensions; read-only unless ``writable`` (the kernel writes it)."""
     return types.Array(dtype, ndim, "C", readonly=not writable)
+
+
+UINT8 = numba.uint8
+INT16 = numba.int16

@@ -16,9 +16,11 @@ from skelfuse.fusion.reference import (
     filters,
     merge,
     orientation,
+    pipeline,
     plausibility,
     realign,
     tracks,
+    transform,
     uncertainty,
 )
 
@@ -26,13 +28,18 @@ LIVE_STAGES: dict[tuple[str, str], Callable[..., Any]] = {
     ("skelfuse.fusion.pipeline", "merge_dbscan"): merge.merge_dbscan,
     ("skelfuse.fusion.pipeline", "filter_step"): filters.filter_step,
     ("skelfuse.fusion.smoother", "filter_step"): filters.filter_step,
-    ("skelfuse.fusion.plausibility", "check_views"): plausibility.check_views,
-    ("skelfuse.fusion.realign", "pair_votes"): realign.pair_votes,
+    ("skelfuse.fusion.pipeline", "select_candidates"): pipeline.select_candidates,
+    ("skelfuse.fusion.pipeline", "predicted_positions"): pipeline.predicted_positions,
+    ("skelfuse.fusion.pipeline", "plausibility_step"): plausibility.plausibility_step,
+    ("skelfuse.fusion.pipeline", "merge_views"): plausibility.merge_views,
+    ("skelfuse.fusion.pipeline", "learn_bones"): plausibility.learn_bones,
+    ("skelfuse.fusion.pipeline", "realign_temporal"): realign.realign_temporal,
     ("skelfuse.fusion.tracks", "seen_motion"): tracks.seen_motion,
     ("skelfuse.fusion.pipeline", "fuse_orientations"): orientation.fuse_orientations,
     ("skelfuse.fusion.association", "assign_to_tracks"): association.assign_to_tracks,
     ("skelfuse.fusion.association", "match_tracks"): association.match_tracks,
     ("skelfuse.fusion.association", "person_descriptors"): association.person_descriptors,
     ("skelfuse.fusion.pipeline", "position_uncertainty"): uncertainty.position_uncertainty,
+    ("skelfuse.rig.instant", "stack_views_to_world"): transform.stack_views_to_world,
 }
 """Where the live path looks each compiled stage up (module, name) -> its numpy reference."""
