@@ -23,7 +23,7 @@ from skelfuse.sim.rig import look_at, paper_rig
 
 SEED = 2131
 INTRINSICS = Intrinsics.azure_kinect_nfov(binned=True)  # 320 x 288 keeps the renders fast
-N_FRAMES = 48
+N_FRAMES = 24
 HIDDEN = (0, 1, 2)  # frames in which capture_1 does not see the ball
 
 

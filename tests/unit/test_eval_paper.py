@@ -526,17 +526,19 @@ def test_orientations_do_not_change_the_fused_positions() -> None:
 
 def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(monkeypatch) -> None:
     """The live node knows where its sensors stand (the rear-view rule of the temporal realignment needs it);
-    the paper experiment must fuse with the same knowledge, each run with the positions of the sensors it uses."""
+    the paper experiment must fuse with the same knowledge, each run with the positions of the sensors it uses.
+    Runs without the temporal realignment, which never reads them, may be fused side by side without them:
+    the last test below shows that gives the same positions bit for bit."""
     from skelfuse.sim.gestures import make_gesture
     from skelfuse.sim.observe import load_profile, simulate
     from skelfuse.sim.rig import best_view_sensor, paper_rig
 
     task = paper.TakeTask("squat", 0.0, 1.0, 30.0, 4, 5, None, (100.0,))
-    seen: list[np.ndarray | None] = []
+    seen: list[tuple[str | None, np.ndarray | None]] = []
     real_fuser = paper.Fuser
 
     def spy(params, n_bodies=1, sensor_positions=None):
-        seen.append(None if sensor_positions is None else np.array(sensor_positions))
+        seen.append((params.realign, None if sensor_positions is None else np.array(sensor_positions)))
         return real_fuser(params, n_bodies=n_bodies, sensor_positions=sensor_positions)
 
     monkeypatch.setattr(paper, "Fuser", spy)
@@ -547,7 +549,32 @@ def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(
     obs = simulate(motion, sensors, paper.scenario_profile(load_profile(None), "rear_mirroring"), seed=5)
     where = obs.world_from_sensor_calibrated[: paper.N_CAPTURE, :3, 3]
     runs = paper.fusion_runs(paper.N_CAPTURE, (100.0,), ours=(paper.OURS,))
-    assert len(seen) == len(runs)
-    for run, given in zip(runs, seen, strict=True):
-        assert given is not None, run.key
-        np.testing.assert_allclose(given, where[list(run.sensors)], err_msg=run.key)
+    temporal = [run for run in runs if run.params().realign == "temporal"]
+    given = [positions for realign, positions in seen if realign == "temporal"]
+    assert temporal and len(given) == len(temporal)
+    for run in temporal:  # one fuser per such run, holding the positions of exactly its sensors
+        matches = [
+            k
+            for k, p in enumerate(given)
+            if p is not None and p.shape == (len(run.sensors), 3) and np.allclose(p, where[list(run.sensors)])
+        ]
+        assert matches, run.key
+        given.pop(matches[0])
+
+
+def test_runs_fused_side_by_side_equal_each_run_fused_alone() -> None:
+    from skelfuse.sim.gestures import make_gesture
+    from skelfuse.sim.observe import load_profile, simulate
+    from skelfuse.sim.rig import paper_rig
+
+    motion = make_gesture("walking", duration_s=1.0, fps=30.0, facing_deg=150.0, seed=6)
+    obs = simulate(motion, list(paper_rig(paper.N_CAPTURE)), load_profile(), seed=7)
+    world, confidence = paper._world_skeletons(obs), np.asarray(obs.confidence)
+    where = obs.world_from_sensor_calibrated[:, :3, 3]
+    runs = paper.fusion_runs(paper.N_CAPTURE)
+    together = paper.fuse_runs(runs, world, confidence, 30.0, where)
+    assert list(together) == [run.key for run in runs]
+    for run in runs:
+        alone = paper.fuse_take(run, world, confidence, 30.0, where)
+        assert np.isfinite(alone).any(), run.key
+        np.testing.assert_array_equal(together[run.key], alone, err_msg=run.key)

@@ -124,9 +124,14 @@ def self_occlusion(points: np.ndarray, radii: dict[str, float], margin_mm: float
     joints = points[:, :, None, :]  # (T, 32, 1, 3)
     origin = np.zeros(3)  # the camera; broadcast, so the ray-independent terms are formed once per capsule
     ray_dist, s = segment_distance(origin, joints, starts, ends)  # (T, 32, C)
-    inside, _ = segment_distance(joints, joints, starts, ends)
     depth = np.linalg.norm(joints, axis=-1)  # (T, 32, 1)
-    hides = (ray_dist < radius) & (inside > radius) & (s * depth < depth - margin_mm) & _CAN_HIDE
+    in_front = (ray_dist < radius) & (s * depth < depth - margin_mm) & _CAN_HIDE
+    # Whether the joint lies inside the capsule, only where the ray passes through it in front of the joint (a
+    # small share of the (frame, joint, capsule) triples; the same numbers as over all of them, at half the cost).
+    t, j, c = np.nonzero(in_front)
+    inside, _ = segment_distance(points[t, j], points[t, j], starts[t, 0, c], ends[t, 0, c])
+    hides = np.zeros_like(in_front)
+    hides[t, j, c] = inside > radius[c]
     return hides.any(axis=-1)
 
 

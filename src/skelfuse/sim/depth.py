@@ -156,12 +156,12 @@ def _image_rays(intrinsics: Intrinsics) -> np.ndarray:
 
 def _pixel_rays(intrinsics: Intrinsics, u0: int, u1: int, v0: int, v1: int) -> tuple[np.ndarray, np.ndarray]:
     """Unit ray directions (n, 3) of the pixels in [u0, u1) x [v0, v1), camera frame, and their flat indices."""
-    u, v = np.meshgrid(np.arange(u0, u1), np.arange(v0, v1))
-    return _image_rays(intrinsics)[v0:v1, u0:u1].reshape(-1, 3), (v * intrinsics.width + u).reshape(-1)
+    flat = np.arange(v0, v1)[:, None] * intrinsics.width + np.arange(u0, u1)[None, :]
+    return _image_rays(intrinsics)[v0:v1, u0:u1].reshape(-1, 3), flat.reshape(-1)
 
 
-def _ray_capsule(rd: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Distance along unit rays from the origin to a capsule (inf where missed), and the surface normals.
+def _ray_capsule(rd: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
+    """Distance along unit rays from the origin to a capsule (inf where missed).
 
     Inigo Quilez's analytic ray-capsule intersection (cylinder body, then the nearer end sphere).
     """
@@ -191,13 +191,20 @@ def _ray_capsule(rd: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float) ->
             t_sphere = -sb - np.sqrt(np.maximum(sh, 0.0))
             hit = (sh > 0) & (t_sphere > 0) & (t_sphere < t)
             t[hit] = t_sphere[hit]
-    normal = np.zeros_like(rd)
+    return t
+
+
+def _capsule_normals(rd: np.ndarray, t: np.ndarray, a: np.ndarray, b: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Unit surface normals of the capsule ``a``-``b`` at the rays ``rd`` (n, 3) with ``wanted`` (n,) bool, hit
+    at distances ``t`` (n,). The closest points along the axis are found for every hit, as one product (its
+    rounding depends on how many rows it holds), the normals only where wanted."""
+    ba = b - a
     hit = np.isfinite(t)
     points = rd[hit] * t[hit, None]
-    s = np.clip((points - a) @ ba / max(baba, 1e-12), 0.0, 1.0)
-    radial = points - (a + s[:, None] * ba)
-    normal[hit] = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
-    return t, normal
+    s = np.clip((points - a) @ ba / max(float(ba @ ba), 1e-12), 0.0, 1.0)
+    keep = wanted[hit]
+    radial = points[keep] - (a + s[keep, None] * ba)
+    return radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
 
 
 def render_truth(
@@ -232,12 +239,13 @@ def render_truth(
         if u0 >= u1 or v0 >= v1:
             continue
         rays, flat = _pixel_rays(intrinsics, u0, u1, v0, v1)
-        t, normal = _ray_capsule(rays, a, b, float(radius))
+        t = _ray_capsule(rays, a, b, float(radius))
         z = t * rays[:, 2]
-        nearer = z < depth[flat]
+        nearer = z < depth[flat]  # hit, and nearer than what the capsules before it put there
         depth[flat[nearer]] = z[nearer]
         index[flat[nearer]] = who
-        incidence[flat[nearer]] = np.clip(-np.einsum("ij,ij->i", rays[nearer], normal[nearer]), 0.0, 1.0)
+        normal = _capsule_normals(rays, t, a, b, nearer)  # only where this capsule is what the pixel sees
+        incidence[flat[nearer]] = np.clip(-np.einsum("ij,ij->i", rays[nearer], normal), 0.0, 1.0)
     return depth.reshape(height, width), index.reshape(height, width), incidence.reshape(height, width)
 
 
