@@ -29,7 +29,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(numba.boolean(*_SIGNATURE), cache=True, nogil=True, error_model="numpy")
+@numba.njit(numba.boolean(*_SIGNATURE), cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
 def stack_to_world(
     positions: np.ndarray,
     confidence: np.ndarray,

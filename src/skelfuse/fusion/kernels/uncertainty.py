@@ -17,7 +17,7 @@ import numpy as np
 from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np.ndarray) -> float:
     """|candidate - merged|^2, mm^2 (NaN where either is missing)."""
     dx = candidates[b, s, j, 0] - merged[b, j, 0]
@@ -26,7 +26,7 @@ def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _torso_agreement(candidates: np.ndarray, merged: np.ndarray, b: int, torso: np.ndarray, rms: np.ndarray) -> float:
     """Median over the torso joints seen by two views or more of the views' RMS distance from the merged joint
     (NaN: no such joint). ``rms`` (K,): scratch."""
@@ -71,7 +71,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
 def position_uncertainty(
     candidates: np.ndarray,
     merged: np.ndarray,
