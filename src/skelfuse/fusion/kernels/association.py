@@ -107,19 +107,23 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
                 return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 1
     if nr == 0 or nc == 0:
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 0
-    u = np.zeros(nr)
-    v = np.zeros(nc)
+    u = np.empty(nr)
+    v = np.empty(nc)
+    for i in range(nr):
+        u[i] = 0.0
+    for j in range(nc):
+        v[j] = 0.0
     shortest = np.empty(nc)
     path = _filled(nc, -1)
     col4row = _filled(nr, -1)
     row4col = _filled(nc, -1)
-    in_rows = np.zeros(nr, dtype=np.bool_)
-    in_cols = np.zeros(nc, dtype=np.bool_)
+    in_rows = np.empty(nr, dtype=np.bool_)  # cleared by each search
+    in_cols = np.empty(nc, dtype=np.bool_)
     remaining = np.empty(nc, dtype=np.int64)
     for current in range(nr):
         sink, min_val = _augmenting_path(cost, u, v, path, row4col, shortest, current, in_rows, in_cols, remaining)
         if sink < 0:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 2
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 2
         # The dual variables.
         u[current] += min_val
         for i in range(nr):
@@ -202,7 +206,7 @@ def _assign_sensor(
     """One cascade stage for one sensor, in place: its free usable bodies (B,) to the stage's tracks (K,)."""
     B, K = allowed.shape
     simple = True
-    gated = np.zeros((B, K), dtype=np.bool_)
+    gated = np.empty((B, K), dtype=np.bool_)
     for b in range(B):
         for k in range(K):
             gated[b, k] = allowed[b, k] and in_stage[k] and person[b] < 0
@@ -271,7 +275,7 @@ def _cascade(
     then the tentative ones with the bodies left; returns person (S, B) and assigned_cost (S, B) as
     :func:`assign_to_tracks`. Inlined into its callers (one compiled function less)."""
     S, B, K = cost.shape
-    allowed = np.zeros((S, B, K), dtype=np.bool_)
+    allowed = np.empty((S, B, K), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
             for k in range(K):
@@ -337,7 +341,7 @@ def match_tracks(
     S, B = valid.shape
     C, M = central.shape[0], pairs.shape[0]
     body_desc = np.empty((S, B, C + M, 3))
-    usable = np.zeros((S, B), dtype=np.bool_)
+    usable = np.empty((S, B), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
             n_finite = 0
@@ -353,10 +357,11 @@ def match_tracks(
             usable[s, b] = valid[s, b] and n_finite >= min_common_points
     cost = descriptor_costs(body_desc, tracks, min_common_points)
     person, assigned_cost = _cascade(cost, usable, confirmed, gate_mm)
-    duplicates = np.zeros((S, B), dtype=np.bool_)
-    leftover = np.zeros((S, B), dtype=np.bool_)
+    duplicates = np.empty((S, B), dtype=np.bool_)
+    leftover = np.empty((S, B), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
+            duplicates[s, b] = leftover[s, b] = False
             if not (usable[s, b] and person[s, b] < 0):
                 continue
             for other in range(B):  # a track that took another body of this sensor, within duplicate_mm
@@ -382,8 +387,10 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
     """
     S, B, D = body_desc.shape[0], body_desc.shape[1], body_desc.shape[2]
     descriptors = np.empty((n_persons, D, 3))
-    n_seen = np.zeros(n_persons, dtype=np.int64)
+    n_seen = np.empty(n_persons, dtype=np.int64)
     seen = np.empty(S)  # one person's values of one coordinate, sorted as they come (a handful of sensors)
+    for p in range(n_persons):
+        n_seen[p] = 0
     for s in range(S):
         for b in range(B):
             if person[s, b] >= 0:

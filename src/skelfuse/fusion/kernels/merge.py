@@ -209,15 +209,15 @@ def merge_dbscan(
     n_max = S + 2
     eps_sq = eps_mm * eps_mm
     merged = np.empty((B, J, 3))
-    n_agree = np.zeros((B, J), dtype=np.int16)
-    best_conf = np.zeros((B, J), dtype=np.uint8)
-    members = np.zeros((B, J, S), dtype=np.bool_)
+    n_agree = np.empty((B, J), dtype=np.int16)
+    best_conf = np.empty((B, J), dtype=np.uint8)
+    members = np.empty((B, J, S), dtype=np.bool_)
     points = np.empty((n_max, 3))
-    conf = np.zeros(S, dtype=np.int64)
+    conf = np.empty(S, dtype=np.int64)
     label = np.empty(n_max, dtype=np.int64)
     stack = np.empty(n_max, dtype=np.int64)
-    code = np.zeros(n_max, dtype=np.int64)
-    conf_sum = np.zeros(n_max)
+    code = np.empty(n_max, dtype=np.int64)
+    conf_sum = np.empty(n_max)
     key = np.empty(S)
     centroid = np.empty((S, 3))
     for b in range(B):
@@ -233,8 +233,8 @@ def merge_dbscan(
             sx = sy = sz = 0.0
             top = 0
             for s in range(S):
-                if win_label >= 0 and label[s] == win_label:
-                    members[b, j, s] = True
+                members[b, j, s] = win_label >= 0 and label[s] == win_label
+                if members[b, j, s]:
                     count += 1
                     sx += points[s, 0]
                     sy += points[s, 1]

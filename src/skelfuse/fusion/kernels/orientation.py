@@ -398,8 +398,8 @@ def fuse_orientations(
     B, J = positions.shape[0], positions.shape[1]
     S = view_quats.shape[1]
     settings = (math.cos(math.radians(agree_deg) / 2.0), alpha, beta, dt_s)
-    out = (np.empty((B, J, 4)), np.zeros((B, J), dtype=np.int64), np.zeros((B, J, 4)), np.zeros((B, J, 3)))
-    scratch = (np.empty((S, 4)), np.zeros(S, dtype=np.bool_), np.empty((S, S)))
+    out = (np.empty((B, J, 4)), np.empty((B, J), dtype=np.int64), np.empty((B, J, 4)), np.empty((B, J, 3)))
+    scratch = (np.empty((S, 4)), np.empty(S, dtype=np.bool_), np.empty((S, S)))
     tables = (joint_index, joint_value, body_joints)
     for b in range(B):
         _fuse_body(positions[b], view_quats, usable, quats_prev, omega_prev, b, settings, tables, scratch, out)

@@ -159,16 +159,20 @@ def realign_temporal(
     P = left.shape[0]
     out_positions = positions.copy()
     out_confidence = confidence.copy()
-    mirrored = np.zeros((B, S), dtype=np.bool_)
-    counters = np.zeros((B, 4), dtype=np.int32)
-    needs_cold = np.zeros(B, dtype=np.bool_)
-    any_prev = np.zeros(B, dtype=np.bool_)
+    mirrored = np.empty((B, S), dtype=np.bool_)
+    counters = np.empty((B, 4), dtype=np.int32)
+    needs_cold = np.empty(B, dtype=np.bool_)
+    any_prev = np.empty(B, dtype=np.bool_)
     anchor = np.empty((2 * P, 3))
-    evidence = np.zeros(S)
-    margin = np.zeros(S)
-    decided = np.zeros(S, dtype=np.bool_)
-    prev_ok = np.zeros(P, dtype=np.bool_)
+    evidence = np.empty(S)
+    margin = np.empty(S)
+    decided = np.empty(S, dtype=np.bool_)
+    prev_ok = np.empty(P, dtype=np.bool_)
     for b in range(B):
+        needs_cold[b] = False
+        counters[b, 0] = counters[b, 1] = counters[b, 2] = counters[b, 3] = 0
+        for s in range(S):
+            mirrored[b, s] = False
         jumped = _teleported(positions[b], previous[b], centre, max_jump_mm)
         for p in range(2 * P):
             joint = left[p] if p < P else right[p - P]

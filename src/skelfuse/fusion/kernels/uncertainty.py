@@ -104,7 +104,7 @@ def position_uncertainty(
     """
     B, S, J = candidates.shape[0], candidates.shape[1], candidates.shape[2]
     std = np.empty((B, J))
-    cov = np.zeros((B, J, 3))
+    cov = np.empty((B, J, 3))
     agreement = np.empty(B)
     rms = np.empty(torso.shape[0])
     q = accel_sigma**2
@@ -113,6 +113,7 @@ def position_uncertainty(
     for b in range(B):
         agreement[b] = _torso_agreement(candidates, merged, b, torso, rms)
         for j in range(J):
+            cov[b, j, 0] = cov[b, j, 1] = cov[b, j, 2] = 0.0
             # The measurement variance R = v / n from the views' spread around the merged joint.
             ss = 0.0
             n_views = 0
