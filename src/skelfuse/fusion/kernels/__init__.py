@@ -177,8 +177,8 @@ def import_numba_without_blas() -> None:
 
 
 COMPILE_GROUPS = (
-    ("orientation", "merge", "tracks", "plausibility"),
-    ("association", "uncertainty", "filters", "realign", "stacking"),
+    ("orientation", "merge", "tracks", "plausibility", "uncertainty"),
+    ("association", "filters", "realign", "stacking"),
 )
 """The kernel modules a first start compiles in two processes at once, about half the compile time each (a cold
 compile is numba's typing and LLVM, one core per process)."""

@@ -228,7 +228,13 @@ def _assign_sensor(
                     assigned_cost[b] = cost[b, k]
         return
     rows = _indices(usable, person)
-    cols = _indices(in_stage, _filled(K, -1))
+    stage_tracks = np.empty(K, dtype=np.int64)  # a loop, not _indices: in_stage may be read-only (a second compile)
+    n_cols = 0
+    for k in range(K):
+        if in_stage[k]:
+            stage_tracks[n_cols] = k
+            n_cols += 1
+    cols = stage_tracks[:n_cols]
     matrix = np.empty((rows.size, cols.size))
     for r in range(rows.size):
         for c in range(cols.size):
