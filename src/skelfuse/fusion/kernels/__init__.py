@@ -26,9 +26,11 @@ How the kernels are built, and why:
   again inside each caller, so the first start's compile time grows with their number and depth, not with the
   loops' length.
 * Helpers (the functions only kernels call) are built without the wrappers a call from Python or through a C
-  pointer needs (``no_cpython_wrapper``, ``no_cfunc_wrapper``) and without a cache of their own: a kernel's cache
-  holds the helpers' code linked into it, so each helper's wrappers and cache files were only LLVM work and disk
-  writes at a first start. The kernels themselves have no C-pointer wrapper either (nothing takes their address).
+  pointer needs and without a cache of their own (:data:`.signatures.HELPER`): a kernel's cache holds the helpers'
+  code linked into it, so each helper's wrappers and cache files were only LLVM work and disk writes at a first
+  start. The kernels themselves have no C-pointer wrapper either (:data:`.signatures.KERNEL`).
+* No ``np.zeros`` in a kernel: each distinct (shape, dtype) of it compiles an implementation and a fill of its own
+  on top of ``np.empty``'s; the kernels take ``np.empty`` and write every element (clearing it where needed).
 * Single-threaded (the capture PC's cores belong to the body trackers) and no fastmath: NaN joints are data, and
   fastmath may assume they never occur.
 * Debugging: ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (slow, but a debugger steps into them).

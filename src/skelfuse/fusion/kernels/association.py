@@ -23,13 +23,13 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, array
 
 BIG_COST = 1e12
 """Stands for "no cost" (a pair outside the gate) in the assignment matrices; such pairs are rejected after."""
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _filled(n: int, value: int) -> np.ndarray:
     """An (n,) int64 array of ``value`` (a loop: numba's np.full compiles per signature)."""
     out = np.empty(n, dtype=np.int64)
@@ -38,7 +38,7 @@ def _filled(n: int, value: int) -> np.ndarray:
     return out
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True, inline="always")
+@numba.njit(**HELPER, inline="always")
 def _augmenting_path(
     cost: np.ndarray,
     u: np.ndarray,
@@ -90,7 +90,7 @@ def _augmenting_path(
     return sink, min_val
 
 
-@numba.njit((array(FLOAT, 2),), cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit((array(FLOAT, 2),), **KERNEL)
 def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The minimum-cost assignment of a (R, C) cost matrix: row indices (ascending), their columns, and a status.
 
@@ -157,7 +157,7 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     return rows, col4row, 0
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_points: int) -> np.ndarray:
     """(S, B, K) mean distance (mm) over the descriptor points a body (S, B, D, 3) and a track (K, D, 3) both have;
     inf with fewer than ``min_common_points`` (at least 1) in common."""
@@ -182,7 +182,7 @@ def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_point
     return cost
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _indices(mask: np.ndarray, person: np.ndarray) -> np.ndarray:
     """The indices where a (N,) bool mask holds and ``person`` (N,) is -1 (unassigned), ascending."""
     out = np.empty(mask.shape[0], dtype=np.int64)
@@ -194,7 +194,7 @@ def _indices(mask: np.ndarray, person: np.ndarray) -> np.ndarray:
     return out[:n]
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _assign_sensor(
     cost: np.ndarray,
     allowed: np.ndarray,
@@ -273,7 +273,7 @@ def assign_to_tracks(
     return person, assigned_cost, cost
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True, inline="always")
+@numba.njit(**HELPER, inline="always")
 def _cascade(
     cost: np.ndarray, usable: np.ndarray, confirmed: np.ndarray, gate_mm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -318,7 +318,7 @@ _MATCH_TRACKS = (
 )
 
 
-@numba.njit(_MATCH_TRACKS, cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit(_MATCH_TRACKS, **KERNEL)
 def match_tracks(
     positions: np.ndarray,
     valid: np.ndarray,
@@ -378,7 +378,7 @@ def match_tracks(
     return body_desc, usable, person, assigned_cost, cost, duplicates, leftover
 
 
-@numba.njit((array(FLOAT, 4), array(INT, 2), INT), cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit((array(FLOAT, 4), array(INT, 2), INT), **KERNEL)
 def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
     """Per person, the median over its sensors of their bodies' descriptors, and how many sensors see it.
 

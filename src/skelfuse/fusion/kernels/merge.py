@@ -13,12 +13,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, UINT8, array
 
 _ROUND_SCALE = 1e6  # centroid tie-break resolution: 1e-6 mm, as numpy's round(x, 6) (x * 1e6, rint, / 1e6)
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarray, stack: np.ndarray) -> None:
     """label[i] = component of candidate i (-1: missing) over the first n rows of points (n, 3)."""
     for i in range(n):
@@ -53,7 +53,7 @@ def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarr
         n_labels += 1
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.ndarray, centroid: np.ndarray) -> int:
     """The winning sensor candidate (its component wins) from the keys; ties by rounded centroid x, y, z."""
     best = 0
@@ -101,7 +101,7 @@ def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.
     return winner
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _gather(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -136,7 +136,7 @@ def _gather(
     return n, ref_idx, prev_idx
 
 
-@numba.njit(nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@numba.njit(**HELPER)
 def _score(
     label: np.ndarray,
     conf: np.ndarray,
@@ -182,7 +182,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit(_SIGNATURE, **KERNEL)
 def merge_dbscan(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -252,7 +252,7 @@ def merge_dbscan(
     return merged, n_agree, best_conf, members
 
 
-@numba.njit((array(FLOAT, 4), array(UINT8, 3), INT), cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit((array(FLOAT, 4), array(UINT8, 3), INT), **KERNEL)
 def select_candidates(
     candidates: np.ndarray, confidence: np.ndarray, min_confidence: int
 ) -> tuple[np.ndarray, np.ndarray]:

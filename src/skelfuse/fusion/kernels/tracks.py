@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, KERNEL, array
 
 _SIGNATURE = (
     array(FLOAT, 3),  # descriptor
@@ -27,7 +27,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+@numba.njit(_SIGNATURE, **KERNEL)
 def seen_motion(
     descriptor: np.ndarray,
     velocity: np.ndarray,
