@@ -57,9 +57,11 @@ def _augmenting_path(
     n_remaining = nc
     for it in range(nc):
         remaining[it] = nc - it - 1  # from the last column: a constant matrix gives the identity
-    in_rows[:] = False
-    in_cols[:] = False
-    shortest[:] = math.inf
+    for i in range(in_rows.shape[0]):  # loops, not slice assignments (those compile numba's broadcasting)
+        in_rows[i] = False
+    for j in range(nc):
+        in_cols[j] = False
+        shortest[j] = math.inf
     sink = -1
     i = row
     while sink == -1:

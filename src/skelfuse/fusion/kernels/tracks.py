@@ -57,7 +57,8 @@ def seen_motion(
             continue
         dt = time_s - last_seen_s[k]
         count = 0
-        total[:] = 0.0
+        for axis in range(3):
+            total[axis] = 0.0
         for d in range(D):
             sx = measured[k, d, 0] - descriptor[k, d, 0]
             sy = measured[k, d, 1] - descriptor[k, d, 1]
