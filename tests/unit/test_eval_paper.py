@@ -527,8 +527,8 @@ def test_orientations_do_not_change_the_fused_positions() -> None:
 def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(monkeypatch) -> None:
     """The live node knows where its sensors stand (the rear-view rule of the temporal realignment needs it);
     the paper experiment must fuse with the same knowledge, each run with the positions of the sensors it uses.
-    Runs without the temporal realignment, which never reads them, may be fused side by side without them:
-    the last test below shows that gives the same positions bit for bit."""
+    Runs fuse side by side, each body with its own sensors' positions: the last test below shows that gives the
+    same positions bit for bit."""
     from skelfuse.sim.gestures import make_gesture
     from skelfuse.sim.observe import load_profile, simulate
     from skelfuse.sim.rig import best_view_sensor, paper_rig
@@ -538,7 +538,9 @@ def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(
     real_fuser = paper.Fuser
 
     def spy(params, n_bodies=1, sensor_positions=None):
-        seen.append((params.realign, None if sensor_positions is None else np.array(sensor_positions)))
+        positions = None if sensor_positions is None else np.array(sensor_positions)
+        per_body = positions if positions is not None and positions.ndim == 3 else [positions] * n_bodies
+        seen.extend((params.realign, body) for body in per_body)  # what each fused body is given
         return real_fuser(params, n_bodies=n_bodies, sensor_positions=sensor_positions)
 
     monkeypatch.setattr(paper, "Fuser", spy)
@@ -552,7 +554,7 @@ def test_the_experiment_gives_every_fusion_run_the_positions_of_its_own_sensors(
     temporal = [run for run in runs if run.params().realign == "temporal"]
     given = [positions for realign, positions in seen if realign == "temporal"]
     assert temporal and len(given) == len(temporal)
-    for run in temporal:  # one fuser per such run, holding the positions of exactly its sensors
+    for run in temporal:  # one fused body per such run, given the positions of exactly its sensors
         matches = [
             k
             for k, p in enumerate(given)

@@ -88,6 +88,23 @@ def test_cold_start_one_versus_one_is_decided_by_the_rear_view_that_faces_away()
     assert mirrored[0].tolist() == [True, False] and streak.tolist() == [[0, 0, 2, 0]]
 
 
+def test_each_body_is_realigned_with_its_own_sensor_positions():
+    # The cold start above, twice side by side: the same views, but the second body's sensors stand in front of
+    # it, where the first's mirrored view is the one facing away, so the rear-view rule decides the other way.
+    rng = np.random.default_rng(RNG_SEED + 1)
+    pos, conf = _views(_skeleton(rng, 0.0), [True, False], rng, medium=[30, 20])
+    per_body = np.stack([_ring([150.0, 210.0]), _ring([-30.0, 30.0])])
+    both = (np.concatenate([pos, pos]), np.concatenate([conf, conf]), np.concatenate([NO_PREVIOUS, NO_PREVIOUS]))
+    together = realign_temporal(*both, np.zeros((2, 4), np.int32), sensor_positions=per_body, **REAR)
+    assert together[2].tolist() == [[True, False], [False, True]]
+    for b in range(2):
+        alone = realign_temporal(
+            pos, conf, NO_PREVIOUS, np.zeros((1, 4), np.int32), sensor_positions=per_body[b], **REAR
+        )
+        for got, expected in zip(together, alone, strict=True):
+            np.testing.assert_array_equal(got[b], expected[0])
+
+
 def _run(params, frames, sensors, reference=False):
     """Fuse ``frames`` [(pos, conf), ...] of one body; per frame, whether the output's pairs are the right way
     round (left nearer the truth's left) and the fuser."""

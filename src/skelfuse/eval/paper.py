@@ -267,26 +267,26 @@ def fuse_runs(
     fused independently, and a call costs about as much for a few bodies as for one). A configuration that keeps
     nothing from frame to frame fuses all frames at once (one body per frame); runs sharing a configuration and
     a sensor count fuse side by side (one body per run); the "temporal" realignment, the only stage that reads
-    ``sensor_positions`` (which differ between sensor subsets), fuses run by run."""
+    ``sensor_positions``, gets each run's own sensors' positions."""
     fused: dict[str, np.ndarray] = {}
     together: dict[tuple[str, float | None, int], list[FusionRun]] = {}
     for run in runs:
         params = _positions_only(run.params(), keep_orientations=False)
         sensors = list(run.sensors)
-        if params.realign == "temporal":
-            fused[run.key] = fuse_take(run, candidates, confidence, fps, sensor_positions)
-        elif _keeps_no_state(params):
+        if _keeps_no_state(params):
             fuser = Fuser(params, n_bodies=candidates.shape[0])
             result = fuser.step(candidates[:, sensors], confidence[:, sensors], dt_s=1.0 / fps)
             fused[run.key] = np.asarray(result.positions)
         else:
             together.setdefault((run.preset, run.eps_mm, len(sensors)), []).append(run)
     for group in together.values():
+        positions = None if sensor_positions is None else np.asarray(sensor_positions)
         stacked = _fuse_bodies(
             group[0].params(),
             np.stack([candidates[:, list(run.sensors)] for run in group], axis=1),
             np.stack([confidence[:, list(run.sensors)] for run in group], axis=1),
             fps,
+            None if positions is None else np.stack([positions[list(run.sensors)] for run in group]),
         )
         fused.update((run.key, stacked[:, k]) for k, run in enumerate(group))
     return {run.key: fused[run.key] for run in runs}

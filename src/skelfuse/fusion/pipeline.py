@@ -235,9 +235,10 @@ def fuse(
         The views' joint quaternions (w, x, y, z) in the world frame (:func:`skelfuse.fusion.orientation.
         views_to_world`), NaN or all-zero = none. Used only with ``params.orientations``; None: the fused
         orientations come from the bones and the history alone.
-    sensor_positions : (S, 3) float or None
+    sensor_positions : (S, 3) or (B, S, 3) float, or None
         Each sensor's position in the world frame, mm, in the candidates' sensor order (the translations of
-        the calibrated poses). Used only by the "temporal" realignment's rear-view rule
+        the calibrated poses), the same for every body or each body's own (bodies seen by different sensors
+        fused side by side). Used only by the "temporal" realignment's rear-view rule
         (``params.rear_view_cos``); None: that rule is off.
 
     Returns
@@ -329,10 +330,12 @@ def fuse(
 
 
 def _check_sensor_positions(candidates: np.ndarray, sensor_positions: np.ndarray | None) -> None:
-    """Refuse sensor positions that are not one world position per sensor of the candidates."""
-    if sensor_positions is not None and np.shape(sensor_positions) != (candidates.shape[1], 3):
+    """Refuse sensor positions that are not one world position per sensor of the candidates (the same for every
+    body, or each body's own)."""
+    B, S = candidates.shape[:2]
+    if sensor_positions is not None and np.shape(sensor_positions) not in ((S, 3), (B, S, 3)):
         raise ValueError(
-            f"sensor_positions must have shape ({candidates.shape[1]}, 3), one world position per sensor of the "
+            f"sensor_positions must have shape ({S}, 3) or ({B}, {S}, 3), one world position per sensor of the "
             f"candidates, got {np.shape(sensor_positions)}"
         )
 
@@ -543,7 +546,7 @@ class Fuser:
     ----------
     params : FusionParams
     n_bodies : int
-    sensor_positions : (S, 3) float or None, the sensors' world positions passed to :func:`fuse`.
+    sensor_positions : (S, 3) or (B, S, 3) float or None, the sensors' world positions passed to :func:`fuse`.
     state : FusionState, the state after the last :meth:`step`.
     """
 

@@ -134,6 +134,7 @@ inputs.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -309,9 +310,10 @@ def realign_temporal(
     max_jump_mm : float or None
         A body whose centre moved further than this since the anchor starts cold (the teleport rule of the
         module docstring). None: off.
-    sensor_positions : (S, 3) float, mm, or None
+    sensor_positions : (S, 3) or (B, S, 3) float, mm, or None
         Each sensor's position in the world frame (the translation of its calibrated pose), in the views'
-        order; with ``rear_view_cos`` it enables the rear-view rule of the module docstring.
+        order, the same for every body or each body's own; with ``rear_view_cos`` it enables the rear-view
+        rule of the module docstring.
     rear_view_cos : float or None
         A view whose own skeleton faces away from its sensor (cosine between its facing and the horizontal
         direction from the body to the sensor below this, e.g. -0.7: more than 134 deg away) is a rear view
@@ -335,6 +337,21 @@ def realign_temporal(
     Runs in one compiled kernel (:mod:`skelfuse.fusion.kernels.realign`); the numpy form is the test reference
     (:mod:`skelfuse.fusion.reference.realign`).
     """
+    if sensor_positions is not None and np.ndim(sensor_positions) == 3:
+        return _realign_each_body(
+            positions,
+            confidence,
+            previous,
+            streak,
+            sensor_positions,
+            recovery_frames=recovery_frames,
+            recovery_share=recovery_share,
+            majority_recovery_frames=majority_recovery_frames,
+            max_jump_mm=max_jump_mm,
+            rear_view_cos=rear_view_cos,
+            rear_view_frames=rear_view_frames,
+            credit_frames=credit_frames,
+        )
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     B, S = positions.shape[:2]
     streak = np.asarray(streak, dtype=np.int32)
@@ -369,6 +386,30 @@ def realign_temporal(
     if out[4].any():  # a body starts cold (first frames, a new view, a teleport): its anchor, then the whole call
         out = kernel(positions, *arguments, cold_anchors(positions, arguments[0], out[5]), True, *options)
     return out[:4]
+
+
+def _realign_each_body(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    previous: np.ndarray,
+    streak: np.ndarray,
+    sensor_positions: np.ndarray,
+    **options: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`realign_temporal` with (B, S, 3) sensor positions, each body's own (bodies seen by different
+    sensors, fused side by side): body by body, as each body's realignment reads only its own views."""
+    per_body = [
+        realign_temporal(
+            positions[b : b + 1],
+            confidence[b : b + 1],
+            previous[b : b + 1],
+            streak[b : b + 1],
+            sensor_positions=sensor_positions[b],
+            **options,
+        )
+        for b in range(len(sensor_positions))
+    ]
+    return tuple(np.concatenate(parts) for parts in zip(*per_body, strict=True))  # type: ignore[return-value]
 
 
 def cold_anchors(positions: np.ndarray, confidence: np.ndarray, has_prev: np.ndarray) -> np.ndarray:
