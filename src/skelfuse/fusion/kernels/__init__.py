@@ -25,6 +25,12 @@ How the kernels are built, and why:
 * Few compiled functions, and helpers over scalars: numba types, lowers and optimizes every helper on its own and
   again inside each caller, so the first start's compile time grows with their number and depth, not with the
   loops' length.
+* Helpers (the functions only kernels call) are built without the wrappers a call from Python or through a C
+  pointer needs and without a cache of their own (:data:`.signatures.HELPER`): a kernel's cache holds the helpers'
+  code linked into it, so each helper's wrappers and cache files were only LLVM work and disk writes at a first
+  start. The kernels themselves have no C-pointer wrapper either (:data:`.signatures.KERNEL`).
+* No ``np.zeros`` in a kernel: each distinct (shape, dtype) of it compiles an implementation and a fill of its own
+  on top of ``np.empty``'s; the kernels take ``np.empty`` and write every element (clearing it where needed).
 * Single-threaded (the capture PC's cores belong to the body trackers) and no fastmath: NaN joints are data, and
   fastmath may assume they never occur.
 * Debugging: ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (slow, but a debugger steps into them).
@@ -173,8 +179,8 @@ def import_numba_without_blas() -> None:
 
 
 COMPILE_GROUPS = (
-    ("orientation", "merge", "tracks", "plausibility"),
-    ("association", "uncertainty", "filters", "realign", "stacking"),
+    ("orientation", "merge", "tracks", "plausibility", "uncertainty"),
+    ("association", "filters", "realign", "stacking"),
 )
 """The kernel modules a first start compiles in two processes at once, about half the compile time each (a cold
 compile is numba's typing and LLVM, one core per process)."""

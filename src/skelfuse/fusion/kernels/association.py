@@ -23,13 +23,13 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, array
 
 BIG_COST = 1e12
 """Stands for "no cost" (a pair outside the gate) in the assignment matrices; such pairs are rejected after."""
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _filled(n: int, value: int) -> np.ndarray:
     """An (n,) int64 array of ``value`` (a loop: numba's np.full compiles per signature)."""
     out = np.empty(n, dtype=np.int64)
@@ -38,7 +38,7 @@ def _filled(n: int, value: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(**HELPER, inline="always")
 def _augmenting_path(
     cost: np.ndarray,
     u: np.ndarray,
@@ -57,9 +57,11 @@ def _augmenting_path(
     n_remaining = nc
     for it in range(nc):
         remaining[it] = nc - it - 1  # from the last column: a constant matrix gives the identity
-    in_rows[:] = False
-    in_cols[:] = False
-    shortest[:] = math.inf
+    for i in range(in_rows.shape[0]):  # loops, not slice assignments (those compile numba's broadcasting)
+        in_rows[i] = False
+    for j in range(nc):
+        in_cols[j] = False
+        shortest[j] = math.inf
     sink = -1
     i = row
     while sink == -1:
@@ -90,7 +92,7 @@ def _augmenting_path(
     return sink, min_val
 
 
-@numba.njit((array(FLOAT, 2),), cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 2),), **KERNEL)
 def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The minimum-cost assignment of a (R, C) cost matrix: row indices (ascending), their columns, and a status.
 
@@ -107,19 +109,23 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
                 return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 1
     if nr == 0 or nc == 0:
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 0
-    u = np.zeros(nr)
-    v = np.zeros(nc)
+    u = np.empty(nr)
+    v = np.empty(nc)
+    for i in range(nr):
+        u[i] = 0.0
+    for j in range(nc):
+        v[j] = 0.0
     shortest = np.empty(nc)
     path = _filled(nc, -1)
     col4row = _filled(nr, -1)
     row4col = _filled(nc, -1)
-    in_rows = np.zeros(nr, dtype=np.bool_)
-    in_cols = np.zeros(nc, dtype=np.bool_)
+    in_rows = np.empty(nr, dtype=np.bool_)  # cleared by each search
+    in_cols = np.empty(nc, dtype=np.bool_)
     remaining = np.empty(nc, dtype=np.int64)
     for current in range(nr):
         sink, min_val = _augmenting_path(cost, u, v, path, row4col, shortest, current, in_rows, in_cols, remaining)
         if sink < 0:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 2
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 2
         # The dual variables.
         u[current] += min_val
         for i in range(nr):
@@ -153,7 +159,7 @@ def linear_sum_assignment(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     return rows, col4row, 0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_points: int) -> np.ndarray:
     """(S, B, K) mean distance (mm) over the descriptor points a body (S, B, D, 3) and a track (K, D, 3) both have;
     inf with fewer than ``min_common_points`` (at least 1) in common."""
@@ -178,7 +184,7 @@ def descriptor_costs(body_desc: np.ndarray, tracks: np.ndarray, min_common_point
     return cost
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _indices(mask: np.ndarray, person: np.ndarray) -> np.ndarray:
     """The indices where a (N,) bool mask holds and ``person`` (N,) is -1 (unassigned), ascending."""
     out = np.empty(mask.shape[0], dtype=np.int64)
@@ -190,7 +196,7 @@ def _indices(mask: np.ndarray, person: np.ndarray) -> np.ndarray:
     return out[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _assign_sensor(
     cost: np.ndarray,
     allowed: np.ndarray,
@@ -202,7 +208,7 @@ def _assign_sensor(
     """One cascade stage for one sensor, in place: its free usable bodies (B,) to the stage's tracks (K,)."""
     B, K = allowed.shape
     simple = True
-    gated = np.zeros((B, K), dtype=np.bool_)
+    gated = np.empty((B, K), dtype=np.bool_)
     for b in range(B):
         for k in range(K):
             gated[b, k] = allowed[b, k] and in_stage[k] and person[b] < 0
@@ -224,7 +230,13 @@ def _assign_sensor(
                     assigned_cost[b] = cost[b, k]
         return
     rows = _indices(usable, person)
-    cols = _indices(in_stage, _filled(K, -1))
+    stage_tracks = np.empty(K, dtype=np.int64)  # a loop, not _indices: in_stage may be read-only (a second compile)
+    n_cols = 0
+    for k in range(K):
+        if in_stage[k]:
+            stage_tracks[n_cols] = k
+            n_cols += 1
+    cols = stage_tracks[:n_cols]
     matrix = np.empty((rows.size, cols.size))
     for r in range(rows.size):
         for c in range(cols.size):
@@ -263,7 +275,7 @@ def assign_to_tracks(
     return person, assigned_cost, cost
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(**HELPER, inline="always")
 def _cascade(
     cost: np.ndarray, usable: np.ndarray, confirmed: np.ndarray, gate_mm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -271,7 +283,7 @@ def _cascade(
     then the tentative ones with the bodies left; returns person (S, B) and assigned_cost (S, B) as
     :func:`assign_to_tracks`. Inlined into its callers (one compiled function less)."""
     S, B, K = cost.shape
-    allowed = np.zeros((S, B, K), dtype=np.bool_)
+    allowed = np.empty((S, B, K), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
             for k in range(K):
@@ -308,7 +320,7 @@ _MATCH_TRACKS = (
 )
 
 
-@numba.njit(_MATCH_TRACKS, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_MATCH_TRACKS, **KERNEL)
 def match_tracks(
     positions: np.ndarray,
     valid: np.ndarray,
@@ -337,7 +349,7 @@ def match_tracks(
     S, B = valid.shape
     C, M = central.shape[0], pairs.shape[0]
     body_desc = np.empty((S, B, C + M, 3))
-    usable = np.zeros((S, B), dtype=np.bool_)
+    usable = np.empty((S, B), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
             n_finite = 0
@@ -353,10 +365,11 @@ def match_tracks(
             usable[s, b] = valid[s, b] and n_finite >= min_common_points
     cost = descriptor_costs(body_desc, tracks, min_common_points)
     person, assigned_cost = _cascade(cost, usable, confirmed, gate_mm)
-    duplicates = np.zeros((S, B), dtype=np.bool_)
-    leftover = np.zeros((S, B), dtype=np.bool_)
+    duplicates = np.empty((S, B), dtype=np.bool_)
+    leftover = np.empty((S, B), dtype=np.bool_)
     for s in range(S):
         for b in range(B):
+            duplicates[s, b] = leftover[s, b] = False
             if not (usable[s, b] and person[s, b] < 0):
                 continue
             for other in range(B):  # a track that took another body of this sensor, within duplicate_mm
@@ -367,7 +380,7 @@ def match_tracks(
     return body_desc, usable, person, assigned_cost, cost, duplicates, leftover
 
 
-@numba.njit((array(FLOAT, 4), array(INT, 2), INT), cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 4), array(INT, 2), INT), **KERNEL)
 def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int) -> tuple[np.ndarray, np.ndarray]:
     """Per person, the median over its sensors of their bodies' descriptors, and how many sensors see it.
 
@@ -382,8 +395,10 @@ def person_descriptors(body_desc: np.ndarray, person: np.ndarray, n_persons: int
     """
     S, B, D = body_desc.shape[0], body_desc.shape[1], body_desc.shape[2]
     descriptors = np.empty((n_persons, D, 3))
-    n_seen = np.zeros(n_persons, dtype=np.int64)
+    n_seen = np.empty(n_persons, dtype=np.int64)
     seen = np.empty(S)  # one person's values of one coordinate, sorted as they come (a handful of sensors)
+    for p in range(n_persons):
+        n_seen[p] = 0
     for s in range(S):
         for b in range(B):
             if person[s, b] >= 0:

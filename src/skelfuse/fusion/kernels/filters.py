@@ -11,13 +11,13 @@ import numba
 import numpy as np
 from numba.core import types
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, INT32, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, INT32, KERNEL, array
 
 PAPER_KALMAN, CV_KALMAN, ALPHA_BETA = 0, 1, 2
 """Filter kinds, as the kernel's ``kind`` argument."""
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _predict(
     x: np.ndarray,
     P: np.ndarray,
@@ -36,7 +36,7 @@ def _predict(
         pred[2, col] = P[i, 0] * cov_map[0, col] + P[i, 1] * cov_map[1, col] + P[i, 2] * cov_map[2, col] + q_vec[col]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _update(
     kind: int,
     pred: np.ndarray,
@@ -85,7 +85,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def filter_step(
     kind: int,
     x: np.ndarray,
@@ -163,7 +163,7 @@ def filter_step(
     return out, new_x, new_P, new_coast
 
 
-@numba.njit((array(FLOAT, 4), array(INT32, 2), array(FLOAT, 3), FLOAT), cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 4), array(INT32, 2), array(FLOAT, 3), FLOAT), **KERNEL)
 def predict(x: np.ndarray, coast: np.ndarray, previous: np.ndarray, dt_s: float) -> np.ndarray:
     """(B, J, 3) each joint's one-step prediction ``x + v dt`` where it has a track (``coast >= 0``), else
     ``previous``. x : (B, J, 2, 3) position and velocity; coast : (B, J); previous : (B, J, 3)."""

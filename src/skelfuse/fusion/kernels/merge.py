@@ -13,12 +13,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, UINT8, array
 
 _ROUND_SCALE = 1e6  # centroid tie-break resolution: 1e-6 mm, as numpy's round(x, 6) (x * 1e6, rint, / 1e6)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarray, stack: np.ndarray) -> None:
     """label[i] = component of candidate i (-1: missing) over the first n rows of points (n, 3)."""
     for i in range(n):
@@ -53,7 +53,7 @@ def _label_components(points: np.ndarray, n: int, eps_sq: float, label: np.ndarr
         n_labels += 1
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.ndarray, centroid: np.ndarray) -> int:
     """The winning sensor candidate (its component wins) from the keys; ties by rounded centroid x, y, z."""
     best = 0
@@ -101,7 +101,7 @@ def _pick_winner(points: np.ndarray, label: np.ndarray, n_sensors: int, key: np.
     return winner
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _gather(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -136,7 +136,7 @@ def _gather(
     return n, ref_idx, prev_idx
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _score(
     label: np.ndarray,
     conf: np.ndarray,
@@ -182,7 +182,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def merge_dbscan(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -209,15 +209,15 @@ def merge_dbscan(
     n_max = S + 2
     eps_sq = eps_mm * eps_mm
     merged = np.empty((B, J, 3))
-    n_agree = np.zeros((B, J), dtype=np.int16)
-    best_conf = np.zeros((B, J), dtype=np.uint8)
-    members = np.zeros((B, J, S), dtype=np.bool_)
+    n_agree = np.empty((B, J), dtype=np.int16)
+    best_conf = np.empty((B, J), dtype=np.uint8)
+    members = np.empty((B, J, S), dtype=np.bool_)
     points = np.empty((n_max, 3))
-    conf = np.zeros(S, dtype=np.int64)
+    conf = np.empty(S, dtype=np.int64)
     label = np.empty(n_max, dtype=np.int64)
     stack = np.empty(n_max, dtype=np.int64)
-    code = np.zeros(n_max, dtype=np.int64)
-    conf_sum = np.zeros(n_max)
+    code = np.empty(n_max, dtype=np.int64)
+    conf_sum = np.empty(n_max)
     key = np.empty(S)
     centroid = np.empty((S, 3))
     for b in range(B):
@@ -233,8 +233,8 @@ def merge_dbscan(
             sx = sy = sz = 0.0
             top = 0
             for s in range(S):
-                if win_label >= 0 and label[s] == win_label:
-                    members[b, j, s] = True
+                members[b, j, s] = win_label >= 0 and label[s] == win_label
+                if members[b, j, s]:
                     count += 1
                     sx += points[s, 0]
                     sy += points[s, 1]
@@ -252,7 +252,7 @@ def merge_dbscan(
     return merged, n_agree, best_conf, members
 
 
-@numba.njit((array(FLOAT, 4), array(UINT8, 3), INT), cache=True, nogil=True, error_model="numpy")
+@numba.njit((array(FLOAT, 4), array(UINT8, 3), INT), **KERNEL)
 def select_candidates(
     candidates: np.ndarray, confidence: np.ndarray, min_confidence: int
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -23,7 +23,7 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, array
 
 Quat = tuple[float, float, float, float]
 Vec = tuple[float, float, float]
@@ -31,7 +31,7 @@ Vec = tuple[float, float, float]
 _NAN4 = (np.nan, np.nan, np.nan, np.nan)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _multiply(a: Quat, b: Quat) -> Quat:
     """Hamilton product ``a * b``."""
     aw, ax, ay, az = a
@@ -44,7 +44,7 @@ def _multiply(a: Quat, b: Quat) -> Quat:
     )
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _multiply_conjugate(a: Quat, b: Quat) -> Quat:
     """``a * conj(b)``."""
     aw, ax, ay, az = a
@@ -57,7 +57,7 @@ def _multiply_conjugate(a: Quat, b: Quat) -> Quat:
     )
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _normalize(q: Quat, min_norm: float) -> Quat:
     """``q`` scaled to unit length; NaN where its norm is not above ``min_norm`` (NaN: stays NaN)."""
     w, x, y, z = q
@@ -67,7 +67,7 @@ def _normalize(q: Quat, min_norm: float) -> Quat:
     return _NAN4
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _rotvec_to_quat(r0: float, r1: float, r2: float) -> Quat:
     """Unit quaternion of a rotation vector (rad); sin(a/2)/a by its series 1/2 - a^2/48 near 0."""
     angle = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
@@ -76,7 +76,7 @@ def _rotvec_to_quat(r0: float, r1: float, r2: float) -> Quat:
     return (math.cos(half), k * r0, k * r1, k * r2)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _quat_to_rotvec(q: Quat) -> Vec:
     """Rotation vector (rad) of a unit quaternion, the short way round (angle <= pi)."""
     sign = -1.0 if q[0] < 0.0 else 1.0
@@ -86,7 +86,7 @@ def _quat_to_rotvec(q: Quat) -> Vec:
     return (k * v0, k * v1, k * v2)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _swing_onto(q: Quat, aim: Vec) -> Quat:
     """``q`` turned by the smallest rotation that takes its local X axis onto the unit ``aim`` (normalized).
 
@@ -115,7 +115,7 @@ def _swing_onto(q: Quat, aim: Vec) -> Quat:
     return _normalize(_multiply((s0, s1, s2, s3), q), 1e-9)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _quat_from_frame(x: Vec, y: Vec, z: Vec) -> Quat:
     """Unit quaternion (w >= 0) of the rotation whose columns are x, y, z (largest pivot); NaN if any is not finite."""
     for value in x + y + z:
@@ -145,25 +145,25 @@ def _quat_from_frame(x: Vec, y: Vec, z: Vec) -> Quat:
     return (sign * q[0] / norm, sign * q[1] / norm, sign * q[2] / norm, sign * q[3] / norm)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _cross(a: Vec, b: Vec) -> Vec:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _unit(v: Vec) -> Vec:
     """``v`` divided by its length (NaN or inf where it has none)."""
     norm = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     return (v[0] / norm, v[1] / norm, v[2] / norm)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _difference(p: np.ndarray, a: int, b: int) -> Vec:
     """``p[a] - p[b]`` of a body's (J, 3) positions."""
     return (p[a, 0] - p[b, 0], p[a, 1] - p[b, 1], p[a, 2] - p[b, 2])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _body_hint(p: np.ndarray, body_joints: np.ndarray, direction: int) -> Vec:
     """The body's left (0), up (1) or forward (2) of its fused positions (J, 3): hips (shoulders where a hip is
     missing) for left, pelvis to neck for up, forward = left x up, left = up x forward. NaN where the body lacks
@@ -178,7 +178,7 @@ def _body_hint(p: np.ndarray, body_joints: np.ndarray, direction: int) -> Vec:
     return up if direction == 1 else forward
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _hint_frame(aim: Vec, hint: Vec, axis: int, sign: float) -> Quat:
     """The aim frame whose X is ``aim`` and whose hint axis (1 = Y, 2 = Z, times ``sign``) is as close as it can be
     to ``hint``; NaN where the hint is parallel to the aim."""
@@ -194,7 +194,7 @@ def _hint_frame(aim: Vec, hint: Vec, axis: int, sign: float) -> Quat:
     return _quat_from_frame(aim, _cross(h, aim), h)  # z = sign h, y = z cross x
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _consensus(swung: np.ndarray, valid: np.ndarray, min_cos: float, dots: np.ndarray) -> tuple[int, Quat]:
     """Steps 2-3 on the views swung onto the aim, (S, 4) with ``valid`` (S,): the view with the most others within
     the agreement angle (ties: lowest index) and those views, sign-aligned, summed and normalized. Returns the
@@ -228,13 +228,13 @@ def _consensus(swung: np.ndarray, valid: np.ndarray, min_cos: float, dots: np.nd
     return best_support, _normalize((w, x, y, z), 1e-9)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _quat(a: np.ndarray, b: int, j: int) -> Quat:
     """Row (b, j) of a (B, J, 4) quaternion array."""
     return (a[b, j, 0], a[b, j, 1], a[b, j, 2], a[b, j, 3])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _aim(p: np.ndarray, joint_index: np.ndarray, joint_value: np.ndarray, j: int) -> Vec:
     """Step 1: the unit direction of joint j's bone (NaN: a derived joint, or no bone)."""
     d = _difference(p, joint_index[j, 1], joint_index[j, 0])
@@ -246,7 +246,7 @@ def _aim(p: np.ndarray, joint_index: np.ndarray, joint_value: np.ndarray, j: int
     return (d0 / norm, d1 / norm, d2 / norm)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(**HELPER, inline="always")
 def _measure(
     view_quats: np.ndarray,
     usable: np.ndarray,
@@ -276,7 +276,7 @@ def _measure(
     return _consensus(swung, valid, min_cos, dots)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(**HELPER, inline="always")
 def _filter(
     measured: Quat, previous: Quat, omega_prev: Vec, aim: Vec, alpha: float, beta: float, dt_s: float
 ) -> tuple[Quat, Vec, bool]:
@@ -301,7 +301,7 @@ def _filter(
     return _normalize(_multiply(turn, predicted), 1e-9), omega_new, True
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(**HELPER, inline="always")
 def _fuse_body(
     p: np.ndarray,
     views: np.ndarray,
@@ -366,7 +366,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def fuse_orientations(
     positions: np.ndarray,
     view_quats: np.ndarray,
@@ -398,8 +398,8 @@ def fuse_orientations(
     B, J = positions.shape[0], positions.shape[1]
     S = view_quats.shape[1]
     settings = (math.cos(math.radians(agree_deg) / 2.0), alpha, beta, dt_s)
-    out = (np.empty((B, J, 4)), np.zeros((B, J), dtype=np.int64), np.zeros((B, J, 4)), np.zeros((B, J, 3)))
-    scratch = (np.empty((S, 4)), np.zeros(S, dtype=np.bool_), np.empty((S, S)))
+    out = (np.empty((B, J, 4)), np.empty((B, J), dtype=np.int64), np.empty((B, J, 4)), np.empty((B, J, 3)))
+    scratch = (np.empty((S, 4)), np.empty(S, dtype=np.bool_), np.empty((S, S)))
     tables = (joint_index, joint_value, body_joints)
     for b in range(B):
         _fuse_body(positions[b], view_quats, usable, quats_prev, omega_prev, b, settings, tables, scratch, out)

@@ -14,12 +14,12 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, INT16, INT32, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, INT16, INT32, KERNEL, UINT8, array
 
 PLAUSIBLE, TELEPORT, UPSIDE_DOWN, BONES = 0, 1, 2, 3  # as skelfuse.fusion.plausibility's reasons
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _torso_offset(view: np.ndarray, predicted: np.ndarray, torso: np.ndarray) -> tuple[float, float, float]:
     """The mean offset of the torso joints both have, mm (NaN: fewer than two in common)."""
     sx = sy = sz = 0.0
@@ -38,7 +38,7 @@ def _torso_offset(view: np.ndarray, predicted: np.ndarray, torso: np.ndarray) ->
     return sx / n_common, sy / n_common, sz / n_common
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _up(body: np.ndarray, neck: int, pelvis: int) -> tuple[float, float, float]:
     """Unit pelvis-to-neck direction (NaN where either joint is missing or they coincide)."""
     ux = body[neck, 0] - body[pelvis, 0]
@@ -48,7 +48,7 @@ def _up(body: np.ndarray, neck: int, pelvis: int) -> tuple[float, float, float]:
     return ux / norm, uy / norm, uz / norm
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _median_bone_ratio(view: np.ndarray, learned: np.ndarray, bones: np.ndarray, ratios: np.ndarray) -> float:
     """Median of the finite ratios view bone length / learned length; NaN when fewer than three are known."""
     n = 0
@@ -70,7 +70,7 @@ def _median_bone_ratio(view: np.ndarray, learned: np.ndarray, bones: np.ndarray,
     return 0.5 * (ratios[(n - 1) // 2] + ratios[n // 2])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _view_reason(
     view: np.ndarray,
     predicted: np.ndarray,
@@ -123,7 +123,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def plausibility_step(
     candidates: np.ndarray,
     confidence: np.ndarray,
@@ -167,19 +167,19 @@ def plausibility_step(
     """
     B, S = candidates.shape[0], candidates.shape[1]
     thresholds = (gate_mm, up_cos, log_bone_ratio)
-    reasons = np.zeros((B, S), dtype=np.uint8)
-    failed_out = np.zeros((B, S), dtype=np.uint8)
-    held_out = np.zeros((B, S), dtype=np.uint8)
-    restart = np.zeros(B, dtype=np.bool_)
-    needs_agreement = np.zeros(B, dtype=np.bool_)
-    new_held = np.zeros((B, S), dtype=np.uint8)
-    new_release = np.zeros((B, S), dtype=np.int32)
-    new_follow = np.zeros(B, dtype=np.int32)
+    reasons = np.empty((B, S), dtype=np.uint8)
+    failed_out = np.empty((B, S), dtype=np.uint8)
+    held_out = np.empty((B, S), dtype=np.uint8)
+    restart = np.empty(B, dtype=np.bool_)
+    needs_agreement = np.empty(B, dtype=np.bool_)
+    new_held = np.empty((B, S), dtype=np.uint8)
+    new_release = np.empty((B, S), dtype=np.int32)
+    new_follow = np.empty(B, dtype=np.int32)
     views = candidates.copy()
     views_confidence = confidence.copy()
     ratios = np.empty(bones.shape[0])
-    present = np.zeros(S, dtype=np.bool_)
-    failed = np.zeros(S, dtype=np.uint8)
+    present = np.empty(S, dtype=np.bool_)
+    failed = np.empty(S, dtype=np.uint8)
     for b in range(B):
         up = _up(predicted[b], neck, pelvis)
         any_present = any_passed = False
@@ -242,7 +242,7 @@ _MERGE_VIEWS_SIGNATURE = (
 )
 
 
-@numba.njit(_MERGE_VIEWS_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_MERGE_VIEWS_SIGNATURE, **KERNEL)
 def merge_views(
     candidates: np.ndarray,
     confidence: np.ndarray,
@@ -285,7 +285,7 @@ _LEARN_BONES_SIGNATURE = (
 )
 
 
-@numba.njit(_LEARN_BONES_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_LEARN_BONES_SIGNATURE, **KERNEL)
 def learn_bones(
     merged: np.ndarray,
     n_agree: np.ndarray,

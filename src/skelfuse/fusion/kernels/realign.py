@@ -15,10 +15,10 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, INT32, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, INT32, KERNEL, UINT8, array
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
     """|a[i] - b[k]| of two (n, 3) point rows, mm."""
     dx = a[i, 0] - b[k, 0]
@@ -27,7 +27,7 @@ def _distance(a: np.ndarray, i: int, b: np.ndarray, k: int) -> float:
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _view_vote(view: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np.ndarray) -> tuple[float, bool, bool]:
     """One view's margin for keeping its labels (the sum of the deciding pairs' votes in [-1, 1]), whether a pair
     decided, and whether the view holds both joints of a pair. ``anchor`` (2P, 3): left joints, then right."""
@@ -48,7 +48,7 @@ def _view_vote(view: np.ndarray, anchor: np.ndarray, left: np.ndarray, right: np
     return margin, decided, sees_pair
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _centre(view: np.ndarray, centre: np.ndarray) -> tuple[float, float, float]:
     """Mean of the four centre joints (shoulders, hips), NaN unless all four are known."""
     x = y = z = 0.0
@@ -59,7 +59,7 @@ def _centre(view: np.ndarray, centre: np.ndarray) -> tuple[float, float, float]:
     return x / 4, y / 4, z / 4
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _teleported(positions: np.ndarray, previous: np.ndarray, centre: np.ndarray, max_jump_mm: float) -> bool:
     """One body's centre lies farther than ``max_jump_mm`` from the previous one in every view that has one."""
     tx, ty, tz = _centre(previous, centre)
@@ -74,7 +74,7 @@ def _teleported(positions: np.ndarray, previous: np.ndarray, centre: np.ndarray,
     return n_known > 0 and n_far == n_known
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _faces_away(view: np.ndarray, sensor: np.ndarray, centre: np.ndarray, rear_view_cos: float) -> bool:
     """The view's skeleton, as labelled, faces away from its sensor (cosine below ``rear_view_cos``)."""
     sl, sr, hl, hr = centre[0], centre[1], centre[2], centre[3]
@@ -114,7 +114,7 @@ _SIGNATURE = (
 _OUTPUT = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def realign_temporal(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -159,16 +159,20 @@ def realign_temporal(
     P = left.shape[0]
     out_positions = positions.copy()
     out_confidence = confidence.copy()
-    mirrored = np.zeros((B, S), dtype=np.bool_)
-    counters = np.zeros((B, 4), dtype=np.int32)
-    needs_cold = np.zeros(B, dtype=np.bool_)
-    any_prev = np.zeros(B, dtype=np.bool_)
+    mirrored = np.empty((B, S), dtype=np.bool_)
+    counters = np.empty((B, 4), dtype=np.int32)
+    needs_cold = np.empty(B, dtype=np.bool_)
+    any_prev = np.empty(B, dtype=np.bool_)
     anchor = np.empty((2 * P, 3))
-    evidence = np.zeros(S)
-    margin = np.zeros(S)
-    decided = np.zeros(S, dtype=np.bool_)
-    prev_ok = np.zeros(P, dtype=np.bool_)
+    evidence = np.empty(S)
+    margin = np.empty(S)
+    decided = np.empty(S, dtype=np.bool_)
+    prev_ok = np.empty(P, dtype=np.bool_)
     for b in range(B):
+        needs_cold[b] = False
+        counters[b, 0] = counters[b, 1] = counters[b, 2] = counters[b, 3] = 0
+        for s in range(S):
+            mirrored[b, s] = False
         jumped = _teleported(positions[b], previous[b], centre, max_jump_mm)
         for p in range(2 * P):
             joint = left[p] if p < P else right[p - P]

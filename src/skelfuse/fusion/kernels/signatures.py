@@ -8,6 +8,8 @@ unless the kernel writes into them: a read-only array type accepts writable arra
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 from numba.core import types
 
@@ -16,6 +18,16 @@ INT = numba.int64
 INT32 = numba.int32
 BOOL = numba.boolean
 UINT8 = numba.uint8
+
+
+KERNEL: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True}
+"""numba's options for a kernel (a function the fusion calls): cached on disk, no fastmath, no C-pointer wrapper
+(nothing takes a kernel's address)."""
+
+HELPER: dict[str, Any] = {"nogil": True, "error_model": "numpy", "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+"""numba's options for a helper (a function only kernels call): no wrapper for a call from Python or through a C
+pointer and no cache file of its own (a kernel's cache holds the helper code linked into it); each was LLVM work
+and a disk write at a first start."""
 
 
 def array(dtype: types.Type, ndim: int, writable: bool = False) -> types.Array:

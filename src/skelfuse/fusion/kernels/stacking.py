@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, UINT8, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, KERNEL, UINT8, array
 
 _SIGNATURE = (
     array(FLOAT, 3),  # positions (N, J, 3)
@@ -29,7 +29,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(numba.boolean(*_SIGNATURE), cache=True, nogil=True, error_model="numpy")
+@numba.njit(numba.boolean(*_SIGNATURE), **KERNEL)
 def stack_to_world(
     positions: np.ndarray,
     confidence: np.ndarray,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, KERNEL, array
 
 _SIGNATURE = (
     array(FLOAT, 3),  # descriptor
@@ -27,7 +27,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def seen_motion(
     descriptor: np.ndarray,
     velocity: np.ndarray,
@@ -57,7 +57,8 @@ def seen_motion(
             continue
         dt = time_s - last_seen_s[k]
         count = 0
-        total[:] = 0.0
+        for axis in range(3):
+            total[axis] = 0.0
         for d in range(D):
             sx = measured[k, d, 0] - descriptor[k, d, 0]
             sy = measured[k, d, 1] - descriptor[k, d, 1]

@@ -14,10 +14,10 @@ import math
 import numba
 import numpy as np
 
-from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, INT, array
+from skelfuse.fusion.kernels.signatures import BOOL, FLOAT, HELPER, INT, KERNEL, array
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np.ndarray) -> float:
     """|candidate - merged|^2, mm^2 (NaN where either is missing)."""
     dx = candidates[b, s, j, 0] - merged[b, j, 0]
@@ -26,7 +26,7 @@ def _squared_distance(candidates: np.ndarray, b: int, s: int, j: int, merged: np
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(**HELPER)
 def _torso_agreement(candidates: np.ndarray, merged: np.ndarray, b: int, torso: np.ndarray, rms: np.ndarray) -> float:
     """Median over the torso joints seen by two views or more of the views' RMS distance from the merged joint
     (NaN: no such joint). ``rms`` (K,): scratch."""
@@ -71,7 +71,7 @@ _SIGNATURE = (
 )
 
 
-@numba.njit(_SIGNATURE, cache=True, nogil=True, error_model="numpy")
+@numba.njit(_SIGNATURE, **KERNEL)
 def position_uncertainty(
     candidates: np.ndarray,
     merged: np.ndarray,
@@ -104,7 +104,7 @@ def position_uncertainty(
     """
     B, S, J = candidates.shape[0], candidates.shape[1], candidates.shape[2]
     std = np.empty((B, J))
-    cov = np.zeros((B, J, 3))
+    cov = np.empty((B, J, 3))
     agreement = np.empty(B)
     rms = np.empty(torso.shape[0])
     q = accel_sigma**2
@@ -113,8 +113,8 @@ def position_uncertainty(
     for b in range(B):
         agreement[b] = _torso_agreement(candidates, merged, b, torso, rms)
         for j in range(J):
-            # The measurement variance R = v / n from the views' spread around the merged joint.
-            ss = 0.0
+            cov[b, j, 0] = cov[b, j, 1] = cov[b, j, 2] = 0.0  # none unless the filter below sets it
+            ss = 0.0  # the measurement variance R = v / n from the views' spread around the merged joint
             n_views = 0
             for s in range(S):
                 sq = _squared_distance(candidates, b, s, j, merged)
