@@ -6,6 +6,9 @@
 - Time limits (pytest-timeout): ``timeout`` in pyproject.toml for every test; live tests get
   ``LIVE_TIMEOUT_S`` unless they set their own ``@pytest.mark.timeout``. A limit bounds a hang; it is not a
   claim about speed.
+- Longest files first: with ``--dist loadfile`` a test file runs whole on one worker, so the files that take
+  longest (``LONGEST_FILES``) start first and the workers end together; the rest follow in pytest-randomly's
+  shuffled order.
 - Under ``CI=true`` a skip fails unless its reason is a missing optional extra, absent ``../shared/data`` or a
   Blender environment that cannot be built (``skelfuse setup blender``): a required or dev dependency that
   does not import is a broken install, and CI must say so.
@@ -45,6 +48,26 @@ LIVE_TIMEOUT_S = 600.0
 # Reasons a skip may give under CI=true; every such skip names one of these in its reason.
 ALLOWED_CI_SKIP = re.compile(r"optional extra|shared/data|skelfuse setup blender", re.IGNORECASE)
 
+# The test files that take longest (seconds of test time each, ``--durations=0`` summed per file on the 2-core
+# machine), longest first. Started first, they cannot be the last file a worker picks up while the other idles
+# (longest-processing-time-first scheduling; xdist's own order, by number of tests, ignores their cost).
+LONGEST_FILES = (
+    "tests/service/test_demo_web_view.py",  # 31 s
+    "tests/service/test_service_live.py",  # 18 s
+    "tests/service/test_demo_sigterm.py",  # 14 s
+    "tests/service/test_demo_attach.py",  # 14 s
+    "tests/service/test_daemon_stops.py",  # 13 s
+    "tests/unit/test_eval_paper.py",  # 12 s, the longest of the inner loop
+    "tests/service/test_worker_hang.py",  # 12 s
+    "tests/unit/test_calibrate_refine.py",  # 8 s
+    "tests/service/test_node_overload.py",  # 8 s
+    "tests/unit/test_eval_depth.py",  # 7 s
+    "tests/unit/test_calibrate_commands.py",  # 7 s
+    "tests/unit/test_calib_skeleton.py",  # 6 s
+    "tests/unit/test_realign_rear_view.py",  # 5 s
+    "tests/unit/test_inputs.py",  # 5 s
+)
+
 _running: dict[str, Any] = {"item": None, "started": []}
 
 
@@ -76,6 +99,8 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    rank = {path: i for i, path in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::", 1)[0], len(rank)))  # stable: shuffled within
     for item in items:
         if item.get_closest_marker("live") is not None and item.get_closest_marker("timeout") is None:
             item.add_marker(pytest.mark.timeout(LIVE_TIMEOUT_S))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 from pathlib import Path
 
 import pytest
@@ -71,3 +72,16 @@ def test_a_test_that_starts_a_process_must_be_marked_live(pytester: pytest.Pytes
     result.stdout.fnmatch_lines(
         ["*_ test_unmarked _*", "*AssertionError: this test starts a process but is not marked live*"]
     )
+
+
+def test_the_longest_files_listed_to_start_first_exist() -> None:
+    """A renamed or removed file in the list would silently fall back to the shuffled order."""
+    tree = ast.parse(RULES.read_text(encoding="utf-8"))
+    listed = next(
+        ast.literal_eval(node.value)
+        for node in tree.body
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "LONGEST_FILES" for t in node.targets)
+    )
+    assert len(listed) >= 10
+    missing = [path for path in listed if not (RULES.parents[1] / path).is_file()]
+    assert missing == [], f"LONGEST_FILES in tests/conftest.py names files that do not exist: {missing}"
