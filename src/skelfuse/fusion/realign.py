@@ -134,7 +134,6 @@ inputs.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -337,21 +336,6 @@ def realign_temporal(
     Runs in one compiled kernel (:mod:`skelfuse.fusion.kernels.realign`); the numpy form is the test reference
     (:mod:`skelfuse.fusion.reference.realign`).
     """
-    if sensor_positions is not None and np.ndim(sensor_positions) == 3:
-        return _realign_each_body(
-            positions,
-            confidence,
-            previous,
-            streak,
-            sensor_positions,
-            recovery_frames=recovery_frames,
-            recovery_share=recovery_share,
-            majority_recovery_frames=majority_recovery_frames,
-            max_jump_mm=max_jump_mm,
-            rear_view_cos=rear_view_cos,
-            rear_view_frames=rear_view_frames,
-            credit_frames=credit_frames,
-        )
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     B, S = positions.shape[:2]
     streak = np.asarray(streak, dtype=np.int32)
@@ -359,7 +343,9 @@ def realign_temporal(
         streak = np.concatenate([streak, np.zeros((B, N_COUNTERS - streak.shape[1]), np.int32)], axis=1)  # rear rule
     # The rear-view rule needs both; the kernel reads a NaN cosine as off.
     rear = sensor_positions is not None and rear_view_cos is not None
-    sensors = sensor_positions if sensor_positions is not None and rear else np.zeros((S, 3))
+    sensors = np.asarray(sensor_positions if rear else np.zeros((S, 3)), dtype=np.float64)
+    if sensors.shape == (S, 3):  # one rig's sensors for every body
+        sensors = np.broadcast_to(sensors, (B, S, 3))
     rear_cos = float(rear_view_cos) if rear_view_cos is not None and rear else math.nan
     arguments = (
         kernels.kernel_array(confidence, np.uint8, (B, S, N_JOINTS), "confidence"),
@@ -367,7 +353,7 @@ def realign_temporal(
     )
     options = (
         kernels.kernel_array(streak, np.int32, (B, N_COUNTERS), "streak"),
-        kernels.kernel_array(sensors, np.float64, (S, 3), "sensor_positions"),
+        kernels.kernel_array(sensors, np.float64, (B, S, 3), "sensor_positions"),
         _PAIR_LEFT,
         _PAIR_RIGHT,
         _MIRROR,
@@ -386,30 +372,6 @@ def realign_temporal(
     if out[4].any():  # a body starts cold (first frames, a new view, a teleport): its anchor, then the whole call
         out = kernel(positions, *arguments, cold_anchors(positions, arguments[0], out[5]), True, *options)
     return out[:4]
-
-
-def _realign_each_body(
-    positions: np.ndarray,
-    confidence: np.ndarray,
-    previous: np.ndarray,
-    streak: np.ndarray,
-    sensor_positions: np.ndarray,
-    **options: Any,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`realign_temporal` with (B, S, 3) sensor positions, each body's own (bodies seen by different
-    sensors, fused side by side): body by body, as each body's realignment reads only its own views."""
-    per_body = [
-        realign_temporal(
-            positions[b : b + 1],
-            confidence[b : b + 1],
-            previous[b : b + 1],
-            streak[b : b + 1],
-            sensor_positions=sensor_positions[b],
-            **options,
-        )
-        for b in range(len(sensor_positions))
-    ]
-    return tuple(np.concatenate(parts) for parts in zip(*per_body, strict=True))  # type: ignore[return-value]
 
 
 def cold_anchors(positions: np.ndarray, confidence: np.ndarray, has_prev: np.ndarray) -> np.ndarray:

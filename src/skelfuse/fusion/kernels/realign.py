@@ -95,7 +95,7 @@ _SIGNATURE = (
     array(FLOAT, 3),  # cold_anchor
     BOOL,  # use_cold_anchor
     array(INT32, 2),  # streak
-    array(FLOAT, 2),  # sensor_positions
+    array(FLOAT, 3),  # sensor_positions
     array(INT, 1),  # left
     array(INT, 1),  # right
     array(INT, 1),  # mirror
@@ -143,7 +143,7 @@ def realign_temporal(
     positions : (B, S, J, 3) float64 mm, NaN = missing; confidence : (B, S, J) uint8; previous : (B, J, 3) float64
     mm, the anchor; cold_anchor : (B, 2P, 3) float64 mm, read where ``use_cold_anchor``: the pairs of a body whose
     previous lacks them (:func:`skelfuse.fusion.realign.cold_anchors`, which needs the has_prev this returns);
-    streak : (B, 4) int32 counters; sensor_positions : (S, 3) float64 mm (read only where
+    streak : (B, 4) int32 counters; sensor_positions : (B, S, 3) float64 mm, each body's (read only where
     ``rear_view_cos`` is not NaN); left, right : (P,) int64 pair joints; mirror : (J,) int64 the left/right
     permutation; centre : (4,) int64 shoulder L, R, hip L, R; the rules' options (majority_recovery_frames -1: off;
     max_jump_mm inf: off;
@@ -210,7 +210,7 @@ def realign_temporal(
             total += evidence[s] * decided[s]
             n_decided += decided[s]
             n_flips += flip
-            if decided[s] and _faces_away(positions[b, s], sensor_positions[s], centre, rear_view_cos):
+            if decided[s] and _faces_away(positions[b, s], sensor_positions[b, s], centre, rear_view_cos):
                 rear_against += flip
                 rear_for += not flip
         views_seen = int(streak[b, 2]) if has_prev else n_views
@@ -254,7 +254,7 @@ def warm_up() -> None:
         np.zeros((1, 2, 3)),
         True,
         np.zeros((1, 4), dtype=np.int32),
-        np.zeros((1, 3)),
+        np.zeros((1, 1, 3)),
         pairs,
         pairs + 1,
         np.array([1, 0], dtype=np.int64),

@@ -178,12 +178,12 @@ def facing_cosine(positions: np.ndarray, sensor_positions: np.ndarray) -> np.nda
 
     The facing is ``left x up`` (world z up), ``left`` the sum of the hip and shoulder vectors from the right
     joint to the left one; the body's position is the mean of those four joints. NaN where one is missing.
-    ``positions`` (B, S, J, 3) world mm; ``sensor_positions`` (S, 3) world mm.
+    ``positions`` (B, S, J, 3) world mm; ``sensor_positions`` (S, 3) or each body's own (B, S, 3), world mm.
     """
     quad = positions[:, :, CENTRE_JOINTS]  # (B, S, 4, 3): shoulder L, R, hip L, R
     left = quad[:, :, 0] - quad[:, :, 1] + quad[:, :, 2] - quad[:, :, 3]  # (B, S, 3)
     # np.add.reduce / 4 is what ndarray.mean computes, without its Python-level wrapper (hot path).
-    to_sensor = np.asarray(sensor_positions, dtype=np.float64)[None] - np.add.reduce(quad, axis=2) / 4
+    to_sensor = np.asarray(sensor_positions, dtype=np.float64) - np.add.reduce(quad, axis=2) / 4  # (S|B,S, 3)
     # forward = left x z = (left_y, -left_x, 0); its dot with the horizontal direction to the sensor:
     dot = left[..., 1] * to_sensor[..., 0] - left[..., 0] * to_sensor[..., 1]
     norms = np.hypot(left[..., 0], left[..., 1]) * np.hypot(to_sensor[..., 0], to_sensor[..., 1])
